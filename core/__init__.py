@@ -1,0 +1,1 @@
+"""The loop, experts, reports and learners. Knows nothing of ``sims`` or ``app``."""

@@ -1,0 +1,346 @@
+"""The one step loop behind every face of the product.
+
+    s_t -> policy -> a_rl -> gate (fear F_t vs threshold tau_t, held k steps) -> takeover?
+        yes: a = expert(s_t)      no: a = a_rl
+    env.step(a) -> s_{t+1}, r_t, c_t -> gate.observe -> curiosity C_{t+1} -> StepRecord -> listeners
+
+Headless training and evaluation run :meth:`Runner.step` as fast as they can with a scripted expert;
+the live server runs the very same method at wall-clock rate with a person (or a fallback) as the
+expert. Listeners (replay buffers, learners, the session store, the websocket stream) receive every
+:class:`StepRecord` and every :class:`EpisodeSummary`; nothing about the step differs between faces.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+from core.protocol import simulator
+
+log = logging.getLogger(__name__)
+
+Actor = Literal["agent", "expert", "person", "fallback"]
+"""Who produced the executed action: the learned policy, a scripted expert, a person at the
+dashboard, or the scripted expert standing in for a person who did not answer in time."""
+
+
+class Policy(Protocol):
+    """Maps an observation to an action in the env's action space."""
+
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class GateDecision:
+    fear: float
+    """Short-horizon fear F_t^m (NaN when the gate computes none)."""
+    threshold: float
+    """Curiosity-modulated threshold tau_t (NaN when the gate computes none)."""
+    fired: bool
+    """True when the gate asks for the expert: F_t > tau_t now, or still holding a recent firing."""
+
+
+class Gate(Protocol):
+    """Decides when the agent is out of its depth. ``core.sage`` implements the SAGE gate."""
+
+    def reset(self) -> None:
+        """Start of an episode: clear the hold counter (curiosity statistics may persist)."""
+        ...
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision: ...
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        """After the env step: update curiosity statistics and return C_{t+1}."""
+        ...
+
+
+class Expert(Protocol):
+    """Who acts when the gate fires: a scripted controller, a trained policy, or a person."""
+
+    def reset(self) -> None: ...
+
+    def wants_control(self) -> bool:
+        """True while the expert takes control on its own (a person holding the takeover key)."""
+        ...
+
+    def act(self, env: gym.Env[Any, Any], obs: np.ndarray) -> tuple[np.ndarray, Actor]:
+        """The expert's action for the current state and who actually produced it."""
+        ...
+
+
+class NoGate:
+    """Plain RL: never asks for help, computes no fear or curiosity."""
+
+    def reset(self) -> None:
+        pass
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
+        return GateDecision(math.nan, math.nan, False)
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        return math.nan
+
+
+@dataclass
+class StepRecord:
+    """Everything one step produced; the unit that is streamed, stored and learned from."""
+
+    episode: int
+    t: int
+    obs: np.ndarray
+    a_rl: np.ndarray
+    a_expert: np.ndarray | None
+    action: np.ndarray
+    takeover: bool
+    gate_fired: bool
+    actor: Actor
+    fear: float
+    threshold: float
+    curiosity: float
+    reward: float
+    cost: float
+    violation: bool
+    terminated: bool
+    truncated: bool
+    next_obs: np.ndarray
+    wall_time: float
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def done(self) -> bool:
+        return self.terminated or self.truncated
+
+    def to_message(self) -> dict[str, Any]:
+        """A small JSON-ready dict (no observations) for streaming to a page."""
+
+        def num(x: float) -> float | None:
+            return None if x is None or not math.isfinite(x) else float(x)
+
+        return {
+            "episode": self.episode,
+            "t": self.t,
+            "fear": num(self.fear),
+            "threshold": num(self.threshold),
+            "curiosity": num(self.curiosity),
+            "takeover": self.takeover,
+            "gate_fired": self.gate_fired,
+            "actor": self.actor,
+            "a_rl": np.asarray(self.a_rl, dtype=float).reshape(-1).tolist(),
+            "a_expert": None if self.a_expert is None else np.asarray(self.a_expert, dtype=float).reshape(-1).tolist(),
+            "action": np.asarray(self.action, dtype=float).reshape(-1).tolist(),
+            "reward": num(self.reward),
+            "cost": num(self.cost),
+            "violation": self.violation,
+            "done": self.done,
+            "wall_time": self.wall_time,
+        }
+
+
+@dataclass
+class EpisodeSummary:
+    episode: int
+    steps: int
+    ret: float
+    cost: float
+    takeovers: int
+    """Number of steps under expert control."""
+    takeover_events: int
+    """Number of distinct takeover segments."""
+    mean_fear: float
+    mean_curiosity: float
+    metrics: dict[str, float]
+    """The simulator's own episode metrics (success, collision, speed, ...)."""
+    error: str | None = None
+    """Set when the episode ended because the simulator raised."""
+
+    @property
+    def takeover_rate(self) -> float:
+        return self.takeovers / max(self.steps, 1)
+
+    def as_row(self) -> dict[str, Any]:
+        row: dict[str, Any] = {
+            "episode": self.episode,
+            "steps": self.steps,
+            "return": self.ret,
+            "cost": self.cost,
+            "takeovers": self.takeovers,
+            "takeover_events": self.takeover_events,
+            "takeover_rate": self.takeover_rate,
+            "mean_fear": self.mean_fear,
+            "mean_curiosity": self.mean_curiosity,
+        }
+        row.update(self.metrics)
+        if self.error:
+            row["error"] = self.error
+        return row
+
+
+StepListener = Callable[[StepRecord], None]
+EpisodeListener = Callable[[EpisodeSummary], None]
+
+
+class Runner:
+    """Owns an env, a policy, a gate and an expert, and steps them as one loop.
+
+    ``step()`` never raises because of the simulator: an exception inside ``env.step`` ends the
+    episode with ``EpisodeSummary.error`` set, and the next call starts a new episode.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env[Any, Any],
+        policy: Policy,
+        gate: Gate | None = None,
+        expert: Expert | None = None,
+        *,
+        seed: int = 0,
+        deterministic: bool = False,
+    ) -> None:
+        simulator(env)  # fail early and clearly if the env is not one of ours
+        self.env = env
+        self.policy = policy
+        self.gate: Gate = gate or NoGate()
+        self.expert = expert
+        self.seed = seed
+        self.deterministic = deterministic
+        self.step_listeners: list[StepListener] = []
+        self.episode_listeners: list[EpisodeListener] = []
+        self.episode = -1
+        self.t = 0
+        self.obs: np.ndarray | None = None
+        self._pending_policy: Policy | None = None
+        self._acc: dict[str, Any] = {}
+
+    # -- configuration -------------------------------------------------------------------------
+    def set_policy_at_boundary(self, policy: Policy) -> None:
+        """Swap the policy when the next episode starts (never mid-episode)."""
+        self._pending_policy = policy
+
+    def set_expert(self, expert: Expert | None) -> None:
+        self.expert = expert
+
+    # -- the loop ------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None) -> np.ndarray:
+        if self._pending_policy is not None:
+            self.policy, self._pending_policy = self._pending_policy, None
+        self.episode += 1
+        self.t = 0
+        episode_seed = self.seed + self.episode if seed is None else seed
+        self.obs, _ = self.env.reset(seed=episode_seed)
+        self.gate.reset()
+        if self.expert is not None:
+            self.expert.reset()
+        self._acc = {"ret": 0.0, "cost": 0.0, "takeovers": 0, "events": 0, "fear": [], "curiosity": [], "prev": False}
+        return self.obs
+
+    def step(self) -> StepRecord | None:
+        """One step of the loop. Returns None when the simulator failed (the episode was ended)."""
+        if self.obs is None:
+            self.reset()
+        obs = self.obs
+        assert obs is not None
+        a_rl = np.asarray(self.policy.act(obs, deterministic=self.deterministic))
+        decision = self.gate.decide(obs, a_rl)
+        expert = self.expert
+        takeover = expert is not None and (decision.fired or expert.wants_control())
+        a_expert: np.ndarray | None = None
+        actor: Actor = "agent"
+        action = a_rl
+        try:
+            if takeover:
+                assert expert is not None
+                a_expert, actor = expert.act(self.env, obs)
+                a_expert = np.asarray(a_expert)
+                action = a_expert
+            next_obs, reward, terminated, truncated, info = self.env.step(action)
+        except Exception as exc:  # a crashed simulator ends the episode, never the loop
+            self._end_episode(error=f"{type(exc).__name__}: {exc}")
+            log.warning("simulator error in episode %d: %s", self.episode, traceback.format_exc())
+            return None
+        curiosity = float(self.gate.observe(obs, action, next_obs))
+        record = StepRecord(
+            episode=self.episode,
+            t=self.t,
+            obs=obs,
+            a_rl=a_rl,
+            a_expert=a_expert,
+            action=np.asarray(action),
+            takeover=takeover,
+            gate_fired=decision.fired,
+            actor=actor,
+            fear=decision.fear,
+            threshold=decision.threshold,
+            curiosity=curiosity,
+            reward=float(reward),
+            cost=float(info.get("cost", 0.0)),
+            violation=bool(info.get("violation", False)),
+            terminated=bool(terminated),
+            truncated=bool(truncated),
+            next_obs=next_obs,
+            wall_time=time.time(),
+            info=info,
+        )
+        acc = self._acc
+        acc["ret"] += record.reward
+        acc["cost"] += record.cost
+        acc["takeovers"] += int(takeover)
+        acc["events"] += int(takeover and not acc["prev"])
+        acc["prev"] = takeover
+        if math.isfinite(record.fear):
+            acc["fear"].append(record.fear)
+        if math.isfinite(curiosity):
+            acc["curiosity"].append(curiosity)
+        self.t += 1
+        self.obs = next_obs
+        for listener in self.step_listeners:
+            listener(record)
+        if record.done:
+            self._end_episode()
+        return record
+
+    def run_episode(self, max_steps: int | None = None) -> EpisodeSummary:
+        """Run one whole episode and return its summary."""
+        summaries: list[EpisodeSummary] = []
+        self.episode_listeners.append(summaries.append)
+        try:
+            self.reset()
+            steps = 0
+            while not summaries:
+                self.step()
+                steps += 1
+                if max_steps is not None and steps >= max_steps and not summaries:
+                    self._end_episode()
+        finally:
+            self.episode_listeners.remove(summaries.append)
+        return summaries[0]
+
+    def _end_episode(self, error: str | None = None) -> None:
+        acc = self._acc
+        try:
+            metrics = dict(simulator(self.env).metrics())
+        except Exception as exc:
+            metrics = {}
+            error = error or f"metrics failed: {exc}"
+        summary = EpisodeSummary(
+            episode=self.episode,
+            steps=self.t,
+            ret=acc.get("ret", 0.0),
+            cost=acc.get("cost", 0.0),
+            takeovers=acc.get("takeovers", 0),
+            takeover_events=acc.get("events", 0),
+            mean_fear=float(np.mean(acc["fear"])) if acc.get("fear") else math.nan,
+            mean_curiosity=float(np.mean(acc["curiosity"])) if acc.get("curiosity") else math.nan,
+            metrics=metrics,
+            error=error,
+        )
+        self.obs = None  # the next step() starts a new episode
+        for listener in self.episode_listeners:
+            listener(summary)

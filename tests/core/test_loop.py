@@ -1,0 +1,127 @@
+"""The one step loop: who acts, what is recorded, and that a crashing simulator never stops it."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from core.experts import ScriptedExpert
+from core.loop import GateDecision, Runner, StepRecord
+
+
+class LineEnv(gym.Env[np.ndarray, np.ndarray]):
+    """A point on a line moving by its action; the expert always pushes +1; cost when x > 3."""
+
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def __init__(self, horizon: int = 10, crash_at: int | None = None) -> None:
+        self.horizon, self.crash_at = horizon, crash_at
+        self.x, self.t = 0.0, 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        self.x, self.t = 0.0, 0
+        return np.array([self.x], np.float32), {}
+
+    def step(self, action: np.ndarray):
+        self.t += 1
+        if self.crash_at is not None and self.t == self.crash_at:
+            raise RuntimeError("simulator crashed")
+        self.x += float(np.asarray(action).reshape(-1)[0])
+        cost = float(self.x > 3)
+        return np.array([self.x], np.float32), 1.0, False, self.t >= self.horizon, {"cost": cost, "violation": False}
+
+    def expert_action(self) -> np.ndarray:
+        return np.array([1.0], np.float32)
+
+    def scene(self) -> dict[str, Any]:
+        return {"sim": "line"}
+
+    def metrics(self) -> dict[str, float]:
+        return {"x": self.x}
+
+
+class Still:
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        return np.array([0.0], np.float32)
+
+
+class FiresAtStep:
+    """Fires exactly at the given steps (no hold), so the loop's own logic is what is tested."""
+
+    def __init__(self, steps: set[int]) -> None:
+        self.steps, self.t = steps, 0
+
+    def reset(self) -> None:
+        self.t = 0
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
+        fired = self.t in self.steps
+        self.t += 1
+        return GateDecision(fear=1.0 if fired else 0.0, threshold=0.5, fired=fired)
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        return 0.25
+
+
+def test_gate_hands_control_to_expert_and_both_actions_are_recorded() -> None:
+    runner = Runner(LineEnv(), Still(), FiresAtStep({2, 3}), ScriptedExpert())
+    records: list[StepRecord] = []
+    runner.step_listeners.append(records.append)
+    summary = runner.run_episode()
+    assert [r.takeover for r in records] == [False, False, True, True] + [False] * 6
+    assert [r.actor for r in records[:4]] == ["agent", "agent", "expert", "expert"]
+    assert records[2].a_expert is not None and records[2].a_rl[0] == 0.0 and records[2].action[0] == 1.0
+    assert records[0].a_expert is None
+    assert summary.takeovers == 2 and summary.takeover_events == 1 and summary.steps == 10
+    assert summary.metrics == {"x": 2.0}
+    assert summary.mean_curiosity == pytest.approx(0.25)
+
+
+def test_without_expert_the_gate_cannot_take_over() -> None:
+    runner = Runner(LineEnv(), Still(), FiresAtStep({0, 1, 2}), expert=None)
+    summary = runner.run_episode()
+    assert summary.takeovers == 0 and summary.metrics["x"] == 0.0
+
+
+def test_simulator_crash_ends_episode_with_error_and_loop_goes_on() -> None:
+    runner = Runner(LineEnv(crash_at=3), Still())
+    summary = runner.run_episode()
+    assert summary.error is not None and "simulator crashed" in summary.error
+    assert summary.steps == 2
+    runner.env.unwrapped.crash_at = None  # the next episode runs normally
+    assert runner.run_episode().error is None
+
+
+def test_policy_swap_waits_for_episode_boundary() -> None:
+    class Push:
+        def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+            return np.array([0.5], np.float32)
+
+    runner = Runner(LineEnv(horizon=4), Still())
+    runner.reset()
+    runner.step()
+    runner.set_policy_at_boundary(Push())
+    while (rec := runner.step()) is not None and not rec.done:
+        pass
+    assert runner.env.unwrapped.x == 0.0  # the old policy finished its episode
+    assert runner.run_episode().metrics["x"] == pytest.approx(2.0)
+
+
+def test_message_is_json_ready_with_nan_as_none() -> None:
+    runner = Runner(LineEnv(), Still())
+    runner.reset()
+    record = runner.step()
+    assert record is not None
+    message = record.to_message()
+    assert message["fear"] is None and message["action"] == [0.0] and not math.isnan(message["reward"])
+
+
+def test_env_without_protocol_is_refused_clearly() -> None:
+    with pytest.raises(TypeError, match="expert_action"):
+        Runner(gym.make("CartPole-v1"), Still())
