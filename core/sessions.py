@@ -94,6 +94,7 @@ STEP_COLUMNS = (
     "episode, t, wall_time, actor, takeover, segment, gate_fired, fear, threshold, curiosity, reward, cost, "
     "violation, terminated, truncated, a_rl, a_expert, action, obs, next_obs, scene"
 )
+_NEW_EPISODE = "INSERT OR IGNORE INTO episodes (episode, started) VALUES (?, ?)"
 _SESSION_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 
 
