@@ -1,0 +1,136 @@
+"""Every default of the UGV simulation in one place: robot, control, lidar, reward, cost, expert.
+
+Values follow the paper's field tests where it gives them (270° lidar in 54 sectors normalised by
+10 m, 10 Hz control, the reward and cost weights); the rest describe a small indoor robot.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Literal
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    length: float = 0.5
+    """Footprint along the heading (m)."""
+    width: float = 0.4
+    """Footprint across the heading (m)."""
+    v_max: float = 0.6
+    """Top linear speed (m/s); the robot does not reverse, so v is in [0, v_max]."""
+    w_max: float = 1.0
+    """Top yaw rate (rad/s); w is in [-w_max, w_max]."""
+
+    @property
+    def circumradius(self) -> float:
+        """Radius of the circle around the footprint (what a corner sweeps when turning in place)."""
+        return math.hypot(self.length / 2, self.width / 2)
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    fov_deg: float = 270.0
+    """Field of view, centred on the heading."""
+    sectors: int = 54
+    """Sectors of the observation; each holds the nearest range of its rays."""
+    rays_per_sector: int = 2
+    """Rays cast per sector (2 keeps a 0.4 m obstacle visible out to 9 m)."""
+    max_range: float = 10.0
+    """Ranges are clipped to this and divided by it in the observation."""
+    backend: Literal["numpy", "pymunk"] = "numpy"
+    """``numpy``: vectorised ray casting (fast); ``pymunk``: one ``segment_query_first`` per ray (reference)."""
+
+    @property
+    def n_rays(self) -> int:
+        return self.sectors * self.rays_per_sector
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """r = 10 (d_{t-1} - d_t) + 0.5 v - 0.5 |w| - 0.2 |w - w_{t-1}| - 100 collision + 100 goal."""
+
+    progress: float = 10.0
+    speed: float = 0.5
+    yaw_rate: float = 0.5
+    yaw_rate_change: float = 0.2
+    collision: float = 100.0
+    goal: float = 100.0
+
+
+@dataclass(frozen=True)
+class CostConfig:
+    """c = min(1, max(0, (safe_range - m) / band)), m the minimum range in the front cone (m)."""
+
+    safe_range: float = 1.0
+    band: float = 0.5
+    front_fov_deg: float = 90.0
+    """Width of the front cone whose minimum range enters the cost (the paper's "front laser")."""
+
+
+@dataclass(frozen=True)
+class ExpertConfig:
+    """The scripted expert: a grid planner over static obstacles, pure pursuit, yielding to movers."""
+
+    grid_resolution: float = 0.1
+    """Cell size of the planning grid (m)."""
+    inflation: float = 0.3
+    """Cells closer than this to a static obstacle are not traversable (m)."""
+    preferred_clearance: float = 0.8
+    """Clearance below which a cell costs extra, so paths keep to the middle of passages (m)."""
+    clearance_weight: float = 3.0
+    """Extra cost factor of a cell touching an obstacle's inflation."""
+    lookahead: float = 0.5
+    """Pure-pursuit lookahead distance (m)."""
+    turn_in_place_deg: float = 60.0
+    """Above this heading error to the lookahead point the robot turns on the spot."""
+    replan_distance: float = 0.35
+    """Re-extract the path when the robot is farther than this from it (m)."""
+    speed_caps: tuple[float, ...] = (0.6, 0.45, 0.3, 0.15, 0.0)
+    """Candidate speed limits tried against the movers' future, fastest first (m/s)."""
+    go_horizon: float = 8.0
+    """A speed cap is taken only if driving on along the path at it stays clear of movers this long (s)."""
+    stop_horizon: float = 10.0
+    """Failing that, the robot moves at most one step, to where standing still stays clear this long (s)."""
+    mover_margin: float = 0.12
+    """Extra gap kept to movers beyond the touching distance of the two bounding circles (m)."""
+
+
+@dataclass(frozen=True)
+class UGVConfig:
+    """Configuration of :class:`sims.ugv.env.UGVEnv`. Scenario files hold the layout, this the robot."""
+
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    cost: CostConfig = field(default_factory=CostConfig)
+    expert: ExpertConfig = field(default_factory=ExpertConfig)
+    control_hz: float = 10.0
+    """Rate of actions (the paper's 10 Hz)."""
+    physics_substeps: int = 6
+    """pymunk steps per action; collisions are detected at each."""
+    goal_distance_max: float = 10.0
+    """D_max of the normalised goal distance min(d / D_max, 1) (m)."""
+    time_limit: float = 60.0
+    """Episode length before truncation (s), unless the scenario file sets its own."""
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.control_hz
+
+    def updated(self, overrides: dict[str, Any]) -> UGVConfig:
+        """A copy with dotted overrides applied, e.g. ``{"lidar.backend": "pymunk", "time_limit": 30}``."""
+        config: Any = self
+        for key, value in overrides.items():
+            config = _replace_dotted(config, key.split("."), value)
+        return config
+
+
+def _replace_dotted(obj: Any, path: list[str], value: Any) -> Any:
+    names = {f.name for f in fields(obj)}
+    head = path[0]
+    if head not in names:
+        raise ValueError(f"unknown UGV config field {head!r}; known: {', '.join(sorted(names))}")
+    if len(path) == 1:
+        return replace(obj, **{head: value})
+    return replace(obj, **{head: _replace_dotted(getattr(obj, head), path[1:], value)})

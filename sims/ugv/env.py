@@ -1,0 +1,306 @@
+"""``sage/UGV-v0``: a differential-drive robot among static and moving obstacles (the paper's field tests).
+
+Action: ``a`` in [-1, 1]^2, mapped to v = (a0 + 1) / 2 * v_max in [0, 0.6] m/s and w = a1 * w_max
+in [-1, 1] rad/s, held for one 10 Hz control period.
+
+Observation (58 float32): 54 lidar sectors over the front 270° (nearest range, clipped and divided
+by 10 m, rightmost sector first), min(d / D_max, 1), heading error to the goal / pi, and the previous
+command (v / v_max, w / w_max).
+
+Reward: 10 (d_{t-1} - d_t) + 0.5 v - 0.5 |w| - 0.2 |w - w_{t-1}|, -100 on collision, +100 at the goal.
+Cost: min(1, max(0, (1 - m) / 0.5)), m the minimum range (m) in the front cone.
+The episode terminates on collision or at the goal and truncates at the scenario's time limit.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from core.scene import Box, Circle, Rays, Scene, Shape
+from sims.ugv.config import UGVConfig
+from sims.ugv.expert import UGVExpert
+from sims.ugv.lidar import ray_angles
+from sims.ugv.metrics import episode_metrics
+from sims.ugv.scenario import (
+    Layout,
+    Scenario,
+    ScenarioError,
+    load_scenario,
+    sample_obstacles_and_movers,
+    sample_start_goal,
+    wall_segments,
+)
+from sims.ugv.world import World, WorldLidar
+
+OBS_SIZE = 58
+MAX_PLACEMENT_TRIES = 100
+"""Draws of the start (and, failing that, the whole layout) before a scenario is declared unplayable."""
+
+COLORS = {
+    "wall": "#4a4f57",
+    "box": "#8a8f98",
+    "circle": "#8a8f98",
+    "mover": "#e0812b",
+    "ego": "#2b7de0",
+    "goal": "#2bb673",
+}
+
+
+def wrap_angle(angle: float) -> float:
+    """Angle in [-pi, pi)."""
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
+    """The UGV navigation env. ``scenario``: 1..4 (the paper's four field tests) or a YAML file path.
+
+    Keyword overrides change the :class:`~sims.ugv.config.UGVConfig` with dotted names, e.g.
+    ``UGVEnv(3, **{"lidar.backend": "pymunk"})`` or ``gym.make("sage/UGV-v0", scenario=2, time_limit=30)``.
+    """
+
+    metadata = {"render_modes": [], "render_fps": 10}  # noqa: RUF012 (gymnasium's convention)
+
+    def __init__(
+        self,
+        scenario: int | str | Path | Scenario = 1,
+        config: UGVConfig | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError("UGVEnv does not draw; use scene() and draw it in the app")
+        self.config = (config or UGVConfig()).updated(overrides)
+        if self.config.lidar.backend not in ("numpy", "pymunk"):
+            raise ValueError(f"unknown lidar backend {self.config.lidar.backend!r}; choose numpy or pymunk")
+        if self.config.lidar.sectors != 54 or self.config.lidar.fov_deg <= 0:
+            raise ValueError("the observation has 54 lidar sectors (the paper's); lidar.sectors must stay 54")
+        self.scenario = load_scenario(scenario)
+        self.render_mode = render_mode
+        sectors = self.config.lidar.sectors
+        low = np.concatenate([np.zeros(sectors), [0.0, -1.0, 0.0, -1.0]]).astype(np.float32)
+        high = np.ones(OBS_SIZE, np.float32)
+        self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+
+        lidar = self.config.lidar
+        angles = self._ray_angles = ray_angles(lidar)
+        self._rel_dirs = np.stack([np.cos(angles), np.sin(angles)])
+        half_front = math.radians(self.config.cost.front_fov_deg) / 2
+        self._front = np.flatnonzero(np.abs(angles) <= half_front + 1e-9)
+        self._floor = 1.0 / lidar.max_range
+        self.expert = UGVExpert(self)
+        self.world: World | None = None
+        self.layout: Layout | None = None
+        self._episode = -1
+
+    # -- gymnasium -----------------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        self.world, self.layout = self._build_world()
+        self._episode += 1
+        cfg = self.config
+        self.lidar = WorldLidar(self.world)
+        limit = self.layout.time_limit or cfg.time_limit
+        self.max_steps = max(1, round(limit * cfg.control_hz))
+        x, y, yaw = self.world.pose
+        gx, gy, _ = self.layout.goal
+        self._d_goal = math.hypot(gx - x, gy - y)
+        self._prev_v = 0.0
+        self._prev_w = 0.0
+        self._xs, self._ys = [x], [y]
+        self._success = self._collision = self._timeout = False
+        self._done = False
+        self._scan(x, y, yaw)
+        self._static_scene: list[Shape] | None = None
+        self.expert.reset()
+        return self._observation(x, y, yaw), self._info(cost=self._cost())
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        world = self.world
+        if world is None:
+            raise RuntimeError("call reset() before step()")
+        a = np.asarray(action, dtype=float).reshape(-1)
+        if a.shape != (2,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}")
+        robot = self.config.robot
+        a0 = min(max(float(a[0]), -1.0), 1.0)
+        a1 = min(max(float(a[1]), -1.0), 1.0)
+        v = (a0 + 1.0) * 0.5 * robot.v_max
+        w = a1 * robot.w_max
+
+        x, y, yaw = world.step(v, w)
+        self._scan(x, y, yaw)
+        gx, gy, goal_radius = self.layout.goal  # type: ignore[union-attr]
+        d_goal = math.hypot(gx - x, gy - y)
+        collision = world.collided
+        success = not collision and d_goal <= goal_radius
+        timeout = not (collision or success) and world.k >= self.max_steps
+
+        rw = self.config.reward
+        reward = rw.progress * (self._d_goal - d_goal) + rw.speed * v
+        reward -= rw.yaw_rate * abs(w) + rw.yaw_rate_change * abs(w - self._prev_w)
+        if collision:
+            reward -= rw.collision
+        elif success:
+            reward += rw.goal
+        cost = self._cost()
+
+        self._d_goal = d_goal
+        self._prev_v, self._prev_w = v, w
+        self._xs.append(x)
+        self._ys.append(y)
+        self._collision, self._success, self._timeout = collision, success, timeout
+        self._done = collision or success or timeout
+        obs = self._observation(x, y, yaw)
+        return obs, reward, collision or success, timeout, self._info(cost)
+
+    # -- observation, cost -----------------------------------------------------------------------
+    def _scan(self, x: float, y: float, yaw: float) -> None:
+        world = self.world
+        assert world is not None
+        self._inverse = self.lidar.cast(x, y, yaw)
+        self._pose = (x, y, yaw)
+
+    def _cost(self) -> float:
+        cost = self.config.cost
+        m = 1.0 / float(self._inverse[self._front].max())
+        return min(1.0, max(0.0, (cost.safe_range - m) / cost.band))
+
+    def min_front_range(self) -> float:
+        """Nearest lidar range in the cost's front cone (m)."""
+        return 1.0 / float(self._inverse[self._front].max())
+
+    def _observation(self, x: float, y: float, yaw: float) -> np.ndarray:
+        cfg = self.config
+        obs = np.empty(OBS_SIZE, np.float32)
+        sectors = cfg.lidar.sectors
+        nearest = self._inverse.reshape(-1, sectors).max(axis=0)
+        np.divide(self._floor, nearest, out=obs[:sectors])  # range / max_range, in [0, 1]
+        gx, gy, _ = self.layout.goal  # type: ignore[union-attr]
+        bearing = math.atan2(gy - y, gx - x)
+        obs[sectors] = min(self._d_goal / cfg.goal_distance_max, 1.0)
+        obs[sectors + 1] = wrap_angle(bearing - yaw) / math.pi
+        obs[sectors + 2] = self._prev_v / cfg.robot.v_max
+        obs[sectors + 3] = self._prev_w / cfg.robot.w_max
+        return obs
+
+    def _info(self, cost: float) -> dict[str, Any]:
+        return {
+            "cost": cost,
+            "violation": self._collision,
+            "collision": self._collision,
+            "success": self._success,
+            "timeout": self._timeout,
+            "d_goal": self._d_goal,
+        }
+
+    # -- episode set-up --------------------------------------------------------------------------
+    def _build_world(self) -> tuple[World, Layout]:
+        """Draw a layout whose start pose is free and whose goal is reachable, from the seeded generator."""
+        scenario, rng, cfg = self.scenario, self.np_random, self.config
+        table_steps = round((scenario.time_limit or cfg.time_limit) * cfg.control_hz) + round(
+            cfg.expert.stop_horizon * cfg.control_hz
+        )
+        walls = wall_segments(scenario)
+        goal_clearance = cfg.robot.width / 2
+        for _layout_try in range(MAX_PLACEMENT_TRIES):
+            boxes, circles, movers = sample_obstacles_and_movers(scenario, rng)
+            for _start_try in range(10):
+                start, goal = sample_start_goal(scenario, rng)
+                layout = Layout(
+                    scenario.name, scenario.bounds, walls, boxes, circles, movers, start, goal, scenario.time_limit
+                )
+                world = World(cfg, layout, table_steps)
+                if not world.robot_overlaps() and world.clearance_at(goal[0], goal[1], goal_clearance):
+                    return world, layout
+        raise ScenarioError(
+            f"scenario {scenario.name!r}: no free start pose and goal found in {MAX_PLACEMENT_TRIES * 10} draws; "
+            "check that the start and goal regions are not covered by obstacles"
+        )
+
+    # -- the simulator protocol ------------------------------------------------------------------
+    def expert_action(self) -> np.ndarray:
+        """The scripted expert's normalised action (privileged: it knows the movers' scripted paths)."""
+        return self.expert.act()
+
+    def metrics(self) -> dict[str, float]:
+        """The paper's table row for the current (or just finished) episode; see :mod:`sims.ugv.metrics`."""
+        xy = np.column_stack([self._xs, self._ys])
+        return episode_metrics(
+            xy, self.config.dt, success=self._success, collision=self._collision, timeout=self._timeout
+        )
+
+    def scene(self) -> Scene:
+        """Plain data for drawing (see :mod:`core.scene`); static shapes are built once per episode."""
+        world, layout = self.world, self.layout
+        if world is None or layout is None:
+            raise RuntimeError("call reset() before scene()")
+        if self._static_scene is None:
+            self._static_scene = self._build_static_scene()
+        robot = self.config.robot
+        x, y, yaw = self._pose
+        k = world.k
+        movers: list[Shape] = []
+        if layout.movers:
+            world.ensure_table(k)
+            for i, mover in enumerate(layout.movers):
+                mx, my, myaw = (float(v) for v in world.mover_poses[i, k])
+                if mover.kind == "box":
+                    movers.append(
+                        Box(
+                            kind="box",
+                            x=mx,
+                            y=my,
+                            yaw=myaw,
+                            length=mover.length,
+                            width=mover.width,
+                            color=COLORS["mover"],
+                        )
+                    )
+                else:
+                    movers.append(Circle(kind="circle", x=mx, y=my, radius=mover.radius, color=COLORS["mover"]))
+        ranges = 1.0 / self._inverse.astype(float)
+        c, s = math.cos(yaw), math.sin(yaw)
+        dx = c * self._rel_dirs[0] - s * self._rel_dirs[1]
+        dy = s * self._rel_dirs[0] + c * self._rel_dirs[1]
+        ends = np.column_stack([x + ranges * dx, y + ranges * dy])
+        gx, gy, gr = layout.goal
+        return Scene(
+            sim="ugv",
+            bounds=[float(b) for b in layout.bounds],
+            static_key=f"{layout.name}:{self._episode}",
+            static=self._static_scene,
+            movers=movers,
+            ego=Box(kind="box", x=x, y=y, yaw=yaw, length=robot.length, width=robot.width, color=COLORS["ego"]),
+            goal=Circle(kind="circle", x=gx, y=gy, radius=gr, color=COLORS["goal"]),
+            rays=Rays(origin=[x, y], ends=ends.tolist(), hit=(ranges < self.config.lidar.max_range - 1e-6).tolist()),
+            labels={
+                "scenario": layout.name,
+                "t": f"{world.time:.1f} s",
+                "cost": f"{self._cost():.2f}",
+            },
+        )
+
+    def _build_static_scene(self) -> list[Shape]:
+        layout = self.layout
+        assert layout is not None
+        shapes: list[Shape] = []
+        for a, b in layout.walls:
+            shapes.append({"kind": "polyline", "points": [list(a), list(b)], "width": 0.05, "color": COLORS["wall"]})
+        for box in layout.boxes:
+            shape = Box(
+                kind="box", x=box.x, y=box.y, yaw=box.yaw, length=box.length, width=box.width, color=COLORS["box"]
+            )
+            if box.label:
+                shape["label"] = box.label
+            shapes.append(shape)
+        for circle in layout.circles:
+            shapes.append(Circle(kind="circle", x=circle.x, y=circle.y, radius=circle.radius, color=COLORS["circle"]))
+        return shapes

@@ -1,0 +1,368 @@
+"""The scripted UGV expert: a grid planner around static obstacles, pure pursuit, and yielding to movers.
+
+Privileged: it reads the static layout and the movers' scripted future poses from the world.
+
+1. Planning (once per episode, and again when the robot has left the path): a clearance grid of
+   the static obstacles, a navigation function (cost-to-goal over 8-connected cells, cells near
+   obstacles cost more so paths keep to the middle of passages) computed by vectorised relaxation,
+   a descent from the robot's cell, and shortcutting that never lowers the path's clearance.
+2. Tracking: pure pursuit on the path, speed limited so the yaw rate stays within bounds; a large
+   heading error is first turned away on the spot.
+3. Yielding: for each speed cap, fastest first, the robot's progress along the path at that speed
+   is predicted for ``go_horizon`` seconds; the cap is taken if the robot keeps clear of every mover
+   (bounding circles plus a margin) the whole time. If no cap is, it moves at most one step, to where
+   standing still stays clear for ``stop_horizon`` seconds (it stops abruptly, as the paper's expert
+   does); failing even that, it takes the cap that delays contact longest.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sims.ugv.config import UGVConfig
+from sims.ugv.scenario import Layout
+
+if TYPE_CHECKING:
+    from sims.ugv.env import UGVEnv
+
+SQRT2 = math.sqrt(2.0)
+NEIGHBOURS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
+PATH_SPACING = 0.05
+"""Spacing of the resampled path that pure pursuit follows (m)."""
+
+
+def wrap(angle: float) -> float:
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+def point_segment_distances(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """(P, K) distances from points (P, 2) to segments (K, 4) rows ax, ay, bx, by."""
+    a = segments[:, 0:2]
+    e = segments[:, 2:4] - a
+    length2 = np.maximum((e * e).sum(axis=1), 1e-12)
+    ap = points[:, None, :] - a[None, :, :]
+    t = np.clip((ap * e[None]).sum(axis=2) / length2, 0.0, 1.0)
+    closest = a[None] + t[..., None] * e[None]
+    diff = points[:, None, :] - closest
+    return np.sqrt((diff * diff).sum(axis=2))
+
+
+def static_clearance(points: np.ndarray, layout: Layout) -> np.ndarray:
+    """Distance (m) from each point to the nearest wall, box or round obstacle; 0 inside one."""
+    segments = [np.array([(*a, *b) for a, b in layout.walls]).reshape(-1, 4)]
+    inside = np.zeros(len(points), dtype=bool)
+    for box in layout.boxes:
+        c, s = math.cos(box.yaw), math.sin(box.yaw)
+        hl, hw = box.length / 2, box.width / 2
+        corners = np.array(
+            [
+                (box.x + c * px - s * py, box.y + s * px + c * py)
+                for px, py in ((hl, hw), (hl, -hw), (-hl, -hw), (-hl, hw))
+            ]
+        )
+        segments.append(np.hstack([corners, np.roll(corners, -1, axis=0)]))
+        rel = points - (box.x, box.y)
+        along = rel[:, 0] * c + rel[:, 1] * s
+        across = -rel[:, 0] * s + rel[:, 1] * c
+        inside |= (np.abs(along) <= hl) & (np.abs(across) <= hw)
+    all_segments = np.vstack(segments)
+    clearance = np.full(len(points), np.inf)
+    for chunk in range(0, len(points), 2048):  # bounded memory
+        part = points[chunk : chunk + 2048]
+        if len(all_segments):
+            clearance[chunk : chunk + 2048] = point_segment_distances(part, all_segments).min(axis=1)
+    for circle in layout.circles:
+        clearance = np.minimum(clearance, np.hypot(points[:, 0] - circle.x, points[:, 1] - circle.y) - circle.radius)
+    clearance[inside] = 0.0
+    return np.maximum(clearance, 0.0)
+
+
+@dataclass
+class Grid:
+    """The static world on a regular grid: clearance per cell and the navigation function to the goal."""
+
+    x0: float
+    y0: float
+    res: float
+    clearance: np.ndarray
+    """(ny, nx) distance to the nearest static obstacle (m)."""
+    cost_to_go: np.ndarray
+    """(ny, nx) path cost to the goal; inf where unreachable or blocked."""
+
+    def cell(self, x: float, y: float) -> tuple[int, int]:
+        ny, nx = self.clearance.shape
+        ix = min(max(int((x - self.x0) / self.res), 0), nx - 1)
+        iy = min(max(int((y - self.y0) / self.res), 0), ny - 1)
+        return iy, ix
+
+    def centre(self, iy: int, ix: int) -> tuple[float, float]:
+        return self.x0 + (ix + 0.5) * self.res, self.y0 + (iy + 0.5) * self.res
+
+    def clearance_at(self, points: np.ndarray) -> np.ndarray:
+        """Bilinear clearance at (P, 2) points."""
+        ny, nx = self.clearance.shape
+        fx = np.clip((points[:, 0] - self.x0) / self.res - 0.5, 0, nx - 1.000001)
+        fy = np.clip((points[:, 1] - self.y0) / self.res - 0.5, 0, ny - 1.000001)
+        ix, iy = fx.astype(int), fy.astype(int)
+        tx, ty = fx - ix, fy - iy
+        ix1, iy1 = np.minimum(ix + 1, nx - 1), np.minimum(iy + 1, ny - 1)
+        c = self.clearance
+        top = c[iy, ix] * (1 - tx) + c[iy, ix1] * tx
+        bottom = c[iy1, ix] * (1 - tx) + c[iy1, ix1] * tx
+        return top * (1 - ty) + bottom * ty
+
+
+def build_grid(layout: Layout, config: UGVConfig) -> Grid:
+    ex = config.expert
+    res = ex.grid_resolution
+    xmin, ymin, xmax, ymax = layout.bounds
+    nx, ny = max(1, math.ceil((xmax - xmin) / res)), max(1, math.ceil((ymax - ymin) / res))
+    xs = xmin + (np.arange(nx) + 0.5) * res
+    ys = ymin + (np.arange(ny) + 0.5) * res
+    gx, gy = np.meshgrid(xs, ys)
+    points = np.column_stack([gx.ravel(), gy.ravel()])
+    clearance = static_clearance(points, layout).reshape(ny, nx)
+
+    # traversal cost per cell: 1 in the open, more near obstacles, inf inside the inflation
+    shortfall = np.clip((ex.preferred_clearance - clearance) / ex.preferred_clearance, 0.0, 1.0)
+    cell_cost = 1.0 + ex.clearance_weight * shortfall
+    gxg, gyg, goal_radius = layout.goal
+    goal_dist = np.hypot(gx - gxg, gy - gyg)
+    # cells inside the goal region are targets even within the inflation, as long as the robot fits
+    targets = (goal_dist <= max(goal_radius, res)) & (clearance >= config.robot.width / 2)
+    blocked = (clearance < ex.inflation) & ~targets
+    cell_cost[blocked] = np.inf
+    cost_to_go = np.full((ny, nx), np.inf)
+    cost_to_go[targets] = goal_dist[targets]
+    if not targets.any():
+        iy, ix = np.unravel_index(np.argmin(goal_dist), goal_dist.shape)
+        cost_to_go[iy, ix] = 0.0
+    _relax(cost_to_go, cell_cost, res)
+    return Grid(xmin, ymin, res, clearance, cost_to_go)
+
+
+def _relax(cost_to_go: np.ndarray, cell_cost: np.ndarray, res: float) -> None:
+    """Bellman-Ford on the 8-connected grid, all cells at once, until nothing improves (in place)."""
+    ny, nx = cost_to_go.shape
+    padded_cost = np.pad(cell_cost, 1, constant_values=np.inf)
+    edges = []
+    for dx, dy in NEIGHBOURS:
+        step = res * (SQRT2 if dx and dy else 1.0)
+        neighbour_cost = padded_cost[1 + dy : ny + 1 + dy, 1 + dx : nx + 1 + dx]
+        edges.append(step * 0.5 * (cell_cost + neighbour_cost))
+    padded = np.pad(cost_to_go, 1, constant_values=np.inf)
+    inner = padded[1:-1, 1:-1]
+    for _ in range(4 * (nx + ny)):
+        before = inner.copy()
+        for (dx, dy), edge in zip(NEIGHBOURS, edges, strict=True):
+            np.minimum(inner, padded[1 + dy : ny + 1 + dy, 1 + dx : nx + 1 + dx] + edge, out=inner)
+        if np.array_equal(before, inner):
+            break
+    cost_to_go[:] = inner
+
+
+@dataclass
+class Path:
+    xy: np.ndarray
+    """(n, 2) points every ~PATH_SPACING m, from the robot towards the goal."""
+    s: np.ndarray
+    """(n,) arc length at each point."""
+
+
+def extract_path(grid: Grid, start: tuple[float, float], goal: tuple[float, float], min_keep: float) -> Path | None:
+    """Descend the navigation function from ``start``, shortcut it, resample it. None if unreachable."""
+    cost = grid.cost_to_go
+    ny, nx = cost.shape
+    iy, ix = grid.cell(*start)
+    if not math.isfinite(cost[iy, ix]):
+        # start inside an obstacle's inflation: head for the best reachable cell nearby
+        reach = max(1, round(0.8 / grid.res))
+        y0, y1, x0, x1 = max(iy - reach, 0), min(iy + reach + 1, ny), max(ix - reach, 0), min(ix + reach + 1, nx)
+        window = cost[y0:y1, x0:x1]
+        if not np.isfinite(window).any():
+            return None
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        score = window + 3.0 * grid.res * np.hypot(yy - iy, xx - ix)
+        iy, ix = (int(v) for v in np.unravel_index(np.argmin(score), score.shape))
+        iy, ix = iy + y0, ix + x0
+    cells = [(iy, ix)]
+    for _ in range(nx * ny):
+        if cost[iy, ix] <= grid.res:  # inside the goal's target cells
+            break
+        best, best_val = None, cost[iy, ix]
+        for dx, dy in NEIGHBOURS:
+            jy, jx = iy + dy, ix + dx
+            if 0 <= jy < ny and 0 <= jx < nx and cost[jy, jx] < best_val:
+                best, best_val = (jy, jx), cost[jy, jx]
+        if best is None:
+            break
+        iy, ix = best
+        cells.append(best)
+    points = np.array([start, *(grid.centre(*c) for c in cells[1:]), goal], dtype=float)
+    return _resample(_shortcut(grid, points, min_keep))
+
+
+def _shortcut(grid: Grid, points: np.ndarray, min_keep: float) -> np.ndarray:
+    """Greedy string pulling: jump to the farthest point whose straight line keeps the clearance
+    of the original path (or ``min_keep``, whichever is lower)."""
+    clearance = grid.clearance_at(points)
+    kept = [0]
+    i, n = 0, len(points)
+    while i < n - 1:
+        j_best = i + 1
+        for j in range(min(n - 1, i + 80), i + 1, -1):
+            need = min(min_keep, float(clearance[i + 1 : j].min()) if j > i + 1 else min_keep) - 0.02
+            length = float(np.hypot(*(points[j] - points[i])))
+            samples = max(2, int(length / (grid.res * 0.5)) + 1)
+            line = points[i] + np.linspace(0.0, 1.0, samples)[:, None] * (points[j] - points[i])
+            if grid.clearance_at(line[1:-1]).min(initial=np.inf) >= need:
+                j_best = j
+                break
+        kept.append(j_best)
+        i = j_best
+    return points[kept]
+
+
+def _resample(points: np.ndarray) -> Path:
+    seg = np.diff(points, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    keep = np.concatenate([[True], length > 1e-9])
+    points = points[keep]
+    s_vertices = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+    total = s_vertices[-1]
+    s = np.linspace(0.0, total, max(2, math.ceil(total / PATH_SPACING) + 1))
+    xy = np.column_stack([np.interp(s, s_vertices, points[:, 0]), np.interp(s, s_vertices, points[:, 1])])
+    return Path(xy, s)
+
+
+class UGVExpert:
+    """The expert of one env; call :meth:`act` at any step (takeovers may start mid-episode)."""
+
+    def __init__(self, env: UGVEnv, yield_to_movers: bool = True) -> None:
+        self.env = env
+        self.yield_to_movers = yield_to_movers
+        """False gives the naive goal seeker: the same planner and tracker, blind to movers."""
+        self.reset()
+
+    def reset(self) -> None:
+        self._grid: Grid | None = None
+        self._path: Path | None = None
+        self._index = 0
+        self._world_id: int | None = None
+
+    # -- planning --------------------------------------------------------------------------------
+    def _ensure_plan(self, x: float, y: float) -> Path | None:
+        env = self.env
+        world = env.world
+        if world is None or env.layout is None:
+            raise RuntimeError("reset the env before asking the expert")
+        if self._world_id != id(world):  # a new episode
+            self.reset()
+            self._world_id = id(world)
+            self._grid = build_grid(env.layout, env.config)
+        if self._path is None:
+            self._replan(x, y)
+        return self._path
+
+    def _replan(self, x: float, y: float) -> None:
+        assert self._grid is not None and self.env.layout is not None
+        gx, gy, _ = self.env.layout.goal
+        self._path = extract_path(self._grid, (x, y), (gx, gy), min_keep=0.45)
+        self._index = 0
+
+    # -- acting ----------------------------------------------------------------------------------
+    def act(self) -> np.ndarray:
+        env = self.env
+        cfg = env.config
+        robot, ex = cfg.robot, cfg.expert
+        x, y, yaw = env.world.pose if env.world is not None else (0.0, 0.0, 0.0)
+        path = self._ensure_plan(x, y)
+        gx, gy, _ = env.layout.goal  # type: ignore[union-attr]
+
+        if path is not None:
+            index, offset = self._nearest(path, x, y)
+            if offset > ex.replan_distance:
+                self._replan(x, y)
+                path = self._path
+                index = 0
+        if path is None:  # no route around the static obstacles: head straight for the goal
+            target = (gx, gy)
+            index = 0
+        else:
+            self._index = index
+            s_target = path.s[index] + ex.lookahead
+            j = min(int(np.searchsorted(path.s, s_target)), len(path.s) - 1)
+            target = (float(path.xy[j, 0]), float(path.xy[j, 1]))
+
+        dx, dy = target[0] - x, target[1] - y
+        distance = math.hypot(dx, dy)
+        alpha = wrap(math.atan2(dy, dx) - yaw) if distance > 1e-6 else 0.0
+        if abs(alpha) > math.radians(ex.turn_in_place_deg):
+            v_track, w = 0.0, math.copysign(min(robot.w_max, 2.0 * abs(alpha)), alpha)
+        else:
+            curvature = 2.0 * math.sin(alpha) / max(distance, 1e-6)
+            v_track = robot.v_max if abs(curvature) < 1e-9 else min(robot.v_max, robot.w_max / abs(curvature))
+            w = v_track * curvature
+
+        v = v_track
+        if self.yield_to_movers and env.layout is not None and env.layout.movers and path is not None:
+            cap = self._speed_cap(path, index, v_track)
+            if cap < v:
+                w = w * (cap / v) if v > 0 else w
+                v = cap
+        return np.array([2.0 * v / robot.v_max - 1.0, max(-1.0, min(1.0, w / robot.w_max))], dtype=np.float32)
+
+    def _nearest(self, path: Path, x: float, y: float) -> tuple[int, float]:
+        """Index of the path point nearest the robot, searched forward from the last one."""
+        lo = max(self._index - 10, 0)
+        hi = min(self._index + 60, len(path.s))
+        window = path.xy[lo:hi]
+        d = np.hypot(window[:, 0] - x, window[:, 1] - y)
+        i = int(np.argmin(d))
+        return lo + i, float(d[i])
+
+    def _speed_cap(self, path: Path, index: int, v_track: float) -> float:
+        """The fastest speed cap whose committed motion keeps clear of every mover (see module doc)."""
+        env = self.env
+        world = env.world
+        assert world is not None and env.layout is not None
+        cfg = env.config
+        ex = cfg.expert
+        dt = cfg.dt
+        n_go = max(1, round(ex.go_horizon / dt))
+        n_stop = max(n_go, round(ex.stop_horizon / dt))
+        k = world.k
+        world.ensure_table(k + n_stop)
+        future = world.mover_poses[:, k + 1 : k + n_stop + 1, 0:2]  # (M, T, 2), T = n_stop
+        radii = np.array([m.bounding_radius for m in env.layout.movers])
+        reach = (radii + cfg.robot.circumradius + ex.mover_margin)[:, None]  # (M, 1)
+
+        caps = np.array([c for c in ex.speed_caps if c < v_track] + [v_track])
+        caps = np.unique(np.minimum(caps, v_track))[::-1]  # fastest first
+        go = future[:, :n_go]
+        # progress along the path at a constant speed cap (the path ends at the goal)
+        progress = path.s[index] + caps[:, None] * dt * np.arange(1, n_go + 1)[None, :]  # (C, T)
+        px = np.interp(progress, path.s, path.xy[:, 0])
+        py = np.interp(progress, path.s, path.xy[:, 1])
+        gap = np.hypot(px[:, None, :] - go[None, :, :, 0], py[:, None, :] - go[None, :, :, 1]) - reach[None]
+        clear = (gap >= 0).all(axis=(1, 2))
+        if clear.any():
+            return float(caps[int(np.argmax(clear))])
+        # no committed motion is safe: move one step at most, to where standing still is safe
+        one_step = path.s[index] + caps * dt  # (C,)
+        sx = np.interp(one_step, path.s, path.xy[:, 0])
+        sy = np.interp(one_step, path.s, path.xy[:, 1])
+        gap_stop = (
+            np.hypot(sx[:, None, None] - future[None, :, :, 0], sy[:, None, None] - future[None, :, :, 1]) - reach[None]
+        )
+        stop_safe = (gap_stop >= 0).all(axis=(1, 2))
+        if stop_safe.any():
+            return float(caps[int(np.argmax(stop_safe))])
+        # nothing is safe: delay contact as long as possible
+        contact = (gap < 0).any(axis=1)  # (C, T)
+        first_contact = np.where(contact.any(axis=1), contact.argmax(axis=1), n_go)
+        return float(caps[int(np.argmax(first_contact))])
