@@ -1,0 +1,73 @@
+"""From the operator's two manual axes to a simulator's action, one small table per simulator.
+
+The page always sends the same two normalised axes, whatever the simulator:
+``throttle`` in [-1, 1] (up arrow / W / left stick up = +1) and ``steer`` in [-1, 1] (left arrow / A /
+stick left = +1, i.e. counter-clockwise, matching a positive yaw rate in the x-east, y-north scene).
+Each simulator says which action component each axis drives and with which sign; a ``Box`` action is
+then scaled from [-1, 1] to its bounds. A simulator missing from the table gets a mapping from its action
+space alone: two components mean (throttle/speed, steer/yaw), one means accelerate/brake.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+
+@dataclass(frozen=True)
+class InputMapping:
+    throttle_index: int | None
+    """Action component driven by the throttle axis (None: not used)."""
+    steer_index: int | None
+    """Action component driven by the steer axis (None: not used)."""
+    steer_sign: float = 1.0
+    """+1 when a positive action component turns left (counter-clockwise)."""
+    throttle_sign: float = 1.0
+
+
+INPUT_MAPPINGS: dict[str, InputMapping] = {
+    # linear speed and yaw rate, both normalised to [-1, 1]; positive yaw rate turns left
+    "ugv": InputMapping(throttle_index=0, steer_index=1),
+    # highway-env's continuous action is (acceleration, steering); its y axis points to the right of the
+    # driving direction, so a positive steering angle turns right
+    "highway": InputMapping(throttle_index=0, steer_index=1, steer_sign=-1.0),
+    # the SUMO ego is driven longitudinally only: accelerate / brake
+    "sumo": InputMapping(throttle_index=0, steer_index=None),
+}
+
+
+def mapping_for(sim: str, action_space: gym.Space[Any]) -> InputMapping:
+    """The table's entry for ``sim``, or one derived from the action space's shape."""
+    if sim in INPUT_MAPPINGS:
+        return INPUT_MAPPINGS[sim]
+    if isinstance(action_space, gym.spaces.Box) and int(np.prod(action_space.shape)) >= 2:
+        return InputMapping(throttle_index=0, steer_index=1)
+    return InputMapping(throttle_index=0, steer_index=None)
+
+
+def to_action(mapping: InputMapping, action_space: gym.Space[Any], throttle: float, steer: float) -> np.ndarray:
+    """The action the operator's axes ask for, inside ``action_space``.
+
+    ``Discrete(n)`` spaces (e.g. keep / slow down / speed up) get the throttle axis split into ``n``
+    equal bins, so full brake is action 0 and full throttle action ``n - 1``.
+    """
+    throttle = float(np.clip(throttle, -1.0, 1.0)) * mapping.throttle_sign
+    steer = float(np.clip(steer, -1.0, 1.0)) * mapping.steer_sign
+    if isinstance(action_space, gym.spaces.Discrete):
+        n = int(action_space.n)
+        return np.asarray(int(action_space.start) + min(n - 1, int((throttle + 1.0) / 2.0 * n)), dtype=np.int64)
+    if not isinstance(action_space, gym.spaces.Box):
+        raise TypeError(f"manual control supports Box and Discrete action spaces, not {type(action_space).__name__}")
+    unit = np.zeros(action_space.shape, dtype=np.float64).reshape(-1)
+    if mapping.throttle_index is not None and mapping.throttle_index < unit.size:
+        unit[mapping.throttle_index] = throttle
+    if mapping.steer_index is not None and mapping.steer_index < unit.size:
+        unit[mapping.steer_index] = steer
+    low = np.broadcast_to(action_space.low, action_space.shape).reshape(-1).astype(np.float64)
+    high = np.broadcast_to(action_space.high, action_space.shape).reshape(-1).astype(np.float64)
+    bounded = np.isfinite(low) & np.isfinite(high)
+    scaled = np.where(bounded, low + (unit + 1.0) / 2.0 * (high - low), unit)
+    return scaled.reshape(action_space.shape).astype(action_space.dtype)

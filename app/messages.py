@@ -1,0 +1,134 @@
+"""Messages a page may send over the dashboard websocket, validated by pydantic.
+
+Every message is a JSON object with a ``type`` field; pydantic picks the model from it (a discriminated
+union) and rejects unknown types, unknown fields, non-finite numbers and out-of-range values. A message
+that fails validation gets an ``error`` reply naming the problem and never reaches the loop.
+
+Messages that act on the loop (``input``, ``presence``, ``control``, ``configure``, ``replay``...) carry
+the control ``token`` the server issued to the one operator; viewers have none and are refused.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+ExpertMode = Literal["person", "scripted", "person_fallback"]
+"""Who answers a takeover: ``person`` (the operator; the scripted expert bridges only while the operator
+is silent, hidden or gone, as ``fallback``), ``scripted`` (the scripted expert, person input ignored),
+``person_fallback`` (the scripted expert answers the gate, the operator may take over at any time)."""
+
+EXPERT_MODES: tuple[str, ...] = ("person", "scripted", "person_fallback")
+
+MAX_MESSAGE_BYTES = 16_384
+"""Anything longer is refused before JSON parsing (a page never needs more)."""
+
+Axis = Annotated[float, Field(ge=-1.0, le=1.0)]
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+
+class _Operator(_Message):
+    token: str = Field(min_length=8, max_length=128)
+
+
+class Claim(_Message):
+    """Ask for the control token (granted when nobody else holds it)."""
+
+    type: Literal["claim"]
+
+
+class Release(_Operator):
+    type: Literal["release"]
+
+
+class Input(_Operator):
+    """The operator's latest manual controls. Sent on every change and as a heartbeat while focused."""
+
+    type: Literal["input"]
+    seq: int = Field(ge=0)
+    ts: float = Field(ge=0, description="page clock when the input was read, ms since the epoch")
+    held: bool = Field(description="takeover requested: Space held, sticky toggle on, or gamepad trigger")
+    throttle: Axis = 0.0
+    steer: Axis = 0.0
+    source: Literal["keyboard", "gamepad"] = "keyboard"
+
+
+class Presence(_Operator):
+    type: Literal["presence"]
+    focused: bool
+    visible: bool
+
+
+class Control(_Operator):
+    type: Literal["control"]
+    op: Literal["pause", "resume", "step", "new_episode"]
+
+
+class Speed(_Operator):
+    type: Literal["speed"]
+    value: float = Field(ge=0.1, le=20.0)
+
+
+class Configure(_Operator):
+    """Switch simulator, scenario, policy or expert mode. Omitted fields keep their value."""
+
+    type: Literal["configure"]
+    sim: str | None = Field(default=None, max_length=64)
+    scenario: int | None = Field(default=None, ge=0, le=10_000)
+    policy: str | None = Field(default=None, max_length=512)
+    expert_mode: ExpertMode | None = None
+
+
+class ReplayOpen(_Operator):
+    type: Literal["replay_open"]
+    session: str = Field(min_length=1, max_length=128)
+    episode: int = Field(ge=0)
+
+
+class ReplaySeek(_Operator):
+    type: Literal["replay_seek"]
+    t: int = Field(ge=0)
+
+
+class ReplayClose(_Operator):
+    type: Literal["replay_close"]
+
+
+class Ping(_Message):
+    type: Literal["ping"]
+    ts: float = 0.0
+
+
+ClientMessage = Annotated[
+    Claim | Release | Input | Presence | Control | Speed | Configure | ReplayOpen | ReplaySeek | ReplayClose | Ping,
+    Field(discriminator="type"),
+]
+_adapter: TypeAdapter[ClientMessage] = TypeAdapter(ClientMessage)
+
+
+class MessageError(ValueError):
+    """A message that cannot be accepted; ``str()`` is a short, human-readable reason."""
+
+
+def parse_message(raw: str | bytes) -> ClientMessage:
+    """Parse and validate one websocket frame; :class:`MessageError` says what is wrong."""
+    if len(raw) > MAX_MESSAGE_BYTES:
+        raise MessageError(f"message too long ({len(raw)} bytes > {MAX_MESSAGE_BYTES})")
+    try:
+        data: Any = json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise MessageError(f"not JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise MessageError(f"expected a JSON object with a 'type' field, got {type(data).__name__}")
+    try:
+        return _adapter.validate_python(data)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in err['loc']) or 'message'}: {err['msg']}" for err in exc.errors()[:3]
+        )
+        raise MessageError(f"invalid {data.get('type', 'message')!r}: {problems}") from None

@@ -1,0 +1,137 @@
+"""Which policies the dashboard can run: trained agents found under ``runs/`` and ``policies/``, plus
+the simulator's scripted expert as a policy (no gate) for when no trained agent fits.
+
+A trained agent is loaded with ``core.agents.load_agent(path)``, which gives its policy and its SAGE
+gate (fear / curiosity / threshold). Every run folder is offered, and each checkpoint version inside it
+(``*.pt`` files, directly or under ``checkpoints/``) as its own choice.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from core.experts import ExpertPolicy
+from core.loop import Gate, NoGate, Policy
+
+log = logging.getLogger(__name__)
+
+SCRIPTED = "scripted"
+"""The policy choice that runs the simulator's scripted expert as the agent (no gate, no fear)."""
+
+_META_FILES = ("meta.json", "agent.json", "config.json")
+
+
+@dataclass(frozen=True)
+class PolicyChoice:
+    id: str
+    """What the page sends back: ``"scripted"`` or a path (a run folder or a checkpoint file)."""
+    label: str
+    sim: str | None
+    """The simulator the agent was trained on, when its metadata says so."""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"id": self.id, "label": self.label, "sim": self.sim}
+
+
+def _meta(folder: Path) -> dict[str, Any]:
+    for name in _META_FILES:
+        path = folder / name
+        if path.is_file():
+            try:
+                data = json.loads(path.read_text())
+            except (OSError, ValueError):
+                continue
+            if isinstance(data, dict):
+                return data
+    return {}
+
+
+def _sim_of(meta: dict[str, Any]) -> str | None:
+    for key in ("sim", "simulator"):
+        if isinstance(meta.get(key), str):
+            return meta[key]
+    env_id = meta.get("env_id") or meta.get("env")
+    if isinstance(env_id, str) and env_id.startswith("sage/"):
+        return env_id.split("/", 1)[1].split("-", 1)[0].lower()
+    config = meta.get("config")
+    if isinstance(config, dict):
+        return _sim_of(config)
+    return None
+
+
+def _looks_like_agent(folder: Path) -> bool:
+    return (
+        any((folder / n).is_file() for n in _META_FILES)
+        or any(folder.glob("*.pt"))
+        or (folder / "checkpoints").is_dir()
+    )
+
+
+def discover(roots: Iterable[Path], sim: str | None = None) -> list[PolicyChoice]:
+    """Every agent folder and checkpoint under ``roots``, filtered to ``sim`` when their metadata names one;
+    the scripted expert last."""
+    choices: list[PolicyChoice] = []
+    for root in roots:
+        if not root.is_dir():
+            continue
+        for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+            if not _looks_like_agent(folder):
+                continue
+            agent_sim = _sim_of(_meta(folder))
+            if sim is not None and agent_sim is not None and agent_sim != sim:
+                continue
+            name = f"{root.name}/{folder.name}"
+            choices.append(PolicyChoice(str(folder), name, agent_sim))
+            versions = sorted([*folder.glob("*.pt"), *(folder / "checkpoints").glob("*.pt")])
+            if len(versions) > 1:
+                for version in versions:
+                    rel = version.relative_to(folder)
+                    choices.append(PolicyChoice(str(version), f"{name} @ {rel}", agent_sim))
+    choices.append(PolicyChoice(SCRIPTED, "scripted expert (no gate)", None))
+    return choices
+
+
+def default_policy(roots: Iterable[Path], sim: str) -> str:
+    """The committed default policy for ``sim`` (``policies/<sim>-default``) when it exists, else the
+    first agent found for ``sim``, else the scripted expert."""
+    roots = list(roots)
+    for root in roots:
+        candidate = root / f"{sim}-default"
+        if candidate.is_dir() and _looks_like_agent(candidate):
+            return str(candidate)
+    for choice in discover(roots, sim):
+        if choice.sim == sim:
+            return choice.id
+    return SCRIPTED
+
+
+@dataclass
+class LoadedPolicy:
+    policy: Policy
+    gate: Gate
+    label: str
+    meta: dict[str, Any]
+
+
+def load_policy(choice: str, env: gym.Env[Any, Any], gate_overrides: dict[str, Any] | None = None) -> LoadedPolicy:
+    """Build the policy and its gate. Raises a clear error when the agent cannot be loaded."""
+    if choice == SCRIPTED:
+        return LoadedPolicy(ExpertPolicy(env), NoGate(), "scripted expert (no gate)", {})
+    path = Path(choice)
+    if not path.exists():
+        raise FileNotFoundError(f"no policy at {choice!r}")
+    try:
+        from core.agents import load_agent  # built by the SAGE learner; absent on an early checkout
+    except ImportError as exc:
+        raise RuntimeError(f"cannot load {choice!r}: core.agents is not available ({exc})") from exc
+    agent = load_agent(path)
+    gate = agent.make_gate(**(gate_overrides or {}))
+    meta = dict(getattr(agent, "meta", {}) or {})
+    return LoadedPolicy(agent.policy, gate, f"{path.parent.name}/{path.name}", meta)

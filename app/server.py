@@ -1,0 +1,351 @@
+"""The live dashboard: FastAPI serves the page, the stream and the session store; viser draws the scene.
+
+Routes
+  ``/``                         the dashboard page (app/frontend, no CDN)
+  ``/ws``                       the live stream and the operator's controls (see :mod:`app.messages`)
+  ``/viser/``, ``/viser``       viser's viewer and its websocket, relayed on the same origin
+  ``/api/state``                loop state; ``/api/options`` simulators, scenarios, policies, expert modes
+  ``/api/sessions``             recorded sessions; ``/api/sessions/{id}/episodes`` their episodes
+  ``/api/sessions/{id}/export.{csv|parquet}[?episode=N]``  download steps
+
+viser runs in this process on its own loopback port (``port=0``); the live loop runs the one
+:meth:`core.loop.Runner.step` in a background thread (:mod:`app.live`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import importlib
+import importlib.util
+import json
+import logging
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+from fastapi import FastAPI, HTTPException, Query, WebSocket
+from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
+
+from app import messages as m
+from app.hub import Client, Hub
+from app.live import CommandError, LiveConfig, LiveLoop, PolicyLoader, dumps
+from app.operator import ControlDesk, OperatorConsole
+from app.policies import default_policy, discover, load_policy
+from app.viser_proxy import ViserProxy
+from core.sessions import SessionError, SessionStore
+
+log = logging.getLogger(__name__)
+
+FRONTEND = Path(__file__).resolve().parent / "frontend"
+COMMAND_TIMEOUT = 60.0
+"""Seconds a page waits for the loop to apply a command (building a SUMO world takes a few)."""
+
+
+def make_env(sim: str, scenario: int | None) -> gym.Env[Any, Any]:
+    import sims
+
+    return sims.make(sim, **({} if scenario is None else {"scenario": scenario}))
+
+
+def sim_catalogue() -> dict[str, dict[str, Any]]:
+    """Every registered simulator, whether its package is present, and its scenarios when it lists them."""
+    import sims
+
+    out: dict[str, dict[str, Any]] = {}
+    for name, (package, env_id) in sims.SIMULATORS.items():
+        available = importlib.util.find_spec(package) is not None
+        scenarios: list[Any] = []
+        if available:
+            try:
+                module = importlib.import_module(package)
+                listed = getattr(module, "SCENARIOS", None)
+                if isinstance(listed, dict):
+                    scenarios = [{"id": k, "label": str(v if isinstance(v, str) else k)} for k, v in listed.items()]
+                elif isinstance(listed, list | tuple | range):
+                    scenarios = [{"id": k, "label": str(k)} for k in listed]
+            except Exception as exc:  # a broken simulator is shown as unavailable, not fatal
+                available = False
+                log.warning("simulator %s failed to import: %s", name, exc)
+        out[name] = {"name": name, "env_id": env_id, "available": available, "scenarios": scenarios}
+    return out
+
+
+@dataclass
+class ServerSettings:
+    host: str = "127.0.0.1"
+    port: int = 8000
+    sim: str = "ugv"
+    scenario: int | None = 1
+    policy: str | None = None
+    """A run folder, a checkpoint, ``"scripted"``, or None for the committed default of ``sim``."""
+    expert_mode: m.ExpertMode = "person"
+    speed: float = 1.0
+    seed: int = 0
+    sessions: Path | None = Path("sessions")
+    """Where sessions are recorded; None records nothing."""
+    policy_roots: list[Path] = field(default_factory=lambda: [Path("policies"), Path("runs")])
+    start_paused: bool = False
+    env_factory: Callable[[str, int | None], gym.Env[Any, Any]] = make_env
+    policy_loader: PolicyLoader = load_policy
+    catalogue: Callable[[], dict[str, dict[str, Any]]] = sim_catalogue
+    viser_host: str = "127.0.0.1"
+    viser_port: int = 0
+
+
+class Dashboard:
+    """The running pieces, held by the app between startup and shutdown."""
+
+    def __init__(self, settings: ServerSettings) -> None:
+        import viser
+
+        self.settings = settings
+        self._catalogue: dict[str, dict[str, Any]] | None = None
+        self.store = SessionStore(settings.sessions) if settings.sessions is not None else None
+        self.hub = Hub()
+        self.console = OperatorConsole()
+        self.desk = ControlDesk()
+        self.viser = viser.ViserServer(host=settings.viser_host, port=settings.viser_port, verbose=False)
+        self.viser.gui.configure_theme(dark_mode=True, show_logo=False, show_share_button=False)
+        self.viser.scene.set_up_direction("+z")
+        # No environment map and no shadows: a top-down map needs neither, and without a GPU (software
+        # WebGL) they make every frame several times dearer, which starves the page's input handling.
+        self.viser.scene.configure_environment_map(None)
+        self.viser.scene.world_axes.visible = False
+        self.viser.scene.configure_default_lights(enabled=False)
+        self.viser.scene.add_light_ambient("/lights/ambient", intensity=0.55)
+        self.viser.scene.add_light_directional(
+            "/lights/sun", intensity=1.1, position=(0.0, 0.0, 10.0), wxyz=(0.9659, 0.2588, 0.0, 0.0)
+        )
+        from app.scene_view import SceneView
+
+        self.scene_view = SceneView(self.viser)
+        self.proxy = ViserProxy(self.viser.get_port(), settings.viser_host)
+        policy = settings.policy or default_policy(settings.policy_roots, settings.sim)
+        config = LiveConfig(
+            sim=settings.sim,
+            scenario=settings.scenario,
+            policy=policy,
+            expert_mode=settings.expert_mode,
+            speed=settings.speed,
+            seed=settings.seed,
+        )
+        self.live = LiveLoop(
+            config,
+            env_factory=settings.env_factory,
+            policy_loader=settings.policy_loader,
+            console=self.console,
+            publish=self.hub.publish,
+            store=self.store,
+            scene_view=self.scene_view,
+            start_paused=settings.start_paused,
+        )
+
+    def catalogue(self) -> dict[str, dict[str, Any]]:
+        """Simulators and their scenarios (imports each package once, then cached)."""
+        if self._catalogue is None:
+            self._catalogue = self.settings.catalogue()
+        return self._catalogue
+
+    def options(self) -> dict[str, Any]:
+        catalogue = self.catalogue()
+        policies = {
+            name: [c.as_dict() for c in discover(self.settings.policy_roots, name)]
+            for name, entry in catalogue.items()
+            if entry["available"]
+        }
+        return {"sims": list(catalogue.values()), "policies": policies, "expert_modes": list(m.EXPERT_MODES)}
+
+    def close(self) -> None:
+        self.live.stop()
+        self.scene_view.close()
+        self.viser.stop()
+
+
+def _error(text: str, **extra: Any) -> str:
+    return dumps({"type": "error", "error": text, **extra})
+
+
+async def _handle(dash: Dashboard, client: Client, raw: str | bytes) -> str | None:
+    """One message from a page: validate, authorise, act. Returns the reply text, if any."""
+    try:
+        msg = m.parse_message(raw)
+    except m.MessageError as exc:
+        return _error(str(exc))
+    if isinstance(msg, m.Ping):
+        return dumps({"type": "pong", "ts": msg.ts})
+    if isinstance(msg, m.Claim):
+        token = dash.desk.claim(client)
+        if token is None:
+            return _error("control is held by another operator; this page is a viewer", op="claim")
+        dash.console.connect()
+        dash.hub.publish(dumps(dash.live.state()))
+        return dumps({"type": "control", "granted": True, "token": token})
+    if not dash.desk.check(client, msg.token):
+        return _error(f"{msg.type!r} refused: only the operator holding the control token may do this", op=msg.type)
+    if isinstance(msg, m.Input):
+        dash.console.accept_input(
+            seq=msg.seq, ts=msg.ts, held=msg.held, throttle=msg.throttle, steer=msg.steer, source=msg.source
+        )
+        return None
+    if isinstance(msg, m.Presence):
+        dash.console.set_presence(msg.focused, msg.visible)
+        return None
+    if isinstance(msg, m.Release):
+        dash.desk.release(client)
+        dash.console.disconnect()
+        dash.hub.publish(dumps(dash.live.state()))
+        return dumps({"type": "control", "granted": False})
+    if isinstance(msg, m.Control):
+        future = dash.live.submit(msg.op)
+    elif isinstance(msg, m.Speed):
+        future = dash.live.submit("speed", value=msg.value)
+    elif isinstance(msg, m.Configure):
+        args = msg.model_dump(exclude={"type", "token"})
+        if msg.sim is not None:
+            catalogue = dash.catalogue()
+            if msg.sim not in catalogue or not catalogue[msg.sim]["available"]:
+                return _error(f"simulator {msg.sim!r} is not available here", op="configure")
+            args["default_policy"] = default_policy(dash.settings.policy_roots, msg.sim)
+        future = dash.live.submit("configure", **args)
+    elif isinstance(msg, m.ReplayOpen):
+        future = dash.live.submit("replay_open", session=msg.session, episode=msg.episode)
+    elif isinstance(msg, m.ReplaySeek):
+        future = dash.live.submit("replay_seek", t=msg.t)
+    elif isinstance(msg, m.ReplayClose):
+        future = dash.live.submit("replay_close")
+    else:  # pragma: no cover - the union is exhaustive
+        return _error(f"unhandled message {msg.type!r}")
+    try:
+        result = await asyncio.wait_for(asyncio.wrap_future(future), COMMAND_TIMEOUT)
+    except CommandError as exc:
+        return _error(str(exc), op=msg.type)
+    except TimeoutError:
+        return _error(f"{msg.type} timed out after {COMMAND_TIMEOUT:.0f} s", op=msg.type)
+    return dumps({"type": "ack", "op": getattr(msg, "op", msg.type), "result": result})
+
+
+def create_app(settings: ServerSettings | None = None) -> FastAPI:
+    settings = settings or ServerSettings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        dash = Dashboard(settings)
+        dash.hub.bind(asyncio.get_running_loop())
+        dash.live.start()
+        app.state.dash = dash
+        try:
+            yield
+        finally:
+            await asyncio.get_running_loop().run_in_executor(None, dash.close)
+
+    app = FastAPI(title="SAGE live dashboard", lifespan=lifespan)
+
+    def dash_of(app: FastAPI) -> Dashboard:
+        return app.state.dash  # type: ignore[no-any-return]
+
+    @app.get("/", include_in_schema=False)
+    async def index() -> FileResponse:
+        return FileResponse(FRONTEND / "index.html", headers={"Cache-Control": "no-cache"})
+
+    app.mount("/static", StaticFiles(directory=FRONTEND), name="static")
+
+    @app.get("/api/state")
+    async def state() -> JSONResponse:
+        return JSONResponse(dash_of(app).live.state())
+
+    @app.get("/api/options")
+    async def options() -> JSONResponse:
+        return JSONResponse(dash_of(app).options())
+
+    def store() -> SessionStore:
+        s = dash_of(app).store
+        if s is None:
+            raise HTTPException(404, "this server records no sessions")
+        return s
+
+    @app.get("/api/sessions")
+    async def sessions() -> JSONResponse:
+        infos = await asyncio.to_thread(store().list_sessions)
+        return JSONResponse([i.as_dict() for i in infos])
+
+    @app.get("/api/sessions/{session_id}/episodes")
+    async def episodes(session_id: str) -> JSONResponse:
+        dash = dash_of(app)
+        writer = dash.live.world.writer
+        if writer is not None and writer.session_id == session_id:
+            await asyncio.to_thread(writer.flush)
+        try:
+            rows = await asyncio.to_thread(store().episodes, session_id)
+        except SessionError as exc:
+            raise HTTPException(404, str(exc)) from None
+        return JSONResponse(json.loads(dumps(rows)) if rows else [])
+
+    @app.get("/api/sessions/{session_id}/export.{fmt}")
+    async def export(session_id: str, fmt: str, episode: int | None = Query(default=None, ge=0)) -> Response:
+        if fmt not in ("csv", "parquet"):
+            raise HTTPException(400, f"unknown format {fmt!r}; use csv or parquet")
+        dash = dash_of(app)
+        writer = dash.live.world.writer
+        if writer is not None and writer.session_id == session_id:
+            await asyncio.to_thread(writer.flush)
+        try:
+            body = await asyncio.to_thread(store().export, session_id, fmt, episode)
+        except SessionError as exc:
+            raise HTTPException(404, str(exc)) from None
+        name = f"{session_id}{'' if episode is None else f'-ep{episode}'}.{fmt}"
+        media = "text/csv" if fmt == "csv" else "application/vnd.apache.parquet"
+        return Response(body, media_type=media, headers={"Content-Disposition": f'attachment; filename="{name}"'})
+
+    @app.get("/viser", include_in_schema=False)
+    @app.get("/viser/", include_in_schema=False)
+    async def viser_index() -> Response:
+        return await dash_of(app).proxy.http("")
+
+    @app.get("/viser/{path:path}", include_in_schema=False)
+    async def viser_files(path: str) -> Response:
+        return await dash_of(app).proxy.http(path)
+
+    @app.websocket("/viser")
+    @app.websocket("/viser/")
+    async def viser_socket(websocket: WebSocket) -> None:
+        await dash_of(app).proxy.relay(websocket)
+
+    @app.websocket("/ws")
+    async def stream(websocket: WebSocket) -> None:
+        dash = dash_of(app)
+        await websocket.accept()
+        loop = asyncio.get_running_loop()
+        options = await loop.run_in_executor(None, dash.options)
+        client = dash.hub.add()
+        client.offer(dash.live.welcome(client.id, options))
+        sender = asyncio.create_task(Hub.pump(client, websocket.send_text))
+        try:
+            while True:
+                frame = await websocket.receive()
+                if frame["type"] == "websocket.disconnect":
+                    break
+                raw = frame.get("text")
+                if raw is None:
+                    raw = frame.get("bytes") or b""
+                try:
+                    reply = await _handle(dash, client, raw)
+                except Exception as exc:  # never let one message end the connection or the loop
+                    log.exception("message handling failed")
+                    reply = _error(f"internal error: {type(exc).__name__}: {exc}")
+                if reply is not None:
+                    client.offer(reply)
+        finally:
+            dash.hub.remove(client)
+            sender.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await sender
+            if dash.desk.release(client):
+                dash.console.disconnect()
+                dash.hub.publish(dumps(dash.live.state()))
+
+    return app
