@@ -122,15 +122,15 @@ class UGVConfig:
         """A copy with dotted overrides applied, e.g. ``{"lidar.backend": "pymunk", "time_limit": 30}``."""
         config: Any = self
         for key, value in overrides.items():
-            config = _replace_dotted(config, key.split("."), value)
+            config = _replace_dotted(config, key, key.split("."), value)
         return config
 
 
-def _replace_dotted(obj: Any, path: list[str], value: Any) -> Any:
+def _replace_dotted(obj: Any, key: str, path: list[str], value: Any) -> Any:
     names = {f.name for f in fields(obj)}
     head = path[0]
     if head not in names:
-        raise ValueError(f"unknown UGV config field {head!r}; known: {', '.join(sorted(names))}")
+        raise ValueError(f"unknown UGV config field {key!r}: no {head!r} among {', '.join(sorted(names))}")
     if len(path) == 1:
         return replace(obj, **{head: value})
-    return replace(obj, **{head: _replace_dotted(getattr(obj, head), path[1:], value)})
+    return replace(obj, **{head: _replace_dotted(getattr(obj, head), key, path[1:], value)})

@@ -24,7 +24,7 @@ import numpy as np
 from core.scene import Box, Circle, Rays, Scene, Shape
 from sims.ugv.config import UGVConfig
 from sims.ugv.expert import UGVExpert
-from sims.ugv.lidar import ray_angles
+from sims.ugv.lidar import NumpyLidar, ray_angles
 from sims.ugv.metrics import episode_metrics
 from sims.ugv.scenario import (
     Layout,
@@ -38,6 +38,7 @@ from sims.ugv.scenario import (
 from sims.ugv.world import World, WorldLidar
 
 OBS_SIZE = 58
+INITIAL_TABLE_STEPS = 128
 MAX_PLACEMENT_TRIES = 100
 """Draws of the start (and, failing that, the whole layout) before a scenario is declared unplayable."""
 
@@ -75,6 +76,8 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         if render_mode is not None:
             raise ValueError("UGVEnv does not draw; use scene() and draw it in the app")
         self.config = (config or UGVConfig()).updated(overrides)
+        # a time limit given here beats the scenario file's, which beats the config default
+        self._time_limit_override: float | None = overrides.get("time_limit")
         if self.config.lidar.backend not in ("numpy", "pymunk"):
             raise ValueError(f"unknown lidar backend {self.config.lidar.backend!r}; choose numpy or pymunk")
         if self.config.lidar.sectors != 54 or self.config.lidar.fov_deg <= 0:
@@ -90,9 +93,15 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         lidar = self.config.lidar
         angles = self._ray_angles = ray_angles(lidar)
         self._rel_dirs = np.stack([np.cos(angles), np.sin(angles)])
-        half_front = math.radians(self.config.cost.front_fov_deg) / 2
-        self._front = np.flatnonzero(np.abs(angles) <= half_front + 1e-9)
+        # the cost's front cone: the sectors whose centre lies within it (sectors 18..35 at 90°)
+        width = lidar.fov_deg / lidar.sectors
+        centres = -lidar.fov_deg / 2 + (np.arange(lidar.sectors) + 0.5) * width
+        front = np.flatnonzero(np.abs(centres) <= self.config.cost.front_fov_deg / 2)
+        if len(front) == 0:
+            raise ValueError("cost.front_fov_deg is narrower than one lidar sector")
+        self._front = slice(int(front[0]), int(front[-1]) + 1)
         self._floor = 1.0 / lidar.max_range
+        self._caster = NumpyLidar(lidar)
         self.expert = UGVExpert(self)
         self.world: World | None = None
         self.layout: Layout | None = None
@@ -106,8 +115,8 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         self.world, self.layout = self._build_world()
         self._episode += 1
         cfg = self.config
-        self.lidar = WorldLidar(self.world)
-        limit = self.layout.time_limit or cfg.time_limit
+        self.lidar = WorldLidar(self.world, self._caster)
+        limit = self._time_limit_override or self.layout.time_limit or cfg.time_limit
         self.max_steps = max(1, round(limit * cfg.control_hz))
         x, y, yaw = self.world.pose
         gx, gy, _ = self.layout.goal
@@ -126,14 +135,15 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         world = self.world
         if world is None:
             raise RuntimeError("call reset() before step()")
-        a = np.asarray(action, dtype=float).reshape(-1)
-        if a.shape != (2,) or not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}")
+        try:
+            a0, a1 = np.asarray(action, dtype=np.float64).reshape(2).tolist()
+        except (TypeError, ValueError):
+            raise ValueError(f"action must be 2 numbers in [-1, 1], got {action!r}") from None
+        if not (math.isfinite(a0) and math.isfinite(a1)):
+            raise ValueError(f"action must be finite, got {action!r}")
         robot = self.config.robot
-        a0 = min(max(float(a[0]), -1.0), 1.0)
-        a1 = min(max(float(a[1]), -1.0), 1.0)
-        v = (a0 + 1.0) * 0.5 * robot.v_max
-        w = a1 * robot.w_max
+        v = (min(max(a0, -1.0), 1.0) + 1.0) * 0.5 * robot.v_max
+        w = min(max(a1, -1.0), 1.0) * robot.w_max
 
         x, y, yaw = world.step(v, w)
         self._scan(x, y, yaw)
@@ -163,26 +173,28 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # -- observation, cost -----------------------------------------------------------------------
     def _scan(self, x: float, y: float, yaw: float) -> None:
-        world = self.world
-        assert world is not None
-        self._inverse = self.lidar.cast(x, y, yaw)
+        """Cast the lidar; keep per-ray and per-sector inverse ranges (the nearest hit is the largest)."""
+        inverse = self._inverse = self.lidar.cast(x, y, yaw)
+        sectors = self.config.lidar.sectors
+        if len(inverse) == 2 * sectors:
+            self._sector_inverse = np.maximum(inverse[:sectors], inverse[sectors:])
+        else:
+            self._sector_inverse = inverse.reshape(-1, sectors).max(axis=0)
         self._pose = (x, y, yaw)
-
-    def _cost(self) -> float:
-        cost = self.config.cost
-        m = 1.0 / float(self._inverse[self._front].max())
-        return min(1.0, max(0.0, (cost.safe_range - m) / cost.band))
 
     def min_front_range(self) -> float:
         """Nearest lidar range in the cost's front cone (m)."""
-        return 1.0 / float(self._inverse[self._front].max())
+        return 1.0 / max(self._sector_inverse[self._front].tolist())
+
+    def _cost(self) -> float:
+        cost = self.config.cost
+        return min(1.0, max(0.0, (cost.safe_range - self.min_front_range()) / cost.band))
 
     def _observation(self, x: float, y: float, yaw: float) -> np.ndarray:
         cfg = self.config
         obs = np.empty(OBS_SIZE, np.float32)
         sectors = cfg.lidar.sectors
-        nearest = self._inverse.reshape(-1, sectors).max(axis=0)
-        np.divide(self._floor, nearest, out=obs[:sectors])  # range / max_range, in [0, 1]
+        np.divide(self._floor, self._sector_inverse, out=obs[:sectors])  # range / max_range, in [0, 1]
         gx, gy, _ = self.layout.goal  # type: ignore[union-attr]
         bearing = math.atan2(gy - y, gx - x)
         obs[sectors] = min(self._d_goal / cfg.goal_distance_max, 1.0)
@@ -205,9 +217,7 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
     def _build_world(self) -> tuple[World, Layout]:
         """Draw a layout whose start pose is free and whose goal is reachable, from the seeded generator."""
         scenario, rng, cfg = self.scenario, self.np_random, self.config
-        table_steps = round((scenario.time_limit or cfg.time_limit) * cfg.control_hz) + round(
-            cfg.expert.stop_horizon * cfg.control_hz
-        )
+        table_steps = INITIAL_TABLE_STEPS  # mover poses are tabulated further on demand
         walls = wall_segments(scenario)
         goal_clearance = cfg.robot.width / 2
         for _layout_try in range(MAX_PLACEMENT_TRIES):

@@ -24,20 +24,22 @@ import pymunk
 
 from sims.ugv.config import LidarConfig
 
-WEDGE_TOLERANCE = 1e-5
-"""Rays passing within this (m, across the ray) of a segment end still count as hits: no ray slips
-between two edges meeting at a corner because of rounding."""
+WEDGE_TOLERANCE = 0.0
+"""Rays passing this close (m, across the ray) outside a segment's end still count as hits. Zero is
+enough: two edges sharing a corner compute the same cross product with opposite signs, exactly, so
+a ray through a corner always passes the wedge test of at least one of them."""
 
 
 def ray_angles(config: LidarConfig) -> np.ndarray:
-    """Ray angles relative to the heading (rad), in the caster's block order: index j * sectors + s is
-    ray j of sector s; sector 0 is the rightmost (-fov/2), the last the leftmost."""
+    """Ray angles relative to the heading (rad), evenly spaced from -fov/2 like a real scanner's beams
+    (so one ray points straight ahead), in the caster's block order: index j * sectors + s is ray j of
+    sector s, at -fov/2 + (s + j / k) * fov / sectors; sector 0 is the rightmost, the last the leftmost."""
     fov = math.radians(config.fov_deg)
     k, sectors = config.rays_per_sector, config.sectors
     sector_width = fov / sectors
     angles = np.empty(k * sectors)
     for j in range(k):
-        angles[j * sectors : (j + 1) * sectors] = -fov / 2 + (np.arange(sectors) + (j + 0.5) / k) * sector_width
+        angles[j * sectors : (j + 1) * sectors] = -fov / 2 + (np.arange(sectors) + j / k) * sector_width
     return angles
 
 
@@ -83,11 +85,24 @@ def segment_table(segments: np.ndarray) -> np.ndarray:
     return table.astype(np.float32)
 
 
+def circle_table(circles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per circle (x, y, r): rows ``(c_x, c_y), (-c_y, c_x)`` as (C, 2, 2) float32, and r^2 as (C, 1)."""
+    circles = np.asarray(circles, dtype=float).reshape(-1, 3)
+    cx, cy, r = circles[:, 0], circles[:, 1], circles[:, 2]
+    rows = np.stack([np.stack([cx, cy], axis=1), np.stack([-cy, cx], axis=1)], axis=1)
+    return rows.astype(np.float32), (r**2)[:, None].astype(np.float32)
+
+
 class NumpyLidar:
     """Vectorised ray caster over static geometry (set once per episode) and moving geometry (per step).
 
-    ``set_static`` takes one-sided segments and circles; ``set_dynamic`` replaces the moving part,
-    whose row counts are fixed by ``dynamic_segments`` / ``dynamic_circles`` at ``set_static``.
+    ``set_static`` takes one-sided segments and circles and reserves rows for the moving ones, which
+    ``set_dynamic_table`` / ``set_dynamic_circles`` replace at every step.
+
+    Circles join the same matrix product with two rows each, giving for every ray the projection
+    p = d . (c - o) and the perpendicular offset q = d x (c - o); the ray hits at
+    t = p - sqrt(r^2 - q^2) when r^2 >= q^2 and t > 0 (NaN or negative otherwise, both ignored).
+    A ray starting inside a circle does not see that circle (the robot would have collided already).
     """
 
     def __init__(self, config: LidarConfig) -> None:
@@ -109,58 +124,70 @@ class NumpyLidar:
         static = segment_table(segments) if len(segments) else np.zeros((0, 7), np.float32)
         self._n_static_segments = len(static)
         self._table = np.vstack([static, np.zeros((dynamic_segments, 7), np.float32)])
-        k = len(self._table)
-        self._mt = np.zeros((3 * k, 2), np.float32)
-        self._products = np.zeros((3 * k, self.n_rays), np.float32)
-        self._ok = np.zeros((k, self.n_rays), bool)
-        circles = np.asarray(circles, dtype=float).reshape(-1, 3)
-        self._n_static_circles = len(circles)
-        self._circles = np.vstack([circles, np.zeros((dynamic_circles, 3))]).astype(np.float32)
-
-    def set_dynamic(self, segments: np.ndarray | None = None, circles: np.ndarray | None = None) -> None:
-        """Replace the moving geometry: (Kd, 4) one-sided segments and (Cd, 3) circles."""
-        if segments is not None and len(segments):
-            self._table[self._n_static_segments :] = segment_table(segments)
-        if circles is not None and len(circles):
-            self._circles[self._n_static_circles :] = circles
+        circle_rows, radius2 = circle_table(circles)
+        self._n_static_circles = len(circle_rows)
+        self._circle_rows = np.concatenate([circle_rows, np.zeros((dynamic_circles, 2, 2), np.float32)])
+        self._radius2 = np.concatenate([radius2, np.zeros((dynamic_circles, 1), np.float32)])
+        k, c, n = len(self._table), len(self._circle_rows), self.n_rays
+        self._k, self._c = k, c
+        self._mt = np.zeros((3 * k + 2 * c, 2), np.float32)
+        self._products = np.zeros((3 * k + 2 * c, n), np.float32)
+        self._inverse = np.zeros((k + c, n), np.float32)
+        self._tmp = np.zeros((max(k, c), n), np.float32)
+        self._ok = np.zeros((k, n), bool)
 
     def set_dynamic_table(self, table: np.ndarray) -> None:
-        """Like ``set_dynamic`` for segments already converted by :func:`segment_table` (cheaper per step)."""
+        """Replace the moving segments, given as rows of :func:`segment_table`."""
         self._table[self._n_static_segments :] = table
+
+    def set_dynamic_segments(self, segments: np.ndarray) -> None:
+        """Replace the moving segments, given as (Kd, 4) one-sided rows ax, ay, bx, by."""
+        self.set_dynamic_table(segment_table(segments))
+
+    def set_dynamic_circles(self, circles: np.ndarray) -> None:
+        """Replace the moving circles, given as (Cd, 3) rows x, y, radius."""
+        rows, radius2 = circle_table(circles)
+        self._circle_rows[self._n_static_circles :] = rows
+        self._radius2[self._n_static_circles :] = radius2
 
     def cast(self, x: float, y: float, yaw: float) -> np.ndarray:
         """Inverse ranges (1/m) of every ray, at least 1 / max_range (nothing hit); float32, block order."""
         c, s = math.cos(yaw), math.sin(yaw)
-        rel = self._rel_dirs
-        dirs = np.array([[c, -s], [s, c]], np.float32) @ rel  # (2, n) world-frame unit directions
-        best = np.full(self.n_rays, self._floor, np.float32)
-        table = self._table
-        k = len(table)
+        dirs = np.array(((c, -s), (s, c)), np.float32) @ self._rel_dirs  # (2, n) world-frame directions
+        # every offset the rows need, in one array: (-x, -y, 1) | perp(o), perp'(o) | o, perp(o)
+        offsets = np.array((-x, -y, 1.0, -y, x, y, -x, x, y, -y, x), np.float32)
+        k, n_circles = self._k, self._c
+        mt = self._mt
         if k:
-            mt, products = self._mt, self._products
-            h = table[:, 0] * np.float32(x) + table[:, 1] * np.float32(y) - table[:, 2]
-            # rows of -n/h: the inverse range along d is (-n/h) . d
-            np.divide(table[:, 0:2], -h[:, None], out=mt[:k])
-            np.subtract(table[:, 3:5], np.array([-y, x], np.float32), out=mt[k : 2 * k])
-            np.subtract(table[:, 5:7], np.array([y, -x], np.float32), out=mt[2 * k :])
-            np.matmul(mt, dirs, out=products)
-            ok = np.greater_equal(np.minimum(products[k : 2 * k], products[2 * k :]), -WEDGE_TOLERANCE, out=self._ok)
-            inverse = products[:k]
-            np.multiply(inverse, ok, out=inverse)
-            np.maximum(best, inverse.max(axis=0), out=best)
-        if len(self._circles):
-            circ = self._circles
-            w = circ[:, 0:2] - np.array([x, y], np.float32)
-            proj = w @ dirs  # (C, n): d . (c - o)
-            c2 = (w * w).sum(axis=1) - circ[:, 2] ** 2  # |c - o|^2 - r^2, > 0 outside the circle
-            disc = proj * proj - c2[:, None]
-            # nearest hit t = c2 / (proj + sqrt(disc)), so 1/t = (proj + sqrt(disc)) / c2
-            inverse_c = (np.sqrt(np.maximum(disc, 0)) + proj) / np.maximum(c2, 1e-12)[:, None]
-            inverse_c *= (disc >= 0) & (proj > 0)
-            if np.any(c2 <= 0):  # the origin is inside a circle: everything reads range 0
-                inverse_c[c2 <= 0] = np.float32(1e9)
-            np.maximum(best, inverse_c.max(axis=0), out=best)
-        return best
+            table = self._table
+            neg_h = table[:, 0:3] @ offsets[0:3]  # -(distance of o to each segment's line)
+            mt3 = mt[: 3 * k].reshape(k, 3, 2)
+            np.divide(table[:, 0:2], neg_h[:, None], out=mt3[:, 0])  # rows n / -h: inverse range along d
+            np.subtract(table[:, 3:7].reshape(k, 2, 2), offsets[3:7].reshape(2, 2), out=mt3[:, 1:3])
+        if n_circles:
+            np.subtract(self._circle_rows, offsets[7:11].reshape(2, 2), out=mt[3 * k :].reshape(n_circles, 2, 2))
+        products = self._products
+        np.matmul(mt, dirs, out=products)
+        inverse = self._inverse
+        if k:
+            p3 = products[: 3 * k].reshape(k, 3, -1)
+            tmp = self._tmp[:k]
+            np.minimum(p3[:, 1], p3[:, 2], out=tmp)  # inside the wedge iff both crosses are >= 0
+            np.greater_equal(tmp, -WEDGE_TOLERANCE, out=self._ok)
+            np.multiply(p3[:, 0], self._ok, out=inverse[:k])
+        if n_circles:
+            pc = products[3 * k :].reshape(n_circles, 2, -1)
+            tmp = self._tmp[:n_circles]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                np.multiply(pc[:, 1], pc[:, 1], out=tmp)
+                np.subtract(self._radius2, tmp, out=tmp)
+                np.sqrt(tmp, out=tmp)  # NaN where the ray misses
+                np.subtract(pc[:, 0], tmp, out=tmp)
+                np.reciprocal(tmp, out=inverse[k:])
+        if not (k or n_circles):
+            return np.full(self.n_rays, self._floor, np.float32)
+        nearest = np.fmax.reduce(inverse, axis=0)  # fmax skips the NaNs of missed circles
+        return np.fmax(nearest, self._floor, out=nearest)
 
 
 class PymunkLidar:
