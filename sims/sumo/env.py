@@ -35,7 +35,7 @@ Costs: ``info["cost"] = 1`` when the ego collided (SUMO's collision list, juncti
 The episode ends at the goal or a collision (terminated) or at ``max_steps`` (truncated). A SUMO failure
     (TraCIException, lost simulation) raises :class:`~sims.sumo.engine.SumoError` from ``step``; the next reset
     starts a fresh simulation.
-Expert (:meth:`SumoEnv.expert_action`): SUMO's own driver model. When the executed action is the one
+Expert (:meth:`SumoEnv.expert_action`): SUMO's own driver model. When the executed action is the very array
     ``expert_action()`` just returned, the env hands the ego back to SUMO for that step with all safety checks on
     (speed mode 31, Krauss car following, junction right of way, red lights), so the expert's driving is exactly
     SUMO's. The returned action is SUMO's next acceleration predicted from its own API (``getFollowSpeed`` for the
@@ -96,8 +96,8 @@ class SumoConfig:
     """Add the special vehicles (bus, fire truck, police car, ambulance) to the traffic, as in phase C2."""
     step_length: float = 0.5
     """Seconds of simulated time per env step (SUMO's step length)."""
-    max_steps: int = 600
-    """Step limit of an episode (truncation); 300 s at the default step length, about twice the expert's time."""
+    max_steps: int = 800
+    """Step limit of an episode (truncation): 400 s at the default step length, about twice the expert's mean."""
     warmup: float = 60.0
     """Seconds of background traffic simulated before the ego departs, so the roads are not empty."""
     a_min: float = -4.5
@@ -120,8 +120,9 @@ class SumoConfig:
     """Multiplies every background flow (SUMO's ``--scale``)."""
     randomize_signals: bool = True
     """Start each traffic light in a seeded random phase, so that the ego meets every signal state."""
-    teleport_time: float = 60.0
-    """SUMO's ``--time-to-teleport`` for jammed background vehicles (s); an ego teleport ends the episode."""
+    teleport_time: float = 120.0
+    """SUMO's ``--time-to-teleport`` for jammed vehicles (s); an ego teleport ends the episode (truncated). Longer
+    than any wait of the expert at a signal or a busy yield junction."""
     net_file: str | None = None
     """Network file; None is the committed composite network."""
     route_files: tuple[str, ...] | None = None
@@ -145,8 +146,12 @@ class SumoConfig:
 
     @property
     def phase(self) -> str:
-        """The paper's phase name: C2 with special vehicles, else C1."""
-        return "C2" if self.special_vehicles else "C1"
+        """The paper's phase: "C1" (route 1, ordinary traffic), "C2" (route 2 with special vehicles), else a name."""
+        if (self.route, self.special_vehicles) == (1, False):
+            return "C1"
+        if (self.route, self.special_vehicles) == (2, True):
+            return "C2"
+        return f"route {self.route}" + (" + special vehicles" if self.special_vehicles else "")
 
     def network_path(self) -> Path:
         return Path(self.net_file) if self.net_file is not None else NET_FILE
@@ -271,6 +276,11 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
     def running(self) -> bool:
         return engine.owns(self)
 
+    @property
+    def pending_expert_action(self) -> np.ndarray | None:
+        """The array the last ``expert_action()`` returned, until the next step (what ``step`` recognises)."""
+        return self._expert_action
+
     # -- gymnasium -----------------------------------------------------------------------------
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -313,7 +323,8 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
         if act.shape != (1,) or not np.isfinite(act).all():
             raise ValueError(f"action must be one finite number in [-1, 1], got {action!r}")
         act = np.clip(act, -1.0, 1.0)
-        expert = self._expert_action is not None and np.array_equal(act, self._expert_action)
+        # identity, not equality: a policy that happens to output the same number still drives itself
+        expert = self._expert_action is not None and action is self._expert_action
         self._expert_action = None
         try:
             return self._step(act, expert)
@@ -331,7 +342,11 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # -- the simulator protocol ----------------------------------------------------------------
     def expert_action(self) -> np.ndarray:
-        """SUMO's own driver model for this step (executed by SUMO itself when passed to ``step``)."""
+        """SUMO's own driver model for this step.
+
+        Passing the very array returned here to ``step`` (as ``core.loop.Runner`` does on a takeover) lets SUMO
+        drive the ego for that step; any other array, equal or not, is applied as the agent's acceleration.
+        """
         if self._episode.done or not engine.owns(self):
             return np.zeros(1, np.float32)
         try:
@@ -340,7 +355,7 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
             raise SumoError(f"SUMO failed while computing the expert action: {exc}") from exc
         action = np.array([self._normalize((target - self._speed) / self.config.step_length)], np.float32)
         self._expert_action = action
-        return action.copy()
+        return action
 
     def scene(self) -> Scene:
         cfg = self.config

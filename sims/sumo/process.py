@@ -53,6 +53,8 @@ def _worker(conn: Connection, config: dict[str, Any]) -> None:
                 conn.send(("error", "ValueError", f"unknown worker method {method!r}", ""))
                 continue
             try:
+                if method == "step" and kwargs.pop("expert", False) and env.pending_expert_action is not None:
+                    args = (env.pending_expert_action,)  # the parent passed on the expert's own array
                 if method == "scene":
                     known_key = kwargs.pop("known_static_key", None)
                     result: Any = env.scene()
@@ -94,6 +96,7 @@ class SumoProcessEnv(gym.Env[np.ndarray, np.ndarray]):
         self._process: Any = None
         self._conn: Connection | None = None
         self._static: tuple[str, list[Any]] | None = None
+        self._last_expert: np.ndarray | None = None
 
     # -- worker management ---------------------------------------------------------------------
     @property
@@ -174,7 +177,9 @@ class SumoProcessEnv(gym.Env[np.ndarray, np.ndarray]):
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        return self._call("step", np.asarray(action, dtype=np.float32))
+        expert = self._last_expert is not None and action is self._last_expert
+        self._last_expert = None
+        return self._call("step", np.asarray(action, dtype=np.float32), expert=expert)
 
     def close(self) -> None:
         self._stop_worker()
@@ -185,7 +190,9 @@ class SumoProcessEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # -- the simulator protocol ----------------------------------------------------------------
     def expert_action(self) -> np.ndarray:
-        return self._call("expert_action")
+        """SUMO's driver model; passing this very array to ``step`` lets SUMO drive that step (as in SumoEnv)."""
+        self._last_expert = self._call("expert_action")
+        return self._last_expert
 
     def scene(self) -> Scene:
         known = self._static[0] if self._static is not None else None

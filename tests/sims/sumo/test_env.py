@@ -153,6 +153,19 @@ def test_expert_completes_routes_without_violations(make_env: MakeEnv, route: in
         assert np.mean(errors) < 0.15
 
 
+def test_only_the_experts_own_array_hands_the_step_to_sumo(make_env: MakeEnv) -> None:
+    env = make_env(route=1)
+    env.reset(seed=0)
+    suggestion = env.expert_action()
+    _, _, _, _, info = env.step(suggestion.copy())  # an equal action from someone else: the agent drives
+    assert not info["expert_drove"]
+    _, _, _, _, info = env.step(env.expert_action())
+    assert info["expert_drove"]
+    env.expert_action()  # asked, but not followed
+    _, _, _, _, info = env.step(np.zeros(1, np.float32))
+    assert not info["expert_drove"]
+
+
 def _special_labels_seen(env: SumoEnv, steps: int) -> set[str]:
     seen: set[str] = set()
     for _ in range(steps):

@@ -26,10 +26,10 @@ def test_process_env_runs_the_same_episode_and_survives_a_dead_worker(make_env: 
         assert info["phase"] == "C2"
         np.testing.assert_array_equal(obs_local, obs_remote)  # SUMO is deterministic given the seed
         for _ in range(30):
-            a = remote.expert_action()
-            np.testing.assert_array_equal(a, local.expert_action())
-            step_remote = remote.step(a)
-            step_local = local.step(a)
+            a_remote, a_local = remote.expert_action(), local.expert_action()
+            np.testing.assert_array_equal(a_remote, a_local)
+            step_remote = remote.step(a_remote)
+            step_local = local.step(a_local)
             np.testing.assert_array_equal(step_remote[0], step_local[0])
             assert step_remote[1:4] == step_local[1:4] and step_remote[4]["expert_drove"]
         assert remote.metrics() == local.metrics()
