@@ -140,19 +140,23 @@ class PersonExpert:
         self.scripted: Expert = scripted or ScriptedExpert()
         self.latched = False
         """The person left mid-takeover: the scripted expert keeps control until they are back."""
+        self._holding = False
         self.last_input: OperatorSnapshot | None = None
         """The operator input behind the latest person action (for latency accounting)."""
 
     def reset(self) -> None:
         self.latched = False
+        self._holding = False
         self.scripted.reset()
 
     def _look(self) -> OperatorSnapshot:
         snap = self.console.snapshot()
         if snap.answering:
             self.latched = False
-        elif snap.held:
+            self._holding = snap.held
+        elif self._holding:  # they were holding the takeover when they went silent, hid or left
             self.latched = True
+            self._holding = False
         return snap
 
     def wants_control(self) -> bool:

@@ -8,6 +8,7 @@ gate (fear / curiosity / threshold). Every run folder is offered, and each check
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from collections.abc import Iterable
@@ -16,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from core.experts import ExpertPolicy
 from core.loop import Gate, NoGate, Policy
@@ -54,15 +56,18 @@ def _meta(folder: Path) -> dict[str, Any]:
 
 
 def _sim_of(meta: dict[str, Any]) -> str | None:
+    """The simulator named by a run's ``config.json`` (``{"run": {"sim"}, "meta": {"sim"}}``) or similar."""
     for key in ("sim", "simulator"):
         if isinstance(meta.get(key), str):
             return meta[key]
     env_id = meta.get("env_id") or meta.get("env")
     if isinstance(env_id, str) and env_id.startswith("sage/"):
         return env_id.split("/", 1)[1].split("-", 1)[0].lower()
-    config = meta.get("config")
-    if isinstance(config, dict):
-        return _sim_of(config)
+    for nested in ("meta", "run", "config"):
+        if isinstance(meta.get(nested), dict):
+            found = _sim_of(meta[nested])
+            if found is not None:
+                return found
     return None
 
 
@@ -89,11 +94,8 @@ def discover(roots: Iterable[Path], sim: str | None = None) -> list[PolicyChoice
                 continue
             name = f"{root.name}/{folder.name}"
             choices.append(PolicyChoice(str(folder), name, agent_sim))
-            versions = sorted([*folder.glob("*.pt"), *(folder / "checkpoints").glob("*.pt")])
-            if len(versions) > 1:
-                for version in versions:
-                    rel = version.relative_to(folder)
-                    choices.append(PolicyChoice(str(version), f"{name} @ {rel}", agent_sim))
+            for version in sorted((folder / "checkpoints").glob("*.pt")):
+                choices.append(PolicyChoice(str(version), f"{name} @ {version.stem}", agent_sim))
     choices.append(PolicyChoice(SCRIPTED, "scripted expert (no gate)", None))
     return choices
 
@@ -132,6 +134,20 @@ def load_policy(choice: str, env: gym.Env[Any, Any], gate_overrides: dict[str, A
     except ImportError as exc:
         raise RuntimeError(f"cannot load {choice!r}: core.agents is not available ({exc})") from exc
     agent = load_agent(path)
-    gate = agent.make_gate(**(gate_overrides or {}))
-    meta = dict(getattr(agent, "meta", {}) or {})
-    return LoadedPolicy(agent.policy, gate, f"{path.parent.name}/{path.name}", meta)
+    meta = agent.meta
+    obs_dim = int(np.prod(env.observation_space.shape or (0,)))
+    act_dim = int(np.prod(env.action_space.shape or (1,)))
+    if (meta.obs_dim, meta.act_dim) != (obs_dim, act_dim):
+        raise ValueError(
+            f"{choice} was trained on {meta.sim} with observation/action sizes {meta.obs_dim}/{meta.act_dim}, "
+            f"this simulator has {obs_dim}/{act_dim}"
+        )
+    # a run without a world model (plain SAC / TD3) has no SAGE gate: it drives ungated
+    gate: Gate = agent.make_gate(**(gate_overrides or {})) if agent.has_world_model else NoGate()
+    if path.is_dir():
+        label = f"{path.parent.name}/{path.name}"
+    elif path.parent.name == "checkpoints":
+        label = f"{path.parent.parent.name} @ {path.stem}"
+    else:
+        label = f"{path.parent.name} @ {path.stem}"
+    return LoadedPolicy(agent.policy, gate, f"{label} ({meta.method})", dataclasses.asdict(meta))

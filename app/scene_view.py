@@ -25,8 +25,8 @@ log = logging.getLogger(__name__)
 
 GROUND_Z = 0.0
 TRAIL_POINTS = 600
-RAY_FREE = (64, 196, 200)
-RAY_HIT = (255, 86, 86)
+RAY_FREE = (38, 110, 130)
+RAY_HIT = (214, 84, 104)
 TRAIL_COLOR = (255, 200, 60)
 
 
@@ -44,6 +44,18 @@ def rgb(color: str | Sequence[int] | None, default: tuple[int, int, int] = (160,
     if isinstance(color, Sequence) and len(color) >= 3:
         return int(color[0]), int(color[1]), int(color[2])
     return default
+
+
+def linear(color: tuple[int, int, int]) -> tuple[int, int, int]:
+    """sRGB to linear 0-255: viser hands per-vertex and per-instance colours to three.js as linear values,
+    so without this every ``#rrggbb`` of a batched mesh or a line would come out washed out."""
+
+    def channel(c: int) -> int:
+        x = c / 255.0
+        y = x / 12.92 if x <= 0.04045 else ((x + 0.055) / 1.055) ** 2.4
+        return round(255 * y)
+
+    return channel(color[0]), channel(color[1]), channel(color[2])
 
 
 def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
@@ -255,12 +267,16 @@ class SceneDrawer:
             )
         self._frame_camera()
 
-    def _frame_camera(self) -> None:
+    def _frame_camera(self, aspect: float = 2.0) -> None:
+        """Look at the whole map from above and slightly behind, framed for a wide view."""
         x0, y0, x1, y1 = self.bounds
         cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
-        span = max(x1 - x0, y1 - y0, 1.0)
-        position = (cx, cy - 0.34 * span, 0.70 * span)
-        look_at = (cx, cy + 0.04 * span, 0.0)
+        half_height = max(y1 - y0, 1.0) / 2 * 1.3
+        half_width = max(x1 - x0, 1.0) / 2 * 1.3
+        distance = max(half_height, half_width / aspect) / math.tan(math.radians(75.0 / 2))
+        tilt = math.radians(28.0)
+        position = (cx, cy - distance * math.sin(tilt), distance * math.cos(tilt))
+        look_at = (cx, cy, 0.0)
         self.server.initial_camera.position = position
         self.server.initial_camera.look_at = look_at
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
@@ -281,7 +297,7 @@ class SceneDrawer:
             pos[i] = (float(s["x"]), float(s["y"]), GROUND_Z)
             wxyz[i] = yaw_quaternion(float(s.get("yaw", 0.0)))
             scale[i] = (length, width, box_height(length, width))
-            colors[i] = rgb(s.get("color"))
+            colors[i] = linear(rgb(s.get("color")))
         return pos, wxyz, scale, colors
 
     @staticmethod
@@ -295,7 +311,7 @@ class SceneDrawer:
             r = float(s.get("radius", 0.5))
             pos[i] = (float(s["x"]), float(s["y"]), GROUND_Z)
             scale[i] = (r, r, float(np.clip(0.8 * r, 0.15, 1.5)))
-            colors[i] = rgb(s.get("color"))
+            colors[i] = linear(rgb(s.get("color")))
         return pos, wxyz, scale, colors
 
     def _batched(self, name: str, shapes: list[dict[str, Any]], mesh: Any, transforms: Any) -> Any:
@@ -356,7 +372,7 @@ class SceneDrawer:
             return None
         points = np.concatenate(segs)
         colors = np.concatenate(
-            [np.broadcast_to(np.array(c, np.uint8), (len(seg), 2, 3)) for seg, c in items if len(seg)]
+            [np.broadcast_to(np.array(linear(c), np.uint8), (len(seg), 2, 3)) for seg, c in items if len(seg)]
         )
         return self.server.scene.add_line_segments(name, points, colors, thickness=thickness)
 
@@ -434,12 +450,16 @@ class SceneDrawer:
         points[:, 1, :2] = ends
         points[:, :, 2] = 0.12
         hit = np.asarray(rays.get("hit") or [False] * n, dtype=bool).reshape(-1)[:n]
-        colors = np.where(hit[:, None, None], np.array(RAY_HIT, np.uint8), np.array(RAY_FREE, np.uint8))
-        colors = np.broadcast_to(colors, (n, 2, 3)).astype(np.uint8)
+        # near hits glow red, far ones fade to the free-ray colour: the eye finds the danger at once
+        dist = np.linalg.norm(ends - origin, axis=1)
+        reach = float(dist.max()) if n else 1.0
+        closeness = np.where(hit, np.clip(1.0 - dist / max(0.5 * reach, 1e-6), 0.0, 1.0), 0.0)[:, None]
+        mixed = (1.0 - closeness) * np.array(linear(RAY_FREE)) + closeness * np.array(linear(RAY_HIT))
+        colors = np.broadcast_to(mixed[:, None, :], (n, 2, 3)).astype(np.uint8)
         if self._rays is None or len(self._rays.points) != n:
             if self._rays is not None:
                 self._rays.remove()
-            self._rays = self.server.scene.add_line_segments(f"{self.root}/rays", points, colors, thickness=0.015)
+            self._rays = self.server.scene.add_line_segments(f"{self.root}/rays", points, colors, thickness=0.01)
         else:
             self._rays.points = points
             self._rays.colors = colors
@@ -461,7 +481,9 @@ class SceneDrawer:
             return
         points = _segments(self._trail_points, False, 0.02)
         if self._trail is None:
-            self._trail = self.server.scene.add_line_segments(f"{self.root}/trail", points, TRAIL_COLOR, thickness=0.04)
+            self._trail = self.server.scene.add_line_segments(
+                f"{self.root}/trail", points, linear(TRAIL_COLOR), thickness=0.04
+            )
         else:
             self._trail.points = points
 

@@ -338,7 +338,8 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
                     log.exception("message handling failed")
                     reply = _error(f"internal error: {type(exc).__name__}: {exc}")
                 if reply is not None:
-                    client.offer(reply)
+                    # replies wait for room (a flooding page slows only itself); the stream drops instead
+                    await client.queue.put(reply)
         finally:
             dash.hub.remove(client)
             sender.cancel()

@@ -193,6 +193,8 @@ def toy_policy_loader(choice: str, env: gym.Env[Any, Any], gate: Any = None) -> 
         return LoadedPolicy(ExpertPolicy(env), NoGate(), "scripted expert (no gate)", {})
     if choice == "wave":
         return LoadedPolicy(Wander(), gate or WaveGate(), "wander + wave gate", {})
+    if choice == "calm":  # a gate that never fires: every takeover is the person's own
+        return LoadedPolicy(Wander(), gate or WaveGate(fire_from=0, fire_to=0), "wander + calm gate", {})
     raise FileNotFoundError(f"no policy at {choice!r}")
 
 

@@ -1,0 +1,289 @@
+"""The dashboard in a real browser (Debian's chromium through Playwright).
+
+Most tests block the embedded 3D view (viser) so that software WebGL does not compete with the page
+for this machine's two cores; the first test keeps it and drives the takeover from inside it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from core.loop import StepRecord
+from tests.app.conftest import LiveServer, start_server, stop_server, toy_settings
+
+pytestmark = pytest.mark.browser
+
+ROOT = Path(__file__).resolve().parents[2]
+WAIT_MS = 30_000
+
+
+class Recorder:
+    """Every step the server's loop runs, as seen by a Runner listener (time, actor, action)."""
+
+    def __init__(self, live: LiveServer) -> None:
+        self.records: list[tuple[float, StepRecord]] = []
+        self._lock = threading.Lock()
+        live.dash.live.world.runner.step_listeners.append(self._on_step)
+
+    def _on_step(self, record: StepRecord) -> None:
+        with self._lock:
+            self.records.append((time.time(), record))
+
+    def since(self, t0: float) -> list[StepRecord]:
+        with self._lock:
+            return [r for at, r in self.records if at >= t0]
+
+    def wait_for(self, pred: Callable[[StepRecord], bool], since: float, timeout: float = 20.0) -> StepRecord:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for record in self.since(since):
+                if pred(record):
+                    return record
+            time.sleep(0.02)
+        actors = [r.actor for r in self.since(since)][-20:]
+        raise AssertionError(f"no matching step within {timeout} s; recent actors: {actors}")
+
+
+@pytest.fixture
+def calm_server(tmp_path: Path) -> Iterator[LiveServer]:
+    """Person mode with a gate that never fires: every takeover is the person's own."""
+    live, thread = start_server(toy_settings(tmp_path, policy="calm"))
+    try:
+        yield live
+    finally:
+        stop_server(live, thread)
+
+
+def open_page(browser: Any, live: LiveServer, *, scene: bool = False, init_script: str | None = None) -> Any:
+    context = browser.new_context(viewport={"width": 1400, "height": 860})
+    if not scene:
+        context.route("**/viser/**", lambda route: route.abort())
+    if init_script:
+        context.add_init_script(init_script)
+    page = context.new_page()
+    page.goto(live.url)
+    page.wait_for_function("window.sage && window.sage.connected && window.sage.steps > 0", timeout=WAIT_MS)
+    return page
+
+
+def become_operator(page: Any) -> None:
+    page.wait_for_function("window.sage.role === 'operator'", timeout=WAIT_MS)
+    page.wait_for_function("window.sage.inputsSent > 2", timeout=WAIT_MS)
+
+
+def test_page_loads_the_scene_and_the_charts_move_and_keys_inside_the_scene_reach_the_page(
+    browser: Any, calm_server: LiveServer
+) -> None:
+    page = open_page(browser, calm_server, scene=True)
+    become_operator(page)
+    scene = page.frame_locator("#scene")
+    scene.locator("canvas").first.wait_for(timeout=WAIT_MS)
+    frame = next(f for f in page.frames if "/viser/" in f.url)
+    frame.wait_for_function("document.getElementById('sage-frame-css') !== null", timeout=WAIT_MS)
+
+    before = page.evaluate("({steps: sage.steps, frames: sage.charts.fear.frames})")
+    image = page.evaluate("document.getElementById('chart-fear').toDataURL()")
+    page.wait_for_function(f"sage.steps >= {before['steps'] + 15}", timeout=WAIT_MS)
+    after = page.evaluate("({steps: sage.steps, frames: sage.charts.fear.frames})")
+    assert after["frames"] > before["frames"]
+    assert page.evaluate("document.getElementById('chart-fear').toDataURL()") != image, "the chart did not move"
+    assert page.locator("#pill-mode").inner_text().strip() == "LIVE"
+
+    # focus the 3D view: keys pressed there are caught before viser's camera controls see them
+    recorder = Recorder(calm_server)
+    page.locator("#scene").click(position={"x": 300, "y": 150})
+    t0 = time.time()
+    page.keyboard.down("Space")
+    recorder.wait_for(lambda r: r.actor == "person", since=t0)
+    page.wait_for_function("sage.lastStep && sage.lastStep.actor === 'person'", timeout=WAIT_MS)
+    page.keyboard.up("Space")
+    t1 = time.time()
+    recorder.wait_for(lambda r: r.actor == "agent", since=t1)
+    page.context.close()
+
+
+def test_holding_space_takes_over_steering_keys_drive_and_releasing_returns_control(
+    browser: Any, calm_server: LiveServer
+) -> None:
+    page = open_page(browser, calm_server)
+    become_operator(page)
+    recorder = Recorder(calm_server)
+    t0 = time.time()
+    page.keyboard.down("Space")
+    page.keyboard.down("KeyW")
+    page.keyboard.down("KeyA")
+    first = recorder.wait_for(lambda r: r.actor == "person", since=t0)
+    assert first.takeover and not first.gate_fired and first.a_expert is not None
+    # the keyboard ramps up like a driving simulator's manual controls: full throttle and left turn soon
+    ramped = recorder.wait_for(lambda r: r.actor == "person" and r.action[0] > 0.9 and r.action[1] > 0.9, since=t0)
+    assert ramped.a_rl[0] == pytest.approx(0.6, abs=1e-6), "the agent's own action is recorded beside it"
+    page.wait_for_function("document.getElementById('banner').textContent.includes('Person in control')")
+    page.keyboard.up("KeyW")
+    page.keyboard.up("KeyA")
+    page.keyboard.up("Space")
+    t1 = time.time()
+    back = recorder.wait_for(lambda r: r.actor == "agent", since=t1)
+    assert not back.takeover
+    # the sticky toggle holds the takeover without a key held, and Escape releases it
+    t2 = time.time()
+    page.keyboard.press("KeyT")
+    recorder.wait_for(lambda r: r.actor == "person", since=t2)
+    page.keyboard.press("Escape")
+    t3 = time.time()
+    recorder.wait_for(lambda r: r.actor == "agent", since=t3)
+    page.context.close()
+
+
+GAMEPAD_STUB = """
+window.__pad = {trigger: 0, x: 0, y: 0};
+Object.defineProperty(navigator, "getGamepads", {value: () => [{
+  id: "stub pad", index: 0, connected: true, mapping: "standard", timestamp: performance.now(),
+  axes: [window.__pad.x, window.__pad.y, 0, 0],
+  buttons: Array.from({length: 17}, (_, i) => {
+    const v = (i === 7) ? window.__pad.trigger : 0;
+    return {pressed: v > 0.5, touched: v > 0, value: v};
+  }),
+}]});
+"""
+
+
+def test_a_gamepad_trigger_takes_over_and_the_stick_steers(browser: Any, calm_server: LiveServer) -> None:
+    page = open_page(browser, calm_server, init_script=GAMEPAD_STUB)
+    become_operator(page)
+    recorder = Recorder(calm_server)
+    t0 = time.time()
+    page.evaluate("window.__pad.trigger = 1; window.__pad.x = -1.0; window.__pad.y = 0.05")  # y inside deadzone
+    person = recorder.wait_for(lambda r: r.actor == "person", since=t0)
+    steered = recorder.wait_for(lambda r: r.actor == "person" and r.action[1] > 0.99, since=t0)
+    assert steered.action[0] == pytest.approx(0.0), "a stick inside the deadzone gives no throttle"
+    assert person.takeover
+    page.wait_for_function("document.getElementById('op-source').textContent.startsWith('gamepad')")
+    page.evaluate("window.__pad.trigger = 0; window.__pad.x = 0")
+    t1 = time.time()
+    recorder.wait_for(lambda r: r.actor == "agent", since=t1)
+    page.context.close()
+
+
+def test_closing_the_page_mid_takeover_hands_control_to_the_fallback_within_200_ms(
+    browser: Any, calm_server: LiveServer
+) -> None:
+    page = open_page(browser, calm_server)
+    become_operator(page)
+    recorder = Recorder(calm_server)
+    t0 = time.time()
+    page.keyboard.down("Space")
+    recorder.wait_for(lambda r: r.actor == "person", since=t0)
+    recorder.wait_for(lambda r: r.actor == "person", since=time.time())  # still in control right now
+    closed_at = time.time()
+    page.context.close()
+    first = recorder.wait_for(lambda r: True, since=closed_at)
+    later = recorder.since(closed_at)
+    assert first.actor == "fallback", f"the first step after closing was {first.actor!r}"
+    handover = next(at for at, r in recorder.records if r is first) - closed_at
+    assert handover <= 0.2, f"fallback took {handover * 1000:.0f} ms"
+    time.sleep(0.5)
+    later = recorder.since(closed_at)
+    assert len(later) >= 3 and all(r.actor == "fallback" for r in later), "the agent must not get control back"
+    assert not calm_server.dash.console.connected
+
+
+def test_a_second_page_without_the_token_cannot_take_control(browser: Any, calm_server: LiveServer) -> None:
+    operator = open_page(browser, calm_server)
+    become_operator(operator)
+    viewer = open_page(browser, calm_server)
+    viewer.wait_for_function("window.sage.errors.some(e => e.op === 'claim')", timeout=WAIT_MS)
+    assert viewer.evaluate("sage.role") == "viewer" and viewer.evaluate("sage.token") is None
+    assert viewer.locator("#pill-role").inner_text().strip() == "VIEWER"
+    assert viewer.locator("#btn-pause").is_disabled()
+    recorder = Recorder(calm_server)
+    t0 = time.time()
+    viewer.keyboard.down("Space")
+    # and a forged message straight through the viewer's own websocket is refused too
+    viewer.evaluate(
+        """() => { window.sage.errors = [];
+        const ws = new WebSocket(`ws://${location.host}/ws`);
+        ws.onmessage = (e) => { const m = JSON.parse(e.data); if (m.type === 'error') window.sage.errors.push(m); };
+        ws.onopen = () => ws.send(JSON.stringify({type: 'input', token: 'forged-token-0000', seq: 1,
+                                  ts: Date.now(), held: true, throttle: 1, steer: 0})); }"""
+    )
+    viewer.wait_for_function("window.sage.errors.some(e => e.op === 'input')", timeout=WAIT_MS)
+    assert "refused" in viewer.evaluate("sage.errors.find(e => e.op === 'input').error")
+    time.sleep(1.0)
+    steps = recorder.since(t0)
+    assert len(steps) >= 5 and not any(r.takeover for r in steps)
+    viewer.keyboard.up("Space")
+    viewer.context.close()
+    operator.context.close()
+
+
+def test_a_thousand_malformed_messages_leave_the_loop_running(browser: Any, calm_server: LiveServer) -> None:
+    page = open_page(browser, calm_server)
+    become_operator(page)
+    steps_before = calm_server.state()["counters"]["steps"]
+    page.evaluate(
+        """() => new Promise((resolve) => {
+        const ws = new WebSocket(`ws://${location.host}/ws`);
+        window.__replies = 0;
+        ws.onmessage = (e) => { if (JSON.parse(e.data).type === 'error') window.__replies += 1; };
+        ws.onopen = () => {
+          const junk = ['{', '[]', 'null', '{"type": 5}', '{"type": "input"}', '{"type": "speed", "value": "fast"}',
+                        '{"type": "control", "token": "abcdefgh", "op": "pause"}', '\\u0000', 'x'.repeat(20000),
+                        JSON.stringify({type: 'input', token: 'a'.repeat(20), seq: -1, ts: 1, held: true})];
+          for (let i = 0; i < 1000; i++) ws.send(junk[i % junk.length]);
+          resolve();
+        };
+      })"""
+    )
+    page.wait_for_function("window.__replies >= 1000", timeout=WAIT_MS)
+    deadline = time.monotonic() + 10
+    while calm_server.state()["counters"]["steps"] < steps_before + 10 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert calm_server.state()["counters"]["steps"] >= steps_before + 10, "the loop stopped"
+    assert not calm_server.state()["paused"]
+    # the operator's own page still works
+    recorder = Recorder(calm_server)
+    t0 = time.time()
+    page.keyboard.down("Space")
+    recorder.wait_for(lambda r: r.actor == "person", since=t0)
+    page.keyboard.up("Space")
+    page.context.close()
+
+
+def test_readme_screenshot_of_the_dashboard(browser: Any, tmp_path: Path) -> None:
+    """The README's picture: the UGV with its committed default policy (when present), a person takeover."""
+    from app.server import ServerSettings
+
+    settings = ServerSettings(
+        sim="ugv",
+        scenario=3,
+        sessions=tmp_path / "sessions",
+        speed=1.5,
+        policy_roots=[ROOT / "policies", ROOT / "runs"],
+    )
+    live, thread = start_server(settings)
+    try:
+        context = browser.new_context(viewport={"width": 1600, "height": 900}, device_scale_factor=1)
+        page = context.new_page()
+        page.goto(live.url + "/?sceneDpr=1")
+        page.wait_for_function("window.sage && window.sage.role === 'operator' && sage.steps > 60", timeout=60_000)
+        page.keyboard.down("Space")
+        page.keyboard.down("KeyW")
+        page.wait_for_function("sage.lastStep && sage.lastStep.actor === 'person'", timeout=WAIT_MS)
+        time.sleep(1.2)
+        page.keyboard.up("KeyW")
+        page.keyboard.up("Space")
+        page.wait_for_function("sage.steps > 140", timeout=60_000)
+        page.wait_for_timeout(800)
+        out = ROOT / "docs" / "dashboard.png"
+        out.parent.mkdir(exist_ok=True)
+        page.screenshot(path=str(out))
+        assert out.stat().st_size > 50_000
+        context.close()
+    finally:
+        stop_server(live, thread)

@@ -1,0 +1,160 @@
+"""The person as an expert: the fail-safe timing (injected clock, no sleeping), latest input wins,
+the three expert modes, the control token, and the per-simulator input mapping."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from app.input_map import INPUT_MAPPINGS, InputMapping, mapping_for, to_action
+from app.operator import ControlDesk, OperatorConsole, PersonExpert
+from tests.app.fakesim import ToyRobotEnv
+
+BOX2 = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def setup() -> tuple[Clock, OperatorConsole, PersonExpert, ToyRobotEnv]:
+    clock = Clock()
+    console = OperatorConsole(clock=clock, timeout=0.2)
+    expert = PersonExpert(console, INPUT_MAPPINGS["ugv"], BOX2, mode="person")
+    env = ToyRobotEnv()
+    env.reset(seed=0)
+    return clock, console, expert, env
+
+
+def send(console: OperatorConsole, ts: float, held: bool, throttle: float = 0.0, steer: float = 0.0, seq: int = 0):
+    return console.accept_input(seq=seq, ts=ts, held=held, throttle=throttle, steer=steer, source="keyboard")
+
+
+def test_fresh_input_drives_and_silence_hands_over_to_the_fallback_after_200_ms(setup) -> None:
+    clock, console, expert, env = setup
+    console.connect()
+    send(console, 1000.0, held=True, throttle=0.5, steer=-0.25)
+    assert expert.wants_control()
+    action, actor = expert.act(env, env._obs())
+    assert actor == "person" and np.allclose(action, [0.5, -0.25])
+    clock.now += 0.199
+    assert expert.act(env, env._obs())[1] == "person"
+    clock.now += 0.002  # 201 ms without input
+    action, actor = expert.act(env, env._obs())
+    assert actor == "fallback" and np.allclose(action, env.expert_action())
+    assert expert.wants_control(), "a silent operator who was holding keeps the takeover, with the fallback"
+    send(console, 1300.0, held=True, seq=1)  # the heartbeat is back
+    assert expert.act(env, env._obs())[1] == "person"
+
+
+def test_gate_requested_takeover_without_any_operator_goes_to_the_fallback_at_once(setup) -> None:
+    _, console, expert, env = setup
+    assert not expert.wants_control()  # nobody connected: the person never asks for control
+    assert expert.act(env, env._obs())[1] == "fallback"  # but a gate-requested takeover is answered
+    console.connect()
+    assert expert.act(env, env._obs())[1] == "fallback"  # connected but no input yet
+
+
+@pytest.mark.parametrize("leave", ["disconnect", "blur", "hide"])
+def test_leaving_mid_takeover_latches_the_fallback_until_the_episode_ends(setup, leave: str) -> None:
+    _, console, expert, env = setup
+    console.connect()
+    send(console, 1.0, held=True, throttle=1.0)
+    assert expert.act(env, env._obs())[1] == "person"
+    if leave == "disconnect":
+        console.disconnect()
+    else:
+        console.set_presence(focused=leave != "blur", visible=leave != "hide")
+    assert expert.wants_control() and expert.act(env, env._obs())[1] == "fallback"
+    expert.reset()  # new episode
+    assert not expert.wants_control()
+
+
+def test_returning_operator_who_released_gives_control_back_to_the_agent(setup) -> None:
+    clock, console, expert, env = setup
+    console.connect()
+    send(console, 1.0, held=True)
+    assert expert.wants_control()  # the loop saw the person holding
+    clock.now += 1.0
+    assert expert.wants_control() and expert.act(env, env._obs())[1] == "fallback"
+    send(console, 2.0, held=False, seq=1)
+    assert not expert.wants_control()
+
+
+def test_latest_input_wins_and_older_ones_are_dropped(setup) -> None:
+    _, console, _, _ = setup
+    console.connect()
+    assert send(console, 10.0, held=True, throttle=1.0, seq=5)
+    assert not send(console, 9.0, held=False, throttle=-1.0, seq=6)  # read earlier on the page: stale
+    assert not send(console, 10.0, held=False, seq=5)  # the same input twice
+    snap = console.snapshot()
+    assert snap.held and snap.throttle == 1.0 and snap.seq == 5
+    assert send(console, 10.0, held=False, seq=6)  # same ms, later sequence number
+
+
+def test_input_from_nobody_is_refused(setup) -> None:
+    _, console, _, _ = setup
+    assert not send(console, 1.0, held=True)  # no operator connected
+
+
+def test_takeover_onset_wakes_the_loop_once_per_press(setup) -> None:
+    _, console, _, _ = setup
+    onsets: list[int] = []
+    console.on_takeover_onset = lambda: onsets.append(1)
+    console.connect()
+    send(console, 1.0, held=True, seq=1)
+    send(console, 2.0, held=True, seq=2)
+    send(console, 3.0, held=False, seq=3)
+    send(console, 4.0, held=True, seq=4)
+    assert len(onsets) == 2
+
+
+def test_modes(setup) -> None:
+    _, console, expert, env = setup
+    console.connect()
+    send(console, 1.0, held=False, throttle=0.3)
+    expert.mode = "scripted"
+    assert not expert.wants_control() and expert.act(env, env._obs())[1] == "expert"
+    send(console, 2.0, held=True, throttle=0.3, seq=1)
+    assert not expert.wants_control(), "scripted mode ignores the person"
+    expert.mode = "person_fallback"
+    assert expert.wants_control() and expert.act(env, env._obs())[1] == "person"
+    send(console, 3.0, held=False, seq=2)
+    # the gate asks while the person is not holding: the scripted expert answers as a normal expert
+    assert not expert.wants_control() and expert.act(env, env._obs())[1] == "expert"
+    expert.mode = "person"
+    assert expert.act(env, env._obs())[1] == "person"  # the person answers the gate (present, fresh)
+
+
+def test_control_desk_issues_one_token_at_a_time() -> None:
+    desk = ControlDesk()
+    first, second = object(), object()
+    token = desk.claim(first)
+    assert token is not None and desk.claim(first) == token  # claiming again is harmless
+    assert desk.claim(second) is None
+    assert desk.check(first, token) and not desk.check(second, token) and not desk.check(first, token + "x")
+    assert not desk.release(second) and desk.holder() is first
+    assert desk.release(first)
+    new = desk.claim(second)
+    assert new is not None and new != token and not desk.check(first, token)
+
+
+def test_input_mapping_table_and_fallback_by_action_space() -> None:
+    ugv = to_action(INPUT_MAPPINGS["ugv"], BOX2, throttle=0.5, steer=1.0)
+    assert ugv.dtype == np.float32 and np.allclose(ugv, [0.5, 1.0])
+    highway = to_action(INPUT_MAPPINGS["highway"], BOX2, throttle=1.0, steer=1.0)
+    assert np.allclose(highway, [1.0, -1.0])  # left on the page is a negative steering angle there
+    sumo = to_action(mapping_for("sumo", gym.spaces.Box(-3.0, 2.0, (1,))), gym.spaces.Box(-3.0, 2.0, (1,)), 0.0, 1.0)
+    assert np.allclose(sumo, [-0.5])  # scaled into [-3, 2]: the middle of the range, steering ignored
+    assert mapping_for("unknown", BOX2) == InputMapping(0, 1)
+    assert mapping_for("unknown", gym.spaces.Box(-1, 1, (1,))).steer_index is None
+    discrete = gym.spaces.Discrete(3)
+    assert [int(to_action(InputMapping(0, None), discrete, t, 0.0)) for t in (-1.0, 0.0, 1.0)] == [0, 1, 2]
+    with pytest.raises(TypeError, match="MultiBinary"):
+        to_action(InputMapping(0, 1), gym.spaces.MultiBinary(2), 0.0, 0.0)
