@@ -30,7 +30,7 @@ def raw_steps_per_second(route: int, special: bool, steps: int) -> tuple[float, 
     """(simulation steps/s, mean vehicle count) of plain libsumo on a scenario's network and flows."""
     cfg = SumoConfig(route=route, special_vehicles=special)
     owner = object()
-    args = SumoEnv(cfg)._sumo_args(seed=1)
+    args = SumoEnv(cfg).sumo_args(seed=1)
     engine.start(owner, args)
     try:
         lib = engine.libsumo

@@ -298,7 +298,7 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
         self._episode = _Episode()
         self._expert_action = None
         self._speed_mode = -1
-        engine.start(self, self._sumo_args(sumo_seed))
+        engine.start(self, self.sumo_args(sumo_seed))
         try:
             self._prepare_episode()
             self._obs = self._observe()
@@ -407,8 +407,8 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
             "special_vehicles": float(self.config.special_vehicles),
         }
 
-    # -- internals -----------------------------------------------------------------------------
-    def _sumo_args(self, seed: int) -> list[str]:
+    def sumo_args(self, seed: int) -> list[str]:
+        """SUMO's command line (without the binary) for an episode of this config with this SUMO seed."""
         cfg = self.config
         return [
             "--net-file", str(cfg.network_path()),
@@ -427,6 +427,7 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
             *cfg.extra_args,
         ]  # fmt: skip
 
+    # -- internals -----------------------------------------------------------------------------
     def _prepare_episode(self) -> None:
         cfg = self.config
         dt = cfg.step_length
@@ -689,7 +690,3 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
                     if ahead:
                         bounds.append(reach(libsumo.lane.getMaxSpeed(ahead), dist))
         return max(0.0, min(bounds))
-
-    # kept for the process wrapper and tests
-    def config_dict(self) -> dict[str, Any]:
-        return self.config.to_dict()
