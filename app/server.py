@@ -237,6 +237,8 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         dash = Dashboard(settings)
         dash.hub.bind(asyncio.get_running_loop())
         dash.live.start()
+        # importing every simulator package for the picker takes seconds: do it before the first page asks
+        asyncio.get_running_loop().run_in_executor(None, dash.catalogue)
         app.state.dash = dash
         try:
             yield
