@@ -332,6 +332,8 @@ class LiveLoop:
         message["type"] = "step"
         message["session"] = world.session_id
         message["request_person"] = bool(record.gate_fired and world.expert.mode == "person")
+        operator = self.console.snapshot()
+        message["operator_held"] = operator.held and operator.answering
         message["counters"] = world.counters.as_dict()
         person_input = world.expert.last_input if record.actor == "person" else None
         if person_input is not None:

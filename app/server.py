@@ -18,6 +18,7 @@ import asyncio
 import contextlib
 import importlib
 import importlib.util
+import io
 import json
 import logging
 from collections.abc import AsyncIterator, Callable
@@ -109,7 +110,10 @@ class Dashboard:
         self.hub = Hub()
         self.console = OperatorConsole()
         self.desk = ControlDesk()
-        self.viser = viser.ViserServer(host=settings.viser_host, port=settings.viser_port, verbose=False)
+        # viser prints its own address box even when not verbose; the page is what users open, not viser
+        with contextlib.redirect_stdout(io.StringIO()):
+            self.viser = viser.ViserServer(host=settings.viser_host, port=settings.viser_port, verbose=False)
+        log.info("viser on %s:%d, relayed at /viser/", settings.viser_host, self.viser.get_port())
         self.viser.gui.configure_theme(dark_mode=True, show_logo=False, show_share_button=False)
         self.viser.scene.set_up_direction("+z")
         # No environment map and no shadows: a top-down map needs neither, and without a GPU (software

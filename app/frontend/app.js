@@ -101,6 +101,7 @@ const handlers = {
     const outcome = msg.collision ? "collision" : msg.success ? "success" : msg.error ? "error" : "done";
     toast(`Episode ${msg.episode} ${outcome}: ${msg.steps} steps, takeover ${pct(msg.takeover_rate)}`, "info");
     sessionsStale = true;
+    setTimeout(() => { if (sessionsStale) refreshSessions(); }, 700);
   },
   control(msg) {
     S.role = msg.granted ? "operator" : "viewer";
@@ -193,7 +194,7 @@ function renderStep(msg) {
 
   const banner = $("banner");
   const wrap = $("scene-wrap");
-  const asked = msg.request_person && msg.actor !== "person";
+  const asked = msg.request_person && !msg.operator_held;
   wrap.classList.toggle("alert", Boolean(asked));
   if (asked) {
     banner.hidden = false; banner.dataset.kind = "alert";

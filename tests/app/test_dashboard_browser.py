@@ -287,3 +287,26 @@ def test_readme_screenshot_of_the_dashboard(browser: Any, tmp_path: Path) -> Non
         context.close()
     finally:
         stop_server(live, thread)
+
+
+def test_the_page_alerts_the_operator_when_the_gate_asks_for_a_person(browser: Any, tmp_path: Path) -> None:
+    live, thread = start_server(toy_settings(tmp_path, policy="wave"))  # fires on steps 20..29 of every 40
+    try:
+        page = open_page(browser, live)
+        become_operator(page)
+        page.wait_for_function(
+            "document.getElementById('scene-wrap').classList.contains('alert') && "
+            "document.getElementById('banner').textContent.includes('take over now')",
+            timeout=WAIT_MS,
+        )
+        assert page.evaluate("sage.lastStep.request_person && sage.lastStep.gate_fired")
+        page.keyboard.down("Space")  # the operator answers: the alert gives way to 'Person in control'
+        page.wait_for_function(
+            "!document.getElementById('scene-wrap').classList.contains('alert') && "
+            "document.getElementById('banner').textContent.includes('Person in control')",
+            timeout=WAIT_MS,
+        )
+        page.keyboard.up("Space")
+        page.context.close()
+    finally:
+        stop_server(live, thread)
