@@ -1,0 +1,144 @@
+"""SAGE-SAC update cost against our plain SAC, and our SAC against Stable-Baselines3's SAC.
+
+Same sizes everywhere: 58 observations, 2 actions, actor and critics 2 x 128 (ReLU), 2 critics, batch 256,
+one CPU thread. SAGE-SAC updates with everything on (fear in the critic target and the actor loss through
+the frozen 5-member world model, the dual step, value-weighted imitation on intervention samples, actor
+batches from real and virtual buffers). The methods run in interleaved rounds so that a busy machine
+slows them alike; the printed ratios come from the same run.
+
+    .venv/bin/python bench/bench_sac.py [--rounds 5] [--updates 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from core.sage import make_learner
+from core.sage.config import for_method
+from core.sage.learner import BaseLearner
+
+OBS_DIM, ACT_DIM, HIDDEN, BATCH = 58, 2, 128, 256
+
+
+def fill(learner: BaseLearner, n: int, rng: np.random.Generator, takeover_every: int = 10) -> None:
+    obs = rng.random((n + 1, OBS_DIM)).astype(np.float32)
+    for i in range(n):
+        action = rng.uniform(-1, 1, ACT_DIM).astype(np.float32)
+        takeover = i % takeover_every == 0
+        learner.buffer.add(
+            obs[i],
+            action,
+            float(rng.normal()),
+            obs[i + 1],
+            False,
+            cost=float(rng.random()),
+            violation=bool(rng.random() < 0.01),
+            takeover=takeover,
+            a_rl=rng.uniform(-1, 1, ACT_DIM).astype(np.float32),
+            a_expert=action if takeover else None,
+        )
+
+
+def ours(method: str, rng: np.random.Generator) -> BaseLearner:
+    cfg = for_method(method, hidden=HIDDEN, batch_size=BATCH, critics=2)
+    cfg.world_model_config.max_updates_per_fit = 200
+    learner = make_learner(cfg, OBS_DIM, ACT_DIM, seed=0)
+    fill(learner, 20_000, rng)
+    learner.warm = True
+    if learner.world_model is not None:
+        learner.fit_world_model()  # fear active, σ calibrated, virtual buffer filled
+    return learner
+
+
+class RandomEnv(gym.Env[np.ndarray, np.ndarray]):
+    observation_space = gym.spaces.Box(0.0, 1.0, (OBS_DIM,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        return self.observation_space.sample(), {}
+
+    def step(self, action: np.ndarray):
+        return self.observation_space.sample(), 0.0, False, False, {}
+
+
+def sb3(rng: np.random.Generator) -> Any:
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.logger import configure
+
+    model = SAC(
+        "MlpPolicy",
+        RandomEnv(),
+        batch_size=BATCH,
+        learning_starts=0,
+        buffer_size=20_000,
+        policy_kwargs={"net_arch": [HIDDEN, HIDDEN], "n_critics": 2},
+        device="cpu",
+        seed=0,
+    )
+    model.set_logger(configure(None, []))
+    obs = rng.random((20_001, OBS_DIM)).astype(np.float32)
+    for i in range(20_000):
+        model.replay_buffer.add(
+            obs[i : i + 1],
+            obs[i + 1 : i + 2],
+            rng.uniform(-1, 1, (1, ACT_DIM)),
+            np.array([rng.normal()]),
+            np.array([False]),
+            [{}],
+        )
+    return model
+
+
+def rate(fn: Callable[[], None], n: int) -> float:
+    start = time.perf_counter()
+    for _ in range(n):
+        fn()
+    return n / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--updates", type=int, default=200)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(0)
+    sac, sage, reference = ours("sac", rng), ours("sage", rng), sb3(rng)
+    assert sage.world_model_ready() and sage.virtual is not None and len(sage.virtual) > 0
+    contenders: dict[str, Callable[[], None]] = {
+        "our SAC": sac.update,
+        "SAGE-SAC": sage.update,
+        "SB3 SAC": lambda: reference.train(gradient_steps=1, batch_size=BATCH),
+    }
+    for fn in contenders.values():  # warm-up
+        rate(fn, 20)
+    rates: dict[str, list[float]] = {name: [] for name in contenders}
+    for _ in range(args.rounds):
+        for name, fn in contenders.items():
+            rates[name].append(rate(fn, args.updates))
+    median = {name: statistics.median(values) for name, values in rates.items()}
+    print(f"updates per second (median of {args.rounds} interleaved rounds of {args.updates}, one thread):")
+    for name, value in median.items():
+        print(f"  {name:9s} {value:8.1f} /s   ({1000.0 / value:6.2f} ms per update)")
+    print(f"SAGE-SAC update time / our SAC update time: {median['our SAC'] / median['SAGE-SAC']:.2f}x")
+    print(f"our SAC updates per second / SB3 SAC:       {median['our SAC'] / median['SB3 SAC']:.2f}x")
+    print(f"load average while measuring: {', '.join(f'{x:.2f}' for x in _loadavg())}")
+
+
+def _loadavg() -> tuple[float, ...]:
+    import os
+
+    return os.getloadavg()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,242 @@
+"""Checkpoints, and loading a run (or one checkpoint of it) as a policy plus a SAGE gate.
+
+A run folder (written by ``sage train``, :mod:`core.train`) holds ``config.json``, ``metrics.jsonl``,
+``checkpoint.pt`` (the final one) and ``checkpoints/episode_NNNNN.pt`` (versions along the way). A checkpoint
+is a ``torch.save`` of plain data: ``{"format", "version", "meta", "agent_config", "state"}`` where ``state``
+holds the learner's module state dicts and tensors only, so it loads with ``torch.load(weights_only=True)``.
+
+    agent = load_agent("policies/ugv-default")          # a run folder, or a .pt file
+    agent.policy.act(obs, deterministic=True)             # core.loop.Policy
+    gate = agent.make_gate(tau_max=0.7, hold_steps=8)     # core.loop.Gate (SageGate), GateConfig overrides
+    agent.meta.method, agent.meta.sim, agent.meta.scenarios, agent.meta.obs_dim, agent.meta.act_dim
+
+Runs without a world model (``sac``, ``td3`` by default) have no SAGE gate: ``make_gate`` raises
+:class:`NoWorldModelError` (a ``LookupError``) naming the run; check ``agent.has_world_model`` first and
+fall back to :class:`core.loop.NoGate`, or pass ``world_model_from=<another run>`` to gate this run's policy
+with another run's world model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from core.sage.config import AgentConfig, GateConfig, from_dict, set_field, to_dict, validate
+from core.sage.gate import SageGate
+from core.sage.learner import ActorPolicy, BaseLearner
+from core.sage.networks import Actor
+from core.sage.world_model import EnsembleWorldModel
+
+CHECKPOINT_FORMAT = "sage-checkpoint"
+CHECKPOINT_VERSION = 1
+FINAL_CHECKPOINT = "checkpoint.pt"
+CHECKPOINT_DIR = "checkpoints"
+
+
+class NoWorldModelError(LookupError):
+    """The run trained no world model, so there is no SAGE gate for it."""
+
+
+@dataclass
+class AgentMeta:
+    """What a checkpoint says about itself."""
+
+    method: str
+    sim: str
+    scenarios: list[str]
+    obs_dim: int
+    act_dim: int
+    action_low: list[float]
+    action_high: list[float]
+    episodes: int = 0
+    """Training episodes behind this checkpoint (demonstrations excluded)."""
+    env_steps: int = 0
+    updates: int = 0
+    seed: int = 0
+    has_world_model: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+# -- writing --------------------------------------------------------------------------------------
+def save_checkpoint(path: Path, learner: BaseLearner, meta: AgentMeta, dtype: str = "float32") -> Path:
+    """Write the learner's state (``dtype`` ``float16`` halves the file, for committed policies)."""
+    if dtype not in ("float32", "float16"):
+        raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
+    state = learner.state_dict()
+    if dtype == "float16":
+        state = _map_tensors(state, lambda t: t.half() if t.is_floating_point() else t)
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "meta": dataclasses.asdict(meta),
+        "agent_config": _plain(to_dict(learner.cfg)),
+        "state": state,
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)  # never leave a half-written checkpoint behind
+    return path
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _map_tensors(value: Any, fn: Any) -> Any:
+    if isinstance(value, torch.Tensor):
+        return fn(value)
+    if isinstance(value, dict):
+        return type(value)((k, _map_tensors(v, fn)) for k, v in value.items())
+    return value
+
+
+# -- reading --------------------------------------------------------------------------------------
+def resolve_checkpoint(path: str | Path) -> Path:
+    """A checkpoint file from a file path or a run folder (its final checkpoint, else its latest version)."""
+    p = Path(path)
+    if p.is_file():
+        return p
+    if p.is_dir():
+        if (p / FINAL_CHECKPOINT).is_file():
+            return p / FINAL_CHECKPOINT
+        versions = list_checkpoints(p)
+        if versions:
+            return versions[-1]
+        raise FileNotFoundError(f"{p} holds no {FINAL_CHECKPOINT} and no {CHECKPOINT_DIR}/*.pt: not a run folder?")
+    raise FileNotFoundError(f"no run folder or checkpoint file at {p}")
+
+
+def list_checkpoints(run: str | Path) -> list[Path]:
+    """The versions of a run, oldest first (``checkpoints/episode_NNNNN.pt``)."""
+    folder = Path(run) / CHECKPOINT_DIR
+    return sorted(folder.glob("*.pt")) if folder.is_dir() else []
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The checkpoint's payload (tensors as float32), after checking that it is one of ours."""
+    file = resolve_checkpoint(path)
+    try:
+        payload = torch.load(file, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise ValueError(f"{file} is not a readable checkpoint: {type(exc).__name__}: {exc}") from None
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{file} is not a SAGE checkpoint (no format {CHECKPOINT_FORMAT!r})")
+    if payload.get("version") != CHECKPOINT_VERSION:
+        raise ValueError(
+            f"{file} has checkpoint version {payload.get('version')}, this code reads {CHECKPOINT_VERSION}"
+        )
+    payload["state"] = _map_tensors(payload["state"], lambda t: t.float() if t.is_floating_point() else t)
+    payload["file"] = str(file)
+    return payload
+
+
+def meta_of(payload: dict[str, Any]) -> AgentMeta:
+    return AgentMeta(**payload["meta"])
+
+
+@dataclass
+class LoadedAgent:
+    """A trained run as the loop needs it: a policy, and a gate on its world model."""
+
+    path: Path
+    """The checkpoint file that was loaded."""
+    meta: AgentMeta
+    config: AgentConfig
+    actor: Actor
+    world_model: EnsembleWorldModel | None
+    policy: ActorPolicy
+    """``policy.act(obs, deterministic)`` (:class:`core.loop.Policy`); the training-time stochastic policy when
+    ``deterministic`` is False."""
+    gate_state: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def has_world_model(self) -> bool:
+        return self.world_model is not None and bool(self.world_model.fitted)
+
+    def gate_config(self, **overrides: Any) -> GateConfig:
+        """The run's gate settings with ``overrides`` (GateConfig field names; unknown names are an error)."""
+        cfg = dataclasses.replace(self.config.gate)
+        for key, value in overrides.items():
+            set_field(cfg, key, value)
+        probe = dataclasses.replace(self.config, gate=cfg)
+        validate(probe)
+        return cfg
+
+    def make_gate(self, world_model_from: str | Path | LoadedAgent | None = None, **overrides: Any) -> SageGate:
+        """A fresh :class:`SageGate` on this run's world model and policy (its curiosity average restored).
+
+        ``overrides``: any :class:`GateConfig` field (beta, horizon, aggregate, discount, tau_min, tau_max,
+        curiosity_ema, use_curiosity, hold_steps). ``world_model_from``: take the world model of another run
+        (e.g. to gate a plain SAC policy). Raises :class:`NoWorldModelError` when there is none.
+        """
+        source: LoadedAgent = self
+        if world_model_from is not None:
+            source = world_model_from if isinstance(world_model_from, LoadedAgent) else load_agent(world_model_from)
+            if source.meta.obs_dim != self.meta.obs_dim or source.meta.act_dim != self.meta.act_dim:
+                raise ValueError(f"world model of {source.path} does not fit the dimensions of {self.path}")
+        if source.world_model is None or not source.has_world_model:
+            raise NoWorldModelError(
+                f"run {source.path} (method {source.meta.method}) has no trained world model, so no SAGE gate; "
+                "use core.loop.NoGate, or make_gate(world_model_from=<a run with one>)"
+            )
+        gate = SageGate(source.world_model, self.actor, self.gate_config(**overrides))
+        if source is self and self.gate_state:
+            gate.load_state(self.gate_state)
+        return gate
+
+
+def load_agent(path: str | Path) -> LoadedAgent:
+    """Load a run folder or checkpoint file as policy + gate (see the module docstring)."""
+    payload = load_checkpoint(path)
+    meta = meta_of(payload)
+    config = from_dict(payload["agent_config"])
+    state = payload["state"]
+    low = torch.as_tensor(meta.action_low, dtype=torch.float32)
+    high = torch.as_tensor(meta.action_high, dtype=torch.float32)
+    actor = Actor(meta.obs_dim, meta.act_dim, config.hidden, config.layers, low, high)
+    try:
+        actor.load_state_dict(state["actor"])
+    except (KeyError, RuntimeError) as exc:
+        raise ValueError(f"{payload['file']}: actor weights do not match its config: {exc}") from None
+    actor.requires_grad_(False).eval()
+    world_model = None
+    if "world_model" in state:
+        world_model = EnsembleWorldModel(meta.obs_dim, meta.act_dim, config.world_model_config)
+        try:
+            world_model.load_state_dict(state["world_model"])
+        except RuntimeError as exc:
+            raise ValueError(f"{payload['file']}: world model weights do not match its config: {exc}") from None
+        world_model.requires_grad_(False).eval()
+    gate_state = {k: float(v) for k, v in state.get("gate", {}).items() if math.isfinite(float(v))}
+    return LoadedAgent(Path(payload["file"]), meta, config, actor, world_model, ActorPolicy(actor), gate_state)
+
+
+def read_run_config(run: str | Path) -> dict[str, Any]:
+    """The ``config.json`` of a run folder."""
+    file = Path(run) / "config.json"
+    if not file.is_file():
+        raise FileNotFoundError(f"{run} has no config.json")
+    return json.loads(file.read_text())
+
+
+def action_bounds(space: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of a Box action space as float32 arrays (a clear error for anything else)."""
+    low, high = getattr(space, "low", None), getattr(space, "high", None)
+    if low is None or high is None:
+        raise TypeError(
+            f"action space {space} is not a Box: continuous learners only (a discrete D3QN learner is planned)"
+        )
+    return np.asarray(low, np.float32).reshape(-1), np.asarray(high, np.float32).reshape(-1)

@@ -1,0 +1,200 @@
+"""Replay buffers: the real buffer D_actual (every executed transition, with the takeover flag Ξ and both
+the policy's and the expert's actions) and the virtual buffer D_virtual (world-model rollouts).
+
+Both are fixed-capacity numpy rings; samples come back as torch tensors. The real buffer also keeps the
+indices of intervention samples (Ξ = 1) so that the imitation term can draw from them directly, however
+rare they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from core.loop import StepRecord
+
+
+@dataclass
+class Batch:
+    """A minibatch of real transitions as float32 tensors (flags as 0/1 floats)."""
+
+    obs: Tensor
+    action: Tensor
+    """The executed action a_t = (1 - Ξ) a_RL + Ξ a_expert."""
+    reward: Tensor
+    next_obs: Tensor
+    terminated: Tensor
+    violation: Tensor
+    cost: Tensor
+    takeover: Tensor
+    a_rl: Tensor
+    a_expert: Tensor
+    """The expert's action (zeros where Ξ = 0)."""
+
+    def __len__(self) -> int:
+        return self.obs.shape[0]
+
+
+class ReplayBuffer:
+    """D_actual: a ring of executed transitions with Ξ, a_RL and a_expert."""
+
+    def __init__(self, obs_dim: int, act_dim: int, capacity: int) -> None:
+        if capacity < 1:
+            raise ValueError(f"replay capacity must be >= 1, got {capacity}")
+        self.obs_dim, self.act_dim, self.capacity = obs_dim, act_dim, capacity
+        self.obs = np.zeros((capacity, obs_dim), np.float32)
+        self.next_obs = np.zeros((capacity, obs_dim), np.float32)
+        self.action = np.zeros((capacity, act_dim), np.float32)
+        self.a_rl = np.zeros((capacity, act_dim), np.float32)
+        self.a_expert = np.zeros((capacity, act_dim), np.float32)
+        self.reward = np.zeros(capacity, np.float32)
+        self.cost = np.zeros(capacity, np.float32)
+        self.terminated = np.zeros(capacity, np.float32)
+        self.violation = np.zeros(capacity, np.float32)
+        self.takeover = np.zeros(capacity, bool)
+        self.size = 0
+        self.pos = 0
+        self.total = 0
+        """Transitions ever added (the ring keeps the last ``capacity``)."""
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+        *,
+        cost: float = 0.0,
+        violation: bool = False,
+        takeover: bool = False,
+        a_rl: np.ndarray | None = None,
+        a_expert: np.ndarray | None = None,
+    ) -> None:
+        obs = np.asarray(obs, np.float32).reshape(-1)
+        if obs.shape[0] != self.obs_dim:
+            raise ValueError(f"observation has {obs.shape[0]} values, the buffer expects {self.obs_dim}")
+        i = self.pos
+        self.obs[i] = obs
+        self.next_obs[i] = np.asarray(next_obs, np.float32).reshape(-1)
+        self.action[i] = np.asarray(action, np.float32).reshape(-1)
+        self.a_rl[i] = self.action[i] if a_rl is None else np.asarray(a_rl, np.float32).reshape(-1)
+        self.a_expert[i] = 0.0 if a_expert is None else np.asarray(a_expert, np.float32).reshape(-1)
+        self.reward[i] = reward
+        self.cost[i] = cost
+        self.terminated[i] = float(terminated)
+        self.violation[i] = float(violation)
+        self.takeover[i] = bool(takeover) and a_expert is not None
+        self.pos = (i + 1) % self.capacity
+        self.size = min(self.size + 1, self.capacity)
+        self.total += 1
+
+    def add_record(self, record: StepRecord) -> None:
+        """Store one step of the loop (violations are terminal for learning even if the sim goes on)."""
+        self.add(
+            record.obs,
+            record.action,
+            record.reward,
+            record.next_obs,
+            record.terminated or record.violation,
+            cost=record.cost,
+            violation=record.violation,
+            takeover=record.takeover,
+            a_rl=record.a_rl,
+            a_expert=record.a_expert,
+        )
+
+    # -- sampling --------------------------------------------------------------------------------
+    def _batch(self, idx: np.ndarray) -> Batch:
+        t = torch.from_numpy
+        return Batch(
+            obs=t(self.obs[idx]),
+            action=t(self.action[idx]),
+            reward=t(self.reward[idx]),
+            next_obs=t(self.next_obs[idx]),
+            terminated=t(self.terminated[idx]),
+            violation=t(self.violation[idx]),
+            cost=t(self.cost[idx]),
+            takeover=t(self.takeover[idx].astype(np.float32)),
+            a_rl=t(self.a_rl[idx]),
+            a_expert=t(self.a_expert[idx]),
+        )
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
+        if self.size == 0:
+            raise ValueError("cannot sample from an empty replay buffer")
+        return self._batch(rng.integers(0, self.size, size=batch_size))
+
+    def takeover_count(self) -> int:
+        return int(self.takeover[: self.size].sum())
+
+    def sample_takeovers(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
+        """Intervention samples (Ξ = 1) only; None when there are none yet."""
+        idx = np.flatnonzero(self.takeover[: self.size])
+        if len(idx) == 0:
+            return None
+        return self._batch(idx[rng.integers(0, len(idx), size=batch_size)])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Views of the filled part (for world-model fits)."""
+        n = self.size
+        return {
+            "obs": self.obs[:n],
+            "action": self.action[:n],
+            "next_obs": self.next_obs[:n],
+            "cost": np.maximum(self.cost[:n], self.violation[:n]),
+            "reward": self.reward[:n],
+            "terminated": self.terminated[:n],
+            "violation": self.violation[:n],
+        }
+
+    def reward_bounds(self) -> tuple[float, float] | None:
+        """(min, max) reward over non-terminal transitions (terminal bonuses happen once per episode)."""
+        n = self.size
+        live = self.terminated[:n] < 0.5
+        if not live.any():
+            return None
+        r = self.reward[:n][live]
+        return float(r.min()), float(r.max())
+
+
+class VirtualBuffer:
+    """D_virtual: model-generated transitions (state, action, next state, predicted cost)."""
+
+    def __init__(self, obs_dim: int, act_dim: int, capacity: int) -> None:
+        self.capacity = capacity
+        self.obs = np.zeros((capacity, obs_dim), np.float32)
+        self.action = np.zeros((capacity, act_dim), np.float32)
+        self.next_obs = np.zeros((capacity, obs_dim), np.float32)
+        self.cost = np.zeros(capacity, np.float32)
+        self.size = 0
+        self.pos = 0
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add_batch(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray, cost: np.ndarray) -> None:
+        n = len(obs)
+        if n > self.capacity:
+            obs, action, next_obs, cost = (
+                obs[-self.capacity :],
+                action[-self.capacity :],
+                next_obs[-self.capacity :],
+                cost[-self.capacity :],
+            )
+            n = self.capacity
+        idx = (self.pos + np.arange(n)) % self.capacity
+        self.obs[idx], self.action[idx], self.next_obs[idx], self.cost[idx] = obs, action, next_obs, cost
+        self.pos = int((self.pos + n) % self.capacity)
+        self.size = min(self.size + n, self.capacity)
+
+    def sample_obs(self, batch_size: int, rng: np.random.Generator) -> Tensor:
+        if self.size == 0:
+            raise ValueError("cannot sample from an empty virtual buffer")
+        return torch.from_numpy(self.obs[rng.integers(0, self.size, size=batch_size)])

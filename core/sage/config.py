@@ -1,0 +1,339 @@
+"""Typed configuration of every learner in :mod:`core.sage` (CleanRL style: one flat dataclass per concern,
+every field documented where it is declared).
+
+``AgentConfig`` carries the switches that turn the one SAC implementation into SAC, FNI-RL or SAGE-SAC,
+plus the settings of TD3 and HG-DAgger, which live in the same code (:mod:`core.sage.td3`,
+:mod:`core.sage.hg_dagger`) and share its networks, buffers, world model and gate. ``for_method`` gives the
+preset of each method; ``apply_overrides`` edits a config from ``key=value`` strings (``gate.tau_max=0.7``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+Method = Literal["sage", "sac", "td3", "hg-dagger", "fni-rl"]
+METHODS: tuple[str, ...] = typing.get_args(Method)
+
+
+@dataclass
+class WorldModelConfig:
+    """The probabilistic ensemble world model (:mod:`core.sage.world_model`) and its training."""
+
+    members: int = 5
+    """N, the number of ensemble members (each a diagonal-Gaussian MLP over (Δstate, cost))."""
+    hidden: int = 64
+    """Width of every hidden layer of every member. 64 keeps the whole ensemble (~310 KB) in one core's L2
+    cache, which halves the gate step against 128, with the same fear discrimination on UGV data."""
+    layers: int = 2
+    """Number of hidden layers per member."""
+    lr: float = 1e-3
+    """Adam learning rate of the negative log-likelihood training."""
+    weight_decay: float = 1e-5
+    """L2 penalty on the weights (PETS uses a small one to keep members smooth off-distribution)."""
+    batch_size: int = 256
+    """Minibatch size of the NLL training."""
+    holdout_ratio: float = 0.2
+    """Fraction of the real buffer held out for early stopping and calibration (at most ``max_holdout``)."""
+    max_holdout: int = 5000
+    """Upper bound on the held-out set size, so that evaluation stays cheap on big buffers."""
+    max_epochs: int = 60
+    """Epoch cap of one fit; early stopping usually ends a fit sooner."""
+    patience: int = 5
+    """Epochs without a held-out improvement (of any member) before a fit stops."""
+    max_updates_per_fit: int = 3000
+    """Gradient-step cap of one fit, which bounds its wall time on big buffers."""
+    logvar_bound_weight: float = 0.01
+    """Weight of the PETS term ``sum(max_logvar) - sum(min_logvar)`` that keeps the learnable bounds tight."""
+
+
+@dataclass
+class GateConfig:
+    """Fear, curiosity, threshold and takeover hold (:mod:`core.sage.fear`, :mod:`core.sage.gate`)."""
+
+    beta: float = 0.5
+    """β of eq:fear: weight of the predicted cost ĉ against the normalised uncertainty σ̂ in F = βĉ + (1-β)σ̂."""
+    horizon: int = 5
+    """m, the number of world-model steps rolled out under the current policy for the short-horizon fear."""
+    aggregate: Literal["max", "discounted_mean"] = "max"
+    """How per-step ĉ_k and σ̂_k are aggregated over the m steps (each separately, then combined by β)."""
+    discount: float = 0.9
+    """Per-step weight decay of the ``discounted_mean`` aggregation (ignored by ``max``)."""
+    tau_min: float = 0.35
+    """τ_min: the threshold when curiosity is far above its recent average (most ready to ask for help)."""
+    tau_max: float = 0.65
+    """τ_max: the threshold when curiosity is far below its recent average (familiar ground)."""
+    curiosity_ema: float = 0.02
+    """Rate of the exponential moving average of curiosity that ρ compares the current curiosity with."""
+    use_curiosity: bool = True
+    """False fixes τ at (τ_min + τ_max) / 2, the value ρ = 1/2 gives for typical curiosity (FNI-RL, ablations)."""
+    hold_steps: int = 5
+    """k: once the gate fires, expert control is held for this many steps (restarted by every new firing)."""
+
+
+@dataclass
+class AgentConfig:
+    """Everything a learner needs. Switches select the method; see :func:`for_method` for the presets."""
+
+    method: str = "sage"
+    """One of ``sage``, ``sac``, ``td3``, ``hg-dagger``, ``fni-rl`` (informational once presets are applied)."""
+
+    # -- switches ----------------------------------------------------------------------------------
+    world_model: bool = True
+    """Train the ensemble world model on the real buffer (needed by fear, the gate and virtual rollouts)."""
+    fear_regularisation: bool = True
+    """Fear terms in the critic target (-λF_{t+1}), in the actor loss (+λF) and the dual update of λ."""
+    violation_penalty: bool = True
+    """A safety violation makes the transition terminal with the target -c* of eq:penalty."""
+    takeover: bool = True
+    """The SAGE gate hands control to the expert while training (needs an expert and the world model)."""
+    imitation: bool = True
+    """Value-weighted imitation of the expert on intervention samples (eq:bc_loss with ω of eq:qa_weight)."""
+    virtual_rollouts: bool = True
+    """Roll the world model from real states under the current policy into the virtual buffer (actor batches)."""
+
+    # -- SAC backbone ------------------------------------------------------------------------------
+    gamma: float = 0.99
+    """Discount factor γ."""
+    hidden: int = 128
+    """Width of the hidden layers of actor and critics."""
+    layers: int = 2
+    """Number of hidden layers of actor and critics."""
+    critics: int = 2
+    """Z, the size of the critic ensemble (one batched forward); the target uses the minimum over targets."""
+    actor_lr: float = 3e-4
+    """Adam learning rate of the actor."""
+    critic_lr: float = 3e-4
+    """Adam learning rate of the critics."""
+    alpha_lr: float = 3e-4
+    """Adam learning rate of SAC's log entropy temperature."""
+    init_alpha: float = 0.2
+    """Initial entropy temperature α."""
+    autotune_alpha: bool = True
+    """Tune α towards ``target_entropy`` (SAC v2); False keeps ``init_alpha``."""
+    target_entropy: float | None = None
+    """Entropy target; None means -dim(action)."""
+    polyak: float = 0.005
+    """Target network soft-update rate."""
+    batch_size: int = 256
+    """Minibatch size of critic and actor updates."""
+    buffer_size: int = 200_000
+    """Capacity of the real replay buffer."""
+    learning_starts: int = 1000
+    """Real transitions collected before updates start (uniform random actions until then, without ``init``)."""
+    updates_per_step: float = 1.0
+    """Gradient updates per environment step (fractions mean one update every 1/x steps)."""
+    max_grad_norm: float = 10.0
+    """Gradient-norm clip of actor and critic updates (protects against the rare huge -c* targets)."""
+
+    # -- fear regularisation -----------------------------------------------------------------------
+    fear_budget: float = 0.2
+    """F_0 of eq:fear_cmdp: the tolerated mean fear on real states."""
+    lambda_init: float = 1.0
+    """Initial value of the dual variable λ."""
+    lambda_lr: float = 0.01
+    """Step size of the projected dual ascent λ ← max(0, λ + lr (mean F - F_0))."""
+    lambda_max: float = 100.0
+    """Upper clip of λ, so that a long run above budget cannot make the fear term swamp the return."""
+    learner_fear_horizon: int = 1
+    """Rollout steps of the fear inside the learner (critic target -λF_{t+1}, actor +λF, dual update). 1 is
+    eq:fear, as the paper's objective eq:fear_cmdp states; the critic's Bellman backup already carries fear
+    from later steps. The gate uses ``gate.horizon`` (m). Cost grows about linearly with this value."""
+    safety_horizon: int = 10
+    """H of eq:penalty: steps within which an unsafe progression surely ends in a violation."""
+    reward_bounds: tuple[float, float] | None = None
+    """(r̲, r̄) of eq:penalty; None estimates them from the real buffer's non-terminal rewards (terminal
+    goal/collision bonuses happen once per episode, not at every step, so they do not bound the rate)."""
+
+    # -- imitation ---------------------------------------------------------------------------------
+    bc_weight: float = 1.0
+    """Weight of the imitation term, scaled by the batch's mean |Q| so that it keeps pace with the RL term."""
+    bc_batch_size: int = 128
+    """Intervention samples (Ξ = 1) drawn per update for the imitation term."""
+    advantage_temperature: float = 0.1
+    """ω = exp(clip(A / (temperature · max(1, mean|Q|)), ±advantage_clip)), A = Q(s,a_E) - Q(s,a_RL)."""
+    advantage_clip: float = 3.0
+    """Clip of the scaled advantage, so ω stays in [e^-clip, e^clip] for any Q gap."""
+
+    # -- virtual buffer ----------------------------------------------------------------------------
+    virtual_ratio: float = 0.25
+    """Fraction of every actor batch drawn from the virtual buffer (the rest from the real one)."""
+    virtual_every: int = 250
+    """Environment steps between batched model rollouts into the virtual buffer."""
+    virtual_starts: int = 256
+    """Real states each virtual rollout starts from (each yields ``gate.horizon`` transitions)."""
+    virtual_size: int = 50_000
+    """Capacity of the virtual buffer."""
+
+    # -- world-model schedule ----------------------------------------------------------------------
+    wm_fit_every: int = 1000
+    """Environment steps between world-model fits (the first fit happens at ``learning_starts``)."""
+    wm_min_samples: int = 500
+    """Real transitions needed before the first world-model fit."""
+
+    # -- TD3 ---------------------------------------------------------------------------------------
+    td3_exploration_noise: float = 0.1
+    """Std of the Gaussian exploration noise added to TD3's deterministic action."""
+    td3_policy_noise: float = 0.2
+    """Std of the target policy smoothing noise."""
+    td3_noise_clip: float = 0.5
+    """Clip of the target policy smoothing noise."""
+    td3_policy_delay: int = 2
+    """Critic updates per actor (and target) update."""
+
+    # -- HG-DAgger ---------------------------------------------------------------------------------
+    dagger_lr: float = 1e-3
+    """Adam learning rate of HG-DAgger's supervised regression onto the aggregated expert labels."""
+
+    # -- demonstrations / warm start ---------------------------------------------------------------
+    pretrain_bc_steps: int = 2000
+    """Behaviour-cloning steps on the demonstrations collected before training (when there are any)."""
+    pretrain_critic_steps: int = 2000
+    """Critic-only steps on the demonstrations after cloning, so the first actor updates see a sane Q."""
+
+    world_model_config: WorldModelConfig = field(default_factory=WorldModelConfig)
+    """The world model's architecture and training."""
+    gate: GateConfig = field(default_factory=GateConfig)
+    """Fear, curiosity, threshold and hold."""
+
+
+def for_method(method: str, **overrides: Any) -> AgentConfig:
+    """The preset of ``method`` with optional field overrides.
+
+    - ``sage``: everything on.
+    - ``fni-rl``: the fear-regularised learner (world model, fear in critic and actor, λ, c*, virtual
+      rollouts) without takeover, imitation or curiosity.
+    - ``sac``: plain SAC (all SAGE extras off).
+    - ``td3``: TD3 (no SAGE extras).
+    - ``hg-dagger``: aggregated imitation of expert takeovers; takeovers come from the SAGE gate on its own
+      world model (see :mod:`core.sage.hg_dagger`).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    cfg = AgentConfig(method=method)
+    if method == "fni-rl":
+        cfg.takeover = cfg.imitation = False
+        cfg.gate.use_curiosity = False
+    elif method in ("sac", "td3"):
+        cfg.world_model = cfg.fear_regularisation = cfg.violation_penalty = False
+        cfg.takeover = cfg.imitation = cfg.virtual_rollouts = False
+    elif method == "hg-dagger":
+        cfg.fear_regularisation = cfg.violation_penalty = cfg.virtual_rollouts = False
+        cfg.imitation = True
+    for key, value in overrides.items():
+        set_field(cfg, key, value)
+    validate(cfg)
+    return cfg
+
+
+def validate(cfg: AgentConfig) -> None:
+    """Refuse inconsistent settings with an error that names the field."""
+    if cfg.method not in METHODS:
+        raise ValueError(f"method: unknown {cfg.method!r}; choose one of {', '.join(METHODS)}")
+    needs_model = [name for name in ("fear_regularisation", "takeover", "virtual_rollouts") if getattr(cfg, name)]
+    if needs_model and not cfg.world_model:
+        raise ValueError(f"{', '.join(needs_model)} need world_model=true")
+    if not 0.0 <= cfg.gate.beta <= 1.0:
+        raise ValueError(f"gate.beta must be in [0, 1], got {cfg.gate.beta}")
+    if not 0.0 <= cfg.gate.tau_min <= cfg.gate.tau_max:
+        raise ValueError(f"need 0 <= gate.tau_min <= gate.tau_max, got {cfg.gate.tau_min}, {cfg.gate.tau_max}")
+    if cfg.gate.horizon < 1 or cfg.gate.hold_steps < 1:
+        raise ValueError("gate.horizon and gate.hold_steps must be >= 1")
+    if not 0.0 < cfg.gamma < 1.0:
+        raise ValueError(f"gamma must be in (0, 1), got {cfg.gamma}")
+    if cfg.critics < 1 or cfg.world_model_config.members < 1:
+        raise ValueError("critics and world_model_config.members must be >= 1")
+    if not 0.0 <= cfg.virtual_ratio < 1.0:
+        raise ValueError(f"virtual_ratio must be in [0, 1), got {cfg.virtual_ratio}")
+    if cfg.reward_bounds is not None and cfg.reward_bounds[0] > cfg.reward_bounds[1]:
+        raise ValueError(f"reward_bounds must be (low, high), got {cfg.reward_bounds}")
+
+
+# -- (de)serialisation and overrides -------------------------------------------------------------
+def to_dict(cfg: AgentConfig) -> dict[str, Any]:
+    return dataclasses.asdict(cfg)
+
+
+def from_dict(data: dict[str, Any]) -> AgentConfig:
+    """Inverse of :func:`to_dict`; unknown keys are an error naming them (a config from another version)."""
+    return _build(AgentConfig, data, prefix="")
+
+
+def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"unknown config field(s): {', '.join(prefix + k for k in unknown)}")
+    kwargs: dict[str, Any] = {}
+    for name, value in data.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint):
+            kwargs[name] = _build(hint, value, prefix + name + ".")  # type: ignore[arg-type]
+        elif name == "reward_bounds" and value is not None:
+            kwargs[name] = (float(value[0]), float(value[1]))
+        else:
+            kwargs[name] = value
+    return cls(**kwargs)
+
+
+def set_field(cfg: Any, dotted: str, value: Any) -> None:
+    """Set ``a.b`` on a (nested) config, converting strings to the field's type."""
+    *parents, name = dotted.split(".")
+    target = cfg
+    for part in parents:
+        if not hasattr(target, part) or not dataclasses.is_dataclass(getattr(target, part)):
+            raise ValueError(f"unknown config section {part!r} in {dotted!r}")
+        target = getattr(target, part)
+    fields = {f.name for f in dataclasses.fields(target)}
+    if name not in fields:
+        raise ValueError(f"unknown config field {dotted!r}; known: {', '.join(sorted(fields))}")
+    hint = typing.get_type_hints(type(target))[name]
+    setattr(target, name, _convert(value, hint, dotted))
+
+
+def apply_overrides(cfg: AgentConfig, pairs: list[str]) -> AgentConfig:
+    """Apply ``key=value`` strings (``--set`` on the command line) and validate the result."""
+    for pair in pairs:
+        if "=" not in pair:
+            raise ValueError(f"override {pair!r} is not of the form key=value")
+        key, value = pair.split("=", 1)
+        set_field(cfg, key.strip(), value.strip())
+    validate(cfg)
+    return cfg
+
+
+def _convert(value: Any, hint: Any, name: str) -> Any:
+    if not isinstance(value, str):
+        return value
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value.lower() in ("none", "null"):
+            return None
+        hint = next(a for a in args if a is not type(None))
+        origin, args = typing.get_origin(hint), typing.get_args(hint)
+    try:
+        if hint is bool:
+            if value.lower() in ("1", "true", "yes", "on"):
+                return True
+            if value.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError(value)
+        if hint is int:
+            return int(value)
+        if hint is float:
+            return float(value)
+        if origin is tuple:
+            low, high = (float(v) for v in value.strip("()[] ").split(","))
+            return (low, high)
+        if origin is Literal:
+            if value not in args:
+                raise ValueError(value)
+            return value
+    except ValueError:
+        raise ValueError(f"{name}: cannot read {value!r} as {hint}") from None
+    return value

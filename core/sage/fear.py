@@ -1,0 +1,311 @@
+"""Fear, curiosity and the curiosity-modulated threshold (eq:fear, eq:curiosity, eq:threshold).
+
+Short-horizon fear F^m. From (s_t, a_t) every member n of the ensemble rolls its own trajectory for m steps,
+the actions after the first coming from the current policy's deterministic action on that member's predicted
+state. At step k:
+
+- ĉ_k = mean_n clip(μ^c_{n,k}, 0, 1), the predicted violation probability (see :mod:`core.sage.world_model`);
+- σ_raw,k = mean_d sqrt(mean_n σ²_{n,k,d} + var_n ŝ_{n,k+1,d}) in normalised Δ-state units: the mixture's
+  total predictive std, whose disagreement part also holds the members' divergence over earlier steps;
+- σ̂_k = tanh(σ_raw,k / (2 κ_k)), κ_k the 95th percentile of σ_raw,k over real states rolled out under the
+  current policy, recomputed after every world-model fit (:func:`calibrate`). Typical familiar states sit
+  near tanh(1/4) ≈ 0.25, the 95th percentile at tanh(1/2) ≈ 0.46, three times it at 0.9: σ̂ ∈ [0, 1) is on
+  the scale of ĉ, as eq:fear asks. The scale is per step k because disagreement grows along a rollout even
+  on familiar ground; so "unusual" means unusual for that step, whatever the horizon.
+
+ĉ and σ̂ are aggregated over the m steps separately (``max`` by default, or a discounted mean), so a danger
+three steps ahead counts as much as an immediate one, then F^m = β ĉ + (1 - β) σ̂ ∈ [0, 1].
+
+The same :func:`rollout` serves the gate (one state, ``torch.inference_mode``) and the learner (a batch,
+differentiable w.r.t. the first action and the policy, through the frozen folded weights of the model).
+
+Curiosity and threshold. C_t = ||ŝ_{t+1} - s_{t+1}||₂ on states normalised by the model's state std. ρ(C_t) =
+C_t / (C_t + Ĉ_{t-1}), with Ĉ an exponential moving average of recent curiosity (started at the held-out
+curiosity of the last fit): ρ = 1/2 when curiosity is at its recent average, → 1 when far above it (novel
+ground, threshold towards τ_min), → 0 when far below (familiar, threshold towards τ_max). τ_t = τ_max -
+ρ(C_t)(τ_max - τ_min).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from core.sage.config import GateConfig
+from core.sage.world_model import MAX_HORIZON, EnsembleWorldModel, FoldedModel
+
+PolicyFn = Callable[[Tensor], Tensor]
+"""A deterministic policy on torch states ``(B, D) -> (B, A)`` used inside rollouts. A discrete-action
+learner (D3QN) passes a function returning the one-hot of its greedy action; the world model then takes
+one-hot actions as its action input, and nothing else here changes."""
+
+
+@dataclass
+class Rollout:
+    states: Tensor
+    """(m + 1, N, B, D): the start state and each member's predicted states."""
+    actions: Tensor
+    """(m, N, B, A): the first action, then the policy's actions on the predicted states."""
+    cost: Tensor
+    """(m, N, B): each member's predicted cost of each step, clipped to [0, 1]."""
+    sigma_raw: Tensor
+    """(m, B): the mixture's predictive std of each step (normalised units, averaged over state dims)."""
+
+
+@dataclass
+class Fear:
+    fear: Tensor
+    """(B,) F^m = β ĉ + (1 - β) σ̂."""
+    cost: Tensor
+    """(B,) ĉ aggregated over the horizon."""
+    sigma: Tensor
+    """(B,) σ̂ aggregated over the horizon."""
+    sigma_raw: Tensor
+    """(B,) σ_raw aggregated over the horizon (before the scale and squash)."""
+
+
+def rollout(model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, horizon: int) -> Rollout:
+    """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm."""
+    n, d = model.members, model.obs_dim
+    batch = obs.shape[0]
+    s = obs.unsqueeze(0).expand(n, batch, d)
+    a = action.unsqueeze(0).expand(n, batch, action.shape[-1])
+    states, actions, costs, raw_logvars = [s], [], [], []
+    for k in range(horizon):
+        h = torch.cat([s, a], dim=-1)
+        for weight, bias in model.hidden:
+            h = F.silu(torch.baddbmm(bias, h, weight))
+        out = torch.baddbmm(model.out_bias, h, model.out_weight)
+        s = s + out[..., :d]
+        states.append(s)
+        actions.append(a)
+        costs.append(out[..., d])
+        raw_logvars.append(out[..., d + 1 : 2 * d + 1])
+        if k + 1 < horizon:
+            a = policy(s.reshape(n * batch, d)).reshape(n, batch, -1)
+    next_states = torch.stack(states[1:])
+    logvar = torch.stack(raw_logvars)
+    logvar = model.max_logvar - F.softplus(model.max_logvar - logvar)
+    logvar = model.min_logvar + F.softplus(logvar - model.min_logvar)
+    # (x - mean)^2 by hand: Tensor.var over a non-last dim takes a slow path on CPU (milliseconds here)
+    epistemic = (next_states - next_states.mean(1, keepdim=True)).square().mean(1) * model.inv_delta_var
+    aleatoric = logvar.exp().mean(1)
+    sigma_raw = (epistemic + aleatoric).clamp_min(1e-12).sqrt().mean(-1)
+    return Rollout(torch.stack(states), torch.stack(actions), torch.stack(costs).clamp(0.0, 1.0), sigma_raw)
+
+
+def aggregate(per_step: Tensor, how: str, discount: float) -> Tensor:
+    """(m, B) -> (B,): the maximum over the horizon, or a mean with weights discount^k."""
+    if how == "max":
+        return per_step.max(0).values
+    if how == "discounted_mean":
+        weights = discount ** torch.arange(per_step.shape[0], dtype=per_step.dtype)
+        return (weights[:, None] * per_step).sum(0) / weights.sum()
+    raise ValueError(f"unknown fear aggregation {how!r}; use 'max' or 'discounted_mean'")
+
+
+def step_scales(scale: Tensor, horizon: int) -> Tensor:
+    """κ_k for k < horizon as a (horizon, 1) column (steps beyond the stored ones reuse the last)."""
+    idx = torch.arange(horizon).clamp_max(scale.shape[0] - 1)
+    return scale[idx].clamp_min(1e-8).unsqueeze(1)
+
+
+def squash_sigma(sigma_raw: Tensor, scale: Tensor) -> Tensor:
+    """σ̂_k = tanh(σ_raw,k / (2 κ_k)) for (m, B) raw values."""
+    return torch.tanh(sigma_raw / (2.0 * step_scales(scale, sigma_raw.shape[0])))
+
+
+def fear_of(model: FoldedModel, ro: Rollout, cfg: GateConfig) -> Fear:
+    cost = aggregate(ro.cost.mean(1), cfg.aggregate, cfg.discount)
+    sigma_raw_steps = ro.sigma_raw
+    sigma = aggregate(squash_sigma(sigma_raw_steps, model.sigma_scale), cfg.aggregate, cfg.discount)
+    sigma_raw = aggregate(sigma_raw_steps, cfg.aggregate, cfg.discount)
+    return Fear(cfg.beta * cost + (1.0 - cfg.beta) * sigma, cost, sigma, sigma_raw)
+
+
+def fear(
+    model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, cfg: GateConfig, horizon: int | None = None
+) -> Fear:
+    """F^m for a batch of (state, first action), m = ``horizon`` or ``cfg.horizon``; differentiable w.r.t.
+    the action and the policy unless called under no_grad / inference_mode (the model's folded weights are
+    constants, so the world model itself never receives a gradient)."""
+    return fear_of(model, rollout(model, policy, obs, action, horizon or cfg.horizon), cfg)
+
+
+def calibrate(
+    world_model: EnsembleWorldModel, policy: PolicyFn, obs: Tensor, horizon: int, quantile: float = 0.95
+) -> Tensor:
+    """Set κ_k, the ``quantile`` of σ_raw at each rollout step k from real states ``obs`` under ``policy``."""
+    with torch.no_grad():
+        folded = world_model.folded()
+        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON))
+        scale = torch.quantile(ro.sigma_raw, quantile, dim=1).clamp_min(1e-6)
+        world_model.sigma_scale[: len(scale)] = scale
+        world_model.sigma_scale[len(scale) :] = scale[-1]
+    world_model.touch()
+    return scale
+
+
+class CuriosityThreshold:
+    """τ_t = τ_max - ρ(C_t)(τ_max - τ_min), ρ(C) = C / (C + EMA of recent C) (see the module docstring)."""
+
+    def __init__(self, cfg: GateConfig, reference: float = 1.0) -> None:
+        self.cfg = cfg
+        self.ema = max(float(reference), 1e-8)
+        self.threshold = self.neutral()
+
+    def neutral(self) -> float:
+        return self.cfg.tau_max - 0.5 * (self.cfg.tau_max - self.cfg.tau_min)
+
+    def rho(self, curiosity: float) -> float:
+        if not math.isfinite(curiosity) or curiosity < 0:
+            return 0.5
+        return curiosity / (curiosity + self.ema)
+
+    def update(self, curiosity: float) -> float:
+        """Take C_t, return the threshold τ_t it sets, then fold C_t into the moving average."""
+        if not self.cfg.use_curiosity:
+            self.threshold = self.neutral()
+            return self.threshold
+        rho = self.rho(curiosity)
+        self.threshold = self.cfg.tau_max - rho * (self.cfg.tau_max - self.cfg.tau_min)
+        if math.isfinite(curiosity):
+            self.ema = max((1.0 - self.cfg.curiosity_ema) * self.ema + self.cfg.curiosity_ema * curiosity, 1e-8)
+        return self.threshold
+
+
+class GateKernel:
+    """The gate's F^m for one state: the computation of :func:`fear` on preallocated buffers with views
+    prepared once, so that a step is ~60 small tensor ops and no allocation of note.
+
+    It reads the actor's parameters through views that stay valid while an optimiser updates them in
+    place, and the world model's folded weights of the version it was built for (rebuild it after a fit).
+    ``tests/core/sage/test_fear.py`` checks that it agrees with :func:`fear`.
+    """
+
+    def __init__(
+        self,
+        model: FoldedModel,
+        actor_layers: list[tuple[Tensor, Tensor]],
+        output_scale: Tensor,
+        output_bias: Tensor,
+        cfg: GateConfig,
+    ) -> None:
+        """``actor_layers``: (weight (out, in), bias) of the actor's deterministic path, ReLU between them and
+        tanh after the last, then ``* output_scale + output_bias`` (see :meth:`core.sage.networks.Actor`)."""
+        self.model, self.cfg = model, cfg
+        n, d, m = model.members, model.obs_dim, cfg.horizon
+        act_dim = actor_layers[-1][0].shape[0]
+        self.d, self.m = d, m
+        self.x = torch.zeros(m + 1, n, 1, d + act_dim)
+        self.hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
+        self.out = torch.empty(m, n, 1, 2 * (d + 1))
+        self.policy_buffers = [torch.empty(n, w.shape[0]) for w, _ in actor_layers]
+        self.actor = [(b, w.t()) for w, b in actor_layers]
+        self.scaled = not (bool((output_scale == 1).all()) and bool((output_bias == 0).all()))
+        self.output_scale, self.output_bias = output_scale, output_bias
+        self.step_inputs = [self.x[k] for k in range(m)]
+        self.step_outputs = [self.out[k] for k in range(m)]
+        self.states_now = [self.x[k, :, :, :d] for k in range(m)]
+        self.states_next = [self.x[k + 1, :, :, :d] for k in range(m)]
+        self.deltas = [self.out[k, :, :, :d] for k in range(m)]
+        self.policy_inputs = [self.x[k + 1, :, 0, :d] for k in range(m)]
+        self.policy_outputs = [self.x[k + 1, :, 0, d:] for k in range(m)]
+        self.start_state, self.start_action = self.x[0, :, :, :d], self.x[0, :, :, d:]
+        self.predicted = self.x[1:, :, :, :d]
+        self.raw_logvar = self.out[..., d + 1 : 2 * d + 1]
+        self.step_cost = self.out[..., d]
+        self.sigma_divisor = 2.0 * step_scales(model.sigma_scale, m)
+        self.weights = discount_weights(cfg)
+        self.c_input = torch.zeros(n, 1, d + act_dim)
+        self.c_state, self.c_action = self.c_input[:, :, :d], self.c_input[:, :, d:]
+        self.c_hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
+        self.c_delta = torch.empty(n, 1, d)
+        self.delta_weight = model.out_weight[..., :d].contiguous()
+        self.delta_bias = model.out_bias[..., :d].contiguous()
+
+    def __call__(self, obs: Tensor, action: Tensor) -> tuple[float, float, float]:
+        """(F^m, ĉ, σ̂) of a (1, D) state and (1, A) first action; call under ``torch.inference_mode``."""
+        fm = self.model
+        self.start_state.copy_(obs)
+        self.start_action.copy_(action)
+        last = len(self.actor) - 1
+        for k in range(self.m):
+            h = self.step_inputs[k]
+            for (weight, bias), buf in zip(fm.hidden, self.hidden, strict=True):
+                torch.baddbmm(bias, h, weight, out=buf)
+                F.silu(buf, inplace=True)
+                h = buf
+            torch.baddbmm(fm.out_bias, h, fm.out_weight, out=self.step_outputs[k])
+            torch.add(self.states_now[k], self.deltas[k], out=self.states_next[k])
+            if k + 1 < self.m:
+                x = self.policy_inputs[k]
+                for i, ((bias, weight_t), buf) in enumerate(zip(self.actor, self.policy_buffers, strict=True)):
+                    torch.addmm(bias, x, weight_t, out=buf)
+                    if i < last:
+                        buf.clamp_min_(0.0)
+                    x = buf
+                if self.scaled:
+                    torch.tanh(x, out=x)
+                    torch.addcmul(self.output_bias, x, self.output_scale, out=self.policy_outputs[k])
+                else:
+                    torch.tanh(x, out=self.policy_outputs[k])
+        s = self.predicted
+        deviation = s - s.mean(1, keepdim=True)
+        epistemic = deviation.square_().mean(1).mul_(fm.inv_delta_var)
+        logvar = fm.max_logvar - F.softplus(fm.max_logvar - self.raw_logvar)
+        logvar = F.softplus(logvar - fm.min_logvar).add_(fm.min_logvar)
+        sigma_raw = epistemic.add_(logvar.exp_().mean(1)).sqrt_().mean(-1)  # (m, 1)
+        sigma = torch.tanh(sigma_raw.div_(self.sigma_divisor))
+        cost = self.step_cost.clamp(0.0, 1.0).mean(1)
+        if self.weights is None:
+            c, sg = float(cost.max()), float(sigma.max())
+        else:
+            c, sg = float((cost[:, 0] * self.weights).sum()), float((sigma[:, 0] * self.weights).sum())
+        return self.cfg.beta * c + (1.0 - self.cfg.beta) * sg, c, sg
+
+    def curiosity(self, obs: Tensor, action: Tensor, next_obs: Tensor) -> float:
+        """C = ||s + mean_n Δ_n(s, a) - s'||₂ on normalised states, for (1, D) / (1, A) tensors."""
+        self.c_state.copy_(obs)
+        self.c_action.copy_(action)
+        h = self.c_input
+        for (weight, bias), buf in zip(self.model.hidden, self.c_hidden, strict=True):
+            torch.baddbmm(bias, h, weight, out=buf)
+            F.silu(buf, inplace=True)
+            h = buf
+        torch.baddbmm(self.delta_bias, h, self.delta_weight, out=self.c_delta)
+        error = self.c_delta.mean(0).add_(obs).sub_(next_obs).mul_(self.model.inv_obs_std)
+        return float(error.norm())
+
+
+def discount_weights(cfg: GateConfig) -> Tensor | None:
+    """Normalised weights discount^k of the ``discounted_mean`` aggregation (None for ``max``)."""
+    if cfg.aggregate == "max":
+        return None
+    if cfg.aggregate != "discounted_mean":
+        raise ValueError(f"unknown fear aggregation {cfg.aggregate!r}; use 'max' or 'discounted_mean'")
+    weights = cfg.discount ** torch.arange(cfg.horizon, dtype=torch.float32)
+    return weights / weights.sum()
+
+
+def sample_member_transitions(ro: Rollout, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """One randomly chosen member's trajectory per start, flattened to (m B) transitions
+    (state, action, next state, cost) for the virtual buffer."""
+    m, n, b, _ = ro.actions.shape
+    member = torch.as_tensor(rng.integers(0, n, size=b))
+    cols = torch.arange(b)
+    states = ro.states[:, member, cols]  # (m + 1, B, D)
+    actions = ro.actions[:, member, cols]
+    cost = ro.cost[:, member, cols]
+    return (
+        states[:-1].reshape(m * b, -1).numpy(),
+        actions.reshape(m * b, -1).numpy(),
+        states[1:].reshape(m * b, -1).numpy(),
+        cost.reshape(m * b).numpy(),
+    )

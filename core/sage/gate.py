@@ -1,0 +1,156 @@
+"""The SAGE gate (implements :class:`core.loop.Gate`): fear against the curiosity-modulated threshold.
+
+``decide``: F^m_t of the policy's intended action a_RL (m-step rollout of the ensemble under the policy,
+:mod:`core.sage.fear`) against τ_t; Ξ_t = 1 when F^m_t > τ_t, and once fired the expert keeps control for
+``hold_steps`` steps (each new firing restarts the count), which avoids frame-by-frame switching.
+``observe``: curiosity C_{t+1} of the executed transition, which sets the threshold of the next step.
+The loop (:class:`core.loop.Runner`) executes a = (1 - Ξ) a_RL + Ξ a_expert and records both actions.
+
+A whole step (m = 5, N = 5 rollout, policy, curiosity, threshold) costs a few hundred microseconds on one
+core (bench/bench_gate.py): inference mode, cached folded weights, every member in one ``baddbmm``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from core.loop import GateDecision
+from core.sage.config import GateConfig
+from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, fear
+from core.sage.networks import Actor
+from core.sage.world_model import EnsembleWorldModel
+
+
+@dataclass
+class GateDetail:
+    """The last step's internals, for plots and the dashboard."""
+
+    fear: float = math.nan
+    cost: float = math.nan
+    """ĉ aggregated over the horizon."""
+    sigma: float = math.nan
+    """σ̂ aggregated over the horizon."""
+    threshold: float = math.nan
+    curiosity: float = math.nan
+    rho: float = math.nan
+    hold_remaining: int = 0
+
+
+class SageGate:
+    """Fear vs curiosity-modulated threshold, with a k-step hold. Cheap enough to run at every step."""
+
+    def __init__(
+        self, world_model: EnsembleWorldModel, policy: Actor | PolicyFn, cfg: GateConfig | None = None
+    ) -> None:
+        """``policy``: the learner's :class:`Actor` (fast preallocated path, always its current weights) or
+        any deterministic torch policy function (generic path, e.g. a discrete learner's one-hot greedy)."""
+        self.world_model = world_model
+        self.actor = policy if isinstance(policy, Actor) else None
+        self.policy: PolicyFn = policy.deterministic if isinstance(policy, Actor) else policy
+        self.cfg = cfg or GateConfig()
+        self.threshold = CuriosityThreshold(self.cfg, float(world_model.curiosity_ref))
+        self._reference_version = world_model.version
+        self._kernel: tuple[int, GateKernel] | None = None
+        self.hold_remaining = 0
+        self.detail = GateDetail(threshold=self.threshold.threshold)
+
+    def kernel(self) -> GateKernel | None:
+        if self.actor is None:
+            return None
+        if self._kernel is None or self._kernel[0] != self.world_model.version:
+            actor = self.actor
+            layers = actor.deterministic_layers()
+            kernel = GateKernel(self.world_model.folded(), layers, actor.action_scale, actor.action_bias, self.cfg)
+            self._kernel = (self.world_model.version, kernel)
+        return self._kernel[1]
+
+    def reset(self) -> None:
+        self.hold_remaining = 0
+        self.detail.hold_remaining = 0
+
+    def _refresh_reference(self) -> None:
+        # after a refit the model's errors change scale: restart the curiosity average at the new reference
+        if self.world_model.version != self._reference_version:
+            self._reference_version = self.world_model.version
+            self.threshold.ema = max(float(self.world_model.curiosity_ref), 1e-8)
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
+        threshold = self.threshold.threshold
+        if not bool(self.world_model.fitted):
+            return GateDecision(math.nan, threshold, False)
+        self._refresh_reference()
+        with torch.inference_mode():
+            o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
+            a = torch.from_numpy(np.asarray(a_rl, dtype=np.float32)).view(1, -1)
+            kernel = self.kernel()
+            if kernel is not None:
+                value, cost, sigma = kernel(o, a)
+            else:
+                terms = fear(self.world_model.folded(), self.policy, o, a, self.cfg)
+                value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
+        if value > threshold:
+            self.hold_remaining = self.cfg.hold_steps
+        fired = self.hold_remaining > 0
+        if fired:
+            self.hold_remaining -= 1
+        d = self.detail
+        d.fear, d.cost, d.sigma, d.threshold = value, cost, sigma, threshold
+        d.hold_remaining = self.hold_remaining
+        return GateDecision(value, threshold, fired)
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        if not bool(self.world_model.fitted):
+            return math.nan
+        self._refresh_reference()
+        with torch.inference_mode():
+            o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
+            a = torch.from_numpy(np.asarray(action, dtype=np.float32)).view(1, -1)
+            s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
+            kernel = self.kernel()
+            if kernel is not None:
+                curiosity = kernel.curiosity(o, a, s1)
+            else:
+                curiosity = float(curiosity_folded(self.world_model, o, a, s1)[0])
+        self.detail.rho = self.threshold.rho(curiosity)
+        self.threshold.update(curiosity)
+        self.detail.curiosity = curiosity
+        return curiosity
+
+    def state(self) -> dict[str, float]:
+        """What persists across episodes (the curiosity average), for checkpoints."""
+        return {"curiosity_ema": self.threshold.ema}
+
+    def load_state(self, state: dict[str, float]) -> None:
+        if "curiosity_ema" in state:
+            self.threshold.ema = float(state["curiosity_ema"])
+            self._reference_version = self.world_model.version
+
+
+def curiosity_folded(
+    world_model: EnsembleWorldModel, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor
+) -> torch.Tensor:
+    """C on the folded weights (no normalisation arithmetic): ||(s + mean_n Δ_n - s') / std(s)||₂."""
+    fm = world_model.folded()
+    h = torch.cat([obs, action], dim=-1).unsqueeze(0).expand(fm.members, obs.shape[0], -1)
+    for weight, bias in fm.hidden:
+        h = torch.nn.functional.silu(torch.baddbmm(bias, h, weight))
+    delta = torch.baddbmm(fm.out_bias[..., : fm.obs_dim], h, fm.out_weight[..., : fm.obs_dim]).mean(0)
+    return ((obs + delta - next_obs) * fm.inv_obs_std).norm(dim=-1)
+
+
+class AlwaysGate:
+    """Fires at every step: the expert drives throughout (demonstration collection, with both actions
+    recorded so that the demonstrations enter the buffer as intervention samples)."""
+
+    def reset(self) -> None:
+        pass
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
+        return GateDecision(math.nan, math.nan, True)
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        return math.nan

@@ -1,0 +1,231 @@
+"""What every learner shares: the actor, the real and virtual buffers, the world model and its schedule,
+the SAGE gate built on them, the update schedule, demonstrations and checkpoints.
+
+A learner is a :class:`core.loop.Policy` (``act``) and a step listener (``observe``): the training driver
+(:mod:`core.train`) puts it in a :class:`core.loop.Runner` and appends ``observe`` to the step listeners, so
+the one step loop feeds the buffer and triggers the updates. The algorithms themselves are one file each:
+:mod:`core.sage.sac` (SAC, FNI-RL, SAGE-SAC), :mod:`core.sage.td3`, :mod:`core.sage.hg_dagger`. A discrete
+learner (D3QN with the same fear regularisation) would subclass this with a Q-network in place of the actor
+and hand the gate a one-hot greedy policy function (see :data:`core.sage.fear.PolicyFn`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from core.loop import StepRecord
+from core.replay import ReplayBuffer, VirtualBuffer
+from core.sage.config import AgentConfig, GateConfig
+from core.sage.fear import calibrate, rollout, sample_member_transitions
+from core.sage.gate import SageGate
+from core.sage.networks import Actor
+from core.sage.world_model import EnsembleWorldModel, FitReport
+
+
+class ActorPolicy:
+    """A :class:`core.loop.Policy` over an actor: its sample, or its deterministic action."""
+
+    def __init__(self, actor: Actor) -> None:
+        self.actor = actor
+
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        with torch.inference_mode():
+            o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
+            a = self.actor.deterministic(o) if deterministic else self.actor.sample(o)[0]
+        return a[0].numpy()
+
+
+class BaseLearner:
+    """Shared machinery; subclasses implement :meth:`update` (one gradient step) and may extend the rest."""
+
+    uses_random_warmup = True
+    """Act uniformly at random until ``learning_starts`` transitions (unless warm-started)."""
+
+    def __init__(
+        self,
+        cfg: AgentConfig,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray | None = None,
+        action_high: np.ndarray | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.cfg, self.obs_dim, self.act_dim, self.seed = cfg, obs_dim, act_dim, seed
+        torch.manual_seed(seed)
+        self.rng = np.random.default_rng(seed)
+        low = torch.as_tensor(-np.ones(act_dim) if action_low is None else action_low, dtype=torch.float32)
+        high = torch.as_tensor(np.ones(act_dim) if action_high is None else action_high, dtype=torch.float32)
+        self.action_low, self.action_high = low, high
+        self.actor = Actor(obs_dim, act_dim, cfg.hidden, cfg.layers, low, high)
+        self.buffer = ReplayBuffer(obs_dim, act_dim, cfg.buffer_size)
+        self.world_model = EnsembleWorldModel(obs_dim, act_dim, cfg.world_model_config) if cfg.world_model else None
+        self.virtual = VirtualBuffer(obs_dim, act_dim, cfg.virtual_size) if cfg.virtual_rollouts else None
+        self.warm = False
+        """True once the actor holds knowledge (loaded or pretrained): no random warm-up actions."""
+        self.env_steps = 0
+        self.updates = 0
+        self._update_credit = 0.0
+        self._steps_at_last_fit: int | None = None
+        self._steps_at_last_rollout = 0
+        self.last_fit: FitReport | None = None
+        self.info: dict[str, float] = {}
+        """Latest training statistics (losses, λ, α, ...), for progress bars and metrics rows."""
+        self._gates: list[SageGate] = []
+
+    # -- acting ----------------------------------------------------------------------------------
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        if not deterministic and self.in_random_warmup():
+            return self.rng.uniform(self.action_low.numpy(), self.action_high.numpy()).astype(np.float32)
+        return self.policy_action(obs, deterministic)
+
+    def in_random_warmup(self) -> bool:
+        return self.uses_random_warmup and not self.warm and self.buffer.total < self.cfg.learning_starts
+
+    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        return ActorPolicy(self.actor).act(obs, deterministic)
+
+    def rollout_policy(self, obs: Tensor) -> Tensor:
+        """The deterministic torch policy that world-model rollouts (fear, virtual buffer) follow."""
+        return self.actor.deterministic(obs)
+
+    # -- the loop's listener -----------------------------------------------------------------------
+    def observe(self, record: StepRecord) -> None:
+        """Store the step, refit the world model / roll it out when due, and run the updates due."""
+        self.buffer.add_record(record)
+        self.env_steps += 1
+        self.maybe_fit_world_model()
+        self.maybe_virtual_rollout()
+        if len(self.buffer) < self.update_threshold():
+            return
+        self._update_credit += self.cfg.updates_per_step
+        while self._update_credit >= 1.0:
+            self._update_credit -= 1.0
+            self.info.update(self.update())
+            self.updates += 1
+
+    def update_threshold(self) -> int:
+        return self.cfg.batch_size if self.warm else max(self.cfg.learning_starts, self.cfg.batch_size)
+
+    def update(self) -> dict[str, float]:
+        raise NotImplementedError
+
+    # -- world model -------------------------------------------------------------------------------
+    def world_model_ready(self) -> bool:
+        return self.world_model is not None and bool(self.world_model.fitted)
+
+    def maybe_fit_world_model(self) -> None:
+        if self.world_model is None or len(self.buffer) < self.cfg.wm_min_samples:
+            return
+        last = self._steps_at_last_fit
+        if last is None or self.env_steps - last >= self.cfg.wm_fit_every:
+            self.fit_world_model()
+
+    def fit_world_model(self) -> FitReport | None:
+        """Fit on the whole real buffer, then recalibrate σ̂ and refresh the virtual buffer."""
+        if self.world_model is None:
+            return None
+        data = self.buffer.arrays()
+        report = self.world_model.fit(data["obs"], data["action"], data["next_obs"], data["cost"], self.rng)
+        self._steps_at_last_fit = self.env_steps
+        self.last_fit = report
+        starts = self.buffer.sample(min(len(self.buffer), 2048), self.rng).obs
+        calibrate(self.world_model, self.rollout_policy, starts, self.cfg.gate.horizon)
+        self.info.update(wm_holdout_nll=report.holdout_nll, wm_holdout_mse=report.holdout_mse, wm_epochs=report.epochs)
+        self.virtual_rollout()
+        return report
+
+    def maybe_virtual_rollout(self) -> None:
+        if self.virtual is None or not self.world_model_ready():
+            return
+        if self.env_steps - self._steps_at_last_rollout >= self.cfg.virtual_every:
+            self.virtual_rollout()
+
+    def virtual_rollout(self) -> None:
+        """Roll the model m steps from real states under the current policy into D_virtual."""
+        if self.virtual is None or not self.world_model_ready() or len(self.buffer) == 0:
+            return
+        assert self.world_model is not None
+        starts = self.buffer.sample(self.cfg.virtual_starts, self.rng).obs
+        with torch.no_grad():
+            ro = rollout(
+                self.world_model.folded(),
+                self.rollout_policy,
+                starts,
+                self.rollout_policy(starts),
+                self.cfg.gate.horizon,
+            )
+        self.virtual.add_batch(*sample_member_transitions(ro, self.rng))
+        self._steps_at_last_rollout = self.env_steps
+
+    # -- gate --------------------------------------------------------------------------------------
+    def make_gate(self, cfg: GateConfig | None = None) -> SageGate:
+        """A SAGE gate on this learner's world model and (live) actor."""
+        if self.world_model is None:
+            raise ValueError(f"method {self.cfg.method!r} trains no world model, so it has no SAGE gate")
+        gate = SageGate(self.world_model, self.actor, cfg or self.cfg.gate)
+        self._gates.append(gate)
+        return gate
+
+    # -- demonstrations ----------------------------------------------------------------------------
+    def pretrain(self) -> dict[str, float]:
+        """Learn from the demonstrations in the buffer (intervention samples) before interacting:
+        behaviour cloning of the actor, then (subclasses) critic-only steps; then fit the world model."""
+        stats: dict[str, float] = {}
+        if self.buffer.takeover_count() > 0 and self.cfg.pretrain_bc_steps > 0:
+            stats["pretrain_bc_loss"] = self.behaviour_clone(self.cfg.pretrain_bc_steps)
+            self.warm = True
+        if self.world_model is not None and len(self.buffer) >= 10:
+            self.fit_world_model()
+        self.info.update(stats)
+        return stats
+
+    def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
+        """Plain regression of the deterministic action onto the expert's (intervention samples)."""
+        optimizer = torch.optim.Adam(self.actor.parameters(), lr=lr)
+        loss = torch.tensor(math.nan)
+        for _ in range(steps):
+            batch = self.buffer.sample_takeovers(self.cfg.batch_size, self.rng)
+            if batch is None:
+                break
+            loss = (self.actor.deterministic(batch.obs) - batch.a_expert).pow(2).sum(-1).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+        return float(loss.detach())
+
+    # -- checkpoints -------------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """Plain state dicts and tensors only (loadable with ``torch.load(weights_only=True)``)."""
+        state: dict[str, Any] = {"actor": self.actor.state_dict()}
+        if self.world_model is not None:
+            state["world_model"] = self.world_model.state_dict()
+        if self._gates:
+            state["gate"] = {k: torch.tensor(v) for k, v in self._gates[-1].state().items()}
+        return state
+
+    def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
+        """Load what matches; returns the names of the parts loaded. ``strict`` refuses missing parts
+        this learner needs (a warm start with ``strict=False`` takes what the checkpoint has)."""
+        loaded: list[str] = []
+        for name, module in self._modules_for_state().items():
+            if name in state:
+                module.load_state_dict(state[name])
+                loaded.append(name)
+            elif strict:
+                raise KeyError(f"checkpoint has no {name!r} (it has {', '.join(sorted(state))})")
+        if "actor" in loaded:
+            self.warm = True
+        if self.world_model is not None and "world_model" in loaded:
+            self._steps_at_last_fit = None  # refit on this run's data once there is enough of it
+        return loaded
+
+    def _modules_for_state(self) -> dict[str, torch.nn.Module]:
+        modules: dict[str, torch.nn.Module] = {"actor": self.actor}
+        if self.world_model is not None:
+            modules["world_model"] = self.world_model
+        return modules

@@ -1,0 +1,105 @@
+"""Networks shared by every learner: a batched ensemble of linear layers, the critic ensemble and the actor.
+
+Ensembles keep their members' weights stacked, shape ``(members, in, out)``, and run all members in one
+``torch.baddbmm``; a Python loop over members costs several times more on a CPU (see bench/bench_gate.py).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import torch
+from torch import Tensor, nn
+
+LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
+
+
+class VectorizedLinear(nn.Module):
+    """``members`` independent linear layers applied to a ``(members, batch, in)`` input in one baddbmm."""
+
+    def __init__(self, in_features: int, out_features: int, members: int) -> None:
+        super().__init__()
+        self.in_features, self.out_features, self.members = in_features, out_features, members
+        self.weight = nn.Parameter(torch.empty(members, in_features, out_features))
+        self.bias = nn.Parameter(torch.empty(members, 1, out_features))
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        # the default initialisation of nn.Linear, member by member
+        bound = 1.0 / math.sqrt(self.in_features)
+        for n in range(self.members):
+            nn.init.kaiming_uniform_(self.weight[n].T, a=math.sqrt(5))
+        nn.init.uniform_(self.bias, -bound, bound)
+
+    def forward(self, x: Tensor) -> Tensor:
+        return torch.baddbmm(self.bias, x, self.weight)
+
+
+class EnsembleCritic(nn.Module):
+    """Z action-value networks Q_z(s, a) evaluated together; ``forward`` returns ``(Z, batch)``."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int, layers: int, members: int) -> None:
+        super().__init__()
+        self.members = members
+        dims = [obs_dim + act_dim] + [hidden] * layers
+        self.hidden = nn.ModuleList(VectorizedLinear(i, o, members) for i, o in itertools.pairwise(dims))
+        self.out = VectorizedLinear(hidden, 1, members)
+
+    def forward(self, obs: Tensor, action: Tensor) -> Tensor:
+        x = torch.cat([obs, action], dim=-1)
+        x = x.unsqueeze(0).expand(self.members, *x.shape) if x.dim() == 2 else x
+        for layer in self.hidden:
+            x = torch.relu(layer(x))
+        return self.out(x).squeeze(-1)
+
+
+class Actor(nn.Module):
+    """Tanh-squashed Gaussian policy (SAC). TD3 and HG-DAgger use its deterministic path ``tanh(mean)``,
+    so one checkpoint can warm-start every method."""
+
+    def __init__(
+        self, obs_dim: int, act_dim: int, hidden: int, layers: int, action_low: Tensor, action_high: Tensor
+    ) -> None:
+        super().__init__()
+        dims = [obs_dim] + [hidden] * layers
+        blocks: list[nn.Module] = []
+        for i, o in itertools.pairwise(dims):
+            blocks += [nn.Linear(i, o), nn.ReLU()]
+        self.trunk = nn.Sequential(*blocks)
+        self.mean = nn.Linear(hidden, act_dim)
+        self.log_std = nn.Linear(hidden, act_dim)
+        self.register_buffer("action_scale", (action_high - action_low) / 2.0)
+        self.register_buffer("action_bias", (action_high + action_low) / 2.0)
+
+    def forward(self, obs: Tensor) -> tuple[Tensor, Tensor]:
+        h = self.trunk(obs)
+        log_std = torch.tanh(self.log_std(h))
+        log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (log_std + 1.0)
+        return self.mean(h), log_std
+
+    def deterministic(self, obs: Tensor) -> Tensor:
+        """The mode of the squashed Gaussian, in the env's action units."""
+        return torch.tanh(self.mean(self.trunk(obs))) * self.action_scale + self.action_bias
+
+    def deterministic_layers(self) -> list[tuple[Tensor, Tensor]]:
+        """(weight, bias) of the linear layers on the deterministic path (ReLU between, tanh after)."""
+        linears = [m for m in self.trunk if isinstance(m, nn.Linear)] + [self.mean]
+        return [(m.weight, m.bias) for m in linears]
+
+    def sample(self, obs: Tensor) -> tuple[Tensor, Tensor]:
+        """A reparameterised sample and its log-probability (with the tanh change of variables)."""
+        mean, log_std = self(obs)
+        std = log_std.exp()
+        noise = torch.randn_like(mean)
+        u = mean + std * noise
+        y = torch.tanh(u)
+        log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+        log_prob = log_prob - torch.log(self.action_scale * (1 - y.pow(2)) + 1e-6).sum(-1)
+        return y * self.action_scale + self.action_bias, log_prob
+
+
+def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
+    with torch.no_grad():
+        for t, s in zip(target.parameters(), source.parameters(), strict=True):
+            t.lerp_(s, tau)

@@ -1,0 +1,274 @@
+"""SAC, FNI-RL and SAGE-SAC: one soft actor-critic whose SAGE extras are switches of :class:`AgentConfig`.
+
+Critic (eq:critic_loss_fear). An ensemble of Z critics (one batched forward) regresses on
+
+    y = r + γ (1 - done) [ min_z Q̄_z(s', a') - α log π(a'|s') - λ F_{t+1} ],   a' ~ π(·|s')
+    y = -c*                                                 if the transition is a safety violation
+
+(``fear_regularisation`` adds -λF_{t+1}, ``violation_penalty`` the terminal -c*). F is the fear of
+(s', a') through the frozen world model, ``learner_fear_horizon`` steps (1 = eq:fear).
+
+c* (eq:penalty) = (r̄ - r̲) / (γ^H (1 - γ)) + λ / γ^H - r̄ / (1 - γ). The inequality before it asks for
+c* > (r̄ - r̲ + λ (1 - γ)(f̄ - f̲)) / γ^H - r̄. The paper's choice does not always meet it: their difference is
+γ/(1-γ) [(r̄ - r̲)/γ^H - r̄] + λ (1 - (1-γ)(f̄ - f̲)) / γ^H, negative when rewards are all positive with a
+narrow range (r̲ > γ^H r̄). :func:`penalty_c_star` therefore takes the larger of eq:penalty and the bound
+itself (plus a margin), and never less than 0, so the inequality holds for any bounds.
+
+Actor (eq:actor_loss_fear + eq:actor_loss_expert). On states from D_actual ∪ D_virtual (``virtual_ratio``),
+a ~ π(·|s) reparameterised:
+
+    L_a = E[ α log π(a|s) - min_z Q_z(s, a) + λ F(s, a) ] + w_bc · max(1, mean|Q|) · L_BC
+
+F(s, a) is differentiable w.r.t. a through the world model's folded weights, which are detached constants:
+the actor gets the fear gradient, the world model gets none. L_BC = E_{Ξ=1}[ω ||μ_θ(s) - a_E||²] on
+intervention samples, ω = exp(clip(A / (T · max(1, mean|Q|)), -κ, κ)), A = min_z Q_z(s, a_E) - min_z Q_z(s, a_RL)
+(detached). Dividing the advantage by the batch's Q scale makes ω independent of the reward's units, and the
+clip keeps it in [e^-κ, e^κ] however large the Q gap: a huge advantage can neither overflow nor let one
+sample swamp the batch. The imitation term is scaled by mean|Q| so that it keeps pace with the Q term.
+
+Dual (eq:lambda_update): λ ← clip(λ + lr_λ (mean F(s, π(s)) - F_0), 0, λ_max) on the real states of the
+actor batch: λ grows while mean fear exceeds the budget and shrinks (never below 0) otherwise.
+Temperature: SAC v2 automatic α towards entropy -dim(A).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from core.replay import Batch
+from core.sage.config import AgentConfig
+from core.sage.fear import fear
+from core.sage.learner import BaseLearner
+from core.sage.networks import EnsembleCritic, soft_update
+
+
+def penalty_c_star(
+    reward_min: float, reward_max: float, gamma: float, horizon: int, lam: float, fear_range: float = 1.0
+) -> float:
+    """c* of eq:penalty, raised where needed so that the sufficient condition before it holds strictly."""
+    gh = gamma**horizon
+    paper = (reward_max - reward_min) / (gh * (1.0 - gamma)) + lam / gh - reward_max / (1.0 - gamma)
+    bound = (reward_max - reward_min + lam * (1.0 - gamma) * fear_range) / gh - reward_max
+    margin = 1e-6 * max(1.0, abs(bound))
+    return max(paper, bound + margin, 0.0)
+
+
+def penalty_condition_holds(
+    c_star: float,
+    reward_min: float,
+    reward_max: float,
+    gamma: float,
+    horizon: int,
+    lam: float,
+    fear_min: float = 0.0,
+    fear_max: float = 1.0,
+) -> bool:
+    """The paper's inequality: the best unsafe return is below the worst safe return."""
+    gh = gamma**horizon
+    unsafe = (reward_max * (1 - gh) - c_star * gh) / (1 - gamma) - lam * fear_min
+    safe = reward_min / (1 - gamma) - lam * fear_max
+    return unsafe < safe
+
+
+def advantage_weights(
+    q_expert: Tensor, q_agent: Tensor, q_scale: Tensor | float, temperature: float, clip: float
+) -> Tensor:
+    """ω = exp(clip((Q(s,a_E) - Q(s,a_RL)) / (T · max(1, q_scale)), -clip, clip)) (eq:qa_weight, bounded)."""
+    scale = temperature * torch.clamp(torch.as_tensor(q_scale, dtype=q_expert.dtype), min=1.0)
+    return torch.exp(((q_expert - q_agent) / scale).clamp(-clip, clip))
+
+
+class SAC(BaseLearner):
+    """Soft actor-critic with SAGE's switches (see :func:`core.sage.config.for_method`)."""
+
+    def __init__(
+        self,
+        cfg: AgentConfig,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray | None = None,
+        action_high: np.ndarray | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed)
+        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, cfg.critics)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
+        self.log_alpha = torch.tensor(math.log(cfg.init_alpha), requires_grad=True)
+        self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=cfg.alpha_lr)
+        self.target_entropy = -float(act_dim) if cfg.target_entropy is None else cfg.target_entropy
+        self.lam = float(cfg.lambda_init)
+
+    # -- pieces ------------------------------------------------------------------------------------
+    @property
+    def alpha(self) -> float:
+        return self.log_alpha.detach().exp().item() if self.cfg.autotune_alpha else self.cfg.init_alpha
+
+    def fear_active(self) -> bool:
+        return self.cfg.fear_regularisation and self.world_model_ready()
+
+    def learner_fear(self, obs: Tensor, action: Tensor) -> Tensor:
+        """F(s, a) through the frozen world model (differentiable w.r.t. ``action`` under grad mode)."""
+        assert self.world_model is not None
+        return fear(
+            self.world_model.folded(),
+            self.rollout_policy,
+            obs,
+            action,
+            self.cfg.gate,
+            horizon=self.cfg.learner_fear_horizon,
+        ).fear
+
+    def reward_bounds(self) -> tuple[float, float]:
+        if self.cfg.reward_bounds is not None:
+            return self.cfg.reward_bounds
+        return self.buffer.reward_bounds() or (0.0, 0.0)
+
+    def c_star(self) -> float:
+        low, high = self.reward_bounds()
+        return penalty_c_star(
+            low, high, self.cfg.gamma, self.cfg.safety_horizon, self.lam if self.fear_active() else 0.0
+        )
+
+    def critic_target_values(self, batch: Batch) -> Tensor:
+        cfg = self.cfg
+        with torch.no_grad():
+            next_action, next_log_prob = self.actor.sample(batch.next_obs)
+            next_q = self.critic_target(batch.next_obs, next_action).min(0).values - self.alpha * next_log_prob
+            if self.fear_active():
+                next_q = next_q - self.lam * self.learner_fear(batch.next_obs, next_action)
+            y = batch.reward + cfg.gamma * (1.0 - batch.terminated) * next_q
+            if cfg.violation_penalty:
+                y = torch.where(batch.violation > 0.5, torch.full_like(y, -self.c_star()), y)
+        return y
+
+    def critic_step(self, batch: Batch) -> dict[str, float]:
+        y = self.critic_target_values(batch)
+        q = self.critic(batch.obs, batch.action)
+        loss = F.mse_loss(q, y.unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
+        self.critic_optimizer.step()
+        soft_update(self.critic_target, self.critic, self.cfg.polyak)
+        return {"critic_loss": loss.item(), "q_mean": q.mean().item()}
+
+    def actor_states(self, batch: Batch) -> tuple[Tensor, int]:
+        """States of the actor batch: real ones first, then virtual ones; returns (states, number real)."""
+        n_virtual = 0
+        if self.virtual is not None and len(self.virtual) > 0 and self.cfg.virtual_ratio > 0:
+            n_virtual = round(self.cfg.virtual_ratio * len(batch))
+        n_real = len(batch) - n_virtual
+        if n_virtual == 0:
+            return batch.obs, n_real
+        assert self.virtual is not None
+        return torch.cat([batch.obs[:n_real], self.virtual.sample_obs(n_virtual, self.rng)]), n_real
+
+    def actor_loss(self, batch: Batch, imitation: Batch | None) -> tuple[Tensor, Tensor, dict[str, float]]:
+        """The composite actor loss, the log-probabilities (for α) and statistics."""
+        cfg = self.cfg
+        states, n_real = self.actor_states(batch)
+        action, log_prob = self.actor.sample(states)
+        q = self.critic(states, action).min(0).values
+        loss = (self.alpha * log_prob - q).mean()
+        stats: dict[str, float] = {}
+        if self.fear_active():
+            fear_values = self.learner_fear(states, action)
+            loss = loss + self.lam * fear_values.mean()
+            stats["fear_real"] = fear_values[:n_real].mean().item()
+        q_scale = q.detach().abs().mean().clamp_min(1.0)
+        if imitation is not None:
+            with torch.no_grad():
+                q_expert = self.critic(imitation.obs, imitation.a_expert).min(0).values
+                q_agent = self.critic(imitation.obs, imitation.a_rl).min(0).values
+                omega = advantage_weights(q_expert, q_agent, q_scale, cfg.advantage_temperature, cfg.advantage_clip)
+            error = (self.actor.deterministic(imitation.obs) - imitation.a_expert).pow(2).sum(-1)
+            bc = (omega * error).mean()
+            loss = loss + cfg.bc_weight * q_scale * bc
+            stats.update(bc_loss=bc.item(), omega_mean=omega.mean().item())
+        return loss, log_prob, stats
+
+    def dual_step(self, fear_real: float) -> None:
+        """Projected dual ascent on λ (eq:lambda_update)."""
+        self.lam = min(
+            max(self.lam + self.cfg.lambda_lr * (fear_real - self.cfg.fear_budget), 0.0), self.cfg.lambda_max
+        )
+
+    def imitation_batch(self) -> Batch | None:
+        if not self.cfg.imitation:
+            return None
+        return self.buffer.sample_takeovers(self.cfg.bc_batch_size, self.rng)
+
+    def actor_step(self, batch: Batch) -> dict[str, float]:
+        self.critic.requires_grad_(False)  # the actor's loss needs gradients w.r.t. actions, not critic weights
+        try:
+            loss, log_prob, stats = self.actor_loss(batch, self.imitation_batch())
+            self.actor_optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+        finally:
+            self.critic.requires_grad_(True)
+        torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
+        self.actor_optimizer.step()
+        if self.cfg.autotune_alpha:
+            alpha_loss = -(self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
+            self.alpha_optimizer.zero_grad(set_to_none=True)
+            alpha_loss.backward()
+            self.alpha_optimizer.step()
+        if "fear_real" in stats:
+            self.dual_step(stats["fear_real"])
+        stats.update(actor_loss=loss.item(), alpha=self.alpha, lam=self.lam, entropy=-log_prob.mean().item())
+        return stats
+
+    # -- the update ----------------------------------------------------------------------------------
+    def update(self) -> dict[str, float]:
+        batch = self.buffer.sample(self.cfg.batch_size, self.rng)
+        stats = self.critic_step(batch)
+        stats.update(self.actor_step(batch))
+        return stats
+
+    def pretrain(self) -> dict[str, float]:
+        stats = super().pretrain()
+        if self.warm and len(self.buffer) >= self.cfg.batch_size:
+            for _ in range(self.cfg.pretrain_critic_steps):
+                stats.update(self.critic_step(self.buffer.sample(self.cfg.batch_size, self.rng)))
+        self.info.update(stats)
+        return stats
+
+    # -- checkpoints -----------------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        state = super().state_dict()
+        state.update(
+            critic=self.critic.state_dict(),
+            critic_target=self.critic_target.state_dict(),
+            log_alpha=self.log_alpha.detach().clone(),
+            lam=torch.tensor(self.lam),
+        )
+        return state
+
+    def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
+        loaded = super().load_state_dict(state, strict)
+        for name in ("log_alpha", "lam"):
+            if name in state:
+                value = torch.as_tensor(state[name])
+                if name == "log_alpha":
+                    with torch.no_grad():
+                        self.log_alpha.copy_(value)
+                else:
+                    self.lam = float(value)
+                loaded.append(name)
+        if "critic" in loaded and "critic_target" not in state:
+            self.critic_target.load_state_dict(self.critic.state_dict())
+        return loaded
+
+    def _modules_for_state(self) -> dict[str, torch.nn.Module]:
+        modules = super()._modules_for_state()
+        modules.update(critic=self.critic, critic_target=self.critic_target)
+        return modules

@@ -1,0 +1,305 @@
+"""The ensemble world model: N probabilistic MLPs, each a diagonal Gaussian over (Δstate, cost).
+
+Training (:meth:`EnsembleWorldModel.fit`) follows PETS (Chua et al. 2018): every member minimises the Gaussian
+negative log-likelihood of the real transitions on its own bootstrap resample; log-variances are kept between
+learnable soft bounds (``max_logvar - softplus(max_logvar - lv)`` then ``min_logvar + softplus(lv - min_logvar)``,
+with a small penalty on ``max_logvar - min_logvar``); inputs and targets are normalised; a held-out split
+drives early stopping (each member keeps its best held-out snapshot, as in MBPO).
+
+The cost channel's target is ``max(cost, violation)`` clipped to [0, 1]: a violation always counts as full
+cost. Its conditional mean is then the violation probability when a simulator's cost is binary, and an
+expected proximity risk that upper-bounds it when the cost is dense (as the UGV's); the clipped ensemble
+mean is the ĉ of eq:fear.
+
+Uncertainty. The paper's σ̂ averages the members' own standard deviations. That is aleatoric noise: it
+does not grow off the training distribution (a released predecessor used one random member's own std and
+its fear was flat on novel inputs). We use the total predictive variance of the equally weighted mixture of
+the members, per normalised state dimension d,
+
+    var_d = mean_n σ²_{n,d}  +  var_n μ_{n,d}          (aleatoric  +  epistemic disagreement)
+
+and σ_raw = mean_d sqrt(var_d). The disagreement term is what rises where the members were not trained.
+Over a rollout each member propagates its own trajectory, so the disagreement of the predicted states also
+carries the divergence accumulated over earlier steps (:func:`core.sage.fear.rollout`).
+
+Inference. :meth:`EnsembleWorldModel.folded` returns the weights with the input normalisation folded into
+the first layer and the output de-normalisation of the means folded into the last, cached until the model
+changes, so that a gate step is a handful of ``baddbmm`` calls and no normalisation arithmetic.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from core.sage.config import WorldModelConfig
+from core.sage.networks import VectorizedLinear
+
+STD_FLOOR = 1e-3
+MAX_HORIZON = 16
+"""Longest rollout whose per-step σ scale is stored (longer horizons reuse the last step's scale)."""
+
+
+@dataclass
+class FoldedModel:
+    """Inference weights of the ensemble (see :meth:`EnsembleWorldModel.folded`); all plain tensors, no grad."""
+
+    hidden: list[tuple[Tensor, Tensor]]
+    """(weight (N, in, out), bias (N, 1, out)) of each hidden layer; the first takes raw (obs, action)."""
+    out_weight: Tensor
+    """(N, hidden, 2 (D + 1)): the first D + 1 columns give de-normalised (Δs, cost) means, the rest raw log-vars."""
+    out_bias: Tensor
+    max_logvar: Tensor
+    min_logvar: Tensor
+    inv_delta_var: Tensor
+    """1 / std(Δs)² per state dim: converts state disagreement into normalised units."""
+    inv_obs_std: Tensor
+    """1 / std(s) per state dim: curiosity is measured on normalised states."""
+    obs_dim: int
+    members: int
+    sigma_scale: Tensor
+    """(MAX_HORIZON,) scale κ_k of σ_raw at rollout step k on real states (see :func:`core.sage.fear.calibrate`)."""
+    curiosity_ref: float
+    """Mean one-step curiosity on held-out real transitions at the last fit (the curiosity EMA's start)."""
+
+
+@dataclass
+class FitReport:
+    """What one call to :meth:`EnsembleWorldModel.fit` did."""
+
+    epochs: int
+    updates: int
+    holdout_nll_before: float
+    holdout_nll: float
+    """Held-out NLL (mean over members) of the kept snapshot."""
+    holdout_mse: float
+    """Held-out MSE of the ensemble mean in normalised target units."""
+    train_nll: list[float] = field(default_factory=list)
+    holdout_history: list[float] = field(default_factory=list)
+
+
+class EnsembleWorldModel(nn.Module):
+    """N diagonal-Gaussian MLPs predicting (s_{t+1} - s_t, c_t) from (s_t, a_t), all members in one forward."""
+
+    def __init__(self, obs_dim: int, act_dim: int, cfg: WorldModelConfig) -> None:
+        super().__init__()
+        self.obs_dim, self.act_dim, self.cfg = obs_dim, act_dim, cfg
+        self.members = cfg.members
+        in_dim, out_dim = obs_dim + act_dim, obs_dim + 1
+        dims = [in_dim] + [cfg.hidden] * cfg.layers
+        self.hidden_layers = nn.ModuleList(VectorizedLinear(i, o, cfg.members) for i, o in itertools.pairwise(dims))
+        self.out = VectorizedLinear(cfg.hidden, 2 * out_dim, cfg.members)
+        self.max_logvar = nn.Parameter(torch.full((1, 1, out_dim), 0.5))
+        self.min_logvar = nn.Parameter(torch.full((1, 1, out_dim), -10.0))
+        self.register_buffer("in_mean", torch.zeros(in_dim))
+        self.register_buffer("in_std", torch.ones(in_dim))
+        self.register_buffer("out_mean", torch.zeros(out_dim))
+        self.register_buffer("out_std", torch.ones(out_dim))
+        self.register_buffer("sigma_scale", torch.ones(MAX_HORIZON))
+        self.register_buffer("curiosity_ref", torch.tensor(1.0))
+        self.register_buffer("fitted", torch.tensor(False))
+        self.version = 0
+        self._folded: tuple[int, FoldedModel] | None = None
+        self._optimizer: torch.optim.Optimizer | None = None
+
+    # -- forward ---------------------------------------------------------------------------------
+    def forward_normalised(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """(N, B, in) normalised inputs -> normalised means and bounded log-variances, both (N, B, D + 1)."""
+        h = x
+        for layer in self.hidden_layers:
+            h = F.silu(layer(h))
+        out = self.out(h)
+        mean, raw_logvar = out.chunk(2, dim=-1)
+        return mean, self.bound_logvar(raw_logvar)
+
+    def bound_logvar(self, raw: Tensor) -> Tensor:
+        logvar = self.max_logvar - F.softplus(self.max_logvar - raw)
+        return self.min_logvar + F.softplus(logvar - self.min_logvar)
+
+    def normalise_inputs(self, obs: Tensor, action: Tensor) -> Tensor:
+        return (torch.cat([obs, action], dim=-1) - self.in_mean) / self.in_std
+
+    def predict(self, obs: Tensor, action: Tensor) -> tuple[Tensor, Tensor]:
+        """Per-member de-normalised means (N, B, D + 1) of (Δs, cost) and log-variances in normalised units."""
+        x = self.normalise_inputs(obs, action)
+        x = x.unsqueeze(0).expand(self.members, *x.shape) if x.dim() == 2 else x
+        mean, logvar = self.forward_normalised(x)
+        return mean * self.out_std + self.out_mean, logvar
+
+    def predictive_std(self, obs: Tensor, action: Tensor) -> Tensor:
+        """σ_raw per sample: mean over normalised state dims of the mixture std (see the module docstring)."""
+        mean, logvar = self.predict(obs, action)
+        d = self.obs_dim
+        delta = mean[..., :d]
+        epistemic = (delta - delta.mean(0, keepdim=True)).square().mean(0) / self.out_std[:d].pow(2)
+        aleatoric = logvar[..., :d].exp().mean(0)
+        return (epistemic + aleatoric).sqrt().mean(-1)
+
+    # -- training --------------------------------------------------------------------------------
+    def _nll(self, x: Tensor, y: Tensor) -> Tensor:
+        """Per-member Gaussian NLL (without the constant), averaged over samples and dims: shape (N,)."""
+        mean, logvar = self.forward_normalised(x)
+        return 0.5 * (((mean - y) ** 2) * torch.exp(-logvar) + logvar).mean(dim=(1, 2))
+
+    def fit(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        next_obs: np.ndarray,
+        cost: np.ndarray,
+        rng: np.random.Generator,
+    ) -> FitReport:
+        """Train on real transitions with a held-out split; keep each member's best held-out snapshot.
+
+        The normalisers are set by the first fit and then frozen, so that warm-started weights keep their
+        meaning when a run continues from a checkpoint on a small new buffer.
+        """
+        cfg = self.cfg
+        n = len(obs)
+        if n < 10:
+            raise ValueError(f"world model fit needs at least 10 transitions, got {n}")
+        inputs = torch.as_tensor(np.concatenate([obs, action], axis=1), dtype=torch.float32)
+        targets = torch.as_tensor(
+            np.concatenate([next_obs - obs, np.clip(cost, 0.0, 1.0)[:, None]], axis=1), dtype=torch.float32
+        )
+        perm = rng.permutation(n)
+        n_hold = max(1, min(int(n * cfg.holdout_ratio), cfg.max_holdout))
+        hold, train = perm[:n_hold], perm[n_hold:]
+        if not bool(self.fitted):
+            with torch.no_grad():
+                self.in_mean.copy_(inputs[train].mean(0))
+                self.in_std.copy_(inputs[train].std(0).clamp_min(1e-2))
+                self.out_mean.copy_(targets[train].mean(0))
+                self.out_std.copy_(targets[train].std(0).clamp_min(STD_FLOOR))
+        x = (inputs - self.in_mean) / self.in_std
+        y = (targets - self.out_mean) / self.out_std
+        x_hold = x[hold].unsqueeze(0).expand(self.members, -1, -1)
+        y_hold = y[hold].unsqueeze(0).expand(self.members, -1, -1)
+        if self._optimizer is None:
+            decay = [p for layer in [*self.hidden_layers, self.out] for p in [layer.weight]]
+            rest = [p for name, p in self.named_parameters() if not name.endswith("weight")]
+            self._optimizer = torch.optim.Adam(
+                [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": rest, "weight_decay": 0.0}],
+                lr=cfg.lr,
+            )
+        optimizer = self._optimizer
+
+        def holdout_nll() -> Tensor:
+            with torch.no_grad():
+                return self._nll(x_hold, y_hold)
+
+        best = holdout_nll()
+        before = float(best.mean())
+        snapshot = copy.deepcopy(self.state_dict())
+        bootstrap = torch.as_tensor(rng.integers(0, len(train), size=(self.members, len(train))))
+        train_t = torch.as_tensor(train)
+        report = FitReport(0, 0, before, before, float("nan"))
+        since_improved = 0
+        for epoch in range(cfg.max_epochs):
+            order = bootstrap[:, torch.randperm(len(train), generator=_torch_generator(rng))]
+            epoch_loss = []
+            for start in range(0, len(train), cfg.batch_size):
+                idx = train_t[order[:, start : start + cfg.batch_size]]
+                loss = self._nll(x[idx], y[idx]).sum()
+                loss = loss + cfg.logvar_bound_weight * (self.max_logvar.sum() - self.min_logvar.sum())
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+                report.updates += 1
+                epoch_loss.append(float(loss.detach()) / self.members)
+                if report.updates >= cfg.max_updates_per_fit:
+                    break
+            report.epochs = epoch + 1
+            report.train_nll.append(float(np.mean(epoch_loss)))
+            current = holdout_nll()
+            report.holdout_history.append(float(current.mean()))
+            improved = current < best - 1e-3 * best.abs().clamp_min(1e-3)
+            if bool(improved.any()):
+                state = self.state_dict()
+                for name in self._member_parameter_names():
+                    # stacked member parameters have the member axis first; copy only improved members
+                    snapshot[name][improved] = state[name][improved]
+                best = torch.where(improved, current, best)
+                since_improved = 0
+            else:
+                since_improved += 1
+            if since_improved > cfg.patience or report.updates >= cfg.max_updates_per_fit:
+                break
+        # the learnable log-var bounds and normalisers are shared, keep their latest values
+        for name in ("max_logvar", "min_logvar"):
+            snapshot[name] = self.state_dict()[name]
+        self.load_state_dict(snapshot)
+        with torch.no_grad():
+            final = self._nll(x_hold, y_hold)
+            mean, _ = self.forward_normalised(x_hold)
+            report.holdout_nll = float(final.mean())
+            report.holdout_mse = float(((mean.mean(0) - y[hold]) ** 2).mean())
+            self.fitted.fill_(True)
+            hold_obs, hold_action = inputs[hold, : self.obs_dim], inputs[hold, self.obs_dim :]
+            hold_next = torch.as_tensor(next_obs[hold], dtype=torch.float32)
+            self.curiosity_ref.fill_(float(self.curiosity(hold_obs, hold_action, hold_next).mean()))
+        self.touch()
+        return report
+
+    def _member_parameter_names(self) -> list[str]:
+        layers = [f"hidden_layers.{i}" for i in range(len(self.hidden_layers))] + ["out"]
+        return [f"{layer}.{kind}" for layer in layers for kind in ("weight", "bias")]
+
+    def curiosity(self, obs: Tensor, action: Tensor, next_obs: Tensor) -> Tensor:
+        """C = ||ŝ_{t+1} - s_{t+1}||₂ on normalised states, ŝ the ensemble-mean prediction (eq:curiosity)."""
+        mean, _ = self.predict(obs, action)
+        predicted = obs + mean[..., : self.obs_dim].mean(0)
+        return ((predicted - next_obs) / self.in_std[: self.obs_dim]).norm(dim=-1)
+
+    # -- inference weights -----------------------------------------------------------------------
+    def touch(self) -> None:
+        """Mark the weights as changed (invalidates :meth:`folded`)."""
+        self.version += 1
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):  # type: ignore[no-untyped-def]
+        result = super().load_state_dict(state_dict, strict=strict, assign=assign)
+        self.touch()
+        return result
+
+    def folded(self) -> FoldedModel:
+        """Inference weights with the normalisation folded in (cached until :meth:`touch`)."""
+        if self._folded is not None and self._folded[0] == self.version:
+            return self._folded[1]
+        d = self.obs_dim
+        with torch.no_grad():
+            hidden: list[tuple[Tensor, Tensor]] = []
+            for i, layer in enumerate(self.hidden_layers):
+                w, b = layer.weight.detach().clone(), layer.bias.detach().clone()
+                if i == 0:
+                    # ((x - m) / s) W + b  =  x (W / s) + (b - (m / s) W)
+                    w = w / self.in_std.view(1, -1, 1)
+                    b = b - torch.matmul((self.in_mean / self.in_std).view(1, 1, -1), layer.weight)
+                hidden.append((w.contiguous(), b.contiguous()))
+            ow, ob = self.out.weight.detach().clone(), self.out.bias.detach().clone()
+            ow[..., : d + 1] *= self.out_std.view(1, 1, -1)
+            ob[..., : d + 1] = ob[..., : d + 1] * self.out_std.view(1, 1, -1) + self.out_mean.view(1, 1, -1)
+            folded = FoldedModel(
+                hidden=hidden,
+                out_weight=ow.contiguous(),
+                out_bias=ob.contiguous(),
+                max_logvar=self.max_logvar.detach().clone()[..., :d],
+                min_logvar=self.min_logvar.detach().clone()[..., :d],
+                inv_delta_var=self.out_std[:d].pow(-2).clone(),
+                inv_obs_std=self.in_std[:d].reciprocal().clone(),
+                obs_dim=d,
+                members=self.members,
+                sigma_scale=self.sigma_scale.clone(),
+                curiosity_ref=float(self.curiosity_ref),
+            )
+        self._folded = (self.version, folded)
+        return folded
+
+
+def _torch_generator(rng: np.random.Generator) -> torch.Generator:
+    return torch.Generator().manual_seed(int(rng.integers(0, 2**31 - 1)))

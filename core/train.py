@@ -1,0 +1,399 @@
+"""Headless training and evaluation on the one step loop (:class:`core.loop.Runner`).
+
+Training puts the learner in a ``Runner`` as its policy and appends ``learner.observe`` to the step
+listeners: the loop feeds the replay buffer, and the learner refits its world model and runs its gradient
+updates from there. SAGE and HG-DAgger runs get the SAGE gate and the scripted expert
+(:class:`core.experts.ScriptedExpert`); FNI-RL gets the gate without an expert (its fear and curiosity are
+recorded, nobody takes over); SAC and TD3 get neither. Demonstrations (``demo_episodes``) are the same loop
+with a gate that always fires, so the expert drives and both actions are recorded as intervention samples.
+
+Several scenarios train one learner in turn (one ``Runner`` per scenario env, episodes round-robin).
+Nothing here imports a simulator: the caller passes ``make_env(scenario) -> gym.Env``.
+
+A run folder holds ``config.json`` ({"run", "agent", "meta"}), ``metrics.jsonl`` (one row per episode: the
+loop's :class:`~core.loop.EpisodeSummary` row, the simulator's metrics and the learner's statistics),
+``checkpoint.pt`` and ``checkpoints/episode_NNNNN.pt`` (see :mod:`core.agents`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from core.agents import (
+    CHECKPOINT_DIR,
+    FINAL_CHECKPOINT,
+    AgentMeta,
+    action_bounds,
+    load_agent,
+    load_checkpoint,
+    meta_of,
+    save_checkpoint,
+)
+from core.experts import ScriptedExpert
+from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner
+from core.sage import make_learner
+from core.sage.config import AgentConfig, to_dict
+from core.sage.gate import AlwaysGate
+from core.sage.learner import BaseLearner
+
+EnvFactory = Callable[[str], gym.Env[Any, Any]]
+"""Builds the env of one scenario (the CLI passes ``lambda s: sims.make(sim, scenario=s)``)."""
+
+DEMO_SEED_OFFSET = 500_000
+EVAL_SEED_OFFSET = 1_000_000
+SCENARIO_SEED_STRIDE = 10_000_000
+
+
+@dataclass
+class RunConfig:
+    """The training run around the learner (the learner's own settings are :class:`AgentConfig`)."""
+
+    sim: str
+    """Simulator short name (``ugv``, ``highway``, ``sumo``): recorded in the checkpoints."""
+    scenarios: list[str]
+    """Scenarios trained on, round-robin, one episode each in turn (passed through to the simulator)."""
+    episodes: int
+    """Training episodes in total (demonstrations not counted)."""
+    seed: int = 0
+    """Seeds torch, numpy and the episodes (episode i of scenario j uses seed + j·10^7 + i)."""
+    init: str | None = None
+    """Run folder or checkpoint to warm-start from (the parts that fit: actor, critics, world model, ...)."""
+    demo_episodes: int = 0
+    """Expert-driven episodes recorded as intervention samples before training (then cloned: see pretrain)."""
+    demo_noise: float = 0.0
+    """Std of Gaussian noise on the expert's demonstrated actions (DART-style: the demonstrations then visit
+    the states a slightly imperfect clone drifts into, and the zero-mean noise averages out in the regression)."""
+    checkpoint_every: int = 25
+    """Episodes between checkpoint versions (0: only the final checkpoint)."""
+    checkpoint_dtype: str = "float32"
+    """``float16`` halves the checkpoint files (used for the committed default policy)."""
+    max_episode_steps: int | None = None
+    """Cut episodes at this many steps (None: the simulator's own time limit)."""
+
+
+@dataclass
+class TrainResult:
+    rows: list[dict[str, Any]]
+    learner: BaseLearner
+    out: Path | None
+    demo_rows: list[dict[str, Any]] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def _dims(env: gym.Env[Any, Any]) -> tuple[int, int, np.ndarray, np.ndarray]:
+    obs_shape = getattr(env.observation_space, "shape", None)
+    if not obs_shape or len(obs_shape) != 1:
+        raise TypeError(f"observation space {env.observation_space} is not a flat Box")
+    low, high = action_bounds(env.action_space)
+    return int(obs_shape[0]), len(low), low, high
+
+
+def _tag(row: dict[str, Any], **extra: Any) -> dict[str, Any]:
+    row = dict(row)
+    row.update(extra)
+    return row
+
+
+class NoisyExpert:
+    """An expert whose actions get Gaussian noise (clipped to the action bounds), for demonstrations."""
+
+    def __init__(self, expert: Expert, std: float, low: np.ndarray, high: np.ndarray, seed: int) -> None:
+        self.expert, self.std, self.low, self.high = expert, std, low, high
+        self.rng = np.random.default_rng(seed + DEMO_SEED_OFFSET)
+
+    def reset(self) -> None:
+        self.expert.reset()
+
+    def wants_control(self) -> bool:
+        return self.expert.wants_control()
+
+    def act(self, env: gym.Env[Any, Any], obs: np.ndarray) -> tuple[np.ndarray, Any]:
+        action, actor = self.expert.act(env, obs)
+        noisy = np.asarray(action, np.float32) + self.rng.normal(0.0, self.std, np.shape(action)).astype(np.float32)
+        return np.clip(noisy, self.low, self.high), actor
+
+
+class Trainer:
+    """One training run: build envs and learner, (demonstrate,) train, checkpoint. See the module docstring."""
+
+    def __init__(
+        self, run: RunConfig, agent: AgentConfig, make_env: EnvFactory, out: Path | None = None, progress: bool = True
+    ) -> None:
+        if run.episodes < 0 or run.demo_episodes < 0:
+            raise ValueError("episodes and demo_episodes must be >= 0")
+        if not run.scenarios:
+            raise ValueError("at least one scenario is needed")
+        self.run, self.agent_cfg, self.out, self.progress = run, agent, out, progress
+        torch.manual_seed(run.seed)
+        self.envs = {s: make_env(s) for s in run.scenarios}
+        first = self.envs[run.scenarios[0]]
+        self.obs_dim, self.act_dim, self.low, self.high = _dims(first)
+        for s, env in self.envs.items():
+            if _dims(env)[:2] != (self.obs_dim, self.act_dim):
+                raise ValueError(f"scenario {s} has other observation/action sizes than {run.scenarios[0]}")
+        self.learner = make_learner(agent, self.obs_dim, self.act_dim, self.low, self.high, run.seed)
+        self.init_parts: list[str] = []
+        if run.init:
+            self.init_parts = self._warm_start(run.init)
+        self.rows: list[dict[str, Any]] = []
+        self.episodes_done = 0
+
+    def _warm_start(self, path: str) -> list[str]:
+        payload = load_checkpoint(path)
+        meta = meta_of(payload)
+        if (meta.obs_dim, meta.act_dim) != (self.obs_dim, self.act_dim):
+            raise ValueError(
+                f"--init {path}: its policy takes {meta.obs_dim} observations / {meta.act_dim} actions, "
+                f"this simulator has {self.obs_dim} / {self.act_dim}"
+            )
+        try:
+            return self.learner.load_state_dict(payload["state"], strict=False)
+        except RuntimeError as exc:
+            raise ValueError(f"--init {path}: network sizes differ from this run's config: {exc}") from None
+
+    # -- pieces --------------------------------------------------------------------------------------
+    def meta(self) -> AgentMeta:
+        learner = self.learner
+        return AgentMeta(
+            method=self.agent_cfg.method,
+            sim=self.run.sim,
+            scenarios=list(self.run.scenarios),
+            obs_dim=self.obs_dim,
+            act_dim=self.act_dim,
+            action_low=[float(x) for x in self.low],
+            action_high=[float(x) for x in self.high],
+            episodes=self.episodes_done,
+            env_steps=learner.env_steps,
+            updates=learner.updates,
+            seed=self.run.seed,
+            has_world_model=learner.world_model_ready(),
+            extra={"init": self.run.init or "", "demo_episodes": self.run.demo_episodes},
+        )
+
+    def gate_and_expert(self) -> tuple[Gate, Expert | None]:
+        cfg, learner = self.agent_cfg, self.learner
+        if cfg.takeover:
+            return learner.make_gate(), ScriptedExpert()
+        if learner.world_model is not None:
+            return learner.make_gate(), None  # fear and curiosity are recorded; nobody takes over
+        return NoGate(), None
+
+    def demonstrate(self) -> list[dict[str, Any]]:
+        """Expert-driven episodes into the buffer as intervention samples, then ``learner.pretrain()``."""
+        rows: list[dict[str, Any]] = []
+        if self.run.demo_episodes == 0:
+            return rows
+        runners = [
+            Runner(
+                env,
+                self.learner,
+                AlwaysGate(),
+                ScriptedExpert(),
+                seed=self.run.seed + DEMO_SEED_OFFSET + j * SCENARIO_SEED_STRIDE,
+            )
+            for j, env in enumerate(self.envs.values())
+        ]
+        for runner in runners:
+            runner.step_listeners.append(self.learner.buffer.add_record)
+        scenarios = list(self.envs)
+        for i in range(self.run.demo_episodes):
+            j = i % len(runners)
+            summary = runners[j].run_episode(self.run.max_episode_steps)
+            rows.append(_tag(summary.as_row(), scenario=scenarios[j], phase="demo"))
+        stats = self.learner.pretrain()
+        if rows:
+            rows[-1].update(stats)
+        return rows
+
+    def write_config(self) -> None:
+        if self.out is None:
+            return
+        self.out.mkdir(parents=True, exist_ok=True)
+        config = {
+            "run": dataclasses.asdict(self.run),
+            "agent": to_dict(self.agent_cfg),
+            "meta": dataclasses.asdict(self.meta()),
+        }
+        (self.out / "config.json").write_text(json.dumps(config, indent=2, default=str) + "\n")
+
+    def checkpoint(self, final: bool = False) -> Path | None:
+        if self.out is None:
+            return None
+        dtype = self.run.checkpoint_dtype
+        if final:
+            return save_checkpoint(self.out / FINAL_CHECKPOINT, self.learner, self.meta(), dtype)
+        name = f"episode_{self.episodes_done:05d}.pt"
+        return save_checkpoint(self.out / CHECKPOINT_DIR / name, self.learner, self.meta(), dtype)
+
+    # -- the run -----------------------------------------------------------------------------------------
+    def train(self) -> TrainResult:
+        from tqdm import tqdm
+
+        started = time.time()
+        self.write_config()
+        metrics_file = None if self.out is None else (self.out / "metrics.jsonl").open("a")
+        demo_rows = self.demonstrate()
+        if metrics_file is not None:
+            for row in demo_rows:
+                metrics_file.write(json.dumps(row, default=_json_default) + "\n")
+        gate, expert = self.gate_and_expert()
+        scenarios = list(self.envs)
+        runners = []
+        for j, s in enumerate(scenarios):
+            runner = Runner(self.envs[s], self.learner, gate, expert, seed=self.run.seed + j * SCENARIO_SEED_STRIDE)
+            runner.step_listeners.append(self.learner.observe)
+            runners.append(runner)
+        bar = tqdm(
+            total=self.run.episodes,
+            desc=f"{self.agent_cfg.method} {self.run.sim} {','.join(scenarios)}",
+            unit="ep",
+            disable=not self.progress,
+            leave=False,
+        )
+        try:
+            for i in range(self.run.episodes):
+                j = i % len(runners)
+                summary = runners[j].run_episode(self.run.max_episode_steps)
+                self.episodes_done += 1
+                row = self._row(summary, scenarios[j], started)
+                self.rows.append(row)
+                if metrics_file is not None:
+                    metrics_file.write(json.dumps(row, default=_json_default) + "\n")
+                    metrics_file.flush()
+                bar.update(1)
+                bar.set_postfix_str(progress_text(self.rows))
+                every = self.run.checkpoint_every
+                if every and self.episodes_done % every == 0 and self.episodes_done < self.run.episodes:
+                    self.checkpoint()
+        finally:
+            bar.close()
+            if metrics_file is not None:
+                metrics_file.close()
+        if self.run.episodes > 0 and self.run.checkpoint_every:
+            self.checkpoint()
+        self.checkpoint(final=True)
+        self.write_config()
+        return TrainResult(self.rows, self.learner, self.out, demo_rows, time.time() - started)
+
+    def _row(self, summary: EpisodeSummary, scenario: str, started: float) -> dict[str, Any]:
+        learner = self.learner
+        stats = {k: float(v) for k, v in learner.info.items() if isinstance(v, int | float)}
+        return _tag(
+            summary.as_row(),
+            episode=self.episodes_done - 1,
+            scenario=scenario,
+            phase="train",
+            env_steps=learner.env_steps,
+            updates=learner.updates,
+            wall_time=round(time.time() - started, 2),
+            **stats,
+        )
+
+
+def progress_text(rows: Sequence[dict[str, Any]], window: int = 10) -> str:
+    """Return, success, takeover rate and fear over the last ``window`` episodes."""
+    recent = rows[-window:]
+
+    def mean(key: str) -> float:
+        values = [float(r[key]) for r in recent if r.get(key) is not None and math.isfinite(float(r[key]))]
+        return float(np.mean(values)) if values else math.nan
+
+    parts = [f"ret {mean('return'):.1f}"]
+    if any("success" in r for r in recent):
+        parts.append(f"succ {mean('success'):.0%}")
+    parts.append(f"takeover {mean('takeover_rate'):.0%}")
+    fear = mean("mean_fear")
+    if math.isfinite(fear):
+        parts.append(f"fear {fear:.2f}")
+    return " ".join(parts)
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return str(value)
+
+
+def train(
+    run: RunConfig, agent: AgentConfig, make_env: EnvFactory, out: Path | None = None, progress: bool = True
+) -> TrainResult:
+    """Build a :class:`Trainer` and run it."""
+    return Trainer(run, agent, make_env, out, progress).train()
+
+
+# -- evaluation ----------------------------------------------------------------------------------------
+def evaluate(
+    policy: Policy,
+    make_env: EnvFactory,
+    scenarios: Sequence[str],
+    episodes: int,
+    seed: int = 0,
+    gate_factory: Callable[[], Gate] | None = None,
+    expert: bool = False,
+    progress: bool = True,
+    max_episode_steps: int | None = None,
+) -> dict[str, list[dict[str, Any]]]:
+    """Run ``policy`` deterministically for ``episodes`` per scenario; rows per scenario.
+
+    By default no gate and no expert (the learned policy alone, as the paper evaluates). ``gate_factory``
+    adds a gate (fear and curiosity are then recorded) and ``expert=True`` lets it hand over to the
+    scripted expert. Evaluation seeds are disjoint from training seeds.
+    """
+    from tqdm import tqdm
+
+    results: dict[str, list[dict[str, Any]]] = {}
+    total = episodes * len(scenarios)
+    bar = tqdm(total=total, desc="eval", unit="ep", disable=not progress, leave=False)
+    try:
+        for j, s in enumerate(scenarios):
+            env = make_env(s)
+            try:
+                gate = gate_factory() if gate_factory is not None else None
+                runner = Runner(
+                    env,
+                    policy,
+                    gate,
+                    ScriptedExpert() if expert else None,
+                    seed=seed + EVAL_SEED_OFFSET + j * SCENARIO_SEED_STRIDE,
+                    deterministic=True,
+                )
+                rows = []
+                for _ in range(episodes):
+                    rows.append(_tag(runner.run_episode(max_episode_steps).as_row(), scenario=s))
+                    bar.update(1)
+                    bar.set_postfix_str(f"scenario {s} " + progress_text(rows, window=len(rows)))
+                results[s] = rows
+            finally:
+                env.close()
+    finally:
+        bar.close()
+    return results
+
+
+def evaluate_run(
+    run: str | Path,
+    make_env: EnvFactory,
+    scenarios: Sequence[str],
+    episodes: int,
+    seed: int = 0,
+    with_gate: bool = False,
+    expert: bool = False,
+    progress: bool = True,
+) -> dict[str, list[dict[str, Any]]]:
+    """Load a run (or checkpoint) and :func:`evaluate` its policy."""
+    agent = load_agent(run)
+    gate_factory = agent.make_gate if with_gate else None
+    return evaluate(agent.policy, make_env, scenarios, episodes, seed, gate_factory, expert, progress)
