@@ -84,6 +84,10 @@ class ExpertConfig:
     """Pure-pursuit lookahead distance (m)."""
     turn_in_place_deg: float = 60.0
     """Above this heading error to the lookahead point the robot turns on the spot."""
+    clear_horizon: float = 0.6
+    """Commands whose arc would graze a static obstacle this soon are slowed and turned harder (s)."""
+    stall_time: float = 4.0
+    """Without getting closer to the goal this long (and not yielding), drive out along the clearest arc (s)."""
     replan_distance: float = 0.35
     """Re-extract the path when the robot is farther than this from it (m)."""
     speed_caps: tuple[float, ...] = (0.6, 0.45, 0.3, 0.15, 0.0)

@@ -253,6 +253,9 @@ class UGVExpert:
         self._path: Path | None = None
         self._index = 0
         self._world_id: int | None = None
+        self._best_cost_to_go = math.inf
+        self._stalled = 0
+        self._escape: tuple[int, float, float] | None = None  # steps left, v, w
 
     # -- planning --------------------------------------------------------------------------------
     def _ensure_plan(self, x: float, y: float) -> Path | None:
@@ -282,6 +285,8 @@ class UGVExpert:
         x, y, yaw = env.world.pose if env.world is not None else (0.0, 0.0, 0.0)
         path = self._ensure_plan(x, y)
         gx, gy, _ = env.layout.goal  # type: ignore[union-attr]
+        if self._escape is not None:
+            return self._escaping(x, y, yaw)
 
         if path is not None:
             index, offset = self._nearest(path, x, y)
@@ -307,14 +312,101 @@ class UGVExpert:
             curvature = 2.0 * math.sin(alpha) / max(distance, 1e-6)
             v_track = robot.v_max if abs(curvature) < 1e-9 else min(robot.v_max, robot.w_max / abs(curvature))
             w = v_track * curvature
+        if self._grid is not None:
+            v_track, w = self._keep_clear(x, y, yaw, v_track, w)
 
         v = v_track
+        yielding = False
         if self.yield_to_movers and env.layout is not None and env.layout.movers and path is not None:
             cap = self._speed_cap(path, index, v_track)
             if cap < v:
                 w = w * (cap / v) if v > 0 else w
                 v = cap
+                yielding = True
+        if self._stuck(x, y, yielding):
+            return self._escaping(x, y, yaw)
+        return self._normalised(v, w)
+
+    def _normalised(self, v: float, w: float) -> np.ndarray:
+        robot = self.env.config.robot
         return np.array([2.0 * v / robot.v_max - 1.0, max(-1.0, min(1.0, w / robot.w_max))], dtype=np.float32)
+
+    def _stuck(self, x: float, y: float, yielding: bool) -> bool:
+        """True after ``stall_time`` without getting closer to the goal (waiting for a mover aside):
+        no reverse gear, so a robot wedged against an obstacle needs to drive out and replan."""
+        grid = self._grid
+        if grid is None or yielding:
+            self._stalled = 0
+            return False
+        here = float(grid.cost_to_go[grid.cell(x, y)])
+        if here < self._best_cost_to_go - 0.05:
+            self._best_cost_to_go, self._stalled = here, 0
+            return False
+        self._stalled += 1
+        if self._stalled < round(self.env.config.expert.stall_time * self.env.config.control_hz):
+            return False
+        self._stalled = 0
+        self._best_cost_to_go = math.inf
+        self._escape = (round(self.env.config.control_hz), 0.0, 0.0)  # drive out for 1 s
+        return True
+
+    def _escaping(self, x: float, y: float, yaw: float) -> np.ndarray:
+        """Drive along the clearest arc for a second, then plan again from wherever that leads."""
+        assert self._escape is not None and self._grid is not None
+        steps, v, w = self._escape
+        if v == 0.0 and w == 0.0:  # choose the arc once, at the start
+            robot = self.env.config.robot
+            arcs = [(0.5 * robot.v_max, turn * robot.w_max) for turn in (-1.0, -0.5, 0.0, 0.5, 1.0)]
+            v, w = max(arcs, key=lambda arc: self._arc_clearance(self._grid, x, y, yaw, arc[0], arc[1], 1.0))  # type: ignore[arg-type]
+        self._escape = (steps - 1, v, w) if steps > 1 else None
+        if self._escape is None:
+            self._path = None  # replan from the new pose at the next call
+        return self._normalised(v, w)
+
+    def _keep_clear(self, x: float, y: float, yaw: float, v: float, w: float) -> tuple[float, float]:
+        """Slow down, turn harder or turn the other way when holding (v, w) for ``clear_horizon`` would
+        bring the footprint closer to a static obstacle than allowed (or than it is now, if it is
+        already closer). It matters after a takeover next to an obstacle."""
+        grid, cfg = self._grid, self.env.config
+        assert grid is not None
+        robot = cfg.robot
+        turn = math.copysign(robot.w_max, w) if w else robot.w_max
+        candidates = [(v, w)]
+        if v > 0:
+            candidates += [(0.5 * v, max(-robot.w_max, min(robot.w_max, 2.0 * w))), (0.25 * v, turn)]
+        candidates += [(0.0, turn), (0.0, -turn)]
+        radius = math.hypot(robot.length / 6, robot.width / 2)
+        allowed = min(radius + 0.02, self._footprint_clearance(grid, x, y, np.array([yaw])) - 0.005)
+        best, best_clearance = candidates[0], -math.inf
+        for v_try, w_try in candidates:
+            clearance = self._arc_clearance(grid, x, y, yaw, v_try, w_try, cfg.expert.clear_horizon)
+            if clearance >= allowed:
+                return v_try, w_try
+            if clearance > best_clearance:
+                best, best_clearance = (v_try, w_try), clearance
+        return best
+
+    def _footprint_clearance(
+        self, grid: Grid, px: np.ndarray | float, py: np.ndarray | float, heading: np.ndarray
+    ) -> float:
+        """Least clearance of three circles covering the robot's footprint at the given poses
+        (centres at -L/3, 0, L/3 along the heading, radius hypot(L/6, W/2))."""
+        robot = self.env.config.robot
+        offsets = np.array([-1.0, 0.0, 1.0]) * (robot.length / 3)
+        cx = (np.asarray(px, dtype=float).reshape(-1, 1) + offsets * np.cos(heading)[:, None]).ravel()
+        cy = (np.asarray(py, dtype=float).reshape(-1, 1) + offsets * np.sin(heading)[:, None]).ravel()
+        return float(grid.clearance_at(np.column_stack([cx, cy])).min())
+
+    def _arc_clearance(self, grid: Grid, x: float, y: float, yaw: float, v: float, w: float, horizon: float) -> float:
+        """Least footprint clearance while holding (v, w) for ``horizon`` seconds."""
+        t = np.linspace(horizon / 6, horizon, 6)
+        heading = yaw + w * t
+        if abs(w) > 1e-9:
+            px = x + v / w * (np.sin(heading) - math.sin(yaw))
+            py = y - v / w * (np.cos(heading) - math.cos(yaw))
+        else:
+            px, py = x + v * t * math.cos(yaw), y + v * t * math.sin(yaw)
+        return self._footprint_clearance(grid, px, py, heading)
 
     def _nearest(self, path: Path, x: float, y: float) -> tuple[int, float]:
         """Index of the path point nearest the robot, searched forward from the last one."""

@@ -65,9 +65,28 @@ def _draw_shape(ax: Any, shape: Shape, alpha: float, zorder: int) -> None:
         )
 
 
-def plot_episodes(traces: Sequence[EpisodeTrace], out: str | Path, title: str = "", tick_every: int = 10) -> Path:
+def stops(xy: np.ndarray, min_steps: int, still: float = 0.005) -> list[tuple[float, float]]:
+    """Where the path stood still (moves under ``still`` m per step) for at least ``min_steps`` steps."""
+    if len(xy) < 2:
+        return []
+    moving = np.hypot(*np.diff(xy, axis=0).T) >= still
+    found, run = [], 0
+    for i, is_moving in enumerate([*moving, True]):
+        if not is_moving:
+            run += 1
+            continue
+        if run >= min_steps:
+            found.append((float(xy[i, 0]), float(xy[i, 1])))
+        run = 0
+    return found
+
+
+def plot_episodes(
+    traces: Sequence[EpisodeTrace], out: str | Path, title: str = "", tick_every: int = 10, stop_steps: int = 5
+) -> Path:
     """Draw every episode's path over the map (the first episode's layout solid, the others' faint),
-    with a dot every ``tick_every`` steps (1 s at 10 Hz)."""
+    with a dot every ``tick_every`` steps (1 s at 10 Hz) and a square where the robot waited at least
+    ``stop_steps`` steps."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -110,16 +129,20 @@ def plot_episodes(traces: Sequence[EpisodeTrace], out: str | Path, title: str = 
         ax.plot(xy[0, 0], xy[0, 1], "o", color=color, ms=4, zorder=5)
         if trace.outcome == "collision":
             ax.plot(xy[-1, 0], xy[-1, 1], "x", color=color, ms=8, mew=2, zorder=6)
+        for x, y in stops(xy, min_steps=stop_steps):
+            ax.plot(x, y, "s", mfc="none", mec="#222222", ms=6, mew=1.2, zorder=6)
     ego = dict(first["ego"])
     ego["color"] = "#1f3b70"
     _draw_shape(ax, ego, alpha=0.8, zorder=5)  # type: ignore[arg-type]
 
     counts = {k: sum(t.outcome == k for t in traces) for k in ("success", "collision", "timeout")}
-    handles = [Line2D([], [], color=OUTCOME_COLORS[k], lw=2, label=f"{k} ({n})") for k, n in counts.items() if n] + [
-        Line2D([], [], color="#7f7f7f", marker=".", ls="", label="robot every 1 s"),
-        Line2D([], [], color="#e0812b", lw=1, ls=":", label="moving obstacle paths"),
-        Line2D([], [], marker="o", color="#2bb673", ls="", alpha=0.5, ms=10, label="goal region"),
-    ]
+    handles = [Line2D([], [], color=OUTCOME_COLORS[k], lw=2, label=f"{k} ({n})") for k, n in counts.items() if n]
+    handles.append(Line2D([], [], color="#7f7f7f", marker=".", ls="", label="robot every 1 s"))
+    if any(stops(np.asarray(t.ego), stop_steps) for t in traces if t.ego):
+        handles.append(Line2D([], [], marker="s", mfc="none", mec="#222222", ls="", label="waited"))
+    if any(t.movers and t.movers[0] for t in traces):
+        handles.append(Line2D([], [], color="#e0812b", lw=1, ls=":", label="moving obstacle paths"))
+    handles.append(Line2D([], [], marker="o", color="#2bb673", ls="", alpha=0.5, ms=10, label="goal region"))
     ax.legend(
         handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=len(handles), frameon=False, fontsize=8
     )
