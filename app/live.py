@@ -510,7 +510,8 @@ class LiveLoop:
             trail = [(s["ego"]["x"], s["ego"]["y"]) for s in replay.scenes[: t + 1] if s and s.get("ego")]
             self.scene_view.show(scene, static=replay.static, trail=False)
             self.scene_view.reset_trail(trail)
-        self.publish(dumps({"type": "replay_frame", "t": t, "length": replay.length}))
+        labels = (scene or {}).get("labels")
+        self.publish(dumps(_clean({"type": "replay_frame", "t": t, "length": replay.length, "labels": labels})))
         return {"t": t}
 
     def _close_replay(self) -> None:

@@ -11,6 +11,7 @@ hands over a scene in microseconds and a slow frame is skipped rather than delay
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
@@ -107,41 +108,41 @@ CYLINDER_MESH = _unit_cylinder()
 
 
 def triangulate(points: np.ndarray) -> np.ndarray:
-    """Ear-clipping triangulation of a simple polygon (either winding); returns (F, 3) vertex indices."""
-    n = len(points)
+    """Ear-clipping triangulation of a simple polygon (either winding); returns (F, 3) vertex indices.
+
+    The point-in-triangle test runs over all remaining corners at once (numpy), so road outlines with
+    thousands of points triangulate in a fraction of a second.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    n = len(pts)
     if n < 3:
         return np.zeros((0, 3), dtype=np.uint32)
-    area = 0.5 * float(np.sum(points[:, 0] * np.roll(points[:, 1], -1) - np.roll(points[:, 0], -1) * points[:, 1]))
-    order = list(range(n)) if area > 0 else list(range(n))[::-1]
-    triangles: list[list[int]] = []
-
-    def cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-        return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
-
-    guard = 0
-    while len(order) > 3 and guard < n * n:
-        guard += 1
-        for k in range(len(order)):
-            i0, i1, i2 = order[k - 1], order[k], order[(k + 1) % len(order)]
-            a, b, c = points[i0], points[i1], points[i2]
-            if cross(a, b, c) <= 1e-12:
-                continue  # reflex or degenerate corner
-            inside = False
-            for other in order:
-                if other in (i0, i1, i2):
-                    continue
-                p = points[other]
-                if cross(a, b, p) >= 0 and cross(b, c, p) >= 0 and cross(c, a, p) >= 0:
-                    inside = True
-                    break
-            if not inside:
-                triangles.append([i0, i1, i2])
-                order.pop(k)
-                break
-        else:
-            break  # not simple: give up on the rest rather than loop
-    if len(order) == 3:
-        triangles.append(order)
+    area = 0.5 * float(np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1]))
+    ring = np.arange(n) if area > 0 else np.arange(n)[::-1].copy()
+    triangles: list[tuple[int, int, int]] = []
+    k, misses = 0, 0
+    while len(ring) > 3 and misses < len(ring):
+        m = len(ring)
+        k %= m
+        i0, i1, i2 = int(ring[k - 1]), int(ring[k]), int(ring[(k + 1) % m])
+        a, b, c = pts[i0], pts[i1], pts[i2]
+        convex = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) > 1e-12
+        if convex:
+            p = pts[ring]
+            d1 = (b[0] - a[0]) * (p[:, 1] - a[1]) - (b[1] - a[1]) * (p[:, 0] - a[0])
+            d2 = (c[0] - b[0]) * (p[:, 1] - b[1]) - (c[1] - b[1]) * (p[:, 0] - b[0])
+            d3 = (a[0] - c[0]) * (p[:, 1] - c[1]) - (a[1] - c[1]) * (p[:, 0] - c[0])
+            inside = (d1 >= 0) & (d2 >= 0) & (d3 >= 0)
+            inside[[(k - 1) % m, k, (k + 1) % m]] = False
+            if not inside.any():
+                triangles.append((i0, i1, i2))
+                ring = np.delete(ring, k)
+                misses = 0
+                continue
+        k += 1
+        misses += 1  # a full round without an ear: not a simple polygon, keep what was found
+    if len(ring) == 3:
+        triangles.append((int(ring[0]), int(ring[1]), int(ring[2])))
     return np.array(triangles, dtype=np.uint32).reshape(-1, 3)
 
 
@@ -175,6 +176,13 @@ class SceneDrawer:
         self._trail: Any = None
         self._trail_points: list[tuple[float, float]] = []
         self.bounds: list[float] = [-5.0, -5.0, 5.0, 5.0]
+        self.origin = (0.0, 0.0)
+        """World point shown at the scene's origin: the centre of the simulator's bounds. Simulators whose
+        bounds are a window around the ego (highway, SUMO) move it every frame, so the world slides under
+        a still camera and every viewer keeps the view they orbited to."""
+        self._origin_frame = server.scene.add_frame(root, show_axes=False)
+        self._ground: Any = None
+        self._cell = 1.0
 
     # -- entry point -----------------------------------------------------------------------------
     def draw(self, scene: dict[str, Any], static: dict[str, Any] | None = None, trail: bool = True) -> None:
@@ -186,6 +194,8 @@ class SceneDrawer:
                 self._draw_static(source.get("static") or [], source.get("bounds") or scene.get("bounds"))
                 self.static_key = key
                 self._trail_points = []
+            elif scene.get("bounds") and len(scene["bounds"]) == 4:
+                self._follow([float(b) for b in scene["bounds"]])
             self._draw_movers(scene.get("movers") or [])
             ego = scene.get("ego")
             if ego:
@@ -211,21 +221,21 @@ class SceneDrawer:
         x0, y0, x1, y1 = self.bounds
         span = max(x1 - x0, y1 - y0, 1.0)
         cell = 10 ** math.floor(math.log10(span / 10.0))
-        self._static_handles.append(
-            scene.add_grid(
-                f"{base}/ground",
-                width=(x1 - x0) + 2 * cell,
-                height=(y1 - y0) + 2 * cell,
-                position=((x0 + x1) / 2, (y0 + y1) / 2, GROUND_Z - 0.002),
-                cell_size=cell,
-                section_size=cell * 5,
-                cell_color=(44, 52, 64),
-                section_color=(70, 82, 100),
-                plane_color=(22, 27, 34),
-                plane_opacity=1.0,
-                shadow_opacity=0.0,
-            )
+        self._cell = cell
+        self._ground = scene.add_grid(
+            f"{base}/ground",
+            width=(x1 - x0) + 2 * cell,
+            height=(y1 - y0) + 2 * cell,
+            position=((x0 + x1) / 2, (y0 + y1) / 2, GROUND_Z - 0.002),
+            cell_size=cell,
+            section_size=cell * 5,
+            cell_color=(44, 52, 64),
+            section_color=(70, 82, 100),
+            plane_color=(22, 27, 34),
+            plane_opacity=1.0,
+            shadow_opacity=0.0,
         )
+        self._static_handles.append(self._ground)
         boxes = [s for s in shapes if s.get("kind") == "box"]
         circles = [s for s in shapes if s.get("kind") == "circle"]
         if boxes:
@@ -270,19 +280,34 @@ class SceneDrawer:
     def _frame_camera(self, aspect: float = 2.0) -> None:
         """Look at the whole map from above and slightly behind, framed for a wide view."""
         x0, y0, x1, y1 = self.bounds
-        cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+        self._move_origin((x0 + x1) / 2, (y0 + y1) / 2, move_ground=False)
         half_height = max(y1 - y0, 1.0) / 2 * 1.3
         half_width = max(x1 - x0, 1.0) / 2 * 1.3
         distance = max(half_height, half_width / aspect) / math.tan(math.radians(75.0 / 2))
         tilt = math.radians(28.0)
-        position = (cx, cy - distance * math.sin(tilt), distance * math.cos(tilt))
-        look_at = (cx, cy, 0.0)
+        position = (0.0, -distance * math.sin(tilt), distance * math.cos(tilt))
+        look_at = (0.0, 0.0, 0.0)
         self.server.initial_camera.position = position
         self.server.initial_camera.look_at = look_at
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
         for client in self.server.get_clients().values():
-            client.camera.position = position
-            client.camera.look_at = look_at
+            with contextlib.suppress(AssertionError):  # not reported its camera yet: starts from initial_camera
+                client.camera.position = position
+                client.camera.look_at = look_at
+
+    def _move_origin(self, cx: float, cy: float, move_ground: bool = True) -> None:
+        self.origin = (cx, cy)
+        self._origin_frame.position = (-cx, -cy, 0.0)
+        if move_ground and self._ground is not None:
+            # keep the ground under the camera, on the grid's own lines so that they seem to scroll
+            step = 5 * self._cell
+            self._ground.position = (round(cx / step) * step, round(cy / step) * step, GROUND_Z - 0.002)
+
+    def _follow(self, bounds: Sequence[float]) -> None:
+        cx, cy = (bounds[0] + bounds[2]) / 2, (bounds[1] + bounds[3]) / 2
+        span = max(bounds[2] - bounds[0], bounds[3] - bounds[1], 1.0)
+        if math.hypot(cx - self.origin[0], cy - self.origin[1]) >= 0.005 * span:
+            self._move_origin(cx, cy)
 
     # -- dynamic ---------------------------------------------------------------------------------
     @staticmethod

@@ -116,7 +116,7 @@ const handlers = {
   },
   ack(msg) { S.acks += 1; },
   replay(msg) { enterReplay(msg); },
-  replay_frame(msg) { showReplayFrame(msg.t, msg.length); },
+  replay_frame(msg) { showReplayFrame(msg.t, msg.length, msg.labels); },
   replay_closed() { exitReplay(); },
   pong() {},
 };
@@ -186,6 +186,7 @@ function renderStep(msg) {
   $("hud-episode").textContent = msg.episode;
   $("hud-t").textContent = msg.t;
   $("hud-return").textContent = fmt(msg.counters ? msg.counters.episode_return : null, 2);
+  renderLabels(msg.labels);
   const chip = $("actor-chip");
   chip.dataset.actor = msg.actor;
   chip.textContent = { agent: "AGENT", person: "PERSON", fallback: "FALLBACK", expert: "SCRIPTED EXPERT" }[msg.actor] || msg.actor;
@@ -209,6 +210,23 @@ function renderStep(msg) {
   } else {
     banner.hidden = true;
   }
+}
+
+let labelKeys = "";
+function renderLabels(labels) {
+  const box = $("hud-labels");
+  const entries = Object.entries(labels || {}).slice(0, 6);
+  const keys = entries.map(([k]) => k).join("|");
+  if (keys !== labelKeys) { // rebuild rows only when the simulator's label set changes
+    box.innerHTML = "";
+    for (const [k] of entries) {
+      const name = document.createElement("span"); name.textContent = k.replace(/_/g, " ");
+      const value = document.createElement("b"); value.dataset.key = k;
+      box.append(name, value);
+    }
+    labelKeys = keys;
+  }
+  for (const [k, v] of entries) box.querySelector(`b[data-key="${CSS.escape(k)}"]`).textContent = String(v);
 }
 
 function renderCounters(c) {
@@ -360,7 +378,7 @@ function enterReplay(msg) {
   $("replay-scrub").max = String(series.t.length - 1);
   renderMode();
 }
-function showReplayFrame(t, length) {
+function showReplayFrame(t, length, labels) {
   if (!S.replay) return;
   S.replayT = t;
   const s = S.replay.series;
@@ -369,7 +387,8 @@ function showReplayFrame(t, length) {
   $("replay-pos").textContent = `${t} / ${length - 1}`;
   renderStep({
     episode: S.replay.episode, t: s.t[t], actor: s.actor[t], takeover: s.takeover[t], a_rl: s.a_rl[t], action: s.action[t],
-    request_person: false, counters: { episode_return: s.reward.slice(0, t + 1).reduce((a, b) => a + (b || 0), 0) },
+    request_person: false, labels,
+    counters: { episode_return: s.reward.slice(0, t + 1).reduce((a, b) => a + (b || 0), 0) },
   });
   $("banner").hidden = false; $("banner").dataset.kind = "replay";
   $("banner").textContent = `Replay · ${S.replay.session} · episode ${S.replay.episode}`;
