@@ -161,6 +161,13 @@ def test_replay_moves_through_a_recorded_episode_and_returns_to_live(fast_server
         steps_before = fast_server.state()["counters"]["steps"]
         operator.send(json.dumps({"type": "replay_seek", "token": token, "t": 150}))
         assert until(operator, lambda m: m["type"] == "replay_frame" and m["t"] == 150)["length"] == 200
+        # the 3D view shows the robot where it was at that step
+        stored = fast_server.dash.store.scenes(sid, 0)[1][150]["ego"]
+        drawer = fast_server.dash.scene_view.drawer
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and abs(drawer._ego.position[0] - stored["x"]) > 1e-6:
+            time.sleep(0.02)
+        assert tuple(drawer._ego.position[:2]) == pytest.approx((stored["x"], stored["y"]))
         operator.send(json.dumps({"type": "replay_seek", "token": token, "t": 5000}))
         assert until(operator, lambda m: m["type"] == "replay_frame")["t"] == 199  # clamped
         assert fast_server.state()["counters"]["steps"] == steps_before, "the live loop waits during a replay"
