@@ -55,15 +55,23 @@ class LiveConfig:
 
 
 def control_period(env: gym.Env[Any, Any]) -> float:
-    """Seconds of simulated time per step: the env's ``dt`` / ``control_dt`` or ``1 / metadata['render_fps']``."""
+    """Seconds of simulated time per step, from whichever of the usual places the simulator keeps it:
+    ``dt`` / ``control_dt``, its config's ``dt`` / ``step_length`` / ``1 / policy_frequency``, or
+    ``1 / metadata['render_fps']``; 0.1 s when none is found."""
     inner = env.unwrapped
-    for name in ("control_dt", "dt"):
-        value = getattr(inner, name, None)
-        if isinstance(value, int | float) and 0 < value < 10:
-            return float(value)
+    config = getattr(inner, "config", None)
+    candidates: list[Any] = [getattr(inner, "control_dt", None), getattr(inner, "dt", None)]
+    if config is not None:
+        candidates += [getattr(config, "dt", None), getattr(config, "step_length", None)]
+        frequency = getattr(config, "policy_frequency", None)
+        if isinstance(frequency, int | float) and frequency > 0:
+            candidates.append(1.0 / frequency)
     fps = (getattr(inner, "metadata", None) or {}).get("render_fps")
     if isinstance(fps, int | float) and fps > 0:
-        return 1.0 / float(fps)
+        candidates.append(1.0 / fps)
+    for value in candidates:
+        if isinstance(value, int | float) and not isinstance(value, bool) and 0 < value < 10:
+            return float(value)
     return 0.1
 
 

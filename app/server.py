@@ -37,6 +37,7 @@ from app.hub import Client, Hub
 from app.live import CommandError, LiveConfig, LiveLoop, PolicyLoader, dumps
 from app.operator import ControlDesk, OperatorConsole
 from app.policies import default_policy, discover, load_policy
+from app.sim_choices import listed, make_kwargs
 from app.viser_proxy import ViserProxy
 from core.sessions import SessionError, SessionStore
 
@@ -50,7 +51,7 @@ COMMAND_TIMEOUT = 60.0
 def make_env(sim: str, scenario: int | None) -> gym.Env[Any, Any]:
     import sims
 
-    return sims.make(sim, **({} if scenario is None else {"scenario": scenario}))
+    return sims.make(sim, **make_kwargs(sim, scenario))
 
 
 def sim_catalogue() -> dict[str, dict[str, Any]]:
@@ -60,15 +61,10 @@ def sim_catalogue() -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     for name, (package, env_id) in sims.SIMULATORS.items():
         available = importlib.util.find_spec(package) is not None
-        scenarios: list[Any] = []
+        scenarios = listed(name)
         if available:
             try:
-                module = importlib.import_module(package)
-                listed = getattr(module, "SCENARIOS", None)
-                if isinstance(listed, dict):
-                    scenarios = [{"id": k, "label": str(v if isinstance(v, str) else k)} for k, v in listed.items()]
-                elif isinstance(listed, list | tuple | range):
-                    scenarios = [{"id": k, "label": str(k)} for k in listed]
+                importlib.import_module(package)
             except Exception as exc:  # a broken simulator is shown as unavailable, not fatal
                 available = False
                 log.warning("simulator %s failed to import: %s", name, exc)
@@ -215,6 +211,8 @@ async def _handle(dash: Dashboard, client: Client, raw: str | bytes) -> str | No
             if msg.sim not in catalogue or not catalogue[msg.sim]["available"]:
                 return _error(f"simulator {msg.sim!r} is not available here", op="configure")
             args["default_policy"] = default_policy(dash.settings.policy_roots, msg.sim)
+            if msg.scenario is None and catalogue[msg.sim]["scenarios"]:
+                args["scenario"] = catalogue[msg.sim]["scenarios"][0]["id"]
         future = dash.live.submit("configure", **args)
     elif isinstance(msg, m.ReplayOpen):
         future = dash.live.submit("replay_open", session=msg.session, episode=msg.episode)

@@ -15,6 +15,7 @@ import uvicorn
 from app.server import ServerSettings, create_app
 from tests.app.fakesim import toy_catalogue, toy_env_factory, toy_policy_loader
 
+ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
     "--no-sandbox",

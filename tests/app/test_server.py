@@ -215,3 +215,23 @@ def test_a_policy_that_crashes_is_reported_and_the_loop_goes_on(tmp_path) -> Non
         assert state["counters"]["steps"] >= 20 and "policy exploded" in state["error"]
     finally:
         stop_server(live, thread)
+
+
+def test_the_default_server_opens_on_the_ugv_with_the_committed_policy(tmp_path) -> None:
+    from app.policies import SCRIPTED
+    from app.server import ServerSettings
+    from tests.app.conftest import ROOT
+
+    default = ROOT / "policies" / "ugv-default"
+    settings = ServerSettings(sessions=tmp_path, policy_roots=[ROOT / "policies", ROOT / "runs"])
+    live, thread = start_server(settings)
+    try:
+        state = live.state()
+        assert state["config"]["sim"] == "ugv" and state["config"]["scenario"] == 1
+        assert state["config"]["policy"] == (str(default) if default.is_dir() else SCRIPTED)
+        assert state["has_gate"] == default.is_dir()
+        with ws(live) as conn:
+            step = until(conn, lambda m: m["type"] == "step")
+        assert len(step["ego"]) == 3 and step["labels"]["scenario"] == "narrow_passage"
+    finally:
+        stop_server(live, thread)
