@@ -130,11 +130,41 @@ class NumpyLidar:
         self._radius2 = np.concatenate([radius2, np.zeros((dynamic_circles, 1), np.float32)])
         k, c, n = len(self._table), len(self._circle_rows), self.n_rays
         self._k, self._c = k, c
-        self._mt = np.zeros((3 * k + 2 * c, 2), np.float32)
-        self._products = np.zeros((3 * k + 2 * c, n), np.float32)
-        self._inverse = np.zeros((k + c, n), np.float32)
-        self._tmp = np.zeros((max(k, c), n), np.float32)
-        self._ok = np.zeros((k, n), bool)
+        # persistent buffers, and views into them made once here rather than at every cast
+        self._rotation = np.zeros((2, 2), np.float32)
+        self._dirs = np.zeros((2, n), np.float32)
+        self._offsets = np.zeros(11, np.float32)  # (-x, -y, 1) | perp(o), perp'(o) | o, perp(o)
+        self._neg_h = np.zeros(k, np.float32)
+        mt = self._mt = np.zeros((3 * k + 2 * c, 2), np.float32)
+        products = self._products = np.zeros((3 * k + 2 * c, n), np.float32)
+        inverse = self._inverse = np.zeros((k + c, n), np.float32)
+        tmp = np.zeros((max(k, c), n), np.float32)
+        table = self._table
+        mt3, p3 = mt[: 3 * k].reshape(k, 3, 2), products[: 3 * k].reshape(k, 3, n)
+        pc = products[3 * k :].reshape(c, 2, n)
+        self._views = {
+            "table_h": table[:, 0:3],
+            "table_n": table[:, 0:2],
+            "table_ab": table[:, 3:7].reshape(k, 2, 2),
+            "neg_h": self._neg_h[:, None],
+            "offset_h": self._offsets[0:3],
+            "offset_ab": self._offsets[3:7].reshape(2, 2),
+            "offset_c": self._offsets[7:11].reshape(2, 2),
+            "mt_n": mt3[:, 0],
+            "mt_ab": mt3[:, 1:3],
+            "mt_c": mt[3 * k :].reshape(c, 2, 2),
+            "p_inverse": p3[:, 0],
+            "p_a": p3[:, 1],
+            "p_b": p3[:, 2],
+            "p_along": pc[:, 0],
+            "p_across": pc[:, 1],
+            "inverse_segments": inverse[:k],
+            "inverse_circles": inverse[k:],
+            "tmp_segments": tmp[:k],
+            "tmp_circles": tmp[:c],
+            "ok": np.zeros((k, n), bool),
+        }
+        assert k == 0 or np.shares_memory(self._views["table_ab"], table)  # set_dynamic_table shows through
 
     def set_dynamic_table(self, table: np.ndarray) -> None:
         """Replace the moving segments, given as rows of :func:`segment_table`."""
@@ -152,41 +182,36 @@ class NumpyLidar:
 
     def cast(self, x: float, y: float, yaw: float) -> np.ndarray:
         """Inverse ranges (1/m) of every ray, at least 1 / max_range (nothing hit); float32, block order."""
-        c, s = math.cos(yaw), math.sin(yaw)
-        dirs = np.array(((c, -s), (s, c)), np.float32) @ self._rel_dirs  # (2, n) world-frame directions
-        # every offset the rows need, in one array: (-x, -y, 1) | perp(o), perp'(o) | o, perp(o)
-        offsets = np.array((-x, -y, 1.0, -y, x, y, -x, x, y, -y, x), np.float32)
-        k, n_circles = self._k, self._c
-        mt = self._mt
-        if k:
-            table = self._table
-            neg_h = table[:, 0:3] @ offsets[0:3]  # -(distance of o to each segment's line)
-            mt3 = mt[: 3 * k].reshape(k, 3, 2)
-            np.divide(table[:, 0:2], neg_h[:, None], out=mt3[:, 0])  # rows n / -h: inverse range along d
-            np.subtract(table[:, 3:7].reshape(k, 2, 2), offsets[3:7].reshape(2, 2), out=mt3[:, 1:3])
-        if n_circles:
-            np.subtract(self._circle_rows, offsets[7:11].reshape(2, 2), out=mt[3 * k :].reshape(n_circles, 2, 2))
-        products = self._products
-        np.matmul(mt, dirs, out=products)
-        inverse = self._inverse
-        if k:
-            p3 = products[: 3 * k].reshape(k, 3, -1)
-            tmp = self._tmp[:k]
-            np.minimum(p3[:, 1], p3[:, 2], out=tmp)  # inside the wedge iff both crosses are >= 0
-            np.greater_equal(tmp, -WEDGE_TOLERANCE, out=self._ok)
-            np.multiply(p3[:, 0], self._ok, out=inverse[:k])
-        if n_circles:
-            pc = products[3 * k :].reshape(n_circles, 2, -1)
-            tmp = self._tmp[:n_circles]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                np.multiply(pc[:, 1], pc[:, 1], out=tmp)
-                np.subtract(self._radius2, tmp, out=tmp)
-                np.sqrt(tmp, out=tmp)  # NaN where the ray misses
-                np.subtract(pc[:, 0], tmp, out=tmp)
-                np.reciprocal(tmp, out=inverse[k:])
+        k, n_circles, v = self._k, self._c, self._views
         if not (k or n_circles):
             return np.full(self.n_rays, self._floor, np.float32)
-        nearest = np.fmax.reduce(inverse, axis=0)  # fmax skips the NaNs of missed circles
+        c, s = math.cos(yaw), math.sin(yaw)
+        rotation = self._rotation
+        rotation[0, 0] = rotation[1, 1] = c
+        rotation[0, 1], rotation[1, 0] = -s, s
+        np.matmul(rotation, self._rel_dirs, out=self._dirs)  # (2, n) world-frame ray directions
+        self._offsets[:] = (-x, -y, 1.0, -y, x, y, -x, x, y, -y, x)
+        if k:
+            np.matmul(v["table_h"], v["offset_h"], out=self._neg_h)  # -(distance from o to each line)
+            np.divide(v["table_n"], v["neg_h"], out=v["mt_n"])  # rows n / -h: the inverse range along d
+            np.subtract(v["table_ab"], v["offset_ab"], out=v["mt_ab"])  # perp(a - o), perp'(b - o)
+        if n_circles:
+            np.subtract(self._circle_rows, v["offset_c"], out=v["mt_c"])  # c - o, perp(c - o)
+        np.matmul(self._mt, self._dirs, out=self._products)
+        if k:
+            tmp = v["tmp_segments"]
+            np.minimum(v["p_a"], v["p_b"], out=tmp)  # inside the wedge iff both crosses are >= 0
+            np.greater_equal(tmp, -WEDGE_TOLERANCE, out=v["ok"])
+            np.multiply(v["p_inverse"], v["ok"], out=v["inverse_segments"])
+        if n_circles:
+            tmp = v["tmp_circles"]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                np.multiply(v["p_across"], v["p_across"], out=tmp)
+                np.subtract(self._radius2, tmp, out=tmp)
+                np.sqrt(tmp, out=tmp)  # NaN where the ray misses
+                np.subtract(v["p_along"], tmp, out=tmp)
+                np.reciprocal(tmp, out=v["inverse_circles"])
+        nearest = np.fmax.reduce(self._inverse, axis=0)  # fmax skips the NaNs of missed circles
         return np.fmax(nearest, self._floor, out=nearest)
 
 
