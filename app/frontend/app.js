@@ -303,9 +303,9 @@ function renderControls() {
 }
 
 function configure(fields) { sendOperator({ type: "configure", ...fields }); }
-$("sel-sim").onchange = (e) => configure({ sim: e.target.value });
-$("sel-scenario").onchange = (e) => configure({ scenario: Number(e.target.value) });
-$("sel-policy").onchange = (e) => configure({ policy: e.target.value });
+$("sel-sim").onchange = (e) => { configure({ sim: e.target.value }); e.target.blur(); };
+$("sel-scenario").onchange = (e) => { configure({ scenario: Number(e.target.value) }); e.target.blur(); };
+$("sel-policy").onchange = (e) => { configure({ policy: e.target.value }); e.target.blur(); };
 for (const button of $("seg-expert").querySelectorAll("button")) {
   button.onclick = () => { configure({ expert_mode: button.dataset.mode }); button.blur(); };
 }
@@ -356,8 +356,8 @@ function updateDownloads() {
   $("dl-csv").href = `/api/sessions/${sid}/export.csv${q}`;
   $("dl-parquet").href = `/api/sessions/${sid}/export.parquet${q}`;
 }
-$("sel-session").onchange = () => refreshEpisodes();
-$("sel-episode").onchange = () => updateDownloads();
+$("sel-session").onchange = (e) => { refreshEpisodes(); e.target.blur(); };
+$("sel-episode").onchange = (e) => { updateDownloads(); e.target.blur(); };
 $("btn-refresh").onclick = (e) => { refreshSessions(); e.target.blur(); };
 $("sel-session").onfocus = () => { if (sessionsStale) refreshSessions(); };
 $("sel-episode").onfocus = () => refreshEpisodes();
@@ -435,11 +435,10 @@ const DRIVE = {
 };
 const OURS = new Set(["Space", "KeyT", "Escape", ...Object.keys(DRIVE)]);
 
-function isFormField(target) {
-  return target && (target.tagName === "SELECT" || target.tagName === "INPUT" || target.tagName === "TEXTAREA");
-}
+// Taking over must work wherever the focus is: these keys are always the operator's (the page has no
+// text fields); pickers and sliders give the focus back as soon as they change.
 function onKey(event, down) {
-  if (!OURS.has(event.code) || isFormField(event.target)) return;
+  if (!OURS.has(event.code)) return;
   event.preventDefault();
   event.stopImmediatePropagation(); // viser's camera keys never see these
   if (down && event.repeat) return;
