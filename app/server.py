@@ -207,7 +207,7 @@ async def _handle(dash: Dashboard, client: Client, raw: str | bytes) -> str | No
     elif isinstance(msg, m.Configure):
         args = msg.model_dump(exclude={"type", "token"})
         if msg.sim is not None:
-            catalogue = dash.catalogue()
+            catalogue = await asyncio.to_thread(dash.catalogue)
             if msg.sim not in catalogue or not catalogue[msg.sim]["available"]:
                 return _error(f"simulator {msg.sim!r} is not available here", op="configure")
             args["default_policy"] = default_policy(dash.settings.policy_roots, msg.sim)
