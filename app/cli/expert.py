@@ -28,7 +28,7 @@ def _outcome(metrics: dict[str, Any], error: str | None) -> str:
 
 
 def run_expert(
-    sim: str, scenario: str, episodes: int, seed: int, plot: Path | None, progress: bool = True
+    sim: str, scenario: str | None, episodes: int, seed: int, plot: Path | None, progress: bool = True
 ) -> tuple[list[dict[str, Any]], Path | None]:
     """Run the expert for ``episodes`` episodes; return the per-episode rows (and the plot's path)."""
     from tqdm import tqdm
@@ -38,8 +38,13 @@ def run_expert(
     from core.loop import EpisodeSummary, Runner, StepRecord
     from core.protocol import simulator
 
-    scenario_arg: int | str = int(scenario) if scenario.strip().isdigit() else scenario
-    env = sims.make(sim, scenario=scenario_arg)
+    kwargs: dict[str, Any] = {}
+    if scenario is not None:
+        kwargs["scenario"] = int(scenario) if scenario.strip().isdigit() else scenario
+    try:
+        env = sims.make(sim, **kwargs)
+    except TypeError as exc:  # the simulator's constructor does not take what was given
+        raise ValueError(f"cannot build simulator {sim!r} with {kwargs}: {exc}") from None
     plot_module = None
     if plot is not None:
         try:
@@ -53,7 +58,8 @@ def run_expert(
     if plot_module is not None:
         runner.step_listeners.append(lambda record: traces[-1].record(simulator(env).scene()))
     rows: list[dict[str, Any]] = []
-    bar = tqdm(range(episodes), desc=f"{sim} scenario {scenario}", unit="ep", disable=not progress, leave=False)
+    name = f"{sim} scenario {scenario}" if scenario is not None else sim
+    bar = tqdm(range(episodes), desc=name, unit="ep", disable=not progress, leave=False)
     try:
         for episode in bar:
             runner.reset()
@@ -77,9 +83,7 @@ def run_expert(
         env.close()
     written = None
     if plot_module is not None and plot is not None:
-        written = plot_module.plot_episodes(
-            traces, plot, title=f"{sim} scenario {scenario}: scripted expert, {episodes} episodes"
-        )
+        written = plot_module.plot_episodes(traces, plot, title=f"{name}: scripted expert, {episodes} episodes")
     return rows, written
 
 
@@ -89,7 +93,9 @@ def register(app: typer.Typer) -> None:
     @app.command("expert")
     def expert(
         sim: Annotated[str, typer.Option("--sim", help="Simulator: ugv, highway or sumo.")] = "ugv",
-        scenario: Annotated[str, typer.Option("--scenario", help="Scenario number, or a scenario file's path.")] = "1",
+        scenario: Annotated[
+            str | None, typer.Option("--scenario", help="Scenario number or file (default: the simulator's own).")
+        ] = None,
         episodes: Annotated[int, typer.Option("--episodes", min=1, help="Number of episodes.")] = 20,
         seed: Annotated[int, typer.Option("--seed", help="Seed of the first episode (then seed + 1, ...).")] = 0,
         plot: Annotated[Path | None, typer.Option("--plot", help="Write a PNG of the trajectories.")] = None,
@@ -106,7 +112,8 @@ def register(app: typer.Typer) -> None:
         metric_columns = [k for k in rows[0] if k not in ("episode", "steps", "return", "cost", "error")]
         metric_columns = [k for k in metric_columns if not k.startswith(("takeover", "mean_"))]
         columns = [*metric_columns, "return", "cost"]
-        typer.echo(format_table({f"expert ({sim} {scenario})": rows}, columns))
+        label = f"expert ({sim} {scenario})" if scenario is not None else f"expert ({sim})"
+        typer.echo(format_table({label: rows}, columns))
         if errors:
             typer.echo(f"{len(errors)} episode(s) ended by a simulator error, first: {errors[0]}", err=True)
         if written is not None:

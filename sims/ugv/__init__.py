@@ -23,9 +23,9 @@ Stable interface for the rest of the project (``env.unwrapped``):
     boxes and round obstacles, the same list object for the whole episode, with ``static_key`` =
     ``"<scenario name>:<episode index>"`` changing at every reset; ``movers`` = boxes (or circles)
     of the moving obstacles now; ``ego`` = the robot's box; ``goal`` = the goal circle; ``rays`` =
-    lidar origin, one end point per ray (its hit point or max range) and hit flags (108 rays by
-    default, right to left within each of the two interleaved blocks); ``labels`` = scenario, time,
-    cost.
+    lidar origin (the robot's centre), one end point per ray (its hit point, or max range when
+    ``hit`` is false) and hit flags: 108 rays by default, index j * 54 + s being ray j of sector s,
+    at -135° + (s + j / 2) * 5° from the heading; ``labels`` = scenario, time, cost.
 
 ``metrics() -> dict[str, float]``
     The paper's table row for the current or just finished episode (:mod:`sims.ugv.metrics`):

@@ -8,7 +8,8 @@ by 10 m, rightmost sector first), min(d / D_max, 1), heading error to the goal /
 command (v / v_max, w / w_max).
 
 Reward: 10 (d_{t-1} - d_t) + 0.5 v - 0.5 |w| - 0.2 |w - w_{t-1}|, -100 on collision, +100 at the goal.
-Cost: min(1, max(0, (1 - m) / 0.5)), m the minimum range (m) in the front cone.
+Cost: min(1, max(0, (1 - m) / 0.5)), m the minimum range (m) in the front cone (the 18 sectors
+within ±45° of the heading, ``cost.front_fov_deg``). Ranges are measured from the robot's centre.
 The episode terminates on collision or at the goal and truncates at the scenario's time limit.
 """
 
@@ -125,7 +126,6 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         self._prev_w = 0.0
         self._xs, self._ys = [x], [y]
         self._success = self._collision = self._timeout = False
-        self._done = False
         self._scan(x, y, yaw)
         self._static_scene: list[Shape] | None = None
         self.expert.reset()
@@ -167,7 +167,6 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         self._xs.append(x)
         self._ys.append(y)
         self._collision, self._success, self._timeout = collision, success, timeout
-        self._done = collision or success or timeout
         obs = self._observation(x, y, yaw)
         return obs, reward, collision or success, timeout, self._info(cost)
 
