@@ -281,21 +281,43 @@ class SessionStore:
             )
         return out
 
-    def _step_rows(self, session_id: str, episode: int | None) -> list[sqlite3.Row]:
+    def _step_rows(self, session_id: str, episode: int | None, takeover_only: bool = False) -> list[sqlite3.Row]:
+        where = " AND takeover = 1" if takeover_only else ""
         with self._read(session_id) as conn:
             if episode is None:
-                return conn.execute(f"SELECT {STEP_COLUMNS} FROM steps ORDER BY episode, t").fetchall()
+                sql = f"SELECT {STEP_COLUMNS} FROM steps WHERE 1{where} ORDER BY episode, t"
+                return conn.execute(sql).fetchall()
             if conn.execute("SELECT 1 FROM episodes WHERE episode = ?", (episode,)).fetchone() is None:
                 raise SessionError(f"session {session_id!r} has no episode {episode}")
-            return conn.execute(f"SELECT {STEP_COLUMNS} FROM steps WHERE episode = ? ORDER BY t", (episode,)).fetchall()
+            sql = f"SELECT {STEP_COLUMNS} FROM steps WHERE episode = ?{where} ORDER BY t"
+            return conn.execute(sql, (episode,)).fetchall()
 
-    def steps(self, session_id: str, episode: int | None = None) -> dict[str, np.ndarray]:
+    def steps(self, session_id: str, episode: int | None = None, takeover_only: bool = False) -> dict[str, np.ndarray]:
         """An episode's (or the whole session's) steps as column arrays.
 
         Vectors (obs, next_obs, a_rl, a_expert, action) are float32 ``(T, dim)``; ``a_expert`` is NaN
         where the expert did not act. NaN fear/threshold/curiosity mean the gate computed none.
+        ``takeover_only``: just the steps under expert control (the intervention samples fine-tuning uses).
         """
-        return steps_to_arrays(self._step_rows(session_id, episode))
+        return steps_to_arrays(self._step_rows(session_id, episode, takeover_only))
+
+    def segments(self, session_id: str, episode: int | None = None) -> list[dict[str, Any]]:
+        """The takeover segments (episode, segment number, first and last step, who acted how often)."""
+        where = "WHERE segment IS NOT NULL" + ("" if episode is None else " AND episode = ?")
+        params: tuple[Any, ...] = () if episode is None else (episode,)
+        with self._read(session_id) as conn:
+            rows = conn.execute(
+                f"SELECT episode, segment, MIN(t), MAX(t), COUNT(*), GROUP_CONCAT(actor) FROM steps {where} "
+                "GROUP BY episode, segment ORDER BY episode, segment",
+                params,
+            ).fetchall()
+        out = []
+        for ep, seg, t0, t1, n, actors in rows:
+            counts: dict[str, int] = {}
+            for actor in (actors or "").split(","):
+                counts[actor] = counts.get(actor, 0) + 1
+            out.append({"episode": ep, "segment": seg, "t_start": t0, "t_end": t1, "steps": n, "actors": counts})
+        return out
 
     def scenes(self, session_id: str, episode: int) -> tuple[dict[str, Any] | None, list[dict[str, Any] | None]]:
         """(static scene of the episode, per-step scene snapshot or None) for replay."""

@@ -194,3 +194,18 @@ def test_a_damaged_file_is_skipped_when_listing(tmp_path) -> None:
     run_session(store, episodes=1)
     (tmp_path / "zzz-broken.sqlite").write_bytes(b"not a database at all" * 10)
     assert len(store.list_sessions()) == 1
+
+
+def test_takeover_segments_and_takeover_only_steps_for_fine_tuning(tmp_path) -> None:
+    store = SessionStore(tmp_path)
+    sid, _ = run_session(store, episodes=2)
+    segments = store.segments(sid)
+    assert [(s["episode"], s["segment"], s["t_start"], s["t_end"]) for s in segments] == [
+        (0, 0, 1, 2),
+        (0, 1, 5, 5),
+        (1, 0, 1, 2),
+        (1, 1, 5, 5),
+    ]
+    assert segments[0]["actors"] == {"expert": 2} and store.segments(sid, episode=1)[0]["episode"] == 1
+    only = store.steps(sid, takeover_only=True)
+    assert len(only["t"]) == 6 and only["takeover"].all() and not np.isnan(only["a_expert"]).any()
