@@ -6,6 +6,7 @@ Routes
   ``/viser/``, ``/viser``       viser's viewer and its websocket, relayed on the same origin
   ``/api/state``                loop state; ``/api/options`` simulators, scenarios, policies, expert modes
   ``/api/sessions``             recorded sessions; ``/api/sessions/{id}/episodes`` their episodes
+  ``/api/sessions/{id}/segments[?episode=N]``  takeover segments (first/last step, who acted)
   ``/api/sessions/{id}/export.{csv|parquet}[?episode=N]``  download steps
 
 viser runs in this process on its own loopback port (``port=0``); the live loop runs the one
@@ -288,6 +289,14 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         except SessionError as exc:
             raise HTTPException(404, str(exc)) from None
         return JSONResponse(json.loads(dumps(rows)) if rows else [])
+
+    @app.get("/api/sessions/{session_id}/segments")
+    async def segments(session_id: str, episode: int | None = Query(default=None, ge=0)) -> JSONResponse:
+        try:
+            rows = await asyncio.to_thread(store().segments, session_id, episode)
+        except SessionError as exc:
+            raise HTTPException(404, str(exc)) from None
+        return JSONResponse(rows)
 
     @app.get("/api/sessions/{session_id}/export.{fmt}")
     async def export(session_id: str, fmt: str, episode: int | None = Query(default=None, ge=0)) -> Response:

@@ -141,6 +141,9 @@ def test_rest_lists_sessions_episodes_and_exports(fast_server) -> None:
     assert status == 200 and table.num_rows == 200 and "obs_0" in table.column_names
     status, body = get(fast_server, f"/api/sessions/{sid}/export.csv")
     assert status == 200 and pacsv.read_csv(io.BytesIO(body)).num_rows >= 200
+    status, body = get(fast_server, f"/api/sessions/{sid}/segments?episode=0")
+    segments = json.loads(body)
+    assert status == 200 and segments and all(s["episode"] == 0 and s["t_end"] >= s["t_start"] for s in segments)
     assert get(fast_server, f"/api/sessions/{sid}/export.xlsx")[0] == 400
     assert get(fast_server, "/api/sessions/20990101-000000-x-0000/episodes")[0] == 404
     assert get(fast_server, f"/api/sessions/{sid}/export.csv?episode=999")[0] == 404
