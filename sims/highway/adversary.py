@@ -43,6 +43,10 @@ BRAKE_ONLY = (3.0, 5.0, 6.0)
 """Braking of a leader already in the ego's lane [m/s²]."""
 BRAKE_TIMES = (1.0, 2.5)
 """How long the braking lasts [s]; then the opponent holds its speed for a while and recovers."""
+EVENT_STRIDE = 3
+"""Candidate event times every this many log frames (0.6 s)."""
+WINDOW = 8.0
+"""Candidates are scored over this long after their event [s]."""
 LOOK_AHEAD = 45.0
 """Opponents considered when within this distance ahead of the predicted ego at the event [m]."""
 
@@ -61,7 +65,7 @@ class Event:
     risk: float
     collides_with_prediction: bool
     candidates: int
-    """How many feasible candidates it was drawn from."""
+    """How many candidates passed the plausibility and survivability filters (before the draw)."""
 
 
 def _smoothstep(u: np.ndarray) -> np.ndarray:
@@ -144,7 +148,7 @@ def _resample_one(
     used = {e.vehicle for e in done}
     spacing = round(acfg.event_spacing / dt)
     rows: list[tuple[int, int, tuple[str, float, float, float, float, float]]] = []
-    for f0 in range(first, max(first, last), 2):
+    for f0 in range(first, max(first, last), EVENT_STRIDE):
         if any(abs(f0 - e.frame) < spacing for e in done):
             continue
         for i in range(paths.count):
@@ -155,81 +159,74 @@ def _resample_one(
         return None
     veh = np.array([r[0] for r in rows])
     f0s = np.array([r[1] for r in rows])
+    params = np.array([r[2][1:] for r in rows], dtype=np.float64)  # y_target, duration, pre, brake, brake_time
     kind = np.array([r[2][0] == "cut_in" for r in rows])
-    y_tgt = np.array([r[2][1] for r in rows])
-    dur = np.array([r[2][2] for r in rows])
-    pre = np.array([r[2][3] for r in rows])
-    brake = np.array([r[2][4] for r in rows])
-    t_brake = np.array([r[2][5] for r in rows])
 
-    k = np.arange(frames)
-    rel = (k[None, :] - f0s[:, None]) * dt  # (C, F) time since the event (negative before)
-    after = rel >= 0
-    times = np.maximum(rel, 0.0)
-    x0 = paths.x[f0s, veh]
-    y0 = paths.y[f0s, veh]
-    v0 = paths.speed[f0s, veh]
-    # the speed profile on the time since the event, per candidate
-    v = _speed_profile(v0, pre, dur, brake, t_brake, np.arange(frames) * dt)
-    shift = np.clip(k[None, :] - f0s[:, None], 0, frames - 1)
-    v = np.take_along_axis(v, shift, axis=1)
-    x = x0[:, None] + np.concatenate(
-        [np.zeros((len(rows), 1)), np.cumsum(0.5 * (v[:, 1:] + v[:, :-1]) * dt, axis=1)], axis=1
-    )
-    x = x - np.take_along_axis(x, f0s[:, None], axis=1) + x0[:, None]
-    lat = _smoothstep(times / np.maximum(dur, 1e-6)[:, None])
-    y = y0[:, None] + (y_tgt - y0)[:, None] * np.where(kind[:, None], lat, 0.0)
-    # before the event the opponent is exactly its logged self
-    x = np.where(after, x, paths.x[:, veh].T)
-    y = np.where(after, y, paths.y[:, veh].T)
-    v = np.where(after, v, paths.speed[:, veh].T)
-
+    # score every candidate over a window after its event
+    window = round(WINDOW / dt)
+    local = np.arange(window)
+    idx = f0s[:, None] + local[None, :]  # (C, W) log frames
+    valid = idx < frames
+    idx = np.minimum(idx, frames - 1)
+    x, y, v = _trajectories(paths, veh, f0s, params, kind, local * dt)
     length = paths.length[veh][:, None]
     width = paths.width[veh][:, None]
     el, ew = cfg.ego.length, cfg.ego.width
-    ex, ey, ev = plan[None, :, 0], plan[None, :, 1], plan[None, :, 3]
-    lat_overlap = np.abs(y - ey) < (width + ew) / 2
+    ex, ey, ev = plan[idx, 0], plan[idx, 1], plan[idx, 3]
+    lat_overlap = (np.abs(y - ey) < (width + ew) / 2) & valid
     gap = x - ex - (length + el) / 2  # positive: the opponent is ahead of the predicted ego
-    collide = lat_overlap & (np.abs(x - ex) < (length + el) / 2) & after
+    collide = lat_overlap & (np.abs(x - ex) < (length + el) / 2)
     closing = ev - v
     with np.errstate(divide="ignore", invalid="ignore"):
-        ttc = np.where(lat_overlap & after & (gap > 0) & (closing > 0.1), gap / closing, np.inf)
+        ttc = np.where(lat_overlap & (gap > 0) & (closing > 0.1), gap / closing, np.inf)
     collides = collide.any(axis=1)
     risk = np.where(collides, 1.0, 0.8 * np.exp(-ttc.min(axis=1) / 2.0))
 
     # survivable: at the first lateral overlap the opponent is ahead, and braking from there keeps a gap
-    onset = np.where((lat_overlap & after).any(axis=1), np.argmax(lat_overlap & after, axis=1), -1)
-    ok = onset >= 0
+    has_onset = lat_overlap.any(axis=1)
+    onset = np.argmax(lat_overlap, axis=1)
     rows_idx = np.arange(len(rows))
-    g_on = np.where(ok, gap[rows_idx, np.maximum(onset, 0)], -np.inf)
-    ok &= g_on >= acfg.min_clearance
+    g_on = np.where(has_onset, gap[rows_idx, onset], -np.inf)
+    ok = has_onset & (g_on >= acfg.min_clearance)
     react = onset + round(acfg.reaction_time / dt)
-    v_react = plan[np.clip(react, 0, frames - 1), 3]
-    since = (k[None, :] - react[:, None]) * dt
+    v_react = ev[rows_idx, np.minimum(react, window - 1)]
+    since = (local[None, :] - react[:, None]) * dt
     v_brake = np.maximum(v_react[:, None] - acfg.avoid_brake * np.maximum(since, 0.0), v)
     v_ego = np.where(since > 0, np.minimum(ev, v_brake), ev)
-    closing_avoid = np.where(k[None, :] >= onset[:, None], v_ego - v, 0.0)
-    gap_avoid = g_on[:, None] - np.cumsum(closing_avoid * dt, axis=1)
-    horizon = (k[None, :] >= onset[:, None]) & (k[None, :] <= onset[:, None] + round(6.0 / dt))
-    ok &= np.where(horizon, gap_avoid, np.inf).min(axis=1) >= acfg.min_clearance
+    from_onset = local[None, :] >= onset[:, None]
+    gap_avoid = g_on[:, None] - np.cumsum(np.where(from_onset, v_ego - v, 0.0) * dt, axis=1)
+    ok &= np.where(from_onset & valid, gap_avoid, np.inf).min(axis=1) >= acfg.min_clearance
     # on the road, and not through other logged vehicles
-    ok &= (y_tgt <= layout.left_edge_y) & (y_tgt >= layout.right_edge_y)
-    kept = np.flatnonzero(ok)
-    ok[kept[_hits_others(paths, veh[kept], x[kept], y[kept], after[kept])]] = False
+    ok &= (params[:, 0] <= layout.left_edge_y) & (params[:, 0] >= layout.right_edge_y)
     if not ok.any():
         return None
+    _, dur, pre, brake, t_brake = params.T
     prior = -brake / 3.0 - np.abs(pre) - 1.0 / np.maximum(dur, 1.0) - 0.3 * (~kind)
-    logits = prior + acfg.risk_weight * risk
-    logits = np.where(ok, logits, -np.inf)
+    logits = np.where(ok, prior + acfg.risk_weight * risk, -np.inf)
     p = np.exp(logits - logits.max())
-    p /= p.sum()
-    c = int(rng.choice(len(rows), p=p))
+    # draw, and reject candidates that drive through other logged vehicles (checking all is costly)
+    while True:
+        total = p.sum()
+        if total <= 0:
+            return None
+        c = int(rng.choice(len(rows), p=p / total))
+        if not _hits_others(paths, veh[c : c + 1], x[c : c + 1], y[c : c + 1], idx[c : c + 1])[0]:
+            break
+        p[c] = 0.0
+        ok[c] = False
     i, f0 = int(veh[c]), int(f0s[c])
-    heading = np.arctan2(np.gradient(y[c]), np.maximum(np.gradient(x[c]), 1e-3))
-    paths.x[f0:, i] = x[c, f0:]
-    paths.y[f0:, i] = y[c, f0:]
-    paths.speed[f0:, i] = v[c, f0:]
-    paths.heading[f0:, i] = np.where(v[c, f0:] > 0.5, heading[f0:], paths.heading[f0, i])
+    # the chosen manoeuvre over the rest of the log
+    fx, fy, fv = (
+        a[0]
+        for a in _trajectories(
+            paths, veh[c : c + 1], f0s[c : c + 1], params[c : c + 1], kind[c : c + 1], np.arange(frames - f0) * dt
+        )
+    )
+    heading = np.arctan2(np.gradient(fy), np.maximum(np.gradient(fx), 1e-3)) if fx.size > 1 else np.zeros(1)
+    paths.x[f0:, i] = fx
+    paths.y[f0:, i] = fy
+    paths.speed[f0:, i] = fv
+    paths.heading[f0:, i] = np.where(fv > 0.5, heading, paths.heading[f0, i])
     paths.adversarial[i] = True
     return Event(
         vehicle=i,
@@ -245,19 +242,33 @@ def _resample_one(
     )
 
 
-def _hits_others(paths: Paths, veh: np.ndarray, x: np.ndarray, y: np.ndarray, after: np.ndarray) -> np.ndarray:
-    """(C,) whether a candidate overlaps another logged vehicle after its event (with a small margin)."""
-    hits = np.zeros(len(veh), dtype=bool)
-    frames = np.flatnonzero(after.any(axis=0))
-    if frames.size == 0:
-        return hits
-    sub = frames[::2]  # every 0.4 s is enough at these speeds
-    ox, oy = paths.x[sub], paths.y[sub]  # (K, N)
-    cx, cy = x[:, sub], y[:, sub]  # (C, K)
-    dx = np.abs(cx[:, :, None] - ox[None])
-    dy = np.abs(cy[:, :, None] - oy[None])
+def _trajectories(
+    paths: Paths, veh: np.ndarray, f0s: np.ndarray, params: np.ndarray, kind: np.ndarray, times: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(C, K) x, y, speed of candidates at ``times`` after their event (the first entry is the event frame)."""
+    y_tgt, dur, pre, brake, t_brake = params.T
+    x0 = paths.x[f0s, veh]
+    y0 = paths.y[f0s, veh]
+    v = _speed_profile(paths.speed[f0s, veh], pre, dur, brake, t_brake, times)
+    dt = float(times[1] - times[0]) if times.size > 1 else 0.0
+    x = x0[:, None] + np.concatenate(
+        [np.zeros((len(veh), 1)), np.cumsum(0.5 * (v[:, 1:] + v[:, :-1]) * dt, axis=1)], axis=1
+    )
+    lat = _smoothstep(times[None, :] / np.maximum(dur, 1e-6)[:, None])
+    y = y0[:, None] + (y_tgt - y0)[:, None] * np.where(kind[:, None], lat, 0.0)
+    return x, y, v
+
+
+def _hits_others(paths: Paths, veh: np.ndarray, x: np.ndarray, y: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """(C,) whether a candidate overlaps another logged vehicle in its window (with a small margin)."""
+    if veh.size == 0:
+        return np.zeros(0, dtype=bool)
+    sub = idx[:, ::2]  # every 0.4 s is enough at these speeds
+    ox, oy = paths.x[sub], paths.y[sub]  # (C, K, N)
+    dx = np.abs(x[:, ::2, None] - ox)
+    dy = np.abs(y[:, ::2, None] - oy)
     long_lim = (paths.length[veh][:, None, None] + paths.length[None, None, :]) / 2 + 1.0
     lat_lim = (paths.width[veh][:, None, None] + paths.width[None, None, :]) / 2 + 0.2
-    clash = (dx < long_lim) & (dy < lat_lim) & after[:, sub][:, :, None]
+    clash = (dx < long_lim) & (dy < lat_lim)
     clash[np.arange(len(veh)), :, veh] = False  # a vehicle does not clash with its own logged self
     return clash.any(axis=(1, 2))

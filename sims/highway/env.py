@@ -92,13 +92,14 @@ def predict_ego_path(log: TrafficLog, paths: Paths, cfg: HighwayConfig, predicto
     if predictor is None:
         return log.ego_ref.astype(np.float64)
     drive = _driver(predictor, cfg)
+    sense = predictor != "expert"  # the expert reads privileged state, not the LiDAR
     world = World(log, paths, cfg)
     every = max(1, round(log.dt / cfg.dt))
     plan = np.zeros((log.frames, 4))
     plan[0] = world.ego_state
     f = 1
     for step in range(1, (log.frames - 1) * every + 1):
-        res = world.step(np.asarray(drive(world), dtype=np.float64))
+        res = world.step(np.asarray(drive(world), dtype=np.float64), sense=sense)
         if step % every == 0:
             plan[f] = world.ego_state
             f += 1

@@ -25,6 +25,7 @@ import numpy as np
 
 from sims.highway.config import HighwayConfig
 from sims.highway.road import LANE_WIDTH
+from sims.highway.sensing import half_extents
 from sims.highway.world import World
 
 
@@ -57,7 +58,8 @@ class HighwayExpert:
     def _occupies(world: World, lane: int, vy: np.ndarray) -> np.ndarray:
         tr = world.traffic
         yl = float(world.layout.lane_y(lane))
-        now = np.abs(tr.y - yl) < LANE_WIDTH / 2 + tr.width / 2 - 0.5
+        _, half_y = half_extents(tr.length, tr.width, tr.heading)
+        now = np.abs(tr.y - yl) < LANE_WIDTH / 2 + half_y - 0.5
         soon = np.abs(tr.y + vy * 1.0 - yl) < LANE_WIDTH / 2
         return now | soon
 
@@ -143,8 +145,9 @@ class HighwayExpert:
         along = np.cumsum(0.5 * (v_prev + v_o) * e.forecast_dt, axis=1)
         x_o = tr.x[near][:, None] + along * c[:, None]
         y_o = tr.y[near][:, None] + np.clip(along * s[:, None], -LANE_WIDTH, LANE_WIDTH)
-        half_long = (tr.length[near] + lim.length)[None, :, None] / 2
-        half_lat = (tr.width[near] + lim.width)[None, :, None] / 2
+        hx, hy = half_extents(tr.length[near], tr.width[near], tr.heading[near])
+        half_long = (hx + lim.length / 2)[None, :, None]
+        half_lat = (hy + lim.width / 2)[None, :, None]
         dx = np.abs(x_o[None] - x_c[:, None, :])  # (C, N, K)
         dy = np.abs(y_o[None] - y_c[:, None, :])
         hard = (dx < half_long + 0.3) & (dy < half_lat + 0.1)

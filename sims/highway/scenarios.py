@@ -342,6 +342,11 @@ def load_log(scenario: int | ScenarioSpec, cache: bool = True) -> TrafficLog:
     return log
 
 
+def clear_memory_cache() -> None:
+    """Forget logs held in memory (the disk cache stays)."""
+    _MEMORY.clear()
+
+
 def custom_spec(
     layout: RoadLayout,
     *,

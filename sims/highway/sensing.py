@@ -17,6 +17,12 @@ def box_corners(x: np.ndarray, y: np.ndarray, heading: np.ndarray, length: np.nd
     return np.stack([cx, cy], axis=-1)
 
 
+def half_extents(length: np.ndarray, width: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Half sizes along x and y of the axis-aligned box around boxes turned by ``heading``."""
+    c, s = np.abs(np.cos(heading)), np.abs(np.sin(heading))
+    return length / 2 * c + width / 2 * s, length / 2 * s + width / 2 * c
+
+
 def overlaps(ego_corners: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """(N,) whether the ego box (4, 2) overlaps each box (N, 4, 2): separating-axis test."""
     if corners.shape[0] == 0:
@@ -91,8 +97,9 @@ def interaction_stats(
     dy = -rx * s + ry * c
     rel_h = heading - eh
     dvx = speed * np.cos(rel_h) - ev
-    long_clear = np.abs(dx) - (length + ego_length) / 2
-    lat_clear = np.abs(dy) - (width + ego_width) / 2
+    half_x, half_y = half_extents(length, width, rel_h)
+    long_clear = np.abs(dx) - half_x - ego_length / 2
+    lat_clear = np.abs(dy) - half_y - ego_width / 2
     gap = np.hypot(np.maximum(long_clear, 0.0), np.maximum(lat_clear, 0.0))
     in_band = lat_clear < 0.3
     closing = -np.sign(dx) * dvx

@@ -17,57 +17,46 @@ Resampled (adversarial) opponents never yield sideways: their cut-in is the poin
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from sims.highway.config import TrafficConfig
 from sims.highway.scenarios import TrafficLog
+from sims.highway.sensing import half_extents
 
 
-@dataclass
 class Paths:
-    """What the surrounding vehicles will do: their poses on a regular time grid."""
+    """What the surrounding vehicles will do: their poses on a regular time grid.
 
-    dt: float
-    x: np.ndarray
-    """(F, N) arrays, float64."""
-    y: np.ndarray
-    heading: np.ndarray
-    speed: np.ndarray
-    length: np.ndarray
-    width: np.ndarray
-    adversarial: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    """(N,) True for opponents whose behaviour was resampled."""
+    ``x``, ``y``, ``heading``, ``speed`` are (F, N) views into one (F, N, 4) array, so that
+    interpolating all four is one operation; writing into a view writes the path.
+    """
 
-    def __post_init__(self) -> None:
-        if self.adversarial.shape != self.length.shape:
-            self.adversarial = np.zeros(self.length.shape, dtype=bool)
+    def __init__(
+        self,
+        dt: float,
+        state: np.ndarray,
+        length: np.ndarray,
+        width: np.ndarray,
+        adversarial: np.ndarray | None = None,
+    ) -> None:
+        self.dt = float(dt)
+        self.state = np.ascontiguousarray(state, dtype=np.float64)
+        self.length = np.asarray(length, dtype=np.float64)
+        self.width = np.asarray(width, dtype=np.float64)
+        self.adversarial = np.zeros(self.length.shape, dtype=bool) if adversarial is None else adversarial
+        """(N,) True for opponents whose behaviour was resampled."""
+
+    x = property(lambda self: self.state[:, :, 0])
+    y = property(lambda self: self.state[:, :, 1])
+    heading = property(lambda self: self.state[:, :, 2])
+    speed = property(lambda self: self.state[:, :, 3])
 
     @staticmethod
     def from_log(log: TrafficLog) -> Paths:
-        f64 = np.float64
-        return Paths(
-            dt=log.dt,
-            x=log.x.astype(f64),
-            y=log.y.astype(f64),
-            heading=log.heading.astype(f64),
-            speed=log.speed.astype(f64),
-            length=log.length.astype(f64),
-            width=log.width.astype(f64),
-        )
+        return Paths(log.dt, np.stack([log.x, log.y, log.heading, log.speed], axis=-1), log.length, log.width)
 
     def copy(self) -> Paths:
-        return Paths(
-            self.dt,
-            self.x.copy(),
-            self.y.copy(),
-            self.heading.copy(),
-            self.speed.copy(),
-            self.length.copy(),
-            self.width.copy(),
-            self.adversarial.copy(),
-        )
+        return Paths(self.dt, self.state.copy(), self.length.copy(), self.width.copy(), self.adversarial.copy())
 
     @property
     def frames(self) -> int:
@@ -87,23 +76,25 @@ class Paths:
 
         Linear interpolation between frames; beyond the last frame a vehicle keeps its last velocity.
         """
-        t = np.broadcast_to(np.asarray(t, dtype=np.float64), (self.count,))
-        pos = t / self.dt
         last = self.frames - 1
-        f0 = np.clip(np.floor(pos).astype(int), 0, last)
-        f1 = np.minimum(f0 + 1, last)
-        a = np.clip(pos - f0, 0.0, 1.0)
-        cols = np.arange(self.count)
-        x0, x1 = self.x[f0, cols], self.x[f1, cols]
-        y0, y1 = self.y[f0, cols], self.y[f1, cols]
-        h0, h1 = self.heading[f0, cols], self.heading[f1, cols]
-        dh = (h1 - h0 + np.pi) % (2 * np.pi) - np.pi
-        x = x0 + a * (x1 - x0)
-        y = y0 + a * (y1 - y0)
-        h = h0 + a * dh
-        v = self.speed[f0, cols] + a * (self.speed[f1, cols] - self.speed[f0, cols])
-        beyond = np.maximum(pos - last, 0.0) * self.dt
-        if np.any(beyond > 0):
+        if np.ndim(t) == 0:  # everybody in sync with the log: plain slices
+            pos = float(t) / self.dt
+            f0 = min(max(int(np.floor(pos)), 0), last)
+            p0, p1 = self.state[f0], self.state[min(f0 + 1, last)]
+            a: np.ndarray | float = min(max(pos - f0, 0.0), 1.0)
+            beyond: np.ndarray | float = max(pos - last, 0.0) * self.dt
+        else:
+            pos = np.asarray(t, dtype=np.float64) / self.dt
+            f0 = np.clip(np.floor(pos).astype(int), 0, last)
+            cols = np.arange(self.count)
+            p0, p1 = self.state[f0, cols], self.state[np.minimum(f0 + 1, last), cols]
+            a = np.clip(pos - f0, 0.0, 1.0)[:, None]
+            beyond = np.maximum(pos - last, 0.0) * self.dt
+        d = p1 - p0
+        d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        p = p0 + a * d
+        x, y, h, v = p[:, 0], p[:, 1], p[:, 2], p[:, 3]
+        if np.any(beyond):
             x = x + beyond * v * np.cos(h)
             y = y + beyond * v * np.sin(h)
         return x, y, h, v
@@ -126,7 +117,7 @@ class Traffic:
         self.lagging = np.zeros(n, dtype=bool)
         self.sigma = np.zeros(n)
         """Distance travelled along the path (kept for lagging vehicles)."""
-        self.x, self.y, self.heading, self.speed = paths.at(0.0)
+        self.x, self.y, self.heading, self.speed = (a.copy() for a in paths.at(0.0))
         self.accel = np.zeros(n)
         self.yielding = np.zeros(n, dtype=bool)
         """Vehicles that deviated from their log this step to spare the ego (for drawing and tests)."""
@@ -173,7 +164,8 @@ class Traffic:
         t_next = self.t + dt
         in_sync = ~self.lagging
         tau_next = np.where(in_sync, t_next, self.tau)
-        _, _, _, v_log_next = self.paths.at(tau_next)
+        pose = self.paths.at(tau_next if self.lagging.any() else t_next)
+        v_log_next = pose[3]
         new_speed = np.where(in_sync, v_log_next, self.speed)
         yielding = np.zeros(self.paths.count, dtype=bool)
         if self.cfg.reactive_followers:
@@ -191,8 +183,8 @@ class Traffic:
         lag = np.flatnonzero(self.lagging)
         for i in lag:
             # a lagging vehicle drives its path at its own speed, never faster than the log at that place
-            _, _, _, v_here = self.paths.at(self.tau[i])
-            v = new_speed[i] if yielding[i] else min(v_here[i], self.speed[i] + 2.0 * dt)
+            v_here = np.interp(self.tau[i], self.times, self.paths.speed[:, i])
+            v = new_speed[i] if yielding[i] else min(v_here, self.speed[i] + 2.0 * dt)
             v = max(v, 0.0)
             self.sigma[i] += 0.5 * (self.speed[i] + v) * dt
             log_sigma = np.interp(t_next, self.times, self.arc[:, i], right=np.inf)
@@ -206,7 +198,7 @@ class Traffic:
                 else (self.times[-1] + (self.sigma[i] - self.arc[-1, i]) / max(v, 0.1))
             )
             new_speed[i] = v
-        x, y, h, v_path = self.paths.at(tau_next)
+        x, y, h, v_path = self.paths.at(tau_next) if lag.size else pose
         speed = np.where(self.lagging, new_speed, v_path)
         if self.cfg.reactive_followers:
             y, h, held = self._hold_lane_changes(ego, x, y, h)
@@ -225,9 +217,10 @@ class Traffic:
         recover = 1.0 * self.dt  # lateral pace when resuming the logged lane position [m/step]
         offset = np.sign(self.lateral_offset) * np.maximum(np.abs(self.lateral_offset) - recover, 0.0)
         y = y_log + offset
-        alongside = np.abs(x - ex) < (self.length + self.ego_length) / 2 + 3.0
+        half_x, half_y = half_extents(self.length, self.width, h_log)
+        alongside = np.abs(x - ex) < half_x + self.ego_length / 2 + 3.0
         toward = (y - self.y) * np.sign(ey - self.y) > 1e-3
-        close = np.abs(y - ey) - (self.width + self.ego_width) / 2 < 1.0
+        close = np.abs(y - ey) - half_y - self.ego_width / 2 < 1.0
         held = alongside & toward & close & ~self.paths.adversarial
         y = np.where(held, self.y, y)
         self.lateral_offset = y - y_log

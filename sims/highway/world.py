@@ -123,39 +123,43 @@ class World:
         return float(a[0] * lim.max_steer), float(acc)
 
     # -- the step -----------------------------------------------------------------------------
-    def step(self, action: np.ndarray) -> StepResult:
+    def step(self, action: np.ndarray, sense: bool = True) -> StepResult:
+        """One control period. ``sense=False`` skips the LiDAR and interaction statistics (for rollouts
+        that do not need them: ``lidar`` is then stale and ``ttc``/gaps are reported as capped)."""
         steer, acc = self.map_action(action)
         dt = self.cfg.dt
         ego = self.ego
         before_x, before_v = float(ego.position[0]), float(ego.speed)
         # no reversing and no speeding beyond the vehicle's limit: clamp what the command could do
-        acc = float(np.clip(acc, -before_v / dt, (self.cfg.ego.max_speed - before_v) / dt))
+        acc = min(max(acc, -before_v / dt), (self.cfg.ego.max_speed - before_v) / dt)
         ego.act({"steering": steer, "acceleration": acc})
         ego.step(dt)
-        ego.speed = float(np.clip(ego.speed, 0.0, self.cfg.ego.max_speed))
+        ego.speed = min(max(float(ego.speed), 0.0), self.cfg.ego.max_speed)
         self.steer, self.accel_cmd = steer, acc
         self.traffic.step(self.ego_state)
         self.t += dt
         self.steps += 1
         self.crashed = self._collides()
         self.offroad = not self._on_road()
-        self.lidar = self._scan()
         s = self.cfg.sensor
-        tr = self.traffic
-        near = np.abs(tr.x - ego.position[0]) < s.gap_cap + 10.0
-        ttc, gap, lead_gap = interaction_stats(
-            self.ego_state,
-            self.cfg.ego.length,
-            self.cfg.ego.width,
-            tr.x[near],
-            tr.y[near],
-            tr.heading[near],
-            tr.speed[near],
-            tr.length[near],
-            tr.width[near],
-            s.ttc_cap,
-            s.gap_cap,
-        )
+        ttc, gap, lead_gap = s.ttc_cap, s.gap_cap, s.gap_cap
+        if sense:
+            self.lidar = self._scan()
+            tr = self.traffic
+            near = np.abs(tr.x - ego.position[0]) < s.gap_cap + 10.0
+            ttc, gap, lead_gap = interaction_stats(
+                self.ego_state,
+                self.cfg.ego.length,
+                self.cfg.ego.width,
+                tr.x[near],
+                tr.y[near],
+                tr.heading[near],
+                tr.speed[near],
+                tr.length[near],
+                tr.width[near],
+                s.ttc_cap,
+                s.gap_cap,
+            )
         success = not (self.crashed or self.offroad) and float(ego.position[0]) >= self.route_end
         timeout = not (self.crashed or self.offroad or success) and self.t >= self.time_limit - 1e-9
         return StepResult(
