@@ -177,9 +177,10 @@ class TrafficLog:
         return {k: getattr(self, k) for k in ("x", "y", "heading", "speed", "length", "width", "behaviour", "ego_ref")}
 
 
-def _spawn_traffic(
+def spawn_traffic(
     spec: ScenarioSpec, road: object, rng: np.random.Generator
 ) -> tuple[IDMVehicle, list[IDMVehicle], list[int]]:
+    """Place the reference ego and the surrounding traffic of ``spec`` on ``road`` (not yet added to it)."""
     layout = spec.layout
     net = road.network  # type: ignore[attr-defined]
     main_road = ("a", "b")
@@ -230,7 +231,7 @@ def record_log(spec: ScenarioSpec) -> TrafficLog:
     """Simulate the scenario's traffic with highway-env IDM/MOBIL vehicles and record it (no cache)."""
     rng = np.random.default_rng(spec.seed)
     road = make_road(spec.layout, rng)
-    ego, others, kinds = _spawn_traffic(spec, road, rng)
+    ego, others, kinds = spawn_traffic(spec, road, rng)
     road.vehicles.extend([ego, *others])
     for _ in range(round(WARMUP / LOG_DT)):
         road.act()
