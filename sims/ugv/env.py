@@ -38,8 +38,11 @@ from sims.ugv.scenario import (
 )
 from sims.ugv.world import World, WorldLidar
 
-OBS_SIZE = 58
-INITIAL_TABLE_STEPS = 128
+SECTORS = 54
+"""Lidar sectors of the observation (the paper's)."""
+OBS_SIZE = SECTORS + 4
+INITIAL_TABLE_STEPS = 320
+"""Mover poses tabulated at reset (32 s); later steps are added on demand, doubling."""
 MAX_PLACEMENT_TRIES = 100
 """Draws of the start (and, failing that, the whole layout) before a scenario is declared unplayable."""
 
@@ -81,7 +84,7 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         self._time_limit_override: float | None = overrides.get("time_limit")
         if self.config.lidar.backend not in ("numpy", "pymunk"):
             raise ValueError(f"unknown lidar backend {self.config.lidar.backend!r}; choose numpy or pymunk")
-        if self.config.lidar.sectors != 54 or self.config.lidar.fov_deg <= 0:
+        if self.config.lidar.sectors != SECTORS or self.config.lidar.fov_deg <= 0:
             raise ValueError("the observation has 54 lidar sectors (the paper's); lidar.sectors must stay 54")
         self.scenario = load_scenario(scenario)
         self.render_mode = render_mode
@@ -103,6 +106,10 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         self._front = slice(int(front[0]), int(front[-1]) + 1)
         self._floor = 1.0 / lidar.max_range
         self._caster = NumpyLidar(lidar)
+        # plain floats read at every step
+        self._v_max, self._w_max = self.config.robot.v_max, self.config.robot.w_max
+        rw = self.config.reward
+        self._reward_weights = (rw.progress, rw.speed, rw.yaw_rate, rw.yaw_rate_change, rw.collision, rw.goal)
         self.expert = UGVExpert(self)
         self.world: World | None = None
         self.layout: Layout | None = None
@@ -120,7 +127,7 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         limit = self._time_limit_override or self.layout.time_limit or cfg.time_limit
         self.max_steps = max(1, round(limit * cfg.control_hz))
         x, y, yaw = self.world.pose
-        gx, gy, _ = self.layout.goal
+        self._goal = gx, gy, _ = self.layout.goal
         self._d_goal = math.hypot(gx - x, gy - y)
         self._prev_v = 0.0
         self._prev_w = 0.0
@@ -141,25 +148,24 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"action must be 2 numbers in [-1, 1], got {action!r}") from None
         if not (math.isfinite(a0) and math.isfinite(a1)):
             raise ValueError(f"action must be finite, got {action!r}")
-        robot = self.config.robot
-        v = (min(max(a0, -1.0), 1.0) + 1.0) * 0.5 * robot.v_max
-        w = min(max(a1, -1.0), 1.0) * robot.w_max
+        v = (min(max(a0, -1.0), 1.0) + 1.0) * 0.5 * self._v_max
+        w = min(max(a1, -1.0), 1.0) * self._w_max
 
         x, y, yaw = world.step(v, w)
         self._scan(x, y, yaw)
-        gx, gy, goal_radius = self.layout.goal  # type: ignore[union-attr]
+        gx, gy, goal_radius = self._goal
         d_goal = math.hypot(gx - x, gy - y)
         collision = world.collided
         success = not collision and d_goal <= goal_radius
         timeout = not (collision or success) and world.k >= self.max_steps
 
-        rw = self.config.reward
-        reward = rw.progress * (self._d_goal - d_goal) + rw.speed * v
-        reward -= rw.yaw_rate * abs(w) + rw.yaw_rate_change * abs(w - self._prev_w)
+        progress, speed, yaw_rate, yaw_rate_change, collision_penalty, goal_bonus = self._reward_weights
+        reward = progress * (self._d_goal - d_goal) + speed * v
+        reward -= yaw_rate * abs(w) + yaw_rate_change * abs(w - self._prev_w)
         if collision:
-            reward -= rw.collision
+            reward -= collision_penalty
         elif success:
-            reward += rw.goal
+            reward += goal_bonus
         cost = self._cost()
 
         self._d_goal = d_goal
@@ -174,11 +180,10 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
     def _scan(self, x: float, y: float, yaw: float) -> None:
         """Cast the lidar; keep per-ray and per-sector inverse ranges (the nearest hit is the largest)."""
         inverse = self._inverse = self.lidar.cast(x, y, yaw)
-        sectors = self.config.lidar.sectors
-        if len(inverse) == 2 * sectors:
-            self._sector_inverse = np.maximum(inverse[:sectors], inverse[sectors:])
+        if len(inverse) == 2 * SECTORS:
+            self._sector_inverse = np.maximum(inverse[:SECTORS], inverse[SECTORS:])
         else:
-            self._sector_inverse = inverse.reshape(-1, sectors).max(axis=0)
+            self._sector_inverse = inverse.reshape(-1, SECTORS).max(axis=0)
         self._pose = (x, y, yaw)
 
     def min_front_range(self) -> float:
@@ -190,16 +195,17 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         return min(1.0, max(0.0, (cost.safe_range - self.min_front_range()) / cost.band))
 
     def _observation(self, x: float, y: float, yaw: float) -> np.ndarray:
-        cfg = self.config
         obs = np.empty(OBS_SIZE, np.float32)
-        sectors = cfg.lidar.sectors
+        sectors = SECTORS
         np.divide(self._floor, self._sector_inverse, out=obs[:sectors])  # range / max_range, in [0, 1]
-        gx, gy, _ = self.layout.goal  # type: ignore[union-attr]
+        gx, gy, _ = self._goal
         bearing = math.atan2(gy - y, gx - x)
-        obs[sectors] = min(self._d_goal / cfg.goal_distance_max, 1.0)
-        obs[sectors + 1] = wrap_angle(bearing - yaw) / math.pi
-        obs[sectors + 2] = self._prev_v / cfg.robot.v_max
-        obs[sectors + 3] = self._prev_w / cfg.robot.w_max
+        obs[sectors:] = (
+            min(self._d_goal / self.config.goal_distance_max, 1.0),
+            wrap_angle(bearing - yaw) / math.pi,
+            self._prev_v / self._v_max,
+            self._prev_w / self._w_max,
+        )
         return obs
 
     def _info(self, cost: float) -> dict[str, Any]:
