@@ -113,7 +113,8 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         self.expert = UGVExpert(self)
         self.world: World | None = None
         self.layout: Layout | None = None
-        self._episode = -1
+        self.episode = -1
+        """Resets so far, minus one: the index of the current episode."""
 
     # -- gymnasium -----------------------------------------------------------------------------
     def reset(
@@ -121,7 +122,7 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self.world, self.layout = self._build_world()
-        self._episode += 1
+        self.episode += 1
         cfg = self.config
         self.lidar = WorldLidar(self.world, self._caster)
         limit = self._time_limit_override or self.layout.time_limit or cfg.time_limit
@@ -290,7 +291,7 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         return Scene(
             sim="ugv",
             bounds=[float(b) for b in layout.bounds],
-            static_key=f"{layout.name}:{self._episode}",
+            static_key=f"{layout.name}:{self.episode}",
             static=self._static_scene,
             movers=movers,
             ego=Box(kind="box", x=x, y=y, yaw=yaw, length=robot.length, width=robot.width, color=COLORS["ego"]),

@@ -252,7 +252,7 @@ class UGVExpert:
         self._grid: Grid | None = None
         self._path: Path | None = None
         self._index = 0
-        self._world_id: int | None = None
+        self._episode: int | None = None
         self._best_cost_to_go = math.inf
         self._stalled = 0
         self._escape: tuple[int, float, float] | None = None  # steps left, v, w
@@ -263,9 +263,9 @@ class UGVExpert:
         world = env.world
         if world is None or env.layout is None:
             raise RuntimeError("reset the env before asking the expert")
-        if self._world_id != id(world):  # a new episode
+        if self._episode != env.episode:  # a new episode (the env resets its own expert; others notice here)
             self.reset()
-            self._world_id = id(world)
+            self._episode = env.episode
             self._grid = build_grid(env.layout, env.config)
         if self._path is None:
             self._replan(x, y)
