@@ -16,6 +16,7 @@ The episode also ends on reaching the route end (success) and is truncated at th
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Callable
 from typing import Any, Literal
@@ -125,6 +126,7 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
         ego_predictor: EgoPredictor | None = None,
         config: HighwayConfig | None = None,
         custom_spec: ScenarioSpec | None = None,
+        scene_rays: bool | None = None,
         render_mode: str | None = None,
     ) -> None:
         if mode not in ("normal", "adversarial"):
@@ -139,6 +141,8 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
         self.custom_spec = custom_spec
         """A scenario outside the pool (``scenarios.custom_spec``), used instead of the split when given."""
         self.cfg = config or DEFAULT
+        if scene_rays is not None:
+            self.cfg = dataclasses.replace(self.cfg, scene_rays=scene_rays)
         self.ego_predictor = ego_predictor
         self.render_mode = render_mode
         self.observation_space = gym.spaces.Box(-1.0, 1.0, (OBS_SIZE,), np.float32)

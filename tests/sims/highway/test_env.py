@@ -145,9 +145,13 @@ def test_scene_is_plain_data_with_a_static_key_per_scenario() -> None:
     assert later["movers"] and all(m["kind"] == "box" for m in later["movers"])
     xmin, _, xmax, _ = later["bounds"]
     assert xmin < later["ego"]["x"] < xmax
-    other = sims.make("highway", scenario_id=119).unwrapped
+    other = sims.make("highway", scenario_id=119, scene_rays=True).unwrapped
     other.reset(seed=0)
-    assert other.scene()["static_key"] != first["static_key"]
+    with_rays = other.scene()
+    assert with_rays["static_key"] != first["static_key"] and "rays" not in later
+    rays = with_rays["rays"]
+    assert len(rays["ends"]) == len(rays["hit"]) == 72 and any(rays["hit"])
+    json.dumps(with_rays)
 
 
 def test_metrics_of_an_expert_episode() -> None:

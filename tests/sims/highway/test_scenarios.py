@@ -64,6 +64,7 @@ def test_cache_roundtrip_and_a_damaged_file_is_recorded_again(tmp_path: Path, mo
         again = load_log(QUICK_ID)
         assert np.array_equal(again.x, log.x) and np.array_equal(again.ego_ref, log.ego_ref)
         assert files[0].stat().st_size > 1000  # rewritten
+        assert scenarios.warm_cache([QUICK_ID]) == 0  # nothing left to record
     finally:
         scenarios.clear_memory_cache()
 
