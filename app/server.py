@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import importlib
 import importlib.util
 import io
@@ -37,7 +38,7 @@ from app import messages as m
 from app.hub import Client, Hub
 from app.live import CommandError, LiveConfig, LiveLoop, PolicyLoader, dumps
 from app.operator import ControlDesk, OperatorConsole
-from app.policies import default_policy, discover, load_policy
+from app.policies import SCRIPTED, default_policy, discover, load_policy
 from app.sim_choices import listed, make_kwargs
 from app.viser_proxy import ViserProxy
 from core.sessions import SessionError, SessionStore
@@ -135,16 +136,24 @@ class Dashboard:
             speed=settings.speed,
             seed=settings.seed,
         )
-        self.live = LiveLoop(
-            config,
-            env_factory=settings.env_factory,
-            policy_loader=settings.policy_loader,
-            console=self.console,
-            publish=self.hub.publish,
-            store=self.store,
-            scene_view=self.scene_view,
-            start_paused=settings.start_paused,
-        )
+        loop_args: dict[str, Any] = {
+            "env_factory": settings.env_factory,
+            "policy_loader": settings.policy_loader,
+            "console": self.console,
+            "publish": self.hub.publish,
+            "store": self.store,
+            "scene_view": self.scene_view,
+            "start_paused": settings.start_paused,
+        }
+        try:
+            self.live = LiveLoop(config, **loop_args)
+        except Exception as exc:
+            if settings.policy is not None or policy == SCRIPTED:
+                raise  # what the user asked for explicitly fails loudly, with the reason
+            # the default policy found on disk does not load: open anyway, driven by the scripted expert
+            log.error("default policy %s does not load (%s); using the scripted expert", policy, exc)
+            self.live = LiveLoop(dataclasses.replace(config, policy=SCRIPTED), **loop_args)
+            self.live.last_error = f"default policy {policy} does not load: {exc}"
 
     def catalogue(self) -> dict[str, dict[str, Any]]:
         """Simulators and their scenarios (imports each package once, then cached)."""

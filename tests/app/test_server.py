@@ -238,3 +238,17 @@ def test_the_default_server_opens_on_the_ugv_with_the_committed_policy(tmp_path)
         assert len(step["ego"]) == 3 and step["labels"]["scenario"] == "narrow_passage"
     finally:
         stop_server(live, thread)
+
+
+def test_a_default_policy_that_does_not_load_falls_back_to_the_scripted_expert(tmp_path) -> None:
+    broken = tmp_path / "policies" / "toy-default"
+    broken.mkdir(parents=True)
+    (broken / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    from app.policies import load_policy
+
+    live, thread = start_server(toy_settings(tmp_path, policy=None, policy_loader=load_policy))
+    try:
+        state = live.state()
+        assert state["config"]["policy"] == "scripted" and "does not load" in state["error"]
+    finally:
+        stop_server(live, thread)
