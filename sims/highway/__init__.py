@@ -12,11 +12,23 @@ from gymnasium.envs.registration import register, registry
 
 from sims.highway.config import HighwayConfig
 from sims.highway.env import HighwayEnv
-from sims.highway.scenarios import load_log, scenario_ids, scenario_spec
+from sims.highway.evaluate import PAPER_COLUMNS, evaluate, paper_table
+from sims.highway.scenarios import load_log, scenario_ids, scenario_spec, warm_cache
 
 ENV_ID = "sage/Highway-v0"
 
 if ENV_ID not in registry:
     register(id=ENV_ID, entry_point="sims.highway.env:HighwayEnv")
 
-__all__ = ["ENV_ID", "HighwayConfig", "HighwayEnv", "load_log", "scenario_ids", "scenario_spec"]
+__all__ = [
+    "ENV_ID",
+    "PAPER_COLUMNS",
+    "HighwayConfig",
+    "HighwayEnv",
+    "evaluate",
+    "load_log",
+    "paper_table",
+    "scenario_ids",
+    "scenario_spec",
+    "warm_cache",
+]

@@ -81,36 +81,39 @@ def _driver(predictor: EgoPredictor, cfg: HighwayConfig) -> Callable[[World], np
     )
 
 
-def predict_ego_path(log: TrafficLog, paths: Paths, cfg: HighwayConfig, predictor: EgoPredictor | None) -> np.ndarray:
-    """(F, 4) predicted ego x, y, heading, speed on the log's frames.
+def predict_ego_path(
+    log: TrafficLog, paths: Paths, cfg: HighwayConfig, predictor: EgoPredictor | None
+) -> tuple[np.ndarray, Paths]:
+    """The predicted ego path ((F, 4) x, y, heading, speed on the log's frames) and the traffic as it
+    moved around that ego (``Paths``; the log itself unless followers yielded to the predicted ego).
 
     None: the log's reference ego (an IDM/MOBIL driver recorded with the traffic). Otherwise the
     predictor (a policy, or ``"expert"``) is rolled in the log-replay version of the scenario, as CAT
-    rolls the current policy; after it stops (crash, off-road, route end) the path is extended at
-    constant velocity. A deterministic ego driven by the same predictor follows this path exactly up
-    to the first resampled event, because until then the traffic is the log.
+    rolls the current policy; once it stops (crash, off-road, route end) the ego coasts straight on.
+    A deterministic ego driven by the same predictor follows this path exactly up to the first
+    resampled event, because until then the traffic is the log.
     """
     if predictor is None:
-        return log.ego_ref.astype(np.float64)
+        return log.ego_ref.astype(np.float64), paths
     drive = _driver(predictor, cfg)
     sense = predictor != "expert"  # the expert reads privileged state, not the LiDAR
     world = World(log, paths, cfg)
     every = max(1, round(log.dt / cfg.dt))
     plan = np.zeros((log.frames, 4))
-    plan[0] = world.ego_state
-    f = 1
+    observed = np.zeros_like(paths.state)
+    tr = world.traffic
+    plan[0], observed[0] = world.ego_state, np.stack([tr.x, tr.y, tr.heading, tr.speed], axis=-1)
+    coast = np.zeros(2)
+    stopped = False
     for step in range(1, (log.frames - 1) * every + 1):
-        res = world.step(np.asarray(drive(world), dtype=np.float64), sense=sense)
+        action = coast if stopped else np.asarray(drive(world), dtype=np.float64)
+        res = world.step(action, sense=sense and not stopped)
+        stopped = stopped or res.crashed or res.offroad or res.success
         if step % every == 0:
+            f = step // every
             plan[f] = world.ego_state
-            f += 1
-        if res.crashed or res.offroad or res.success:
-            break
-    if f < log.frames:
-        x, y, h, v = plan[f - 1]
-        dt = (np.arange(1, log.frames - f + 1) * log.dt)[:, None]
-        plan[f:] = np.hstack([x + v * np.cos(h) * dt, y + v * np.sin(h) * dt, np.full_like(dt, h), np.full_like(dt, v)])
-    return plan
+            observed[f] = np.stack([tr.x, tr.y, tr.heading, tr.speed], axis=-1)
+    return plan, Paths(paths.dt, observed, paths.length, paths.width)
 
 
 class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -184,8 +187,13 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
         paths = Paths.from_log(log)
         self.events = []
         if mode == "adversarial":
-            plan = predict_ego_path(log, paths, self.cfg, self.ego_predictor)
-            paths, self.events = resample(paths, plan, log.spec.layout, self.cfg, self.np_random)
+            # candidates perturb the opponents as they drove around the predicted ego (CAT); only the
+            # resampled opponents get a new path, everybody else replays the log
+            plan, observed = predict_ego_path(log, paths, self.cfg, self.ego_predictor)
+            resampled, self.events = resample(observed, plan, log.spec.layout, self.cfg, self.np_random)
+            for event in self.events:
+                paths.state[:, event.vehicle] = resampled.state[:, event.vehicle]
+                paths.adversarial[event.vehicle] = True
         self.world = World(log, paths, self.cfg)
         self.expert.reset()
         self._reset_stats()

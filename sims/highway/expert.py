@@ -36,10 +36,12 @@ class HighwayExpert:
 
     def reset(self) -> None:
         self.target_lane: int | None = None
+        self.last_choice = "idle"
+        """What the last action was: ``nominal`` (IDM/MOBIL), or the safety check's ``brake``, ``escape``
+        (speeding up away from a threat) or ``evasive`` (a lane change)."""
         self.last_step = -10
         self.last_lane_decision = -1e9
         self.evasive_until = -1e9
-        self.last_choice = "idle"
         self.last_emergency: tuple[int, float] | None = None
 
     # -- helpers ------------------------------------------------------------------------------
@@ -217,7 +219,7 @@ class HighwayExpert:
             lane, acc = int(cand_l[best]), float(cand_a[best])
             if lane != target:
                 self.evasive_until = world.t + 1.5
-            self.last_choice = "evasive" if lane != target else "brake"
+            self.last_choice = "evasive" if lane != target else ("brake" if acc < a_nom else "escape")
         self.last_emergency = None if self.last_choice == "nominal" else (lane, acc)
         self.target_lane = lane
         steer = self._steer(world, lane, evasive=world.t < self.evasive_until)

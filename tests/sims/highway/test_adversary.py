@@ -22,7 +22,7 @@ def _mean(rows: list[dict[str, float]], key: str) -> float:
 def test_resampled_opponent_keeps_its_log_until_the_event_then_cuts_in_or_brakes() -> None:
     log = load_log(FEW_TEST_IDS[1])
     base = Paths.from_log(log)
-    plan = predict_ego_path(log, base, DEFAULT, None)
+    plan, _ = predict_ego_path(log, base, DEFAULT, None)
     adv, events = resample(base, plan, log.spec.layout, DEFAULT, np.random.default_rng(0))
     assert len(events) == DEFAULT.adversary.opponents == 1
     ev = events[0]
@@ -54,7 +54,7 @@ def test_the_ego_predictor_is_rolled_to_target_the_current_policy() -> None:
     assert len(calls) > 50 and info["adversary_events"]
     # a deterministic ego that is its own predictor drives exactly the predicted path until the event
     log = env.unwrapped.log
-    plan = predict_ego_path(log, Paths.from_log(log), DEFAULT, policy)
+    plan, _ = predict_ego_path(log, Paths.from_log(log), DEFAULT, policy)
     event_frame = info["adversary_events"][0]["frame"]
     obs = env.reset(seed=0)[0]
     every = round(log.dt / DEFAULT.dt)
