@@ -10,6 +10,7 @@ COMMAND_MODULES = (
     "app.cli.expert",  # sage expert
     "app.cli.train",  # sage train / eval / compare
     "app.cli.serve",  # sage serve
+    "app.cli.export",  # sage export
 )
 
 app = typer.Typer(
