@@ -118,7 +118,8 @@ def build_network(layout: RoadLayout) -> RoadNetwork:
 
 
 def _offset_polyline(lane: AbstractLane, lateral: float, step: float = 2.0) -> np.ndarray:
-    s = np.linspace(0.0, lane.length, max(2, int(np.ceil(lane.length / step)) + 1))
+    samples = 2 if type(lane) is StraightLane else max(2, int(np.ceil(lane.length / step)) + 1)
+    s = np.linspace(0.0, lane.length, samples)
     return np.array([lane.position(si, lateral) for si in s])
 
 

@@ -24,13 +24,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+import highway_env
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
 
 from sims.highway.road import RoadLayout, make_road
 
 LOG_VERSION = 1
-"""Bump when anything that changes generated logs changes (the disk cache is keyed by it)."""
+"""Bump when anything that changes generated logs changes (the disk cache is keyed by it and by
+highway-env's version)."""
 N_SCENARIOS = 500
 N_TRAIN = 400
 SPLIT_SEED = 2024
@@ -279,7 +281,8 @@ def record_log(spec: ScenarioSpec) -> TrafficLog:
 def cache_dir() -> Path:
     root = os.environ.get("SAGE_HIGHWAY_CACHE")
     base = Path(root) if root else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "sage" / "highway"
-    return base / f"v{LOG_VERSION}"
+    # logs are highway-env's IDM/MOBIL traffic: another highway-env version may drive differently
+    return base / f"v{LOG_VERSION}-highway-env-{highway_env.__version__}"
 
 
 def _cache_name(spec: ScenarioSpec) -> str:
