@@ -261,7 +261,7 @@ def test_readme_screenshot_of_the_dashboard(browser: Any, tmp_path: Path) -> Non
 
     settings = ServerSettings(
         sim="ugv",
-        scenario=3,
+        scenario=1,
         sessions=tmp_path / "sessions",
         speed=1.5,
         policy_roots=[ROOT / "policies", ROOT / "runs"],
