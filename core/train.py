@@ -41,7 +41,7 @@ from core.agents import (
     save_checkpoint,
 )
 from core.experts import ScriptedExpert
-from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner
+from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
 from core.sage import make_learner
 from core.sage.config import AgentConfig, to_dict
 from core.sage.gate import AlwaysGate
@@ -204,14 +204,28 @@ class Trainer:
             )
             for j, env in enumerate(self.envs.values())
         ]
+        ends: list[bool] = []  # per stored row: the last of its episode
+
+        def store(record: StepRecord) -> None:
+            self.learner.buffer.add_record(record)
+            ends.append(record.done)
+
         for runner in runners:
-            runner.step_listeners.append(self.learner.buffer.add_record)
+            runner.step_listeners.append(store)
         scenarios = list(self.envs)
         for i in range(self.run.demo_episodes):
             j = i % len(runners)
             summary = runners[j].run_episode(self.run.max_episode_steps)
+            if ends:
+                ends[-1] = True  # an episode cut by max_episode_steps ends here too
             rows.append(_tag(summary.as_row(), scenario=scenarios[j], phase="demo"))
-        stats = self.learner.pretrain()
+        buffer = self.learner.buffer
+        returns = None
+        if len(ends) <= buffer.capacity:
+            returns = returns_to_go(
+                buffer.reward[: len(ends)], buffer.terminated[: len(ends)], np.array(ends), self.agent_cfg.gamma
+            )
+        stats = self.learner.pretrain(returns)
         if rows:
             rows[-1].update(stats)
         return rows
@@ -299,6 +313,18 @@ class Trainer:
             wall_time=round(time.time() - started, 2),
             **stats,
         )
+
+
+def returns_to_go(reward: np.ndarray, terminated: np.ndarray, episode_end: np.ndarray, gamma: float) -> np.ndarray:
+    """Discounted return from each row to the end of its episode (0 after a termination or an episode cut)."""
+    out = np.zeros(len(reward), np.float32)
+    running = 0.0
+    for t in range(len(reward) - 1, -1, -1):
+        if episode_end[t] or terminated[t] > 0.5:
+            running = 0.0
+        running = float(reward[t]) + gamma * running
+        out[t] = running
+    return out
 
 
 def progress_text(rows: Sequence[dict[str, Any]], window: int = 10) -> str:

@@ -62,9 +62,9 @@ class GateConfig:
     """How per-step ĉ_k and σ̂_k are aggregated over the m steps (each separately, then combined by β)."""
     discount: float = 0.9
     """Per-step weight decay of the ``discounted_mean`` aggregation (ignored by ``max``)."""
-    tau_min: float = 0.35
+    tau_min: float = 0.25
     """τ_min: the threshold when curiosity is far above its recent average (most ready to ask for help)."""
-    tau_max: float = 0.65
+    tau_max: float = 0.45
     """τ_max: the threshold when curiosity is far below its recent average (familiar ground)."""
     curiosity_ema: float = 0.02
     """Rate of the exponential moving average of curiosity that ρ compares the current curiosity with."""

@@ -181,8 +181,13 @@ class CuriosityThreshold:
 
 
 class GateKernel:
-    """The gate's F^m for one state: the computation of :func:`fear` on preallocated buffers with views
-    prepared once, so that a step is ~60 small tensor ops and no allocation of note.
+    """The gate's F^m for one state: the computation of :func:`fear` on preallocated, contiguous buffers
+    with views prepared once, so that a step is a few dozen small tensor ops and no allocation of note.
+
+    States and actions live in separate contiguous buffers (the first layer's weights are split into a state
+    and an action part, so no concatenation is needed), the output layer is split into mean and log-variance
+    parts, and reductions over members run on contiguous memory: on a CPU, strided views and ``mean`` over
+    non-contiguous axes cost more than the matrix products here.
 
     It reads the actor's parameters through views that stay valid while an optimiser updates them in
     place, and the world model's folded weights of the version it was built for (rebuild it after a fit).
@@ -202,48 +207,61 @@ class GateKernel:
         self.model, self.cfg = model, cfg
         n, d, m = model.members, model.obs_dim, cfg.horizon
         act_dim = actor_layers[-1][0].shape[0]
-        self.d, self.m = d, m
-        self.x = torch.zeros(m + 1, n, 1, d + act_dim)
+        self.d, self.m, self.n = d, m, n
+        first_w, first_b = model.hidden[0]
+        self.first_state_w = first_w[:, :d].contiguous()
+        self.first_action_w = first_w[:, d:].contiguous()
+        self.first_b = first_b
+        self.rest = model.hidden[1:]
+        self.out_w = model.out_weight[..., : 2 * d + 1].contiguous()  # (Δs, cost) means, then Δs log-variances
+        self.out_b = model.out_bias[..., : 2 * d + 1].contiguous()
+        self.delta_w = model.out_weight[..., :d].contiguous()
+        self.delta_b = model.out_bias[..., :d].contiguous()
+        self.states = torch.zeros(m + 1, n, 1, d)
+        self.actions = torch.zeros(m, n, 1, act_dim)
+        self.outputs = torch.zeros(m, n, 1, 2 * d + 1)
         self.hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
-        self.out = torch.empty(m, n, 1, 2 * (d + 1))
         self.policy_buffers = [torch.empty(n, w.shape[0]) for w, _ in actor_layers]
         self.actor = [(b, w.t()) for w, b in actor_layers]
         self.scaled = not (bool((output_scale == 1).all()) and bool((output_bias == 0).all()))
         self.output_scale, self.output_bias = output_scale, output_bias
-        self.step_inputs = [self.x[k] for k in range(m)]
-        self.step_outputs = [self.out[k] for k in range(m)]
-        self.states_now = [self.x[k, :, :, :d] for k in range(m)]
-        self.states_next = [self.x[k + 1, :, :, :d] for k in range(m)]
-        self.deltas = [self.out[k, :, :, :d] for k in range(m)]
-        self.policy_inputs = [self.x[k + 1, :, 0, :d] for k in range(m)]
-        self.policy_outputs = [self.x[k + 1, :, 0, d:] for k in range(m)]
-        self.start_state, self.start_action = self.x[0, :, :, :d], self.x[0, :, :, d:]
-        self.predicted = self.x[1:, :, :, :d]
-        self.raw_logvar = self.out[..., d + 1 : 2 * d + 1]
-        self.step_cost = self.out[..., d]
+        self.state_steps = [self.states[k] for k in range(m + 1)]
+        self.action_steps = [self.actions[k] for k in range(m)]
+        self.output_steps = [self.outputs[k] for k in range(m)]
+        self.raw_logvars = self.outputs[..., d + 1 :]
+        self.policy_inputs = [self.states[k + 1].view(n, d) for k in range(m)]
+        self.policy_outputs = [self.actions[k + 1].view(n, act_dim) for k in range(m - 1)]
+        self.deltas = [self.outputs[k, :, :, :d] for k in range(m)]
+        self.predicted = self.states[1:]
+        self.step_cost = self.outputs[..., d]
+        self.inv_members = 1.0 / n
         self.sigma_divisor = 2.0 * step_scales(model.sigma_scale, m)
         self.weights = discount_weights(cfg)
-        self.c_input = torch.zeros(n, 1, d + act_dim)
-        self.c_state, self.c_action = self.c_input[:, :, :d], self.c_input[:, :, d:]
         self.c_hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
         self.c_delta = torch.empty(n, 1, d)
-        self.delta_weight = model.out_weight[..., :d].contiguous()
-        self.delta_bias = model.out_bias[..., :d].contiguous()
+
+    def _trunk(self, state: Tensor, action: Tensor, buffers: list[Tensor]) -> Tensor:
+        h = buffers[0]
+        torch.baddbmm(self.first_b, state, self.first_state_w, out=h)
+        h.baddbmm_(action, self.first_action_w)
+        F.silu(h, inplace=True)
+        for (weight, bias), buf in zip(self.rest, buffers[1:], strict=True):
+            torch.baddbmm(bias, h, weight, out=buf)
+            F.silu(buf, inplace=True)
+            h = buf
+        return h
 
     def __call__(self, obs: Tensor, action: Tensor) -> tuple[float, float, float]:
         """(F^m, ĉ, σ̂) of a (1, D) state and (1, A) first action; call under ``torch.inference_mode``."""
         fm = self.model
-        self.start_state.copy_(obs)
-        self.start_action.copy_(action)
+        states, actions = self.state_steps, self.action_steps
+        states[0].copy_(obs)
+        actions[0].copy_(action)
         last = len(self.actor) - 1
         for k in range(self.m):
-            h = self.step_inputs[k]
-            for (weight, bias), buf in zip(fm.hidden, self.hidden, strict=True):
-                torch.baddbmm(bias, h, weight, out=buf)
-                F.silu(buf, inplace=True)
-                h = buf
-            torch.baddbmm(fm.out_bias, h, fm.out_weight, out=self.step_outputs[k])
-            torch.add(self.states_now[k], self.deltas[k], out=self.states_next[k])
+            h = self._trunk(states[k], actions[k], self.hidden)
+            torch.baddbmm(self.out_b, h, self.out_w, out=self.output_steps[k])
+            torch.add(states[k], self.deltas[k], out=states[k + 1])
             if k + 1 < self.m:
                 x = self.policy_inputs[k]
                 for i, ((bias, weight_t), buf) in enumerate(zip(self.actor, self.policy_buffers, strict=True)):
@@ -257,30 +275,33 @@ class GateKernel:
                 else:
                     torch.tanh(x, out=self.policy_outputs[k])
         s = self.predicted
-        deviation = s - s.mean(1, keepdim=True)
-        epistemic = deviation.square_().mean(1).mul_(fm.inv_delta_var)
-        logvar = fm.max_logvar - F.softplus(fm.max_logvar - self.raw_logvar)
+        deviation = s - s.sum(1, keepdim=True).mul_(self.inv_members)
+        # variance over members plus mean member variance, both summed over members (1/N applied once below)
+        total = deviation.square_().mul_(fm.inv_delta_var)
+        logvar = fm.max_logvar - F.softplus(fm.max_logvar - self.raw_logvars)
         logvar = F.softplus(logvar - fm.min_logvar).add_(fm.min_logvar)
-        sigma_raw = epistemic.add_(logvar.exp_().mean(1)).sqrt_().mean(-1)  # (m, 1)
+        total = total.add_(logvar.exp_()).sum(1).mul_(self.inv_members)
+        sigma_raw = total.sqrt_().mean(-1)  # (m, 1)
         sigma = torch.tanh(sigma_raw.div_(self.sigma_divisor))
-        cost = self.step_cost.clamp(0.0, 1.0).mean(1)
+        cost = self.step_cost.clamp(0.0, 1.0).sum(1)
         if self.weights is None:
-            c, sg = float(cost.max()), float(sigma.max())
+            c, sg = float(cost.max()) * self.inv_members, float(sigma.max())
         else:
-            c, sg = float((cost[:, 0] * self.weights).sum()), float((sigma[:, 0] * self.weights).sum())
+            c = float((cost[:, 0] * self.weights).sum()) * self.inv_members
+            sg = float((sigma[:, 0] * self.weights).sum())
         return self.cfg.beta * c + (1.0 - self.cfg.beta) * sg, c, sg
 
-    def curiosity(self, obs: Tensor, action: Tensor, next_obs: Tensor) -> float:
-        """C = ||s + mean_n Δ_n(s, a) - s'||₂ on normalised states, for (1, D) / (1, A) tensors."""
-        self.c_state.copy_(obs)
-        self.c_action.copy_(action)
-        h = self.c_input
-        for (weight, bias), buf in zip(self.model.hidden, self.c_hidden, strict=True):
-            torch.baddbmm(bias, h, weight, out=buf)
-            F.silu(buf, inplace=True)
-            h = buf
-        torch.baddbmm(self.delta_bias, h, self.delta_weight, out=self.c_delta)
-        error = self.c_delta.mean(0).add_(obs).sub_(next_obs).mul_(self.model.inv_obs_std)
+    def curiosity(self, obs: Tensor, action: Tensor, next_obs: Tensor, reuse_first_step: bool = False) -> float:
+        """C = ||s + mean_n Δ_n(s, a) - s'||₂ on normalised states, for (1, D) / (1, A) tensors.
+        ``reuse_first_step``: (obs, action) are those of the last call, whose first rollout step already
+        predicted Δ_n(s, a) (the common case: the executed action is the policy's)."""
+        if reuse_first_step:
+            delta = self.deltas[0]
+        else:
+            n = self.n
+            h = self._trunk(obs.expand(n, 1, -1), action.expand(n, 1, -1), self.c_hidden)
+            delta = torch.baddbmm(self.delta_b, h, self.delta_w, out=self.c_delta)
+        error = delta.mean(0).add_(obs).sub_(next_obs).mul_(self.model.inv_obs_std)
         return float(error.norm())
 
 

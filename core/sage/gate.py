@@ -55,6 +55,8 @@ class SageGate:
         self.threshold = CuriosityThreshold(self.cfg, float(world_model.curiosity_ref))
         self._reference_version = world_model.version
         self._kernel: tuple[int, GateKernel] | None = None
+        self._fitted_version, self._fitted = -1, False
+        self._last: tuple[object, object, int] = (None, None, -1)
         self.hold_remaining = 0
         self.detail = GateDetail(threshold=self.threshold.threshold)
 
@@ -78,9 +80,17 @@ class SageGate:
             self._reference_version = self.world_model.version
             self.threshold.ema = max(float(self.world_model.curiosity_ref), 1e-8)
 
+    def _ready(self) -> bool:
+        """Whether the model is fitted (read once per model version, not at every step)."""
+        version = self.world_model.version
+        if self._fitted_version != version:
+            self._fitted = bool(self.world_model.fitted)
+            self._fitted_version = version
+        return self._fitted
+
     def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
         threshold = self.threshold.threshold
-        if not bool(self.world_model.fitted):
+        if not self._ready():
             return GateDecision(math.nan, threshold, False)
         self._refresh_reference()
         with torch.inference_mode():
@@ -89,6 +99,7 @@ class SageGate:
             kernel = self.kernel()
             if kernel is not None:
                 value, cost, sigma = kernel(o, a)
+                self._last = (obs, a_rl, self.world_model.version)
             else:
                 terms = fear(self.world_model.folded(), self.policy, o, a, self.cfg)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
@@ -103,7 +114,7 @@ class SageGate:
         return GateDecision(value, threshold, fired)
 
     def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
-        if not bool(self.world_model.fitted):
+        if not self._ready():
             return math.nan
         self._refresh_reference()
         with torch.inference_mode():
@@ -112,7 +123,9 @@ class SageGate:
             s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
             if kernel is not None:
-                curiosity = kernel.curiosity(o, a, s1)
+                last_obs, last_action, version = self._last
+                reuse = version == self.world_model.version and last_obs is obs and np.array_equal(last_action, action)
+                curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse)
             else:
                 curiosity = float(curiosity_folded(self.world_model, o, a, s1)[0])
         self.detail.rho = self.threshold.rho(curiosity)

@@ -28,16 +28,34 @@ from core.sage.world_model import EnsembleWorldModel, FitReport
 
 
 class ActorPolicy:
-    """A :class:`core.loop.Policy` over an actor: its sample, or its deterministic action."""
+    """A :class:`core.loop.Policy` over an actor: its sample, or its deterministic action.
+
+    The deterministic action runs on preallocated buffers through views of the actor's parameters (which
+    stay valid while an optimiser updates them in place): a few tensor ops, no module dispatch."""
 
     def __init__(self, actor: Actor) -> None:
         self.actor = actor
+        self._layers = [(b, w.t()) for w, b in actor.deterministic_layers()]
+        self._input = torch.zeros(1, self._layers[0][1].shape[0])
+        self._buffers = [torch.zeros(1, w.shape[1]) for _, w in self._layers]
+        self._scaled = not (bool((actor.action_scale == 1).all()) and bool((actor.action_bias == 0).all()))
 
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
         with torch.inference_mode():
-            o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
-            a = self.actor.deterministic(o) if deterministic else self.actor.sample(o)[0]
-        return a[0].numpy()
+            if not deterministic:
+                o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
+                return self.actor.sample(o)[0][0].numpy()
+            self._input.copy_(torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1))
+            x, last = self._input, len(self._layers) - 1
+            for i, ((bias, weight_t), buf) in enumerate(zip(self._layers, self._buffers, strict=True)):
+                torch.addmm(bias, x, weight_t, out=buf)
+                if i < last:
+                    buf.clamp_min_(0.0)
+                x = buf
+            action = torch.tanh(x)
+            if self._scaled:
+                action = action * self.actor.action_scale + self.actor.action_bias
+            return action[0].numpy()
 
 
 class BaseLearner:
@@ -76,6 +94,7 @@ class BaseLearner:
         self.info: dict[str, float] = {}
         """Latest training statistics (losses, λ, α, ...), for progress bars and metrics rows."""
         self._gates: list[SageGate] = []
+        self._policy: ActorPolicy | None = None
 
     # -- acting ----------------------------------------------------------------------------------
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
@@ -87,7 +106,9 @@ class BaseLearner:
         return self.uses_random_warmup and not self.warm and self.buffer.total < self.cfg.learning_starts
 
     def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
-        return ActorPolicy(self.actor).act(obs, deterministic)
+        if self._policy is None:
+            self._policy = ActorPolicy(self.actor)
+        return self._policy.act(obs, deterministic)
 
     def rollout_policy(self, obs: Tensor) -> Tensor:
         """The deterministic torch policy that world-model rollouts (fear, virtual buffer) follow."""
@@ -172,9 +193,11 @@ class BaseLearner:
         return gate
 
     # -- demonstrations ----------------------------------------------------------------------------
-    def pretrain(self) -> dict[str, float]:
+    def pretrain(self, returns: np.ndarray | None = None) -> dict[str, float]:
         """Learn from the demonstrations in the buffer (intervention samples) before interacting:
-        behaviour cloning of the actor, then (subclasses) critic-only steps; then fit the world model."""
+        behaviour cloning of the actor, then (subclasses) critic-only steps; then fit the world model.
+        ``returns``: discounted returns-to-go of the first ``len(returns)`` buffer rows (the demonstrations),
+        which critics regress on first, so that values need not crawl back from the goal one TD step at a time."""
         stats: dict[str, float] = {}
         if self.buffer.takeover_count() > 0 and self.cfg.pretrain_bc_steps > 0:
             stats["pretrain_bc_loss"] = self.behaviour_clone(self.cfg.pretrain_bc_steps)

@@ -234,13 +234,36 @@ class SAC(BaseLearner):
         stats.update(self.actor_step(batch))
         return stats
 
-    def pretrain(self) -> dict[str, float]:
-        stats = super().pretrain()
-        if self.warm and len(self.buffer) >= self.cfg.batch_size:
-            for _ in range(self.cfg.pretrain_critic_steps):
-                stats.update(self.critic_step(self.buffer.sample(self.cfg.batch_size, self.rng)))
+    def pretrain(self, returns: np.ndarray | None = None) -> dict[str, float]:
+        stats = super().pretrain(returns)
+        if not self.warm or len(self.buffer) < self.cfg.batch_size:
+            return stats
+        td_steps = self.cfg.pretrain_critic_steps
+        if returns is not None and len(returns) > 0:
+            regression = td_steps // 2
+            td_steps -= regression
+            stats["pretrain_return_loss"] = self.regress_critic(returns, regression)
+            self.critic_target.load_state_dict(self.critic.state_dict())
+        for _ in range(td_steps):
+            stats.update(self.critic_step(self.buffer.sample(self.cfg.batch_size, self.rng)))
         self.info.update(stats)
         return stats
+
+    def regress_critic(self, returns: np.ndarray, steps: int) -> float:
+        """Monte-Carlo regression of every critic onto the demonstrations' returns-to-go."""
+        targets = torch.as_tensor(returns, dtype=torch.float32)
+        loss = torch.tensor(math.nan)
+        for _ in range(steps):
+            idx = self.rng.integers(0, len(returns), size=self.cfg.batch_size)
+            obs = torch.from_numpy(self.buffer.obs[idx])
+            action = torch.from_numpy(self.buffer.action[idx])
+            q = self.critic(obs, action)
+            loss = F.mse_loss(q, targets[idx].unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
+            self.critic_optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
+            self.critic_optimizer.step()
+        return loss.item()
 
     # -- checkpoints -----------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:

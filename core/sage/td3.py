@@ -77,8 +77,8 @@ class TD3(BaseLearner):
             stats["actor_loss"] = actor_loss.item()
         return stats
 
-    def pretrain(self) -> dict[str, float]:
-        stats = super().pretrain()
+    def pretrain(self, returns: np.ndarray | None = None) -> dict[str, float]:
+        stats = super().pretrain(returns)
         self.actor_target.load_state_dict(self.actor.state_dict())
         return stats
 

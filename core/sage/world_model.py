@@ -231,6 +231,7 @@ class EnsembleWorldModel(nn.Module):
                 since_improved += 1
             if since_improved > cfg.patience or report.updates >= cfg.max_updates_per_fit:
                 break
+        optimizer.zero_grad(set_to_none=True)  # leave no gradients behind: the frozen model must not hold any
         # the learnable log-var bounds and normalisers are shared, keep their latest values
         for name in ("max_logvar", "min_logvar"):
             snapshot[name] = self.state_dict()[name]

@@ -1,0 +1,160 @@
+"""One gate step on one core: the policy's action, the m = 5 step fear rollout of the N = 5 ensemble, the
+curiosity of the executed transition and the threshold update; against the same computation with a
+Python loop over the ensemble members.
+
+Sizes are the UGV's: 58 observations, 2 actions, the default world model (5 x 2 x 64, SiLU) and actor
+(2 x 128). The world model is fitted briefly on synthetic transitions (the weights' values do not change
+the cost). Both variants are timed in interleaved rounds in the same run; the median of all steps is printed.
+
+    .venv/bin/python bench/bench_gate.py [--steps 3000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from core.sage.config import GateConfig, WorldModelConfig
+from core.sage.fear import step_scales
+from core.sage.gate import SageGate
+from core.sage.learner import ActorPolicy
+from core.sage.networks import Actor
+from core.sage.world_model import EnsembleWorldModel
+
+OBS_DIM, ACT_DIM = 58, 2
+TARGET_MS = 0.5
+
+
+class LoopGate:
+    """The gate's fear and curiosity with one matrix product per member and layer (the slow path)."""
+
+    def __init__(self, model: EnsembleWorldModel, actor: Actor, cfg: GateConfig) -> None:
+        fm = model.folded()
+        self.fm, self.actor, self.cfg = fm, actor, cfg
+        self.members = [
+            (
+                [(w[n].contiguous(), b[n, 0].contiguous()) for w, b in fm.hidden],
+                fm.out_weight[n].contiguous(),
+                fm.out_bias[n, 0].contiguous(),
+            )
+            for n in range(fm.members)
+        ]
+        self.divisor = 2.0 * step_scales(fm.sigma_scale, cfg.horizon)[:, 0]
+
+    def member_forward(self, n: int, x: torch.Tensor) -> torch.Tensor:
+        hidden, ow, ob = self.members[n]
+        for w, b in hidden:
+            x = F.silu(torch.addmm(b, x, w))
+        return torch.addmm(ob, x, ow)
+
+    def fear(self, obs: torch.Tensor, action: torch.Tensor) -> float:
+        fm, d = self.fm, self.fm.obs_dim
+        states = [obs for _ in range(fm.members)]
+        actions = [action for _ in range(fm.members)]
+        costs, sigmas = [], []
+        for k in range(self.cfg.horizon):
+            outs = [self.member_forward(n, torch.cat([states[n], actions[n]], -1)) for n in range(fm.members)]
+            states = [states[n] + outs[n][:, :d] for n in range(fm.members)]
+            stacked = torch.stack(states)
+            logvar = torch.stack([o[:, d + 1 : 2 * d + 1] for o in outs])
+            logvar = fm.max_logvar[0] - F.softplus(fm.max_logvar[0] - logvar)
+            logvar = fm.min_logvar[0] + F.softplus(logvar - fm.min_logvar[0])
+            epistemic = (stacked - stacked.mean(0)).square().mean(0) * fm.inv_delta_var
+            sigma_raw = (epistemic + logvar.exp().mean(0)).sqrt().mean()
+            sigmas.append(torch.tanh(sigma_raw / self.divisor[k]))
+            costs.append(torch.stack([o[0, d] for o in outs]).clamp(0, 1).mean())
+            if k + 1 < self.cfg.horizon:
+                actions = [self.actor.deterministic(s) for s in states]
+        c, s = float(torch.stack(costs).max()), float(torch.stack(sigmas).max())
+        return self.cfg.beta * c + (1 - self.cfg.beta) * s
+
+    def curiosity(self, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor) -> float:
+        d = self.fm.obs_dim
+        x = torch.cat([obs, action], -1)
+        delta = torch.stack([self.member_forward(n, x)[:, :d] for n in range(self.fm.members)]).mean(0)
+        return float(((obs + delta - next_obs) * self.fm.inv_obs_std).norm())
+
+
+def setup() -> tuple[EnsembleWorldModel, Actor, np.ndarray, np.ndarray]:
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    obs = rng.random((2000, OBS_DIM)).astype(np.float32)
+    act = rng.uniform(-1, 1, (2000, ACT_DIM)).astype(np.float32)
+    nxt = (obs + 0.01 * rng.standard_normal(obs.shape)).astype(np.float32)
+    model = EnsembleWorldModel(OBS_DIM, ACT_DIM, WorldModelConfig(max_updates_per_fit=100))
+    model.fit(obs, act, nxt, rng.random(2000).astype(np.float32), rng)
+    actor = Actor(OBS_DIM, ACT_DIM, 128, 2, -torch.ones(ACT_DIM), torch.ones(ACT_DIM))
+    return model, actor, obs, nxt
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--rounds", type=int, default=6)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    model, actor, observations, next_observations = setup()
+    cfg = GateConfig()
+    gate = SageGate(model, actor, cfg)
+    policy = ActorPolicy(actor)
+    loop = LoopGate(model, actor, cfg)
+
+    def batched_step(i: int) -> float:
+        obs = observations[i % len(observations)]
+        action = policy.act(obs, deterministic=True)
+        decision = gate.decide(obs, action)
+        gate.observe(obs, action, next_observations[i % len(observations)])
+        return decision.fear
+
+    def loop_step(i: int) -> float:
+        obs = observations[i % len(observations)]
+        action = policy.act(obs, deterministic=True)
+        with torch.inference_mode():
+            o, a = torch.from_numpy(obs).view(1, -1), torch.from_numpy(action).view(1, -1)
+            value = loop.fear(o, a)
+            loop.curiosity(o, a, torch.from_numpy(next_observations[i % len(observations)]).view(1, -1))
+        return value
+
+    for i in range(20):  # same numbers, and warm caches
+        assert abs(batched_step(i) - loop_step(i)) < 1e-4
+    names = ("batched (SageGate)", "loop over members")
+    wall: dict[str, list[float]] = {name: [] for name in names}
+    cpu: dict[str, list[float]] = {name: [] for name in names}
+    per_round = max(1, args.steps // args.rounds)
+    for r in range(args.rounds):
+        for name, fn in zip(names, (batched_step, loop_step), strict=True):
+            for i in range(r * per_round, (r + 1) * per_round):
+                start, start_cpu = time.perf_counter(), time.thread_time()
+                fn(i)
+                cpu[name].append(time.thread_time() - start_cpu)
+                wall[name].append(time.perf_counter() - start)
+    print(
+        f"gate step = policy + m={cfg.horizon} rollout of N={model.members} members + curiosity + threshold, "
+        f"one thread, {len(wall[names[0]])} steps each (ms; CPU = this thread's CPU time, wall = elapsed)"
+    )
+    for name in names:
+        print(
+            f"  {name:20s} CPU median {statistics.median(cpu[name]) * 1e3:.3f}   "
+            f"wall median {statistics.median(wall[name]) * 1e3:.3f}   wall p90 {np.quantile(wall[name], 0.9) * 1e3:.3f}"
+        )
+    batched_cpu, batched_wall = statistics.median(cpu[names[0]]) * 1e3, statistics.median(wall[names[0]]) * 1e3
+    print(f"loop / batched (CPU medians): {statistics.median(cpu[names[1]]) / statistics.median(cpu[names[0]]):.2f}x")
+    verdict = "OK" if batched_cpu <= TARGET_MS else "ABOVE TARGET"
+    print(
+        f"target: median <= {TARGET_MS} ms on one core: CPU {batched_cpu:.3f} ms {verdict}; wall {batched_wall:.3f} ms"
+    )
+    load = os.getloadavg()
+    print(
+        f"load average while measuring: {', '.join(f'{x:.2f}' for x in load)} on {os.cpu_count()} cores"
+        + ("  (busy machine: wall times include waiting for a core)" if load[0] > (os.cpu_count() or 1) * 0.75 else "")
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,145 @@
+"""Fear, curiosity and threshold: the fast gate path equals the reference, fear reads UGV danger, τ moves
+against curiosity."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+import torch
+
+from core.sage.config import GateConfig, WorldModelConfig
+from core.sage.fear import CuriosityThreshold, GateKernel, calibrate, fear, rollout
+from core.sage.networks import Actor
+from core.sage.world_model import EnsembleWorldModel
+
+torch.set_num_threads(1)
+
+
+def random_model(obs_dim: int = 6, act_dim: int = 2, seed: int = 0) -> tuple[EnsembleWorldModel, Actor]:
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    model = EnsembleWorldModel(obs_dim, act_dim, WorldModelConfig(hidden=32, max_updates_per_fit=50))
+    s = rng.normal(size=(300, obs_dim)).astype(np.float32)
+    a = rng.uniform(-1, 1, (300, act_dim)).astype(np.float32)
+    model.fit(s, a, s + 0.1 * rng.normal(size=s.shape).astype(np.float32), rng.random(300).astype(np.float32), rng)
+    actor = Actor(obs_dim, act_dim, 32, 2, -torch.ones(act_dim) * 2, torch.ones(act_dim) * 2)  # scaled actions
+    calibrate(model, actor.deterministic, torch.as_tensor(s), 5)
+    return model, actor
+
+
+@pytest.mark.parametrize("aggregate", ["max", "discounted_mean"])
+def test_gate_kernel_equals_the_reference_fear(aggregate: str) -> None:
+    model, actor = random_model()
+    cfg = GateConfig(aggregate=aggregate, beta=0.3)
+    kernel = GateKernel(model.folded(), actor.deterministic_layers(), actor.action_scale, actor.action_bias, cfg)
+    for seed in range(5):
+        g = torch.Generator().manual_seed(seed)
+        obs, action = torch.randn(1, 6, generator=g), torch.rand(1, 2, generator=g) * 4 - 2
+        with torch.inference_mode():
+            value, cost, sigma = kernel(obs, action)
+            reference = fear(model.folded(), actor.deterministic, obs, action, cfg)
+        assert value == pytest.approx(float(reference.fear), abs=1e-5)
+        assert cost == pytest.approx(float(reference.cost), abs=1e-5)
+        assert sigma == pytest.approx(float(reference.sigma), abs=1e-5)
+        nxt = obs + 0.1
+        with torch.inference_mode():
+            c_fast = kernel.curiosity(obs, action, nxt)
+        with torch.no_grad():
+            assert c_fast == pytest.approx(float(model.curiosity(obs, action, nxt)), rel=1e-4)
+
+
+def test_kernel_follows_actor_updates_in_place() -> None:
+    model, actor = random_model()
+    cfg = GateConfig()
+    kernel = GateKernel(model.folded(), actor.deterministic_layers(), actor.action_scale, actor.action_bias, cfg)
+    obs, action = torch.randn(1, 6), torch.zeros(1, 2)
+    with torch.no_grad():
+        for p in actor.parameters():
+            p.add_(0.5)
+    with torch.inference_mode():
+        assert kernel(obs, action)[0] == pytest.approx(
+            float(fear(model.folded(), actor.deterministic, obs, action, cfg).fear), abs=1e-5
+        )
+
+
+def test_fear_is_bounded_and_differentiable_wrt_the_action_only() -> None:
+    model, actor = random_model()
+    obs = torch.randn(16, 6)
+    action = torch.zeros(16, 2, requires_grad=True)
+    terms = fear(model.folded(), actor.deterministic, obs, action, GateConfig())
+    assert bool(((terms.fear >= 0) & (terms.fear <= 1)).all())
+    terms.fear.sum().backward()
+    assert action.grad is not None and float(action.grad.abs().sum()) > 0
+    assert all(p.grad is None for p in model.parameters())
+
+
+def test_multi_step_disagreement_grows_along_the_rollout() -> None:
+    model, actor = random_model()
+    with torch.no_grad():
+        ro = rollout(model.folded(), actor.deterministic, torch.randn(64, 6), torch.zeros(64, 2), 5)
+    divergence = (ro.states - ro.states.mean(1, keepdim=True)).pow(2).mean(dim=(1, 2, 3))
+    assert float(divergence[0]) < 1e-12 and bool((divergence[1:].diff() > 0).all())
+
+
+def test_threshold_falls_as_curiosity_rises() -> None:
+    cfg = GateConfig(tau_min=0.2, tau_max=0.8, curiosity_ema=0.0)  # a frozen average isolates ρ
+    threshold = CuriosityThreshold(cfg, reference=1.0)
+    taus = [threshold.update(c) for c in (0.0, 0.5, 1.0, 2.0, 10.0, 1e6)]
+    assert taus[0] == pytest.approx(0.8) and taus[2] == pytest.approx(0.5)
+    assert all(a > b for a, b in itertools.pairwise(taus))
+    assert taus[-1] == pytest.approx(0.2, abs=1e-4) and min(taus) >= 0.2
+
+
+def test_curiosity_average_adapts_and_curiosity_can_be_switched_off() -> None:
+    cfg = GateConfig(tau_min=0.2, tau_max=0.8, curiosity_ema=0.2)
+    threshold = CuriosityThreshold(cfg, reference=1.0)
+    first = threshold.update(4.0)
+    for _ in range(50):
+        last = threshold.update(4.0)  # sustained novelty becomes the new normal
+    assert first < 0.4 and last == pytest.approx(0.5, abs=0.01)
+    fixed = CuriosityThreshold(dataclasses.replace(cfg, use_curiosity=False), reference=1.0)
+    assert fixed.update(100.0) == fixed.update(0.0) == pytest.approx(0.5)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_fear_is_higher_facing_a_near_obstacle_than_in_open_space() -> None:
+    sims = pytest.importorskip("sims")
+    from core.loop import Runner
+    from core.protocol import simulator
+    from core.replay import ReplayBuffer
+
+    class NoisyExpert:  # the expert with random actions mixed in: near misses as well as clean driving
+        def __init__(self, env, rng) -> None:  # type: ignore[no-untyped-def]
+            self.env, self.rng = env, rng
+
+        def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+            if self.rng.random() < 0.3:
+                return self.rng.uniform(-1, 1, 2).astype(np.float32)
+            return np.asarray(simulator(self.env).expert_action(), np.float32)
+
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    buffer = ReplayBuffer(58, 2, 10_000)
+    env = sims.make("ugv", scenario=1)
+    runner = Runner(env, NoisyExpert(env, rng), seed=0)
+    runner.step_listeners.append(buffer.add_record)
+    while len(buffer) < 2500:
+        runner.run_episode()
+    data = buffer.arrays()
+    model = EnsembleWorldModel(58, 2, WorldModelConfig(max_updates_per_fit=800))
+    model.fit(data["obs"], data["action"], data["next_obs"], data["cost"], rng)
+    forward = torch.tensor([[1.0, 0.0]])
+    obs = torch.as_tensor(data["obs"])
+    calibrate(model, lambda o: forward.expand(o.shape[0], 2), obs[:1000], 5)
+    front = obs[:, 18:36].min(1).values * 10.0  # the ±45° sectors, metres
+    near, open_space = obs[front < 0.7], obs[front > 3.0]
+    assert len(near) > 20 and len(open_space) > 20
+    with torch.no_grad():
+        policy = lambda o: forward.expand(o.shape[0], 2)  # noqa: E731
+        f_near = fear(model.folded(), policy, near, forward.expand(len(near), 2), GateConfig())
+        f_open = fear(model.folded(), policy, open_space, forward.expand(len(open_space), 2), GateConfig())
+    assert float(f_near.fear.mean()) > float(f_open.fear.mean()) + 0.1
+    assert float(f_near.cost.mean()) > 0.5 > 0.1 > float(f_open.cost.mean())

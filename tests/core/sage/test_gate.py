@@ -1,0 +1,133 @@
+"""The SAGE gate: fires when fear exceeds the threshold, holds the expert for k steps, works in the loop."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from core.experts import ScriptedExpert
+from core.loop import Runner, StepRecord
+from core.sage.config import GateConfig, WorldModelConfig
+from core.sage.gate import AlwaysGate, SageGate
+from core.sage.networks import Actor
+from core.sage.world_model import EnsembleWorldModel
+from tests.core.sage.envs import make
+
+torch.set_num_threads(1)
+
+
+class ScriptedFear:
+    """Stands in for the gate's kernel: returns the given fear values in turn."""
+
+    def __init__(self, values: list[float]) -> None:
+        self.values = list(values)
+
+    def __call__(self, obs: torch.Tensor, action: torch.Tensor) -> tuple[float, float, float]:
+        value = self.values.pop(0)
+        return value, value, 0.0
+
+    def curiosity(
+        self, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor, reuse_first_step: bool = False
+    ) -> float:
+        return 1.0
+
+
+def fitted_gate(k: int, fears: list[float]) -> SageGate:
+    rng = np.random.default_rng(0)
+    model = EnsembleWorldModel(3, 2, WorldModelConfig(hidden=16, max_updates_per_fit=5))
+    s = rng.normal(size=(50, 3)).astype(np.float32)
+    model.fit(s, rng.normal(size=(50, 2)).astype(np.float32), s, np.zeros(50, np.float32), rng)
+    gate = SageGate(model, Actor(3, 2, 16, 1, -torch.ones(2), torch.ones(2)), GateConfig(hold_steps=k))
+    gate.kernel = lambda: fake  # type: ignore[method-assign]
+    fake = ScriptedFear(fears)
+    gate.threshold.threshold = 0.5
+    gate.threshold.update = lambda c: 0.5  # type: ignore[method-assign]
+    return gate
+
+
+def decisions(gate: SageGate, n: int) -> list[bool]:
+    obs, action = np.zeros(3, np.float32), np.zeros(2, np.float32)
+    return [gate.decide(obs, action).fired for _ in range(n)]
+
+
+def test_gate_holds_the_expert_for_k_steps() -> None:
+    gate = fitted_gate(3, [0.9] + [0.1] * 6)
+    assert decisions(gate, 7) == [True, True, True, False, False, False, False]
+
+
+def test_a_new_firing_during_the_hold_restarts_it_and_reset_clears_it() -> None:
+    gate = fitted_gate(3, [0.9, 0.1, 0.9, 0.1, 0.1, 0.1, 0.1, 0.9, 0.1])
+    assert decisions(gate, 6) == [True, True, True, True, True, False]
+    gate.reset()
+    assert decisions(gate, 3) == [False, True, True]  # the hold starts again only on a firing
+
+
+def test_decision_reports_fear_and_threshold() -> None:
+    gate = fitted_gate(1, [0.7, 0.2])
+    first = gate.decide(np.zeros(3, np.float32), np.zeros(2, np.float32))
+    second = gate.decide(np.zeros(3, np.float32), np.zeros(2, np.float32))
+    assert (first.fear, first.threshold, first.fired) == (0.7, 0.5, True)
+    assert (second.fear, second.fired) == (0.2, False)
+    assert gate.detail.cost == 0.2 and gate.detail.hold_remaining == 0
+
+
+def test_an_unfitted_model_never_fires() -> None:
+    model = EnsembleWorldModel(3, 2, WorldModelConfig(hidden=16))
+    gate = SageGate(model, Actor(3, 2, 16, 1, -torch.ones(2), torch.ones(2)))
+    decision = gate.decide(np.zeros(3, np.float32), np.zeros(2, np.float32))
+    assert math.isnan(decision.fear) and not decision.fired
+    assert math.isnan(gate.observe(np.zeros(3, np.float32), np.zeros(2, np.float32), np.zeros(3, np.float32)))
+
+
+def test_surprising_transitions_lower_the_threshold() -> None:
+    rng = np.random.default_rng(0)
+    model = EnsembleWorldModel(3, 2, WorldModelConfig(hidden=16, max_updates_per_fit=200))
+    s = rng.normal(size=(400, 3)).astype(np.float32)
+    a = rng.uniform(-1, 1, (400, 2)).astype(np.float32)
+    model.fit(s, a, s + 0.1 * a.sum(1, keepdims=True), np.zeros(400, np.float32), rng)
+    gate = SageGate(model, Actor(3, 2, 16, 1, -torch.ones(2), torch.ones(2)), GateConfig(tau_min=0.2, tau_max=0.8))
+    obs, action = s[0], a[0]
+    gate.observe(obs, action, obs + 0.1 * action.sum())
+    familiar = gate.threshold.threshold
+    gate.observe(obs, action, obs + 5.0)
+    surprised = gate.threshold.threshold
+    assert surprised < familiar and 0.2 <= surprised < 0.35
+
+
+def test_in_the_loop_takeovers_come_in_segments_of_at_least_k_steps() -> None:
+    env = make("static")
+    gate = fitted_gate(4, [0.9 if i % 9 == 0 else 0.1 for i in range(200)])
+    runner = Runner(env, _Forward(), gate, ScriptedExpert(), seed=0)
+    records: list[StepRecord] = []
+    runner.step_listeners.append(records.append)
+    runner.run_episode()
+    flags = [r.takeover for r in records]
+    segments, run = [], 0
+    for flag in [*flags, False]:
+        if flag:
+            run += 1
+        elif run:
+            segments.append(run)
+            run = 0
+    assert segments and all(n >= 4 for n in segments[:-1])
+    takeover = [r for r in records if r.takeover]
+    assert all(r.a_expert is not None and r.actor == "expert" for r in takeover)
+    assert all(np.array_equal(r.action, r.a_expert) for r in takeover)
+
+
+def test_always_gate_fires() -> None:
+    gate = AlwaysGate()
+    assert gate.decide(np.zeros(2), np.zeros(2)).fired
+
+
+class _Forward:
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        return np.array([1.0, 0.0], np.float32)
+
+
+@pytest.fixture(autouse=True)
+def _threads() -> None:
+    torch.set_num_threads(1)

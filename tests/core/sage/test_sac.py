@@ -1,0 +1,200 @@
+"""The fear-regularised SAC: penalty c*, dual λ, bounded ω, the fear gradient, and the baselines' updates."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from core.sage import make_learner
+from core.sage.config import for_method
+from core.sage.hg_dagger import HGDAgger
+from core.sage.sac import SAC, advantage_weights, penalty_c_star, penalty_condition_holds
+from core.sage.td3 import TD3
+
+torch.set_num_threads(1)
+OBS, ACT = 6, 2
+
+
+def filled(method: str, n: int = 600, seed: int = 0, **overrides: object) -> SAC | TD3 | HGDAgger:
+    """A learner whose buffer holds random transitions (every 5th an expert takeover) and, when it has a
+    world model, a fitted one."""
+    cfg = for_method(method, hidden=32, batch_size=64, bc_batch_size=32, **overrides)
+    cfg.world_model_config.hidden = 32
+    cfg.world_model_config.max_updates_per_fit = 100
+    learner = make_learner(cfg, OBS, ACT, seed=seed)
+    rng = np.random.default_rng(seed)
+    s = rng.normal(size=(n + 1, OBS)).astype(np.float32)
+    for i in range(n):
+        a = rng.uniform(-1, 1, ACT).astype(np.float32)
+        expert = np.clip(-s[i, :ACT], -1, 1).astype(np.float32)
+        takeover = i % 5 == 0
+        learner.buffer.add(
+            s[i],
+            expert if takeover else a,
+            float(-np.abs(s[i]).sum()),
+            s[i + 1],
+            False,
+            cost=float(rng.random()),
+            violation=bool(i % 50 == 7),
+            takeover=takeover,
+            a_rl=a,
+            a_expert=expert if takeover else None,
+        )
+    learner.warm = True
+    if learner.world_model is not None:
+        learner.fit_world_model()
+    return learner
+
+
+# -- c* -------------------------------------------------------------------------------------------
+def test_c_star_satisfies_the_papers_inequality_for_random_bounds() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        low, high = sorted(rng.uniform(-100, 100, 2))
+        gamma, horizon, lam = rng.uniform(0.8, 0.999), int(rng.integers(1, 50)), rng.uniform(0, 50)
+        c = penalty_c_star(low, high, gamma, horizon, lam)
+        assert math.isfinite(c) and c >= 0
+        assert penalty_condition_holds(c, low, high, gamma, horizon, lam)
+
+
+def test_the_papers_formula_alone_can_break_the_inequality_and_ours_does_not() -> None:
+    low, high, gamma, horizon, lam = 0.5, 1.0, 0.99, 10, 0.0  # all-positive rewards, narrow range
+    gh = gamma**horizon
+    paper = (high - low) / (gh * (1 - gamma)) + lam / gh - high / (1 - gamma)
+    assert not penalty_condition_holds(paper, low, high, gamma, horizon, lam)
+    assert penalty_condition_holds(penalty_c_star(low, high, gamma, horizon, lam), low, high, gamma, horizon, lam)
+    # where eq:penalty is sufficient (UGV-like bounds) it is what we use
+    assert penalty_c_star(-1.0, 1.5, 0.99, 10, 2.0) == pytest.approx(2.5 / (gamma**10 * 0.01) + 2.0 / gamma**10 - 150.0)
+
+
+def test_a_violation_gets_the_terminal_target_minus_c_star() -> None:
+    learner = filled("sage")
+    batch = learner.buffer.sample(64, np.random.default_rng(1))
+    batch.violation[:] = 0
+    batch.violation[:5] = 1
+    y = learner.critic_target_values(batch)
+    assert torch.allclose(y[:5], torch.full((5,), -learner.c_star()))
+    assert bool((y[5:] != -learner.c_star()).all())
+    low, high = learner.reward_bounds()
+    assert penalty_condition_holds(
+        learner.c_star(), low, high, learner.cfg.gamma, learner.cfg.safety_horizon, learner.lam
+    )
+
+
+# -- λ --------------------------------------------------------------------------------------------
+def test_lambda_rises_while_fear_exceeds_the_budget_and_never_goes_negative() -> None:
+    learner = filled("sage", fear_budget=0.0, lambda_init=0.5, lambda_lr=0.05)
+    lams = [learner.lam]
+    for _ in range(10):
+        lams.append(learner.update()["lam"])
+    assert all(b > a for a, b in itertools.pairwise(lams))
+    learner.cfg.fear_budget = 1.0  # fear is always below: λ falls, and stops at 0
+    for _ in range(200):
+        lams.append(learner.update()["lam"])
+        assert lams[-1] >= 0.0
+    assert lams[-1] == 0.0 and min(lams) == 0.0
+
+
+# -- ω ----------------------------------------------------------------------------------------------
+def test_omega_is_larger_when_the_expert_action_has_the_higher_value() -> None:
+    q_agent = torch.tensor([10.0, 10.0, 10.0])
+    q_expert = torch.tensor([15.0, 10.0, 5.0])
+    omega = advantage_weights(q_expert, q_agent, q_scale=10.0, temperature=0.5, clip=3.0)
+    assert float(omega[0]) > float(omega[1]) > float(omega[2])
+    assert float(omega[1]) == pytest.approx(1.0)
+
+
+def test_omega_stays_finite_and_bounded_for_huge_value_gaps() -> None:
+    q_agent = torch.tensor([0.0, 0.0, 1e30, -1e30])
+    q_expert = torch.tensor([1e30, -1e30, 0.0, 1e30])
+    omega = advantage_weights(q_expert, q_agent, q_scale=1.0, temperature=0.1, clip=3.0)
+    assert bool(torch.isfinite(omega).all())
+    assert float(omega.max()) == pytest.approx(math.exp(3.0)) and float(omega.min()) == pytest.approx(math.exp(-3.0))
+
+
+def test_imitation_pulls_the_policy_to_the_expert_where_the_expert_is_better() -> None:
+    learner = filled("sage")
+    imitation = learner.buffer.sample_takeovers(64, np.random.default_rng(2))
+    assert imitation is not None
+    batch = learner.buffer.sample(64, np.random.default_rng(3))
+    _, _, stats = learner.actor_loss(batch, imitation)
+    assert stats["bc_loss"] > 0 and math.isfinite(stats["omega_mean"])
+    before = (learner.actor.deterministic(imitation.obs) - imitation.a_expert).pow(2).sum(-1).mean().item()
+    learner.cfg.bc_weight = 50.0
+    for _ in range(250):
+        learner.actor_step(batch)
+    after = (learner.actor.deterministic(imitation.obs) - imitation.a_expert).pow(2).sum(-1).mean().item()
+    assert after < 0.5 * before
+
+
+# -- the fear gradient -------------------------------------------------------------------------------
+def actor_grads(learner: SAC, lam: float) -> tuple[list[torch.Tensor], float]:
+    learner.lam = lam
+    batch = learner.buffer.sample(64, np.random.default_rng(5))
+    torch.manual_seed(7)  # the same action samples for both λ
+    loss, _, stats = learner.actor_loss(batch, None)
+    learner.actor.zero_grad(set_to_none=True)
+    loss.backward()
+    return [p.grad.clone() for p in learner.actor.parameters()], stats.get("fear_real", math.nan)
+
+
+def test_the_actor_gradient_carries_the_fear_term_through_the_frozen_world_model() -> None:
+    learner = filled("sage", imitation=False)
+    assert learner.world_model is not None
+    before = {k: v.clone() for k, v in learner.world_model.state_dict().items()}
+    g0, _ = actor_grads(learner, 0.0)
+    g1, fear_value = actor_grads(learner, 5.0)
+    assert math.isfinite(fear_value)
+    difference = sum(float((a - b).abs().sum()) for a, b in zip(g0, g1, strict=True))
+    assert difference > 1e-3
+    assert all(p.grad is None for p in learner.world_model.parameters())
+    for _ in range(5):
+        learner.update()
+    for key, value in learner.world_model.state_dict().items():
+        assert torch.equal(value, before[key]), key
+
+
+def test_plain_sac_has_no_fear_and_no_model() -> None:
+    learner = filled("sac")
+    stats = learner.update()
+    assert learner.world_model is None and "fear_real" not in stats and "bc_loss" not in stats
+    assert not learner.fear_active()
+
+
+def test_fni_rl_has_fear_without_takeover_or_imitation() -> None:
+    learner = filled("fni-rl")
+    stats = learner.update()
+    assert "fear_real" in stats and "bc_loss" not in stats and not learner.cfg.takeover
+
+
+def test_actor_batches_mix_real_and_virtual_states() -> None:
+    learner = filled("sage")
+    assert learner.virtual is not None and len(learner.virtual) > 0
+    batch = learner.buffer.sample(64, np.random.default_rng(0))
+    states, n_real = learner.actor_states(batch)
+    assert len(states) == 64 and n_real == 64 - round(64 * learner.cfg.virtual_ratio)
+    assert torch.equal(states[:n_real], batch.obs[:n_real])
+
+
+# -- baselines -----------------------------------------------------------------------------------------
+def test_td3_updates_critic_every_step_and_actor_every_other() -> None:
+    learner = filled("td3")
+    first = learner.update()
+    learner.updates = 1  # the learner counts updates in observe(); odd counts skip the actor
+    second = learner.update()
+    assert "actor_loss" in first and "critic_loss" in second and "actor_loss" not in second
+    noisy = [learner.act(np.zeros(OBS, np.float32)) for _ in range(5)]
+    assert len({tuple(a) for a in noisy}) > 1  # exploration noise
+    assert all(np.all(np.abs(a) <= 1.0) for a in noisy)
+
+
+def test_hg_dagger_regresses_onto_the_aggregated_expert_labels() -> None:
+    learner = filled("hg-dagger")
+    losses = [learner.update()["bc_loss"] for _ in range(150)]
+    assert np.mean(losses[-10:]) < 0.5 * np.mean(losses[:10])
+    obs = np.zeros(OBS, np.float32)
+    assert np.array_equal(learner.act(obs), learner.act(obs))  # deterministic, no exploration noise

@@ -1,0 +1,100 @@
+"""The ensemble world model learns a known system and knows where it has not been trained."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from core.sage.config import GateConfig, WorldModelConfig
+from core.sage.fear import rollout
+from core.sage.world_model import EnsembleWorldModel
+
+torch.set_num_threads(1)
+
+OBS, ACT = 4, 2
+A = np.array([[0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.5, 0.0], [0.0, 0.0, 0.0, 1.0], [0.3, 0.0, -1.0, 0.0]])
+B = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
+NOISE = 0.01
+
+
+def known_system(n: int, rng: np.random.Generator, low: float = -1.0, high: float = 1.0):
+    """s' = s + 0.1 tanh(A s) + 0.2 B a + noise; cost = clip(s_0, 0, 1)."""
+    s = rng.uniform(low, high, (n, OBS)).astype(np.float32)
+    a = rng.uniform(-1, 1, (n, ACT)).astype(np.float32)
+    nxt = s + 0.1 * np.tanh(s @ A.T) + 0.2 * a @ B.T + NOISE * rng.standard_normal((n, OBS))
+    cost = np.clip(s[:, 0], 0.0, 1.0)
+    return s, a, nxt.astype(np.float32), cost.astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def trained() -> tuple[EnsembleWorldModel, object]:
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_epochs=80, max_updates_per_fit=2500, patience=8))
+    report = model.fit(*known_system(3000, rng), rng)
+    return model, report
+
+
+def test_heldout_nll_falls_and_error_is_small(trained) -> None:
+    model, report = trained
+    assert report.holdout_nll < report.holdout_nll_before - 1.0
+    assert report.holdout_history[-1] < report.holdout_history[0]
+    rng = np.random.default_rng(1)
+    s, a, nxt, cost = known_system(1000, rng)
+    with torch.no_grad():
+        mean, _ = model.predict(torch.as_tensor(s), torch.as_tensor(a))
+    predicted = s + mean[..., :OBS].mean(0).numpy()
+    rmse = float(np.sqrt(((predicted - nxt) ** 2).mean()))
+    assert rmse < 3 * NOISE  # the signal (Δs) has std ~0.1: only the noise is left
+    assert float(np.abs(mean[..., OBS].mean(0).numpy() - cost).mean()) < 0.05
+
+
+def test_spread_is_larger_off_the_training_distribution(trained) -> None:
+    model, _ = trained
+    rng = np.random.default_rng(2)
+    on, a_on, _, _ = known_system(500, rng)
+    off, a_off, _, _ = known_system(500, rng, low=3.0, high=5.0)
+    with torch.no_grad():
+        sigma_on = model.predictive_std(torch.as_tensor(on), torch.as_tensor(a_on))
+        sigma_off = model.predictive_std(torch.as_tensor(off), torch.as_tensor(a_off))
+        mean_off, _ = model.predict(torch.as_tensor(off), torch.as_tensor(a_off))
+        mean_on, _ = model.predict(torch.as_tensor(on), torch.as_tensor(a_on))
+    assert float(sigma_off.mean()) > 3 * float(sigma_on.mean())
+    # the members disagree off-distribution: the epistemic part, not just their own variances
+    assert float(mean_off.std(0).mean()) > 5 * float(mean_on.std(0).mean())
+
+
+def test_folded_weights_give_the_same_predictions(trained) -> None:
+    model, _ = trained
+    rng = np.random.default_rng(3)
+    s, a, _, _ = known_system(64, rng)
+    obs, act = torch.as_tensor(s), torch.as_tensor(a)
+    with torch.no_grad():
+        mean, _ = model.predict(obs, act)
+        ro = rollout(model.folded(), lambda x: torch.zeros(x.shape[0], ACT), obs, act, 1)
+        sigma = model.predictive_std(obs, act)
+    torch.testing.assert_close(ro.states[1], obs + mean[..., :OBS], atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(ro.cost[0], mean[..., OBS].clamp(0, 1), atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(ro.sigma_raw[0], sigma, atol=1e-5, rtol=1e-4)
+
+
+def test_normalisers_are_frozen_after_the_first_fit_and_refits_keep_improving() -> None:
+    rng = np.random.default_rng(4)
+    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=300))
+    model.fit(*known_system(500, rng), rng)
+    in_mean, version = model.in_mean.clone(), model.version
+    report = model.fit(*known_system(500, rng, low=-2.0, high=2.0), rng)
+    assert torch.equal(model.in_mean, in_mean)
+    assert model.version > version  # cached inference weights are invalidated
+    assert report.holdout_nll <= report.holdout_nll_before
+
+
+def test_fit_refuses_too_little_data() -> None:
+    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig())
+    with pytest.raises(ValueError, match="at least 10"):
+        model.fit(*known_system(5, np.random.default_rng(0)), np.random.default_rng(0))
+
+
+def test_gate_config_default_horizon_matches_the_brief() -> None:
+    assert GateConfig().horizon == 5 and WorldModelConfig().members == 5

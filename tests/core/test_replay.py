@@ -1,0 +1,97 @@
+"""Replay buffers: the real buffer keeps Ξ and both actions; rings wrap; virtual transitions are sampled."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.loop import StepRecord
+from core.replay import ReplayBuffer, VirtualBuffer
+
+
+def record(i: int, takeover: bool, violation: bool = False, terminated: bool = False) -> StepRecord:
+    obs = np.full(3, i, np.float32)
+    a_rl = np.array([0.1 * i, 0.0], np.float32)
+    a_expert = np.array([-1.0, 1.0], np.float32) if takeover else None
+    return StepRecord(
+        episode=0,
+        t=i,
+        obs=obs,
+        a_rl=a_rl,
+        a_expert=a_expert,
+        action=a_expert if takeover else a_rl,
+        takeover=takeover,
+        gate_fired=takeover,
+        actor="expert" if takeover else "agent",
+        fear=0.1,
+        threshold=0.5,
+        curiosity=0.2,
+        reward=float(i),
+        cost=0.25,
+        violation=violation,
+        terminated=terminated,
+        truncated=False,
+        next_obs=obs + 1,
+        wall_time=0.0,
+    )
+
+
+def test_records_keep_takeover_flag_and_both_actions() -> None:
+    buffer = ReplayBuffer(3, 2, 10)
+    for i in range(6):
+        buffer.add_record(record(i, takeover=i % 3 == 0))
+    assert len(buffer) == 6 and buffer.takeover_count() == 2
+    batch = buffer.sample_takeovers(16, np.random.default_rng(0))
+    assert batch is not None and bool((batch.takeover == 1).all())
+    assert np.allclose(batch.a_expert.numpy(), [-1.0, 1.0])
+    assert np.allclose(batch.action.numpy(), batch.a_expert.numpy())
+    assert all(np.isclose(x, 0.0) or np.isclose(x, 0.3) for x in batch.a_rl[:, 0].numpy())  # rows 0 and 3
+    assert np.allclose(batch.next_obs.numpy(), batch.obs.numpy() + 1)
+
+
+def test_no_takeovers_means_no_imitation_batch() -> None:
+    buffer = ReplayBuffer(3, 2, 10)
+    buffer.add_record(record(0, takeover=False))
+    assert buffer.sample_takeovers(4, np.random.default_rng(0)) is None
+
+
+def test_violation_is_terminal_for_learning_and_counts_as_full_cost() -> None:
+    buffer = ReplayBuffer(3, 2, 10)
+    buffer.add_record(record(0, takeover=False, violation=True))
+    buffer.add_record(record(1, takeover=False))
+    assert buffer.terminated[0] == 1.0 and buffer.terminated[1] == 0.0
+    assert buffer.arrays()["cost"].tolist() == [1.0, 0.25]
+
+
+def test_ring_wraps_and_keeps_the_latest() -> None:
+    buffer = ReplayBuffer(3, 2, 4)
+    for i in range(10):
+        buffer.add_record(record(i, takeover=False, terminated=i == 9))
+    assert len(buffer) == 4 and buffer.total == 10
+    assert sorted(buffer.obs[:, 0].tolist()) == [6.0, 7.0, 8.0, 9.0]
+    assert buffer.reward_bounds() == (6.0, 8.0)  # the terminal row's reward is not a per-step rate
+
+
+def test_bad_input_is_refused_clearly() -> None:
+    buffer = ReplayBuffer(3, 2, 4)
+    with pytest.raises(ValueError, match="3"):
+        buffer.add(np.zeros(5), np.zeros(2), 0.0, np.zeros(5), False)
+    with pytest.raises(ValueError, match="empty"):
+        buffer.sample(2, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="capacity"):
+        ReplayBuffer(3, 2, 0)
+
+
+def test_virtual_buffer_wraps_and_samples_states() -> None:
+    virtual = VirtualBuffer(3, 2, 5)
+    with pytest.raises(ValueError, match="empty"):
+        virtual.sample_obs(1, np.random.default_rng(0))
+    for start in (0, 4):
+        obs = np.arange(start, start + 4, dtype=np.float32)[:, None].repeat(3, 1)
+        virtual.add_batch(obs, np.zeros((4, 2)), obs + 1, np.zeros(4))
+    assert len(virtual) == 5
+    assert sorted(virtual.obs[:, 0].tolist()) == [3.0, 4.0, 5.0, 6.0, 7.0]
+    assert set(virtual.sample_obs(50, np.random.default_rng(0))[:, 0].tolist()) <= {3.0, 4.0, 5.0, 6.0, 7.0}
+    big = np.arange(12, dtype=np.float32)[:, None].repeat(3, 1)
+    virtual.add_batch(big, np.zeros((12, 2)), big, np.zeros(12))
+    assert sorted(virtual.obs[:, 0].tolist()) == [7.0, 8.0, 9.0, 10.0, 11.0]

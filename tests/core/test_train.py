@@ -1,0 +1,228 @@
+"""Headless training on the one step loop: run folders, checkpoints, agent loading, the CLI, and learning."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from core.agents import NoWorldModelError, list_checkpoints, load_agent, resolve_checkpoint
+from core.sage.config import AgentConfig, for_method
+from core.train import RunConfig, Trainer, evaluate, returns_to_go, train
+from tests.core.sage import envs
+
+torch.set_num_threads(1)
+
+
+def small(method: str, **overrides: Any) -> AgentConfig:
+    """Small networks and early starts, so that a test run takes seconds."""
+    settings: dict[str, Any] = dict(
+        hidden=32,
+        batch_size=32,
+        bc_batch_size=32,
+        learning_starts=60,
+        wm_min_samples=80,
+        wm_fit_every=150,
+        virtual_every=50,
+        virtual_starts=32,
+        pretrain_bc_steps=200,
+        pretrain_critic_steps=100,
+    )
+    settings.update(overrides)
+    cfg = for_method(method, **settings)
+    cfg.world_model_config.hidden = 16
+    cfg.world_model_config.max_updates_per_fit = 150
+    return cfg
+
+
+def point_env(scenario: str) -> Any:
+    return envs.make(scenario)
+
+
+@pytest.fixture(scope="module")
+def sage_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Any]:
+    out = tmp_path_factory.mktemp("runs") / "sage-point"
+    run = RunConfig(
+        sim="point", scenarios=["static", "dynamic"], episodes=6, seed=3, demo_episodes=4, checkpoint_every=3
+    )
+    result = train(run, small("sage"), point_env, out, progress=False)
+    return out, result
+
+
+def test_a_run_folder_holds_config_metrics_and_checkpoints(sage_run) -> None:
+    out, result = sage_run
+    config = json.loads((out / "config.json").read_text())
+    assert set(config) == {"run", "agent", "meta"} and config["agent"]["method"] == "sage"
+    assert config["meta"]["episodes"] == 6 and config["meta"]["has_world_model"]
+    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [r["phase"] for r in rows] == ["demo"] * 4 + ["train"] * 6
+    assert [r["scenario"] for r in rows if r["phase"] == "train"] == ["static", "dynamic"] * 3
+    assert all(r["takeover_rate"] == 1.0 for r in rows[:4])  # demonstrations: the expert drove throughout
+    assert math.isfinite(rows[-1]["mean_fear"]) and "critic_loss" in rows[-1] and "success" in rows[-1]
+    assert [p.name for p in list_checkpoints(out)] == ["episode_00003.pt", "episode_00006.pt"]
+    assert resolve_checkpoint(out) == out / "checkpoint.pt"
+    assert result.learner.buffer.takeover_count() >= sum(r["steps"] for r in rows[:4])
+
+
+def test_loaded_agent_acts_and_gates_like_the_learner(sage_run) -> None:
+    out, result = sage_run
+    learner = result.learner
+    agent = load_agent(out)
+    assert (agent.meta.method, agent.meta.sim, agent.meta.obs_dim, agent.meta.act_dim) == ("sage", "point", 8, 2)
+    assert agent.meta.scenarios == ["static", "dynamic"] and agent.has_world_model
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        obs = rng.normal(size=8).astype(np.float32)
+        np.testing.assert_allclose(
+            agent.policy.act(obs, deterministic=True), learner.act(obs, deterministic=True), atol=1e-6
+        )
+        a = agent.policy.act(obs, deterministic=True)
+        ours, theirs = agent.make_gate().decide(obs, a), learner.make_gate().decide(obs, a)
+        assert ours.fear == pytest.approx(theirs.fear, abs=1e-6)
+    gate = agent.make_gate(hold_steps=9, tau_max=0.9)
+    assert gate.cfg.hold_steps == 9 and gate.cfg.tau_max == 0.9 and agent.config.gate.hold_steps != 9
+    with pytest.raises(ValueError, match="no_such_field"):
+        agent.make_gate(no_such_field=1)
+    with pytest.raises(ValueError, match="tau_min"):
+        agent.make_gate(tau_min=0.9, tau_max=0.1)
+    version = load_agent(list_checkpoints(out)[0])
+    assert version.meta.episodes == 3
+
+
+def test_half_precision_checkpoints_are_smaller_and_act_the_same(sage_run, tmp_path: Path) -> None:
+    from core.agents import meta_of, save_checkpoint
+
+    out, result = sage_run
+    meta = meta_of(torch.load(out / "checkpoint.pt", weights_only=True))
+    half = save_checkpoint(tmp_path / "half.pt", result.learner, meta, dtype="float16")
+    assert half.stat().st_size < 0.7 * (out / "checkpoint.pt").stat().st_size
+    full, small_agent = load_agent(out), load_agent(half)
+    obs = np.linspace(-1, 1, 8).astype(np.float32)
+    np.testing.assert_allclose(small_agent.policy.act(obs, True), full.policy.act(obs, True), atol=2e-2)
+
+
+def test_warm_start_takes_the_parts_that_fit(sage_run) -> None:
+    out, _ = sage_run
+    run = RunConfig(sim="point", scenarios=["dynamic"], episodes=0, init=str(out))
+    trainer = Trainer(run, small("sac"), point_env, None, progress=False)
+    assert {"actor", "critic", "critic_target"} <= set(trainer.init_parts) and trainer.learner.warm
+    trainer = Trainer(run, small("hg-dagger"), point_env, None, progress=False)
+    assert {"actor", "world_model"} <= set(trainer.init_parts)
+
+
+def test_bad_paths_and_runs_without_a_world_model_fail_clearly(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="no run folder"):
+        load_agent(tmp_path / "missing")
+    with pytest.raises(FileNotFoundError, match="not a run folder"):
+        load_agent(tmp_path)
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="not a readable checkpoint"):
+        load_agent(junk)
+    torch.save({"hello": 1}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="not a SAGE checkpoint"):
+        load_agent(tmp_path / "other.pt")
+    out = tmp_path / "sac"
+    train(
+        RunConfig(sim="point", scenarios=["static"], episodes=1, checkpoint_every=0),
+        small("sac"),
+        point_env,
+        out,
+        progress=False,
+    )
+    agent = load_agent(out)
+    assert not agent.has_world_model
+    with pytest.raises(NoWorldModelError, match="no trained world model"):
+        agent.make_gate()
+
+
+def test_evaluation_runs_the_policy_alone_on_fresh_seeds(sage_run) -> None:
+    out, _ = sage_run
+    agent = load_agent(out)
+    results = evaluate(agent.policy, point_env, ["static"], episodes=3, progress=False)
+    rows = results["static"]
+    assert len(rows) == 3 and all(r["takeovers"] == 0 for r in rows) and all(math.isnan(r["mean_fear"]) for r in rows)
+    gated = evaluate(agent.policy, point_env, ["static"], episodes=2, gate_factory=agent.make_gate, progress=False)
+    assert all(math.isfinite(r["mean_fear"]) and r["takeovers"] == 0 for r in gated["static"])
+
+
+def test_returns_to_go_restart_at_episode_ends() -> None:
+    g = returns_to_go(np.array([1.0, 1.0, 1.0, 2.0]), np.array([0, 0, 1, 0.0]), np.array([0, 0, 1, 1], bool), 0.5)
+    np.testing.assert_allclose(g, [1.75, 1.5, 1.0, 2.0])
+
+
+# -- the CLI -------------------------------------------------------------------------------------------
+@pytest.fixture
+def point_sim(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sims
+
+    monkeypatch.setitem(sims.SIMULATORS, "point", ("tests.core.sage.envs", envs.ENV_ID))
+
+
+def test_cli_train_eval_compare(point_sim, tmp_path: Path) -> None:
+    from app.cli import app
+
+    cli = CliRunner()
+    first, second = tmp_path / "a", tmp_path / "b"
+    common = [
+        "train",
+        "--sim",
+        "point",
+        "--scenario",
+        "static",
+        "--episodes",
+        "2",
+        "--quiet",
+        "--set",
+        "hidden=16",
+        "--set",
+        "learning_starts=20",
+        "--set",
+        "batch_size=16",
+    ]
+    result = cli.invoke(app, [*common, "--method", "sac", "--out", str(first)])
+    assert result.exit_code == 0, result.output
+    assert "run folder" in result.output and (first / "checkpoint.pt").is_file()
+    result = cli.invoke(app, [*common, "--method", "td3", "--out", str(second), "--seed", "1"])
+    assert result.exit_code == 0, result.output
+    result = cli.invoke(app, ["eval", str(first), "--episodes", "2", "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "a (point static)" in result.output and "success" in result.output and "return" in result.output
+    result = cli.invoke(
+        app,
+        [
+            "compare",
+            str(first),
+            str(second),
+            "--episodes",
+            "2",
+            "--scenario",
+            "dynamic",
+            "--quiet",
+            "--save",
+            str(tmp_path / "rows.jsonl"),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "a (point dynamic)" in result.output and "b (point dynamic)" in result.output
+    assert len((tmp_path / "rows.jsonl").read_text().splitlines()) == 4
+
+
+def test_cli_refuses_bad_input_by_name(point_sim, tmp_path: Path) -> None:
+    from app.cli import app
+
+    cli = CliRunner()
+    result = cli.invoke(app, ["train", "--sim", "point", "--method", "ppo", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "unknown method" in result.output
+    result = cli.invoke(app, ["train", "--sim", "point", "--set", "gamma=2", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "gamma" in result.output
+    result = cli.invoke(app, ["train", "--sim", "nosuchsim", "--episodes", "1", "--out", str(tmp_path / "y")])
+    assert result.exit_code != 0 and "nosuchsim" in result.output
+    result = cli.invoke(app, ["eval", str(tmp_path / "missing")])
+    assert result.exit_code == 2 and "missing" in result.output
