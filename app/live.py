@@ -30,7 +30,7 @@ from app.input_map import mapping_for
 from app.messages import ExpertMode
 from app.operator import OperatorConsole, PersonExpert
 from app.policies import LoadedPolicy
-from core.loop import EpisodeSummary, Runner, StepRecord
+from core.loop import EpisodeSummary, NoGate, Runner, StepRecord
 from core.protocol import simulator
 from core.sessions import SessionStore, SessionWriter
 
@@ -255,7 +255,7 @@ class LiveLoop:
                 "session": world.session_id,
                 "episode": world.runner.episode,
                 "policy_label": world.loaded.label,
-                "has_gate": type(world.loaded.gate).__name__ != "NoGate",
+                "has_gate": not isinstance(world.loaded.gate, NoGate),
                 "action_dim": int(np.prod(world.env.action_space.shape or (1,))),
                 "operator": self.console.connected,
                 "counters": world.counters.as_dict(),
