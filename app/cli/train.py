@@ -92,7 +92,10 @@ def register(app: typer.Typer) -> None:
         method: Annotated[str, typer.Option(help="sage | sac | td3 | hg-dagger | fni-rl")] = "sage",
         episodes: Annotated[int, typer.Option(help="Training episodes.")] = 100,
         seed: Annotated[int, typer.Option(help="Seed of torch, numpy and the episodes.")] = 0,
-        init: Annotated[str | None, typer.Option(help="Warm-start from this run folder or checkpoint.")] = None,
+        init: Annotated[
+            str | None,
+            typer.Option(help="Warm-start from this run folder or checkpoint (and take its hyperparameters)."),
+        ] = None,
         out: Annotated[
             Path | None, typer.Option(help="Run folder (default runs/<sim>-<scenario>-<method>-s<seed>-<time>).")
         ] = None,
@@ -113,14 +116,17 @@ def register(app: typer.Typer) -> None:
         """Train a learner on a simulator with the one step loop; write a run folder."""
         import torch
 
+        from core.agents import load_checkpoint
         from core.report import format_table
-        from core.sage.config import apply_overrides, for_method
+        from core.sage.config import apply_overrides, for_method, from_dict
         from core.train import RunConfig, Trainer
 
         torch.set_num_threads(1)
         try:
-            agent_cfg = apply_overrides(for_method(method), list(set_ or []))
-        except ValueError as exc:
+            # a warm start keeps the hyperparameters of the run it starts from; the method sets the switches
+            base = from_dict(load_checkpoint(init)["agent_config"]) if init else None
+            agent_cfg = apply_overrides(for_method(method, base=base), list(set_ or []))
+        except (ValueError, FileNotFoundError) as exc:
             _fail(str(exc))
         scenarios = _scenarios(scenario)
         if out is None:

@@ -62,12 +62,15 @@ class GateConfig:
     """How per-step ĉ_k and σ̂_k are aggregated over the m steps (each separately, then combined by β)."""
     discount: float = 0.9
     """Per-step weight decay of the ``discounted_mean`` aggregation (ignored by ``max``)."""
-    tau_min: float = 0.25
+    tau_min: float = 0.15
     """τ_min: the threshold when curiosity is far above its recent average (most ready to ask for help)."""
     tau_max: float = 0.45
     """τ_max: the threshold when curiosity is far below its recent average (familiar ground)."""
     curiosity_ema: float = 0.02
     """Rate of the exponential moving average of curiosity that ρ compares the current curiosity with."""
+    curiosity_sharpness: float = 2.0
+    """p in ρ = r^p / (1 + r^p), r = C_t / EMA(C): 1 is the plain ratio C / (C + EMA); 2 makes ρ ≈ 0.8 at twice
+    the usual curiosity and ≈ 0.2 at half of it, so that surprises move τ and everyday noise does not."""
     use_curiosity: bool = True
     """False fixes τ at (τ_min + τ_max) / 2, the value ρ = 1/2 gives for typical curiosity (FNI-RL, ablations)."""
     hold_steps: int = 5
@@ -200,8 +203,22 @@ class AgentConfig:
     """Fear, curiosity, threshold and hold."""
 
 
-def for_method(method: str, **overrides: Any) -> AgentConfig:
+SWITCHES: tuple[str, ...] = (
+    "world_model",
+    "fear_regularisation",
+    "violation_penalty",
+    "takeover",
+    "imitation",
+    "virtual_rollouts",
+)
+"""The fields that make one method differ from another (plus ``gate.use_curiosity``)."""
+
+
+def for_method(method: str, base: AgentConfig | None = None, **overrides: Any) -> AgentConfig:
     """The preset of ``method`` with optional field overrides.
+
+    ``base``: take every hyperparameter from this config (e.g. the run a training warm-starts from) and
+    only the method's switches from the preset.
 
     - ``sage``: everything on.
     - ``fni-rl``: the fear-regularised learner (world model, fear in critic and actor, λ, c*, virtual
@@ -213,7 +230,14 @@ def for_method(method: str, **overrides: Any) -> AgentConfig:
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    cfg = AgentConfig(method=method)
+    if base is None:
+        cfg = AgentConfig(method=method)
+    else:
+        cfg = from_dict(to_dict(base))
+        cfg.method = method
+        for name in SWITCHES:
+            setattr(cfg, name, True)
+        cfg.gate.use_curiosity = True
     if method == "fni-rl":
         cfg.takeover = cfg.imitation = False
         cfg.gate.use_curiosity = False

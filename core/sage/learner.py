@@ -1,6 +1,13 @@
 """What every learner shares: the actor, the real and virtual buffers, the world model and its schedule,
 the SAGE gate built on them, the update schedule, demonstrations and checkpoints.
 
+Virtual buffer. The paper stores the fear rollouts' imagined transitions in D_virtual. Here the learner
+rolls the same model, the same m steps under the same (current, deterministic) policy, from a batch of real
+states every ``virtual_every`` steps and after every fit (:meth:`BaseLearner.virtual_rollout`), instead of
+copying the gate's single-state rollouts: the gate must stay sub-millisecond and also runs where no learner
+exists (the live dashboard), and batched rollouts give the actor the same imagined states at a fraction of
+the cost.
+
 A learner is a :class:`core.loop.Policy` (``act``) and a step listener (``observe``): the training driver
 (:mod:`core.train`) puts it in a :class:`core.loop.Runner` and appends ``observe`` to the step listeners, so
 the one step loop feeds the buffer and triggers the updates. The algorithms themselves are one file each:

@@ -273,7 +273,8 @@ class EnsembleWorldModel(nn.Module):
         if self._folded is not None and self._folded[0] == self.version:
             return self._folded[1]
         d = self.obs_dim
-        with torch.no_grad():
+        # never inference tensors, even when the gate asks first: the learner's autograd reads them too
+        with torch.inference_mode(False), torch.no_grad():
             hidden: list[tuple[Tensor, Tensor]] = []
             for i, layer in enumerate(self.hidden_layers):
                 w, b = layer.weight.detach().clone(), layer.bias.detach().clone()

@@ -226,3 +226,47 @@ def test_cli_refuses_bad_input_by_name(point_sim, tmp_path: Path) -> None:
     assert result.exit_code != 0 and "nosuchsim" in result.output
     result = cli.invoke(app, ["eval", str(tmp_path / "missing")])
     assert result.exit_code == 2 and "missing" in result.output
+
+
+# -- UGV: SAGE adapting the committed default policy to a dynamic scenario ------------------------------
+DEFAULT_POLICY = Path(__file__).resolve().parents[2] / "policies" / "ugv-default"
+
+
+def ugv_env(scenario: str) -> Any:
+    import sims
+
+    return sims.make("ugv", scenario=int(scenario))
+
+
+def adapt(method: str, episodes: int, seed: int = 1, **overrides: Any) -> list[dict[str, Any]]:
+    """Warm-start ``method`` from the default policy (and its hyperparameters) on UGV scenario 3."""
+    from core.agents import load_checkpoint
+    from core.sage.config import from_dict
+
+    base = from_dict(load_checkpoint(DEFAULT_POLICY)["agent_config"])
+    cfg = for_method(method, base=base, **overrides)
+    run = RunConfig(
+        sim="ugv", scenarios=["3"], episodes=episodes, seed=seed, init=str(DEFAULT_POLICY), checkpoint_every=0
+    )
+    return train(run, cfg, ugv_env, None, progress=False).rows
+
+
+def test_sage_on_a_dynamic_ugv_scenario_takes_over_and_learns_from_it() -> None:
+    """The fast version of the adaptation run below: the same path (default policy, gate on its world model,
+    scripted expert, refit on the new scenario, value-weighted imitation of the takeovers), three episodes."""
+    rows = adapt("sage", episodes=3, updates_per_step=0.25, wm_min_samples=150)
+    assert sum(r["takeovers"] for r in rows) > 0
+    assert all(math.isfinite(r["mean_fear"]) and math.isfinite(r["mean_curiosity"]) for r in rows)
+    last = rows[-1]
+    assert math.isfinite(last["bc_loss"]) and math.isfinite(last["omega_mean"]) and "wm_holdout_nll" in last
+
+
+@pytest.mark.slow
+def test_sage_takes_over_less_as_it_adapts_and_collides_no_more_than_sac() -> None:
+    episodes = 40
+    sage, sac = adapt("sage", episodes), adapt("sac", episodes)
+    quarter = episodes // 4
+    first = np.mean([r["takeover_rate"] for r in sage[:quarter]])
+    last = np.mean([r["takeover_rate"] for r in sage[-quarter:]])
+    assert last < first
+    assert sum(r["collision"] for r in sage) <= sum(r["collision"] for r in sac)

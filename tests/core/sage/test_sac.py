@@ -158,6 +158,14 @@ def test_the_actor_gradient_carries_the_fear_term_through_the_frozen_world_model
         assert torch.equal(value, before[key]), key
 
 
+def test_a_gate_step_after_loading_weights_leaves_the_learner_trainable() -> None:
+    learner = filled("sage")
+    learner.load_state_dict(learner.state_dict())  # new model version: the gate rebuilds the folded weights first
+    gate = learner.make_gate()
+    gate.decide(np.zeros(OBS, np.float32), np.zeros(ACT, np.float32))
+    assert "fear_real" in learner.update()
+
+
 def test_plain_sac_has_no_fear_and_no_model() -> None:
     learner = filled("sac")
     stats = learner.update()

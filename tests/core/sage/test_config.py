@@ -1,0 +1,61 @@
+"""Method presets, overrides from the command line, and round trips through JSON."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from core.sage.config import METHODS, apply_overrides, for_method, from_dict, to_dict
+
+
+def test_presets_switch_the_sage_extras() -> None:
+    sage, sac, fni, dagger = (for_method(m) for m in ("sage", "sac", "fni-rl", "hg-dagger"))
+    assert sage.takeover and sage.imitation and sage.fear_regularisation and sage.gate.use_curiosity
+    assert not (sac.world_model or sac.takeover or sac.fear_regularisation or sac.imitation or sac.violation_penalty)
+    assert fni.fear_regularisation and fni.violation_penalty and not fni.takeover and not fni.gate.use_curiosity
+    assert dagger.takeover and dagger.world_model and not dagger.fear_regularisation
+    assert set(METHODS) == {"sage", "sac", "td3", "hg-dagger", "fni-rl"}
+
+
+def test_a_base_config_keeps_its_hyperparameters_and_takes_the_methods_switches() -> None:
+    base = for_method("sac", gamma=0.97, hidden=64)
+    base.gate.tau_max = 0.6
+    sage = for_method("sage", base=base)
+    assert sage.method == "sage" and sage.gamma == 0.97 and sage.hidden == 64 and sage.gate.tau_max == 0.6
+    assert sage.takeover and sage.world_model and base.method == "sac" and not base.takeover
+
+
+def test_overrides_convert_types_and_name_what_is_wrong() -> None:
+    cfg = apply_overrides(
+        for_method("sage"),
+        [
+            "gamma=0.95",
+            "gate.hold_steps=7",
+            "reward_bounds=-1,2",
+            "takeover=false",
+            "target_entropy=none",
+            "gate.aggregate=discounted_mean",
+        ],
+    )
+    assert (cfg.gamma, cfg.gate.hold_steps, cfg.reward_bounds, cfg.takeover) == (0.95, 7, (-1.0, 2.0), False)
+    assert cfg.target_entropy is None and cfg.gate.aggregate == "discounted_mean"
+    for bad, message in (
+        ("nope=1", "nope"),
+        ("gate.nope=1", "gate.nope"),
+        ("gamma=abc", "gamma"),
+        ("gate.aggregate=mean", "aggregate"),
+        ("gamma", "key=value"),
+        ("gamma=1.5", "gamma"),
+        ("world_model=false", "world_model"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            apply_overrides(for_method("sage"), [bad])
+
+
+def test_json_round_trip() -> None:
+    cfg = apply_overrides(for_method("fni-rl"), ["reward_bounds=-1,1", "gate.beta=0.3"])
+    again = from_dict(json.loads(json.dumps(to_dict(cfg))))
+    assert again == cfg
+    with pytest.raises(ValueError, match="unknown config field"):
+        from_dict({**to_dict(cfg), "extra": 1})
