@@ -72,11 +72,8 @@ def _sim_of(meta: dict[str, Any]) -> str | None:
 
 
 def _looks_like_agent(folder: Path) -> bool:
-    return (
-        any((folder / n).is_file() for n in _META_FILES)
-        or any(folder.glob("*.pt"))
-        or (folder / "checkpoints").is_dir()
-    )
+    """A run folder with at least one checkpoint (a run still before its first one is not offered)."""
+    return any(folder.glob("*.pt")) or any((folder / "checkpoints").glob("*.pt"))
 
 
 def discover(roots: Iterable[Path], sim: str | None = None) -> list[PolicyChoice]:
