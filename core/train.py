@@ -8,7 +8,10 @@ recorded, nobody takes over); SAC and TD3 get neither. Demonstrations (``demo_ep
 with a gate that always fires, so the expert drives and both actions are recorded as intervention samples.
 
 Several scenarios train one learner in turn (one ``Runner`` per scenario env, episodes round-robin).
-Nothing here imports a simulator: the caller passes ``make_env(scenario) -> gym.Env``.
+Nothing here imports a simulator: the caller passes ``make_env(scenario) -> gym.Env``. Study protocols
+(a route switch, closed-loop adversarial scenarios) hook in with ``before_episode`` callbacks, which see the
+episode index and the ``Runner`` about to run it (its env, its policy, its expert). ``RunConfig.expert`` makes
+another run's policy the expert (:class:`core.experts.PolicyExpert`) in place of the simulator's scripted one.
 
 A run folder holds ``config.json`` ({"run", "agent", "meta"}), ``metrics.jsonl`` (one row per episode: the
 loop's :class:`~core.loop.EpisodeSummary` row, the simulator's metrics and the learner's statistics),
@@ -40,7 +43,7 @@ from core.agents import (
     meta_of,
     save_checkpoint,
 )
-from core.experts import ScriptedExpert
+from core.experts import PolicyExpert, ScriptedExpert
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
 from core.sage import make_learner
 from core.sage.config import AgentConfig, to_dict
@@ -49,6 +52,10 @@ from core.sage.learner import BaseLearner
 
 EnvFactory = Callable[[str], gym.Env[Any, Any]]
 """Builds the env of one scenario (the CLI passes ``lambda s: sims.make(sim, scenario=s)``)."""
+EpisodeHook = Callable[[int, Runner], None]
+"""Called before each training episode with its 0-based index and the Runner about to run it: a protocol
+changes the env's next scenario there (``set_scenario``, the mode of the next reset), points the env at the
+current policy (``runner.policy``) or swaps the expert (``runner.set_expert``)."""
 
 DEMO_SEED_OFFSET = 500_000
 EVAL_SEED_OFFSET = 1_000_000
@@ -80,6 +87,9 @@ class RunConfig:
     """``float16`` halves the checkpoint files (used for the committed default policy)."""
     max_episode_steps: int | None = None
     """Cut episodes at this many steps (None: the simulator's own time limit)."""
+    expert: str | None = None
+    """Run folder or checkpoint whose deterministic policy is the expert (takeovers and demonstrations);
+    None: the simulator's scripted expert."""
 
 
 @dataclass
@@ -128,13 +138,20 @@ class Trainer:
     """One training run: build envs and learner, (demonstrate,) train, checkpoint. See the module docstring."""
 
     def __init__(
-        self, run: RunConfig, agent: AgentConfig, make_env: EnvFactory, out: Path | None = None, progress: bool = True
+        self,
+        run: RunConfig,
+        agent: AgentConfig,
+        make_env: EnvFactory,
+        out: Path | None = None,
+        progress: bool = True,
+        before_episode: Sequence[EpisodeHook] = (),
     ) -> None:
         if run.episodes < 0 or run.demo_episodes < 0:
             raise ValueError("episodes and demo_episodes must be >= 0")
         if not run.scenarios:
             raise ValueError("at least one scenario is needed")
         self.run, self.agent_cfg, self.out, self.progress = run, agent, out, progress
+        self.before_episode: list[EpisodeHook] = list(before_episode)
         torch.manual_seed(run.seed)
         self.envs = {s: make_env(s) for s in run.scenarios}
         first = self.envs[run.scenarios[0]]
@@ -143,6 +160,7 @@ class Trainer:
             if _dims(env)[:2] != (self.obs_dim, self.act_dim):
                 raise ValueError(f"scenario {s} has other observation/action sizes than {run.scenarios[0]}")
         self.learner = make_learner(agent, self.obs_dim, self.act_dim, self.low, self.high, run.seed)
+        self.expert = self._make_expert(run.expert)
         self.init_parts: list[str] = []
         if run.init:
             self.init_parts = self._warm_start(run.init)
@@ -162,6 +180,22 @@ class Trainer:
         except RuntimeError as exc:
             raise ValueError(f"--init {path}: network sizes differ from this run's config: {exc}") from None
 
+    def _make_expert(self, source: str | None) -> Expert:
+        if source is None:
+            return ScriptedExpert()
+        expert = load_agent(source)
+        if (expert.meta.obs_dim, expert.meta.act_dim) != (self.obs_dim, self.act_dim):
+            raise ValueError(
+                f"--expert {source}: its policy takes {expert.meta.obs_dim} observations / {expert.meta.act_dim} "
+                f"actions, this simulator has {self.obs_dim} / {self.act_dim}"
+            )
+        return PolicyExpert(expert.policy)
+
+    def close(self) -> None:
+        """Close the envs (a SUMO env releases its simulation)."""
+        for env in self.envs.values():
+            env.close()
+
     # -- pieces --------------------------------------------------------------------------------------
     def meta(self) -> AgentMeta:
         learner = self.learner
@@ -178,13 +212,17 @@ class Trainer:
             updates=learner.updates,
             seed=self.run.seed,
             has_world_model=learner.world_model_ready(),
-            extra={"init": self.run.init or "", "demo_episodes": self.run.demo_episodes},
+            extra={
+                "init": self.run.init or "",
+                "demo_episodes": self.run.demo_episodes,
+                "expert": self.run.expert or "",
+            },
         )
 
     def gate_and_expert(self) -> tuple[Gate, Expert | None]:
         cfg, learner = self.agent_cfg, self.learner
         if cfg.takeover:
-            return learner.make_gate(), ScriptedExpert()
+            return learner.make_gate(), self.expert
         if learner.world_model is not None:
             return learner.make_gate(), None  # fear and curiosity are recorded; nobody takes over
         return NoGate(), None
@@ -199,7 +237,7 @@ class Trainer:
                 env,
                 self.learner,
                 AlwaysGate(),
-                ScriptedExpert(),
+                self.expert,
                 seed=self.run.seed + DEMO_SEED_OFFSET + j * SCENARIO_SEED_STRIDE,
             )
             for j, env in enumerate(self.envs.values())
@@ -278,6 +316,8 @@ class Trainer:
         try:
             for i in range(self.run.episodes):
                 j = i % len(runners)
+                for hook in self.before_episode:
+                    hook(i, runners[j])
                 summary = runners[j].run_episode(self.run.max_episode_steps)
                 self.episodes_done += 1
                 row = self._row(summary, scenarios[j], started)
