@@ -11,6 +11,7 @@ COMMAND_MODULES = (
     "app.cli.train",  # sage train / eval / compare
     "app.cli.serve",  # sage serve
     "app.cli.export",  # sage export
+    "app.cli.figures",  # sage figure
 )
 
 app = typer.Typer(

@@ -3,11 +3,17 @@
     sage train --sim ugv --scenario 3 --method sage --episodes 60 --seed 0 --init policies/ugv-default --out runs/s3
     sage eval runs/s3 --episodes 20 --scenario 1,2,3,4
     sage compare runs/s3 runs/s3-sac --episodes 20 --scenario 3
+    sage train --sim highway --method sage --episodes 150            # closed-loop adversarial (CAT-style)
+    sage eval runs/hw --sim highway --set test --mode normal,adversarial --episodes 50 --seeds 0,1,2,3,4
+    sage train --sim sumo --protocol route-shift --method sage --c1 60 --c2 30   # + figures in the run folder
 
-``--sim`` is any simulator of :data:`sims.SIMULATORS`; ``--scenario`` passes through to it (a comma list
-trains on several in turn). ``--set key=value`` edits the learner's config (``--set gate.tau_max=0.7``;
-fields: :mod:`core.sage.config`). The tables are the paper's (:mod:`core.report`): one row per run and
-scenario, the simulator's own metric columns, then return and cost.
+``--sim`` is any simulator of :data:`sims.SIMULATORS`; ``--scenario`` names its variant (a comma list
+trains on several in turn; :mod:`app.studies.envs`: UGV 1-4, highway train/test, SUMO c1/c2). The study
+protocols (highway closed-loop adversaries, SUMO route shift) live in :mod:`app.studies`. In ``sage train``,
+``--set key=value`` edits the learner's config (``--set gate.tau_max=0.7``; fields: :mod:`core.sage.config`);
+in ``sage eval`` / ``compare`` on highway, ``--set`` is the logged set (train or test), as in the paper.
+The tables are the paper's (:mod:`core.report`): one row per run and scenario, the simulator's own
+metric columns, then return and cost.
 """
 
 from __future__ import annotations
@@ -21,6 +27,9 @@ from typing import Annotated, Any
 import typer
 
 BASE_COLUMNS_AFTER = ("return", "cost")
+SetOption = Annotated[str, typer.Option("--set", help="highway: logged set(s), train and/or test (comma list).")]
+ModeOption = Annotated[str, typer.Option(help="highway: normal and/or adversarial (comma list).")]
+SeedsOption = Annotated[str | None, typer.Option(help="Evaluation seeds, pooled (comma list; overrides --seed).")]
 GATED_COLUMNS = ("takeover_rate", "mean_fear")
 
 
@@ -32,16 +41,19 @@ def _scenarios(value: str) -> list[str]:
 
 
 def _make_env_factory(sim: str, overrides: dict[str, Any] | None = None) -> Any:
-    import sims
+    from app.studies.envs import env_factory
 
-    if sim not in sims.SIMULATORS:
-        raise typer.BadParameter(f"unknown simulator {sim!r}; choose one of {', '.join(sims.SIMULATORS)}")
+    try:
+        return env_factory(sim, **(overrides or {}))
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from None
 
-    def make_env(scenario: str) -> Any:
-        arg: int | str = int(scenario) if scenario.isdigit() else scenario
-        return sims.make(sim, scenario=arg, **(overrides or {}))
 
-    return make_env
+def _ints(value: str) -> list[int]:
+    try:
+        return [int(s) for s in value.split(",") if s.strip()]
+    except ValueError:
+        raise typer.BadParameter(f"{value!r} is not a comma list of integers, e.g. 0,1,2") from None
 
 
 def table_columns(sim: str, rows: list[dict[str, Any]], gated: bool = False) -> list[str]:
@@ -87,10 +99,11 @@ def register(app: typer.Typer) -> None:
     def train(
         sim: Annotated[str, typer.Option(help="Simulator: ugv, highway, sumo.")] = "ugv",
         scenario: Annotated[
-            str, typer.Option(help="Scenario(s) passed to the simulator; a comma list alternates.")
-        ] = "1",
+            str | None,
+            typer.Option(help="Scenario(s): ugv 1-4, highway train|test, sumo c1|c2; a comma list alternates."),
+        ] = None,
         method: Annotated[str, typer.Option(help="sage | sac | td3 | hg-dagger | fni-rl")] = "sage",
-        episodes: Annotated[int, typer.Option(help="Training episodes.")] = 100,
+        episodes: Annotated[int | None, typer.Option(help="Training episodes (default 100).")] = None,
         seed: Annotated[int, typer.Option(help="Seed of torch, numpy and the episodes.")] = 0,
         init: Annotated[
             str | None,
@@ -112,10 +125,25 @@ def register(app: typer.Typer) -> None:
             list[str] | None, typer.Option("--set", help="Learner config override key=value (repeatable).")
         ] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+        expert: Annotated[
+            str | None, typer.Option(help="Run folder or checkpoint whose policy is the expert (default: scripted).")
+        ] = None,
+        protocol: Annotated[
+            str | None, typer.Option(help="Study protocol: route-shift (sumo: C1 on route 1, then C2).")
+        ] = None,
+        c1: Annotated[int | None, typer.Option("--c1", help="route-shift: episodes of phase C1 (default 60).")] = None,
+        c2: Annotated[int | None, typer.Option("--c2", help="route-shift: episodes of phase C2 (default 30).")] = None,
+        expert_c2: Annotated[
+            str | None, typer.Option(help="route-shift: the expert run of phase C2 (default: the C1 expert).")
+        ] = None,
+        adversarial_ratio: Annotated[
+            float | None, typer.Option(help="highway: share of adversarial training episodes (default 0.5).")
+        ] = None,
     ) -> None:
         """Train a learner on a simulator with the one step loop; write a run folder."""
         import torch
 
+        from app.studies import prepare_training
         from core.agents import load_checkpoint
         from core.report import format_table
         from core.sage.config import apply_overrides, for_method, from_dict
@@ -128,26 +156,48 @@ def register(app: typer.Typer) -> None:
             agent_cfg = apply_overrides(for_method(method, base=base), list(set_ or []))
         except (ValueError, FileNotFoundError) as exc:
             _fail(str(exc))
-        scenarios = _scenarios(scenario)
+        try:
+            setup = prepare_training(
+                sim,
+                scenario=scenario,
+                protocol=protocol,
+                episodes=episodes,
+                seed=seed,
+                method=method,
+                expert=expert,
+                expert_c2=expert_c2,
+                c1=c1,
+                c2=c2,
+                adversarial_ratio=adversarial_ratio,
+            )
+        except (ValueError, FileNotFoundError) as exc:
+            _fail(str(exc))
+        scenarios = setup.scenarios
         if out is None:
             stamp = time.strftime("%Y%m%d-%H%M%S")
-            out = Path("runs") / f"{sim}-{'_'.join(scenarios)}-{method}-s{seed}-{stamp}"
+            out = Path("runs") / f"{sim}-{setup.name or '_'.join(scenarios)}-{method}-s{seed}-{stamp}"
         if (out / "checkpoint.pt").exists():
             _fail(f"{out} already holds a finished run; choose another --out")
         run_cfg = RunConfig(
             sim=sim,
             scenarios=scenarios,
-            episodes=episodes,
+            episodes=setup.episodes,
             seed=seed,
             init=init,
             demo_episodes=demo_episodes,
             checkpoint_every=checkpoint_every,
             checkpoint_dtype=checkpoint_dtype,
             max_episode_steps=max_episode_steps,
+            expert=expert,
         )
         try:
-            trainer = Trainer(run_cfg, agent_cfg, _make_env_factory(sim), out, progress=not quiet)
-            result = trainer.train()
+            trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, not quiet, setup.hooks)
+            setup.start(out)
+            try:
+                result = trainer.train()
+            finally:
+                trainer.close()
+            study_lines = setup.finish(out)
         except (ValueError, FileNotFoundError, TypeError) as exc:
             _fail(str(exc))
         rows = result.rows
@@ -159,6 +209,8 @@ def register(app: typer.Typer) -> None:
         if tail:
             named = {f"last {len(tail)} episodes": tail}
             typer.echo(format_table(named, table_columns(sim, tail, gated=True)))
+        for line in study_lines:
+            typer.echo(line)
         typer.echo(f"run folder: {out}")
 
     @app.command("eval")
@@ -173,9 +225,21 @@ def register(app: typer.Typer) -> None:
         expert: Annotated[bool, typer.Option(help="Let the gate hand over to the scripted expert.")] = False,
         save: Annotated[Path | None, typer.Option(help="Also write the rows to this JSON-lines file.")] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+        sim: Annotated[str | None, typer.Option(help="Simulator (default: the run's own; must match it).")] = None,
+        split: SetOption = "test",
+        mode: ModeOption = "normal,adversarial",
+        seeds: SeedsOption = None,
     ) -> None:
-        """Run a learned policy with no expert and print the paper's table per scenario."""
-        typer.echo(_evaluate_and_format([run], episodes, scenario, seed, gate, expert, save, quiet))
+        """Run a learned policy with no expert and print the paper's table per scenario.
+
+        On highway: the first --episodes scenarios of each --set, in each --mode
+        (adversaries aimed at the evaluated policy), pooled over --seeds, with the
+        paper's columns: success and collision rates, speed and acceleration."""
+        seed_list = _ints(seeds) if seeds else [seed]
+        if _run_sim([run], sim) == "highway":
+            typer.echo(_highway_table([run], episodes, split, mode, seed_list, save, quiet))
+            return
+        typer.echo(_evaluate_and_format([run], episodes, scenario, seed_list, gate, expert, save, quiet))
 
     @app.command()
     def compare(
@@ -185,16 +249,79 @@ def register(app: typer.Typer) -> None:
         seed: Annotated[int, typer.Option(help="Evaluation seed (the same episodes for every run).")] = 0,
         save: Annotated[Path | None, typer.Option(help="Also write the rows to this JSON-lines file.")] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+        split: SetOption = "test",
+        mode: ModeOption = "normal,adversarial",
+        seeds: SeedsOption = None,
     ) -> None:
         """Evaluate several runs on the same episodes and print them side by side."""
-        typer.echo(_evaluate_and_format(runs, episodes, scenario, seed, False, False, save, quiet))
+        seed_list = _ints(seeds) if seeds else [seed]
+        if _run_sim(runs, None) == "highway":
+            typer.echo(_highway_table(runs, episodes, split, mode, seed_list, save, quiet))
+            return
+        typer.echo(_evaluate_and_format(runs, episodes, scenario, seed_list, False, False, save, quiet))
+
+
+def _label(run: Path) -> str:
+    return run.name if run.is_dir() else f"{run.parent.name}/{run.stem}"
+
+
+def _run_sim(runs: list[Path], sim: str | None) -> str:
+    """The simulator the runs were trained on (all the same, and ``sim`` when given)."""
+    from core.agents import load_checkpoint, meta_of
+
+    seen = []
+    for run in runs:
+        try:
+            seen.append(meta_of(load_checkpoint(run)).sim)
+        except (FileNotFoundError, ValueError) as exc:
+            _fail(str(exc))
+    if sim is not None and any(s != sim for s in seen):
+        _fail(f"--sim {sim}: the run was trained on {', '.join(sorted(set(seen)))}")
+    return seen[0]
+
+
+def _write_rows(save: Path, rows: list[dict[str, Any]]) -> None:
+    save.parent.mkdir(parents=True, exist_ok=True)
+    with save.open("w") as f:
+        for row in rows:
+            f.write(json.dumps(row, default=str) + "\n")
+
+
+def _highway_table(
+    runs: list[Path], episodes: int, split: str, mode: str, seeds: list[int], save: Path | None, quiet: bool
+) -> str:
+    import torch
+    from tqdm import tqdm
+
+    from app.studies import highway
+    from core.agents import load_agent
+
+    torch.set_num_threads(1)
+    try:
+        sets, modes = highway.parse_sets(split), highway.parse_modes(mode)
+    except ValueError as exc:
+        _fail(str(exc))
+    results: dict[str, dict[tuple[str, str], list[dict[str, Any]]]] = {}
+    all_rows: list[dict[str, Any]] = []
+    total = len(runs) * len(sets) * len(modes) * len(seeds) * episodes
+    with tqdm(total=total, desc="eval highway", unit="ep", disable=quiet, leave=False) as bar:
+        for run in runs:
+            agent = load_agent(run)
+            runs_rows = highway.evaluate_policy(
+                agent.policy, sets, modes, episodes, seeds, on_episode=lambda _row: bar.update(1)
+            )
+            results[_label(run)] = runs_rows
+            all_rows += [dict(r, run=str(run)) for rows in runs_rows.values() for r in rows]
+    if save is not None:
+        _write_rows(save, all_rows)
+    return highway.paper_table(results) + "\n\n" + highway.interaction_table(results)
 
 
 def _evaluate_and_format(
     runs: list[Path],
     episodes: int,
     scenario: str | None,
-    seed: int,
+    seeds: list[int],
     gate: bool,
     expert: bool,
     save: Path | None,
@@ -223,17 +350,18 @@ def _evaluate_and_format(
         if gate and not agent.has_world_model:
             _fail(f"{run} has no world model: no SAGE gate to run (drop --gate)")
         gate_factory = agent.make_gate if gate else None
-        results = evaluate(
-            agent.policy, _make_env_factory(sim), scenarios, episodes, seed, gate_factory, expert, progress=not quiet
-        )
-        label = run.name if run.is_dir() else f"{run.parent.name}/{run.stem}"
+        results: dict[str, list[dict[str, Any]]] = {}
+        for seed in seeds:
+            by_scenario = evaluate(
+                agent.policy, _make_env_factory(sim), scenarios, episodes, seed, gate_factory, expert, not quiet
+            )
+            for s, rows in by_scenario.items():
+                results.setdefault(s, []).extend(dict(r, seed=seed) for r in rows)
+        label = _label(run)
         for s, rows in results.items():
             named[f"{label} ({sim} {s})"] = rows
             all_rows += [dict(r, run=str(run)) for r in rows]
     if save is not None:
-        save.parent.mkdir(parents=True, exist_ok=True)
-        with save.open("w") as f:
-            for row in all_rows:
-                f.write(json.dumps(row, default=str) + "\n")
+        _write_rows(save, all_rows)
     columns = table_columns(sims_seen[0], all_rows, gated=gate)
     return format_table(named, columns)

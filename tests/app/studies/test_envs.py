@@ -1,0 +1,33 @@
+"""What a --scenario string means to each simulator."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.studies.envs import default_scenario, env_factory, scenario_kwargs
+
+
+def test_each_simulator_reads_its_own_scenario_names() -> None:
+    assert scenario_kwargs("ugv", "3") == {"scenario": 3}
+    assert scenario_kwargs("highway", "test") == {"split": "test"}
+    assert scenario_kwargs("highway", "17") == {"scenario_id": 17}
+    assert scenario_kwargs("sumo", "c1") == {"route": 1, "special_vehicles": False}
+    assert scenario_kwargs("sumo", "C2") == {"route": 2, "special_vehicles": True}
+    assert scenario_kwargs("sumo", "2") == {"route": 2, "special_vehicles": False}
+    assert [default_scenario(s) for s in ("ugv", "highway", "sumo")] == ["1", "train", "c1"]
+
+
+@pytest.mark.parametrize(("sim", "name", "hint"), [("highway", "validation", "split"), ("sumo", "3", "c1")])
+def test_a_bad_scenario_name_says_what_to_give(sim: str, name: str, hint: str) -> None:
+    with pytest.raises(ValueError, match=hint):
+        scenario_kwargs(sim, name)
+
+
+def test_the_factory_builds_the_named_variant() -> None:
+    env = env_factory("sumo")("c2")  # a SUMO env starts its simulation at reset, so building is cheap
+    try:
+        assert (env.unwrapped.config.route, env.unwrapped.config.special_vehicles) == (2, True)
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="unknown simulator"):
+        env_factory("carla")
