@@ -11,7 +11,7 @@ free loopback port, connects three viewer websockets and one operator websocket,
   - a steering change during a takeover: waits for the next control tick, so bounded by the control
     period (100 ms at 10 Hz).
 
-    python bench/bench_server.py [--seconds 10]
+    python bench/bench_server.py [--seconds 8] [--samples 30] [--policy RUN]
 """
 
 from __future__ import annotations
@@ -165,11 +165,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, default=8.0, help="measurement window per rate run")
     parser.add_argument("--samples", type=int, default=30, help="key presses to time")
+    parser.add_argument("--policy", default=None, help="run folder or checkpoint (default: policies/ugv-default)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     random.seed(0)
     sessions = Path(tempfile.mkdtemp(prefix="bench-server-"))
-    settings = ServerSettings(sim="ugv", scenario=3, sessions=sessions, policy_roots=[ROOT / "policies", ROOT / "runs"])
+    settings = ServerSettings(
+        sim="ugv", scenario=3, sessions=sessions, policy=args.policy, policy_roots=[ROOT / "policies", ROOT / "runs"]
+    )
     server, thread, port, app = start(settings)
     try:
         live = app.state.dash.live
