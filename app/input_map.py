@@ -31,9 +31,9 @@ class InputMapping:
 INPUT_MAPPINGS: dict[str, InputMapping] = {
     # linear speed and yaw rate, both normalised to [-1, 1]; positive yaw rate turns left
     "ugv": InputMapping(throttle_index=0, steer_index=1),
-    # highway-env's continuous action is (acceleration, steering); its y axis points to the right of the
-    # driving direction, so a positive steering angle turns right
-    "highway": InputMapping(throttle_index=0, steer_index=1, steer_sign=-1.0),
+    # sage/Highway-v0's action is [steer, acc] (sims/highway/env.py); y points north, the left of the driving
+    # direction, so a positive steering angle turns left
+    "highway": InputMapping(throttle_index=1, steer_index=0),
     # the SUMO ego is driven longitudinally only: accelerate / brake
     "sumo": InputMapping(throttle_index=0, steer_index=None),
 }

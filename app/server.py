@@ -50,10 +50,15 @@ COMMAND_TIMEOUT = 60.0
 """Seconds a page waits for the loop to apply a command (building a SUMO world takes a few)."""
 
 
+LIVE_ENV_OPTIONS: dict[str, dict[str, Any]] = {"sumo": {"process": True}}
+"""Per-simulator options of live envs. SUMO steps in its own process: libsumo holds the GIL while it steps, which
+would stall the event loop (and the page's input) for the whole step."""
+
+
 def make_env(sim: str, scenario: int | None) -> gym.Env[Any, Any]:
     import sims
 
-    return sims.make(sim, **make_kwargs(sim, scenario))
+    return sims.make(sim, **make_kwargs(sim, scenario), **LIVE_ENV_OPTIONS.get(sim, {}))
 
 
 def sim_catalogue() -> dict[str, dict[str, Any]]:

@@ -148,8 +148,8 @@ def test_control_desk_issues_one_token_at_a_time() -> None:
 def test_input_mapping_table_and_fallback_by_action_space() -> None:
     ugv = to_action(INPUT_MAPPINGS["ugv"], BOX2, throttle=0.5, steer=1.0)
     assert ugv.dtype == np.float32 and np.allclose(ugv, [0.5, 1.0])
-    highway = to_action(INPUT_MAPPINGS["highway"], BOX2, throttle=1.0, steer=1.0)
-    assert np.allclose(highway, [1.0, -1.0])  # left on the page is a negative steering angle there
+    highway = to_action(INPUT_MAPPINGS["highway"], BOX2, throttle=0.5, steer=1.0)
+    assert np.allclose(highway, [1.0, 0.5])  # sage/Highway-v0 takes [steer, acceleration], left positive
     sumo = to_action(mapping_for("sumo", gym.spaces.Box(-3.0, 2.0, (1,))), gym.spaces.Box(-3.0, 2.0, (1,)), 0.0, 1.0)
     assert np.allclose(sumo, [-0.5])  # scaled into [-3, 2]: the middle of the range, steering ignored
     assert mapping_for("unknown", BOX2) == InputMapping(0, 1)
