@@ -262,7 +262,7 @@ class Runner:
                 action = a_expert
             next_obs, reward, terminated, truncated, info = self.env.step(action)
         except Exception as exc:  # a crashed simulator ends the episode, never the loop
-            self._end_episode(error=f"{type(exc).__name__}: {exc}")
+            self.end_episode(error=f"{type(exc).__name__}: {exc}")
             log.warning("simulator error in episode %d: %s", self.episode, traceback.format_exc())
             return None
         curiosity = float(self.gate.observe(obs, action, next_obs))
@@ -303,7 +303,7 @@ class Runner:
         for listener in self.step_listeners:
             listener(record)
         if record.done:
-            self._end_episode()
+            self.end_episode()
         return record
 
     def run_episode(self, max_steps: int | None = None) -> EpisodeSummary:
@@ -317,12 +317,17 @@ class Runner:
                 self.step()
                 steps += 1
                 if max_steps is not None and steps >= max_steps and not summaries:
-                    self._end_episode()
+                    self.end_episode()
         finally:
             self.episode_listeners.remove(summaries.append)
         return summaries[0]
 
-    def _end_episode(self, error: str | None = None) -> None:
+    def end_episode(self, error: str | None = None) -> None:
+        """End the current episode now (an operator's "new episode", a step budget, a simulator error):
+        episode listeners get its summary and the next ``step()`` starts a new episode. No-op between
+        episodes."""
+        if self.obs is None:
+            return
         acc = self._acc
         try:
             metrics = dict(simulator(self.env).metrics())

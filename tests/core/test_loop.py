@@ -92,3 +92,17 @@ def test_message_is_json_ready_with_nan_as_none() -> None:
 def test_env_without_protocol_is_refused_clearly() -> None:
     with pytest.raises(TypeError, match="expert_action"):
         Runner(gym.make("CartPole-v1"), Still())
+
+
+def test_ending_an_episode_early_reports_it_once_and_starts_afresh() -> None:
+    runner = Runner(LineEnv(horizon=10), Still())
+    summaries = []
+    runner.episode_listeners.append(summaries.append)
+    runner.reset()
+    runner.step()
+    runner.step()
+    runner.end_episode()
+    runner.end_episode()  # between episodes: nothing more to report
+    assert len(summaries) == 1 and summaries[0].steps == 2 and summaries[0].error is None
+    record = runner.step()
+    assert record is not None and record.episode == 1 and record.t == 0
