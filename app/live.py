@@ -446,7 +446,7 @@ class LiveLoop:
             self.paused = True
             self._step_once()
         elif op == "new_episode":
-            world.runner.obs = None  # the runner starts a new episode on its next step
+            world.runner.end_episode()  # recorded with its summary; the next step starts a new episode
         elif op == "speed":
             self.speed = float(args["value"])
         elif op == "configure":
