@@ -1,7 +1,7 @@
 # The two commands a fresh machine needs (see README): `make serve` and `make test`.
 PY := .venv/bin/python
 
-.PHONY: setup serve test test-all lint bench
+.PHONY: setup serve test test-all lint bench screenshot
 
 setup:
 	bash scripts/setup.sh
@@ -23,3 +23,7 @@ lint:
 
 bench: setup
 	for f in bench/bench_*.py; do $(PY) $$f || exit 1; done
+
+screenshot:  # refresh docs/dashboard.png (the README's picture) from a real browser session
+	bash scripts/setup.sh --browser
+	SAGE_UPDATE_SCREENSHOT=1 $(PY) -m pytest -q tests/app/test_dashboard_browser.py -k readme_screenshot
