@@ -74,6 +74,7 @@ def table_columns(sim: str, rows: list[dict[str, Any]], gated: bool = False) -> 
             "scenario",
             "phase",
             "error",
+            "seed",
             *BASE_COLUMNS_AFTER,
             *GATED_COLUMNS,
         }

@@ -52,16 +52,14 @@ def _column(rows: Sequence[dict[str, Any]], key: str) -> list[float | None]:
     return out
 
 
-def _mark_switch(ax: Axes, switches: Sequence[int], last: int, top_labels: bool) -> None:
-    for switch in sorted(set(switches)):
-        x = switch + 0.5  # between the last C1 episode (switch) and the first C2 episode (switch + 1), 1-based
-        ax.axvline(x, color="0.25", linestyle="--", linewidth=1.2, gid=SWITCH_GID)
-        ax.axvspan(x, last + 0.5, color="0.9", zorder=0)
-        if top_labels:
-            ax.text(x, 1.01, " route switch", transform=ax.get_xaxis_transform(), fontsize=8, color="0.25", va="bottom")
-    first = min(switches)
+def _mark_switch(ax: Axes, switch: int, last: int) -> None:
+    """A dashed line between the last C1 episode and the first C2 one (1-based x), C2 shaded, phases named."""
+    x = switch + 0.5
+    ax.axvline(x, color="0.25", linestyle="--", linewidth=1.2, gid=SWITCH_GID)
+    ax.axvspan(x, last + 0.5, color="0.9", zorder=0)
+    ax.text(x, 1.01, " route switch", transform=ax.get_xaxis_transform(), fontsize=8, color="0.25", va="bottom")
     ax.text(0.02, 0.97, "C1", transform=ax.transAxes, fontsize=9, color="0.35", va="top", ha="left")
-    c2_x = first + 0.5 + 0.02 * last  # just right of the switch, in data units along x
+    c2_x = x + 0.02 * last  # just right of the switch, in data units along x
     ax.text(c2_x, 0.97, "C2", transform=ax.get_xaxis_transform(), fontsize=9, color="0.35", va="top")
 
 
@@ -69,9 +67,13 @@ def route_shift_rates(runs: Sequence[StudyRun], window: int | None = None) -> Fi
     """Success, collision and red-light rates (%) over training episodes, one line per run, the switch marked."""
     if not runs:
         raise ValueError("no runs to draw")
+    switches = sorted({run.switch for run in runs})
+    if len(switches) > 1:
+        names = ", ".join(f"{run.path.name}: {run.switch}" for run in runs)
+        raise ValueError(f"the runs switch routes after different numbers of episodes ({names}): overlay one schedule")
     longest = max(len(run.rows) for run in runs)
     window = window or default_window(longest)
-    fig = Figure(figsize=(13.5, 4.0), layout="constrained")
+    fig = Figure(figsize=(13.5, 4.4), layout="constrained")
     axes = fig.subplots(1, len(RATE_PANELS), sharex=True)
     for ax, (key, title) in zip(axes, RATE_PANELS, strict=True):
         for k, run in enumerate(runs):
@@ -79,14 +81,15 @@ def route_shift_rates(runs: Sequence[StudyRun], window: int | None = None) -> Fi
             curve = 100.0 * trailing_mean(_column(run.rows, key), window)
             colour = METHOD_COLOURS.get(run.method, f"C{k}")
             ax.plot(episodes, curve, color=colour, linewidth=2.0, label=run.label)
-        _mark_switch(ax, [run.switch for run in runs], longest, top_labels=True)
+        _mark_switch(ax, switches[0], longest)
         ax.set_title(title, pad=14)
         ax.set_xlabel("training episode")
         ax.set_ylabel("rate (%)")
         ax.set_xlim(0.5, longest + 0.5)
         ax.set_ylim(-3, 103)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(loc="center left", fontsize=9, framealpha=0.9)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=max(1, len(runs)), fontsize=10, frameon=False)
     fig.suptitle(f"Route shift (SUMO): rates over training, trailing mean of {window} episodes", fontsize=12)
     return fig
 
@@ -109,7 +112,7 @@ def sage_signals(run: StudyRun, window: int | None = None) -> Figure:
         scale = 100.0 if key == "takeover_rate" else 1.0
         ax.plot(episodes, scale * values, color=colour, alpha=0.3, linewidth=0.9, label="per episode")
         ax.plot(episodes, scale * trailing_mean(raw, window), color=colour, linewidth=2.2, label=f"mean of {window}")
-        _mark_switch(ax, [run.switch], len(run.rows), top_labels=True)
+        _mark_switch(ax, run.switch, len(run.rows))
         ax.set_title(title, pad=14)
         ax.set_xlabel("training episode")
         ax.set_ylabel(ylabel + (" (%)" if key == "takeover_rate" else ""))

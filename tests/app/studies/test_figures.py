@@ -59,6 +59,11 @@ def test_rates_overlay_every_run_and_mark_the_switch() -> None:
     assert np.allclose(collision, 100.0 - y)
 
 
+def test_runs_of_different_schedules_are_not_overlaid() -> None:
+    with pytest.raises(ValueError, match="different numbers of episodes"):
+        figures.route_shift_rates([synthetic_run("sage", c1=12), synthetic_run("sac", c1=10)])
+
+
 def test_signals_show_takeovers_fear_and_curiosity_with_the_switch() -> None:
     run = synthetic_run("sage")
     fig = figures.sage_signals(run, window=2)
