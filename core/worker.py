@@ -1,0 +1,410 @@
+"""The fine-tuning worker: :meth:`core.finetune.Finetuner.round` in its own process, restarted when it dies.
+
+The live loop steps at 10 Hz on a 2-core machine, so training must never share its interpreter (the GIL) or its
+core budget: the worker is a separate process (``multiprocessing`` spawn, ``torch.set_num_threads(1)``, a lower
+scheduling priority). It watches the session the loop records, runs a round whenever new episodes are over, and
+publishes numbered versions (:class:`core.finetune.VersionStore`).
+
+:class:`FinetuneService` lives in the loop's process. Its monitor thread reads the worker's events (phase,
+progress, losses, rounds), restarts a worker that died (exponential backoff, reset once a worker has lived a
+while; a restarted worker rebuilds its buffer from the session and continues from the latest version), loads each
+new version off the loop's thread (``loader``) and offers it to the loop, which takes it at the next episode
+boundary (:meth:`FinetuneService.take_pending`). The operator can pin a version (new versions are then only
+listed), follow the newest again, or roll back: deploy an older version and continue fine-tuning from it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import multiprocessing as mp
+import os
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+Loader = Callable[[Path], Any]
+"""Turns a version folder into what the loop runs (the app passes its policy loader: policy + gate)."""
+
+
+@dataclass(frozen=True)
+class WorkerSpec:
+    """Everything the worker process needs (picklable: it crosses the spawn boundary)."""
+
+    versions: Path
+    """The versions folder (``v0000`` must exist: :meth:`core.finetune.VersionStore.ensure_initial`)."""
+    sessions: Path
+    """The session store's folder."""
+    session_id: str
+    config: Any = None
+    """A :class:`core.finetune.FinetuneConfig` (None: its defaults)."""
+    base: int | None = None
+    """Version to continue from (None: the latest)."""
+    poll_seconds: float = 1.0
+    """How often an idle worker looks for new episodes."""
+    nice: int = 10
+    """Added to the worker's scheduling niceness, so that the loop wins a contended core."""
+    threads: int = 1
+
+
+# -- the worker process -------------------------------------------------------------------------------------------
+def worker_main(spec: WorkerSpec, events: Any, commands: Any) -> None:
+    """Entry point of the worker process: rounds whenever there is new data, until told to stop."""
+    import torch
+
+    torch.set_num_threads(spec.threads)
+    with contextlib.suppress(OSError, AttributeError):
+        os.nice(spec.nice)
+    from core.finetune import FinetuneConfig, Finetuner, VersionStore
+    from core.sessions import SessionStore
+
+    def emit(event: dict[str, Any]) -> None:
+        events.put({**event, "pid": os.getpid(), "at": time.time()})
+
+    held: list[tuple[str, Any]] = []
+
+    def next_command(timeout: float = 0.0) -> tuple[str, Any] | None:
+        if held:
+            return held.pop(0)
+        try:
+            return commands.get(timeout=timeout) if timeout > 0 else commands.get_nowait()
+        except queue.Empty:
+            return None
+
+    def interrupted() -> bool:
+        command = next_command()
+        if command is None:
+            return False
+        held.append(command)  # acted on by the main loop once the round has returned
+        return True
+
+    versions = VersionStore(spec.versions)
+    store = SessionStore(spec.sessions)
+    config = spec.config or FinetuneConfig()
+    finetuner = Finetuner(versions, store, spec.session_id, config, spec.base)
+    emit({"kind": "ready", "base": finetuner.base.number})
+    waiting_said = False
+    while True:
+        command = next_command()
+        if command is not None:
+            op, arg = command
+            if op == "stop":
+                emit({"kind": "stopped"})
+                return
+            if op == "rebase":
+                finetuner = Finetuner(versions, store, spec.session_id, config, int(arg))
+                emit({"kind": "ready", "base": finetuner.base.number})
+                waiting_said = False
+            continue
+        if not finetuner.ready():
+            if not waiting_said:
+                emit({"kind": "phase", "phase": "waiting for episodes"})
+                waiting_said = True
+            command = next_command(spec.poll_seconds)
+            if command is not None:
+                held.append(command)
+            continue
+        waiting_said = False
+        emit({"kind": "phase", "phase": "starting a round", "base": finetuner.base.number})
+        result = finetuner.round(progress=lambda e: emit({"kind": "progress", **e}), should_stop=interrupted)
+        emit({"kind": "round", **result.as_dict(), "base": finetuner.base.number})
+
+
+# -- the supervisor in the loop's process -----------------------------------------------------------------------------
+@dataclass
+class _Pending:
+    number: int
+    loaded: Any
+
+
+@dataclass
+class ServiceState:
+    alive: bool = False
+    pid: int | None = None
+    starts: int = 0
+    restarts: int = 0
+    phase: str = "starting"
+    progress: dict[str, Any] = field(default_factory=dict)
+    losses: dict[str, float] = field(default_factory=dict)
+    last_exit: int | None = None
+    next_restart_at: float | None = None
+    error: str | None = None
+
+
+class FinetuneService:
+    """Runs and supervises the worker process; decides which version the loop should run next.
+
+    Thread-safety: every public method may be called from any thread (one lock guards the state).
+    """
+
+    def __init__(
+        self,
+        spec: WorkerSpec,
+        loader: Loader | None = None,
+        *,
+        in_control: int = 0,
+        backoff: tuple[float, float] = (1.0, 30.0),
+        stable_after: float = 60.0,
+        on_change: Callable[[], None] | None = None,
+        history: int = 100,
+    ) -> None:
+        from core.finetune import VersionStore
+
+        self.spec = spec
+        self.loader = loader
+        self.store = VersionStore(spec.versions)
+        self.backoff_first, self.backoff_max = backoff
+        self.stable_after = stable_after
+        self.on_change = on_change
+        self.state = ServiceState()
+        self.rounds: deque[dict[str, Any]] = deque(maxlen=history)
+        self.in_control: int | None = in_control
+        self.pinned: int | None = None
+        self._base: int | None = spec.base
+        self._pending: _Pending | None = None
+        self._known: set[int] = {v.number for v in self.store.versions()}
+        self._versions: list[dict[str, Any]] = [v.summary() for v in self.store.versions()]
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._ctx = mp.get_context("spawn")
+        self._process: Any = None
+        self._events: Any = None
+        self._commands: Any = None
+        self._started_at = 0.0
+        self._backoff = self.backoff_first
+        self._thread: threading.Thread | None = None
+
+    # -- lifecycle ------------------------------------------------------------------------------------------
+    def start(self) -> FinetuneService:
+        self._spawn()
+        self._thread = threading.Thread(target=self._monitor, name="finetune-monitor", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Ask the worker to stop, then terminate it if it does not; stop the monitor."""
+        self._stop.set()
+        process = self._process
+        if process is not None and process.is_alive():
+            with contextlib.suppress(Exception):
+                self._commands.put(("stop", None))
+            process.join(timeout)
+            if process.is_alive():
+                process.terminate()
+                process.join(2.0)
+            if process.is_alive():
+                process.kill()
+                process.join(2.0)
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+        with self._lock:
+            self.state.alive = False
+            self.state.phase = "stopped"
+
+    @property
+    def pid(self) -> int | None:
+        process = self._process
+        return process.pid if process is not None else None
+
+    def _spawn(self) -> None:
+        with self._lock:
+            spec = dataclasses.replace(self.spec, base=self._base)
+            # fresh queues for every worker: one killed while writing may leave a queue's lock or pipe broken
+            self._events = self._ctx.Queue()
+            self._commands = self._ctx.Queue()
+            process = self._ctx.Process(
+                target=worker_main, args=(spec, self._events, self._commands), name="sage-finetune", daemon=True
+            )
+            process.start()
+            self._process = process
+            self._started_at = time.monotonic()
+            self.state.alive, self.state.pid = True, process.pid
+            self.state.starts += 1
+            self.state.phase = "starting"
+            self.state.next_restart_at = None
+        log.info("fine-tuning worker started (pid %s)", process.pid)
+
+    # -- the monitor thread ------------------------------------------------------------------------------------
+    def _monitor(self) -> None:
+        last_scan = 0.0
+        while not self._stop.is_set():
+            changed = self._drain_events(timeout=0.2)
+            now = time.monotonic()
+            if now - last_scan > 1.0:
+                changed |= self._scan_versions()
+                last_scan = now
+            process = self._process
+            if process is not None and not process.is_alive() and not self._stop.is_set():
+                changed |= self._handle_death(process)
+            if changed and self.on_change is not None:
+                try:
+                    self.on_change()
+                except Exception:  # a listener's bug must not stop supervision
+                    log.exception("fine-tuning on_change failed")
+
+    def _drain_events(self, timeout: float) -> bool:
+        changed = False
+        events = self._events
+        deadline = time.monotonic() + timeout
+        while True:
+            remaining = deadline - time.monotonic()
+            try:
+                event = events.get(timeout=max(remaining, 0.001)) if not changed else events.get_nowait()
+            except queue.Empty:
+                return changed
+            except (EOFError, OSError, ValueError) as exc:  # a worker killed mid-message
+                log.warning("fine-tuning event lost: %s", exc)
+                return changed
+            self._apply_event(event)
+            changed = True
+
+    def _apply_event(self, event: dict[str, Any]) -> None:
+        kind = event.get("kind")
+        with self._lock:
+            state = self.state
+            if kind == "ready":
+                state.phase = f"ready (from v{event.get('base', 0):04d})"
+                state.error = None
+            elif kind == "phase":
+                state.phase = str(event.get("phase"))
+            elif kind == "progress":
+                state.phase = str(event.get("phase"))
+                if event.get("phase") == "training":
+                    state.progress = {k: event.get(k) for k in ("update", "updates", "skipped")}
+                    state.losses = dict(event.get("losses") or {})
+            elif kind == "round":
+                row = {k: v for k, v in event.items() if k not in ("kind", "pid")}
+                self.rounds.append(row)
+                state.phase = "round done" if event.get("version") is not None else f"round: {event.get('reason')}"
+                if event.get("losses"):
+                    state.losses = dict(event["losses"])
+            elif kind == "stopped":
+                state.phase = "stopped"
+        if kind == "round" and event.get("version") is not None:
+            self._scan_versions()
+
+    def _scan_versions(self) -> bool:
+        """Pick up versions published since the last look (the folder is the truth; events may be lost)."""
+        versions = self.store.versions()
+        new = [v for v in versions if v.number not in self._known]
+        if not new:
+            return False
+        with self._lock:
+            self._known.update(v.number for v in new)
+            self._versions = [v.summary() for v in versions]
+            self._base = None  # the worker's line now ends in a published version: continue from the latest
+            following = self.pinned is None
+        if following:
+            self._offer(new[-1].number)
+        return True
+
+    def _handle_death(self, process: Any) -> bool:
+        with self._lock:
+            if self.state.alive:
+                self.state.alive = False
+                self.state.last_exit = process.exitcode
+                self.state.error = f"worker (pid {process.pid}) exited with code {process.exitcode}"
+                if time.monotonic() - self._started_at > self.stable_after:
+                    self._backoff = self.backoff_first
+                self.state.next_restart_at = time.monotonic() + self._backoff
+                self.state.phase = "restarting"
+                log.warning("%s; restarting in %.1f s", self.state.error, self._backoff)
+                self._backoff = min(self._backoff * 2, self.backoff_max)
+                return True
+            due = self.state.next_restart_at is not None and time.monotonic() >= self.state.next_restart_at
+        if due and not self._stop.is_set():
+            with self._lock:
+                self.state.restarts += 1
+            self._spawn()
+            return True
+        return False
+
+    # -- versions for the loop ---------------------------------------------------------------------------------
+    def _offer(self, number: int) -> None:
+        """Load ``number`` (off the loop's thread) and make it the version the loop takes at its next boundary."""
+        if number == self.in_control:
+            with self._lock:
+                self._pending = None
+            return
+        loaded: Any = None
+        if self.loader is not None:
+            try:
+                loaded = self.loader(self.store.get(number).path)
+            except Exception as exc:
+                with self._lock:
+                    self.state.error = f"version v{number:04d} does not load: {exc}"
+                log.warning("version v%04d does not load: %s", number, exc)
+                return
+        with self._lock:
+            self._pending = _Pending(number, loaded)
+
+    def take_pending(self) -> tuple[int, Any] | None:
+        """The version to switch to now (call at an episode boundary), or None. Clears it."""
+        with self._lock:
+            pending, self._pending = self._pending, None
+        if pending is None:
+            return None
+        return pending.number, pending.loaded
+
+    def mark_deployed(self, number: int) -> None:
+        with self._lock:
+            self.in_control = number
+
+    def pin(self, number: int) -> None:
+        """Run ``number`` from the next episode on and keep it, whatever the worker publishes."""
+        self.store.get(number)  # a clear error for a version that does not exist
+        with self._lock:
+            self.pinned = number
+        self._offer(number)
+
+    def follow(self) -> None:
+        """Unpin: run the newest version from the next episode on, and each new one as it is published."""
+        latest = self.store.latest()
+        with self._lock:
+            self.pinned = None
+        if latest is not None:
+            self._offer(latest.number)
+
+    def rollback(self, number: int) -> None:
+        """Deploy ``number`` again and continue fine-tuning from it (later versions stay on disk, listed)."""
+        self.store.get(number)
+        with self._lock:
+            self.pinned = None
+            self._base = number
+            commands = self._commands
+        with contextlib.suppress(Exception):
+            commands.put(("rebase", number))
+        self._offer(number)
+
+    # -- what the page shows ----------------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        with self._lock:
+            state = self.state
+            restart_in = None
+            if state.next_restart_at is not None:
+                restart_in = max(0.0, state.next_restart_at - time.monotonic())
+            return {
+                "alive": state.alive,
+                "pid": state.pid,
+                "starts": state.starts,
+                "restarts": state.restarts,
+                "phase": state.phase,
+                "progress": dict(state.progress),
+                "losses": dict(state.losses),
+                "error": state.error,
+                "restart_in": restart_in,
+                "in_control": self.in_control,
+                "pinned": self.pinned,
+                "pending": None if self._pending is None else self._pending.number,
+                "base": self._base,
+                "versions": list(self._versions),
+                "rounds": list(self.rounds)[-20:],
+            }

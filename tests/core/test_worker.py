@@ -1,0 +1,148 @@
+"""The fine-tuning worker process: versions from a live session, surviving a kill, pin / follow / rollback."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from core.agents import load_agent
+from core.experts import ScriptedExpert
+from core.finetune import FinetuneConfig, FinetuneError, VersionStore
+from core.loop import Runner
+from core.sessions import SessionStore
+from core.worker import FinetuneService, WorkerSpec
+from tests.core.test_finetune import deployed, point_env  # noqa: F401  (the module fixture)
+
+torch.set_num_threads(1)
+
+CONFIG = FinetuneConfig(updates=20, min_steps=16, wm_min_steps=40, report_every=5)
+
+
+def wait_for(condition: Callable[[], bool], timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.05)
+
+
+class SteppingLoop:
+    """A Runner stepping in a thread as the live loop does, recording into a session, counting steps."""
+
+    def __init__(self, store: SessionStore, policy: Path) -> None:
+        agent = load_agent(policy)
+        self.writer = store.create("point", scenario="dynamic")
+        env = point_env("dynamic")
+        self.runner = Runner(env, agent.policy, agent.make_gate(), ScriptedExpert(), deterministic=True)
+        self.writer.attach(self.runner)
+        self.steps = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.runner.step()
+            self.steps += 1
+            time.sleep(0.002)
+
+    def __enter__(self) -> SteppingLoop:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self.writer.close()
+
+
+@pytest.fixture
+def versions(deployed: Path, tmp_path: Path) -> VersionStore:  # noqa: F811
+    store = VersionStore(tmp_path / "versions")
+    store.ensure_initial(deployed)
+    return store
+
+
+def test_the_worker_publishes_versions_that_the_loop_can_take(versions: VersionStore, tmp_path: Path) -> None:
+    store = SessionStore(tmp_path / "sessions")
+    loaded: list[Path] = []
+
+    def loader(path: Path) -> str:
+        loaded.append(path)
+        return f"policy from {path.name}"
+
+    with SteppingLoop(store, versions.get(0).path) as loop:
+        spec = WorkerSpec(versions.root, store.root, loop.writer.session_id, CONFIG, poll_seconds=0.2)
+        service = FinetuneService(spec, loader).start()
+        try:
+            wait_for(lambda: service.status()["pending"] is not None, 120, "a first fine-tuned version")
+            status = service.status()
+            assert status["alive"] and status["pid"] != os.getpid() and status["in_control"] == 0
+            assert [v["number"] for v in status["versions"]][:2] == [0, 1] and status["versions"][1]["parent"] == 0
+            assert status["rounds"] and status["rounds"][0]["updates"] == 20 and status["losses"]
+            number, policy = service.take_pending()  # type: ignore[misc]
+            assert number >= 1 and policy == f"policy from v{number:04d}" and service.take_pending() is None
+            service.mark_deployed(number)
+            assert service.status()["in_control"] == number
+        finally:
+            service.stop()
+    assert not service.status()["alive"] and service.status()["phase"] == "stopped"
+
+
+def test_a_killed_worker_is_restarted_and_the_loop_goes_on(versions: VersionStore, tmp_path: Path) -> None:
+    store = SessionStore(tmp_path / "sessions")
+    with SteppingLoop(store, versions.get(0).path) as loop:
+        spec = WorkerSpec(versions.root, store.root, loop.writer.session_id, CONFIG, poll_seconds=0.2)
+        service = FinetuneService(spec, backoff=(0.2, 1.0)).start()
+        try:
+            wait_for(lambda: service.status()["phase"] != "starting", 60, "the worker to start")
+            first = service.pid
+            assert first is not None
+            os.kill(first, signal.SIGKILL)
+            steps_at_kill = loop.steps
+            wait_for(lambda: service.status()["restarts"] == 1 and service.status()["alive"], 30, "a restart")
+            assert service.pid != first and "exited with code -9" in (service.status()["error"] or "")
+            wait_for(lambda: service.status()["phase"] != "starting", 60, "the new worker to start")
+            assert loop.steps > steps_at_kill + 20  # the loop never waited for the worker
+            assert loop.runner.episode >= 1
+        finally:
+            service.stop()
+
+
+def test_pin_follow_and_rollback_decide_what_the_loop_takes_next(versions: VersionStore, tmp_path: Path) -> None:
+    store = SessionStore(tmp_path / "sessions")
+    from tests.core.test_finetune import record
+
+    session = record(store, versions.get(0).path, episodes=3)
+    spec = WorkerSpec(versions.root, store.root, session, CONFIG, poll_seconds=0.2)
+    service = FinetuneService(spec, loader=lambda path: path.name).start()
+    try:
+        wait_for(lambda: service.status()["pending"] == 1, 120, "the worker's first version")
+        assert service.take_pending() == (1, "v0001")
+        service.mark_deployed(1)
+        service.pin(0)  # back to the deployed starting policy, and stay there
+        assert service.take_pending() == (0, "v0000")
+        service.mark_deployed(0)
+        with pytest.raises(FinetuneError, match="v0042"):
+            service.pin(42)
+        service.follow()  # unpinned: the newest version from the next episode on
+        assert service.take_pending() == (1, "v0001")
+        service.mark_deployed(1)
+        service.rollback(0)  # deploy v0 again and fine-tune from it
+        assert service.take_pending() == (0, "v0000") and service.status()["base"] == 0
+        service.mark_deployed(0)
+        assert service.status()["pinned"] is None
+        # the worker continues from v0: its next version is a child of v0, and (following) the loop's next
+        wait_for(lambda: service.status()["pending"] == 2, 120, "a version fine-tuned from the rollback")
+        assert versions.get(2).parent == 0 and service.status()["base"] is None
+    finally:
+        service.stop()
+    with pytest.raises(FinetuneError):
+        service.rollback(9)
