@@ -73,7 +73,7 @@ class FinetuneConfig:
     """Gradient updates per round (critic + actor with value-weighted imitation, for SAGE)."""
     min_new_episodes: int = 1
     """Episodes that must have ended since the last round before the next one starts."""
-    min_steps: int = 64
+    min_steps: int = 32
     """Recorded steps needed before the first round (fewer cannot fill a sensible batch)."""
     refit_world_model: bool = True
     """Refit the world model on the session's data at every round (fear and curiosity learn the new ground)."""

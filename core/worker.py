@@ -57,7 +57,20 @@ class WorkerSpec:
 
 # -- the worker process -------------------------------------------------------------------------------------------
 def worker_main(spec: WorkerSpec, events: Any, commands: Any) -> None:
-    """Entry point of the worker process: rounds whenever there is new data, until told to stop."""
+    """Entry point of the worker process: rounds whenever there is new data, until told to stop.
+
+    Any error ends the process after reporting it (``{"kind": "error"}``); the service restarts it."""
+    try:
+        _work(spec, events, commands)
+    except BaseException as exc:
+        with contextlib.suppress(Exception):
+            events.put({"kind": "error", "error": f"{type(exc).__name__}: {exc}", "pid": os.getpid()})
+            events.close()
+            events.join_thread()  # the report must reach the pipe before the process ends
+        raise
+
+
+def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
     import torch
 
     torch.set_num_threads(spec.threads)
@@ -288,6 +301,9 @@ class FinetuneService:
                     state.losses = dict(event["losses"])
             elif kind == "stopped":
                 state.phase = "stopped"
+            elif kind == "error":
+                state.error = f"worker failed: {event.get('error')}"
+                state.phase = "failed"
         if kind == "round" and event.get("version") is not None:
             self._scan_versions()
 
@@ -311,7 +327,9 @@ class FinetuneService:
             if self.state.alive:
                 self.state.alive = False
                 self.state.last_exit = process.exitcode
-                self.state.error = f"worker (pid {process.pid}) exited with code {process.exitcode}"
+                reason = f"worker (pid {process.pid}) exited with code {process.exitcode}"
+                failed = self.state.error if self.state.phase == "failed" else None
+                self.state.error = f"{reason}: {failed}" if failed else reason
                 if time.monotonic() - self._started_at > self.stable_after:
                     self._backoff = self.backoff_first
                 self.state.next_restart_at = time.monotonic() + self._backoff

@@ -146,3 +146,15 @@ def test_pin_follow_and_rollback_decide_what_the_loop_takes_next(versions: Versi
         service.stop()
     with pytest.raises(FinetuneError):
         service.rollback(9)
+
+
+def test_a_worker_that_fails_says_why_and_is_retried_with_backoff(tmp_path: Path) -> None:
+    spec = WorkerSpec(tmp_path / "empty-versions", tmp_path / "sessions", "none", CONFIG, poll_seconds=0.2)
+    service = FinetuneService(spec, backoff=(0.2, 0.4)).start()
+    try:
+        wait_for(lambda: service.status()["restarts"] >= 1, 60, "a retry")
+        status = service.status()
+        assert "holds no version" in status["error"] and "exited with code 1" in status["error"]
+        assert status["in_control"] == 0  # the loop's policy is untouched
+    finally:
+        service.stop()
