@@ -7,6 +7,12 @@ JSON text built here, off the asyncio loop) and its scene handed to the viser dr
 
 When the operator starts holding the takeover key the loop steps at once and re-phases its clock, so
 a takeover does not wait up to a whole control period; the control rate itself never changes.
+
+Continual adaptation: when the policy is a trained agent (a checkpoint) and the session is recorded, a
+fine-tuning worker process (:class:`core.worker.FinetuneService`) learns from the session while the loop
+runs and publishes numbered versions (``<runs>/<session id>/versions/vNNNN``, v0000 = the policy deployed).
+The loop takes a new version only at an episode boundary: ``Runner.set_policy_at_boundary`` with a new gate
+bound to the new policy. The operator can pin a version, follow the newest, or roll back (``version``).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -30,9 +37,11 @@ from app.input_map import mapping_for
 from app.messages import ExpertMode
 from app.operator import OperatorConsole, PersonExpert
 from app.policies import LoadedPolicy
+from core.finetune import FinetuneConfig, FinetuneError, VersionStore
 from core.loop import EpisodeSummary, NoGate, Runner, StepRecord
 from core.protocol import simulator
 from core.sessions import SessionStore, SessionWriter
+from core.worker import FinetuneService, WorkerSpec
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +51,8 @@ Publish = Callable[[str], None]
 
 HISTORY = 600
 """Step messages kept for a page that connects late (its charts start full)."""
+EPISODE_LOG = 300
+"""Episodes kept for the page's takeover-rate-per-version chart."""
 
 
 @dataclass(frozen=True)
@@ -92,8 +103,24 @@ def dumps(message: dict[str, Any]) -> str:
     return json.dumps(message, separators=(",", ":"), allow_nan=False, default=str)
 
 
+def _is_agent(config: LiveConfig, loaded: LoadedPolicy) -> bool:
+    """A trained agent loaded from a checkpoint (the scripted expert and test stand-ins are not fine-tuned)."""
+    return bool(loaded.meta.get("method")) and Path(config.policy).exists()
+
+
 class CommandError(RuntimeError):
     """A command the loop refused (unknown simulator, policy that does not load, ...)."""
+
+
+@dataclass(frozen=True)
+class FinetuneSettings:
+    """Background fine-tuning of a trained policy on the session it drives (see the module docstring)."""
+
+    runs: Path
+    """Fine-tuning runs go to ``<runs>/<session id>/versions/``."""
+    config: FinetuneConfig = field(default_factory=FinetuneConfig)
+    backoff: tuple[float, float] = (1.0, 30.0)
+    """First and longest wait (s) before restarting a worker that died."""
 
 
 @dataclass
@@ -150,6 +177,12 @@ class World:
     writer: SessionWriter | None
     dt: float
     counters: Counters = field(default_factory=Counters)
+    finetune: FinetuneService | None = None
+    version: int | None = None
+    """The policy version in control (None when nothing is fine-tuned)."""
+    episode_log: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=EPISODE_LOG))
+    """Per finished episode: the version that drove it and its takeover rate (the page's adaptation chart)."""
+    base_label: str = ""
 
     @property
     def session_id(self) -> str | None:
@@ -183,7 +216,9 @@ class LiveLoop:
         scene_view: Any = None,
         clock: Callable[[], float] = time.monotonic,
         start_paused: bool = False,
+        finetune: FinetuneSettings | None = None,
     ) -> None:
+        self.finetune = finetune
         self.env_factory = env_factory
         self.policy_loader = policy_loader
         self.console = console
@@ -222,6 +257,8 @@ class LiveLoop:
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
+        if self.world.finetune is not None:
+            self.world.finetune.stop()
         if self.world.writer is not None:
             self.world.writer.close()
         self.world.env.close()
@@ -256,6 +293,8 @@ class LiveLoop:
                 "episode": world.runner.episode,
                 "policy_label": world.loaded.label,
                 "has_gate": not isinstance(world.loaded.gate, NoGate),
+                "version": world.version,
+                "finetune": self._finetune_state(world),
                 "action_dim": int(np.prod(world.env.action_space.shape or (1,))),
                 "operator": self.console.connected,
                 "counters": world.counters.as_dict(),
@@ -300,7 +339,14 @@ class LiveLoop:
                 meta={"policy_label": loaded.label, "seed": config.seed, "dt": control_period(env)},
                 scene_source=lambda: self.scene,
             )
-        world = World(config, env, runner, expert, loaded, writer, control_period(env))
+        world = World(config, env, runner, expert, loaded, writer, control_period(env), base_label=loaded.label)
+        if writer is not None and self.finetune is not None and self.store is not None and _is_agent(config, loaded):
+            try:
+                world.finetune = self._start_finetune(world)
+                world.version = 0
+            except Exception as exc:  # the loop drives on without fine-tuning, and says why
+                log.exception("fine-tuning could not start")
+                self.last_error = f"fine-tuning is off: {exc}"
         runner.step_listeners.append(self._capture_scene)
         if writer is not None:
             writer.attach(runner)
@@ -316,6 +362,8 @@ class LiveLoop:
                 f"cannot switch to {config.sim} / scenario {config.scenario} / {config.policy}: {exc}"
             ) from exc
         old, self.world = self.world, world
+        if old.finetune is not None:  # the old session's worker ends in the background (it may take a second)
+            threading.Thread(target=old.finetune.stop, name="finetune-stop", daemon=True).start()
         if old.writer is not None:
             old.writer.close()
         old.env.close()
@@ -339,6 +387,7 @@ class LiveLoop:
         message = record.to_message()
         message["type"] = "step"
         message["session"] = world.session_id
+        message["version"] = world.version
         message["request_person"] = bool(record.gate_fired and world.expert.mode == "person")
         operator = self.console.snapshot()
         message["operator_held"] = operator.held and operator.answering
@@ -367,10 +416,20 @@ class LiveLoop:
         world = self.world
         world.counters.episodes += 1
         collision = summary.metrics.get("collision", summary.metrics.get("collisions", 0))
-        world.counters.collisions += int(
-            bool(collision) and not (isinstance(collision, float) and math.isnan(collision))
+        collided = bool(collision) and not (isinstance(collision, float) and math.isnan(collision))
+        world.counters.collisions += int(collided)
+        world.episode_log.append(
+            {
+                "episode": summary.episode,
+                "version": world.version,
+                "takeover_rate": summary.takeover_rate,
+                "steps": summary.steps,
+                "collision": collided,
+                "success": bool(summary.metrics.get("success", False)),
+            }
         )
-        self.publish(dumps(_clean({"type": "episode", "session": world.session_id, **summary.as_row()})))
+        row = {"type": "episode", "session": world.session_id, "version": world.version, **summary.as_row()}
+        self.publish(dumps(_clean(row)))
         if summary.error:
             self.last_error = f"episode {summary.episode}: {summary.error}"
 
@@ -405,6 +464,8 @@ class LiveLoop:
 
     def _step_once(self) -> None:
         started = time.perf_counter()
+        if self.world.finetune is not None and self.world.runner.obs is None:
+            self._take_version(self.world)  # between episodes: the only moment a new version may take over
         try:
             self.world.runner.step()
         except Exception as exc:  # a policy or gate bug: report it, keep the loop alive, start over
@@ -465,6 +526,8 @@ class LiveLoop:
             else:
                 self._replace_world(config)
             return asdict(self.world.config)
+        elif op == "version":
+            return self._version_command(str(args["action"]), args.get("number"))
         elif op == "replay_open":
             return self._open_replay(str(args["session"]), int(args["episode"]))
         elif op == "replay_seek":
@@ -476,6 +539,62 @@ class LiveLoop:
         else:
             raise CommandError(f"unknown command {op!r}")
         return None
+
+    # -- fine-tuning ---------------------------------------------------------------------------------------
+    def _start_finetune(self, world: World) -> FinetuneService:
+        settings, store, writer = self.finetune, self.store, world.writer
+        assert settings is not None and store is not None and writer is not None
+        versions = VersionStore(settings.runs / writer.session_id / "versions")
+        versions.ensure_initial(world.config.policy)
+        spec = WorkerSpec(versions.root, store.root, writer.session_id, settings.config)
+        env, base_label = world.env, world.loaded.label
+
+        def load(path: Path) -> LoadedPolicy:  # runs on the service's thread, never the loop's
+            loaded = self.policy_loader(str(path), env)
+            return replace(loaded, label=f"{base_label} · {path.name}")
+
+        def changed() -> None:
+            if self.world is world:
+                self.publish(dumps(_clean({"type": "finetune", **self._finetune_state(world)})))
+
+        return FinetuneService(spec, load, backoff=settings.backoff, on_change=changed).start()
+
+    def _finetune_state(self, world: World) -> dict[str, Any] | None:
+        if world.finetune is None:
+            return None
+        return {**world.finetune.status(), "episodes": list(world.episode_log)}
+
+    def _take_version(self, world: World) -> None:
+        assert world.finetune is not None
+        pending = world.finetune.take_pending()
+        if pending is None:
+            return
+        number, loaded = pending
+        # the runner swaps the policy when it resets for the next episode; the gate must watch that policy
+        world.runner.set_policy_at_boundary(loaded.policy)
+        world.runner.gate = loaded.gate
+        world.loaded = loaded
+        world.version = number
+        world.finetune.mark_deployed(number)
+        self.publish(dumps(self.state()))
+
+    def _version_command(self, action: str, number: int | None) -> dict[str, Any]:
+        service = self.world.finetune
+        if service is None:
+            raise CommandError("no fine-tuning here: it runs for a trained policy on a recorded session")
+        try:
+            if action == "pin":
+                service.pin(int(number))  # type: ignore[arg-type]
+            elif action == "rollback":
+                service.rollback(int(number))  # type: ignore[arg-type]
+            elif action == "follow":
+                service.follow()
+            else:
+                raise CommandError(f"unknown version action {action!r}")
+        except FinetuneError as exc:
+            raise CommandError(str(exc)) from None
+        status = service.status()
+        return {"pinned": status["pinned"], "pending": status["pending"], "in_control": status["in_control"]}
 
     def _open_replay(self, session: str, episode: int) -> dict[str, Any]:
         if self.store is None:

@@ -4,7 +4,7 @@ Every message is a JSON object with a ``type`` field; pydantic picks the model f
 union) and rejects unknown types, unknown fields, non-finite numbers and out-of-range values. A message
 that fails validation gets an ``error`` reply naming the problem and never reaches the loop.
 
-Messages that act on the loop (``input``, ``presence``, ``control``, ``configure``, ``replay``...) carry
+Messages that act on the loop (``input``, ``presence``, ``control``, ``configure``, ``version``, ``replay``...) carry
 the control ``token`` the server issued to the one operator; viewers have none and are refused.
 """
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 ExpertMode = Literal["person", "scripted", "person_fallback"]
 """Who answers a takeover: ``person`` (the operator; the scripted expert bridges only while the operator
@@ -84,6 +84,23 @@ class Configure(_Operator):
     expert_mode: ExpertMode | None = None
 
 
+class VersionControl(_Operator):
+    """Choose the fine-tuned policy version that drives (taken at the next episode boundary).
+
+    ``pin``: run ``version`` and keep it whatever the worker publishes; ``follow``: run the newest version and
+    each new one as it appears; ``rollback``: run ``version`` again and continue fine-tuning from it."""
+
+    type: Literal["version"]
+    op: Literal["pin", "follow", "rollback"]
+    version: int | None = Field(default=None, ge=0, le=1_000_000)
+
+    @model_validator(mode="after")
+    def _version_given(self) -> VersionControl:
+        if self.op in ("pin", "rollback") and self.version is None:
+            raise ValueError(f"{self.op} needs a version number")
+        return self
+
+
 class ReplayOpen(_Operator):
     type: Literal["replay_open"]
     session: str = Field(min_length=1, max_length=128)
@@ -105,7 +122,18 @@ class Ping(_Message):
 
 
 ClientMessage = Annotated[
-    Claim | Release | Input | Presence | Control | Speed | Configure | ReplayOpen | ReplaySeek | ReplayClose | Ping,
+    Claim
+    | Release
+    | Input
+    | Presence
+    | Control
+    | Speed
+    | Configure
+    | VersionControl
+    | ReplayOpen
+    | ReplaySeek
+    | ReplayClose
+    | Ping,
     Field(discriminator="type"),
 ]
 _adapter: TypeAdapter[ClientMessage] = TypeAdapter(ClientMessage)

@@ -10,7 +10,8 @@ Routes
   ``/api/sessions/{id}/export.{csv|parquet}[?episode=N]``  download steps
 
 viser runs in this process on its own loopback port (``port=0``); the live loop runs the one
-:meth:`core.loop.Runner.step` in a background thread (:mod:`app.live`).
+:meth:`core.loop.Runner.step` in a background thread (:mod:`app.live`). A trained policy driving a recorded
+session is fine-tuned on it by a worker process (``ServerSettings.finetune``); the page shows its versions.
 """
 
 from __future__ import annotations
@@ -36,11 +37,12 @@ from fastapi.staticfiles import StaticFiles
 
 from app import messages as m
 from app.hub import Client, Hub
-from app.live import CommandError, LiveConfig, LiveLoop, PolicyLoader, dumps
+from app.live import CommandError, FinetuneSettings, LiveConfig, LiveLoop, PolicyLoader, dumps
 from app.operator import ControlDesk, OperatorConsole
 from app.policies import SCRIPTED, default_policy, discover, load_policy
 from app.sim_choices import listed, make_kwargs
 from app.viser_proxy import ViserProxy
+from core.finetune import FinetuneConfig
 from core.sessions import SessionError, SessionStore
 
 log = logging.getLogger(__name__)
@@ -99,6 +101,17 @@ class ServerSettings:
     catalogue: Callable[[], dict[str, dict[str, Any]]] = sim_catalogue
     viser_host: str = "127.0.0.1"
     viser_port: int = 0
+    finetune: bool = True
+    """Fine-tune a trained policy on the session it drives, in a worker process (needs ``sessions``)."""
+    finetune_runs: Path | None = None
+    """Where fine-tuning versions go (``<runs>/<session id>/versions``); None: ``runs/live`` beside ``sessions``."""
+    finetune_config: FinetuneConfig = field(default_factory=FinetuneConfig)
+
+    def finetune_settings(self) -> FinetuneSettings | None:
+        if not self.finetune or self.sessions is None:
+            return None
+        runs = self.finetune_runs or Path(self.sessions).resolve().parent / "runs" / "live"
+        return FinetuneSettings(runs, self.finetune_config)
 
 
 class Dashboard:
@@ -149,6 +162,7 @@ class Dashboard:
             "store": self.store,
             "scene_view": self.scene_view,
             "start_paused": settings.start_paused,
+            "finetune": settings.finetune_settings(),
         }
         try:
             self.live = LiveLoop(config, **loop_args)
@@ -229,6 +243,8 @@ async def _handle(dash: Dashboard, client: Client, raw: str | bytes) -> str | No
             if msg.scenario is None and catalogue[msg.sim]["scenarios"]:
                 args["scenario"] = catalogue[msg.sim]["scenarios"][0]["id"]
         future = dash.live.submit("configure", **args)
+    elif isinstance(msg, m.VersionControl):
+        future = dash.live.submit("version", action=msg.op, number=msg.version)
     elif isinstance(msg, m.ReplayOpen):
         future = dash.live.submit("replay_open", session=msg.session, episode=msg.episode)
     elif isinstance(msg, m.ReplaySeek):

@@ -1,4 +1,4 @@
-// The SAGE dashboard page: live stream, charts, operator input (keyboard and gamepad), replay.
+// The SAGE dashboard page: live stream, charts, operator input (keyboard and gamepad), replay, fine-tuning.
 // The scene itself is viser's viewer in the iframe, on this same origin, so keys pressed inside the
 // 3D view are caught here (capture phase) before viser's camera controls see them.
 "use strict";
@@ -16,6 +16,7 @@ const S = {
   live: [], replay: null, replayT: 0, errors: [], acks: 0,
   input: { throttle: 0, steer: 0, held: false, source: "keyboard", seq: 0 },
   inputsSent: 0, presence: { focused: true, visible: true },
+  finetune: null, version: null,
 };
 window.sage = S; // for tests and for the curious
 
@@ -100,6 +101,11 @@ const handlers = {
   episode(msg) {
     const outcome = msg.collision ? "collision" : msg.success ? "success" : msg.error ? "error" : "done";
     toast(`Episode ${msg.episode} ${outcome}: ${msg.steps} steps, takeover ${pct(msg.takeover_rate)}`, "info");
+    if (S.finetune && msg.session === S.session) {
+      S.finetune.episodes.push({ episode: msg.episode, version: msg.version, takeover_rate: msg.takeover_rate,
+        steps: msg.steps, collision: Boolean(msg.collision), success: Boolean(msg.success) });
+      drawTakeoverChart();
+    }
     sessionsStale = true;
     setTimeout(() => { if (sessionsStale) refreshSessions(); }, 700);
   },
@@ -115,6 +121,7 @@ const handlers = {
     toast(msg.error);
   },
   ack(msg) { S.acks += 1; },
+  finetune(msg) { applyFinetune(msg); },
   replay(msg) { enterReplay(msg); },
   replay_frame(msg) { showReplayFrame(msg.t, msg.length, msg.labels); },
   replay_closed() { exitReplay(); },
@@ -125,7 +132,7 @@ const handlers = {
 function applyState(state) {
   S.state = state;
   if (state.session !== S.session) {
-    S.session = state.session; S.live = []; S.k = 0; S.lastEpisode = -1; S.lastT = -1;
+    S.session = state.session; S.live = []; S.k = 0; S.lastEpisode = -1; S.lastT = -1; S.versionPicked = undefined;
     if (!S.replay) redrawLive();
   }
   const c = state.config;
@@ -139,6 +146,8 @@ function applyState(state) {
   renderMode();
   renderControls();
   renderCounters(state.counters);
+  S.version = state.version;
+  applyFinetune(state.finetune);
   if (state.error && state.error !== S.lastShownError) { S.lastShownError = state.error; toast(state.error); }
 }
 
@@ -254,6 +263,7 @@ function renderRole() {
   pill.textContent = operator ? "OPERATOR" : "VIEWER";
   $("btn-claim").hidden = operator || !S.connected || Boolean(S.state && S.state.operator);
   renderControls();
+  renderFinetune();
 }
 
 function renderMode() {
@@ -425,6 +435,108 @@ $("replay-play").onclick = (e) => {
     seek(S.replayT + 1);
   }, 100);
 };
+
+// ---------------------------------------------------------------- fine-tuning
+// A worker process fine-tunes the policy on this session and publishes versions; the loop takes a new one at
+// the next episode boundary. The chart shows each episode's takeover rate, coloured by the version that drove it.
+const vname = (n) => (n === null || n === undefined ? "–" : `v${String(n).padStart(4, "0")}`);
+const versionColor = (n) => `hsl(${(170 + 47 * (n || 0)) % 360}, 70%, 58%)`;
+
+function applyFinetune(ft) {
+  S.finetune = ft || null;
+  renderFinetune();
+}
+
+function renderFinetune() {
+  const ft = S.finetune;
+  const viewer = S.role !== "operator";
+  for (const id of ["btn-pin", "btn-rollback", "btn-follow", "sel-version"]) $(id).disabled = viewer || !ft;
+  if (!ft) {
+    $("ft-worker").textContent = "off";
+    $("ft-version").textContent = "–";
+    $("ft-mode").textContent = "runs for a trained policy on a recorded session";
+    $("ft-phase").textContent = "–";
+    $("ft-losses").textContent = "";
+    $("ft-bar").style.setProperty("--p", "0%");
+    fillSelect($("sel-version"), [], "");
+    drawTakeoverChart();
+    return;
+  }
+  const worker = ft.alive ? `worker pid ${ft.pid}` : ft.restart_in !== null ? `restarting in ${ft.restart_in.toFixed(0)} s` : "worker down";
+  $("ft-worker").textContent = worker + (ft.restarts ? ` · ${ft.restarts} restart${ft.restarts > 1 ? "s" : ""}` : "");
+  $("ft-version").textContent = vname(ft.in_control);
+  let mode = ft.pinned !== null ? `pinned to ${vname(ft.pinned)}` : "following the newest";
+  if (ft.pending !== null) mode += ` · ${vname(ft.pending)} from the next episode`;
+  $("ft-mode").textContent = mode;
+  const p = ft.progress || {};
+  const share = p.updates ? (100 * p.update) / p.updates : 0;
+  $("ft-bar").style.setProperty("--p", `${ft.phase === "training" ? share : ft.phase === "round done" ? 100 : 0}%`);
+  $("ft-phase").textContent = ft.phase === "training" ? `training ${p.update}/${p.updates}` : ft.phase;
+  const l = ft.losses || {};
+  const parts = [["critic", l.critic_loss], ["actor", l.actor_loss], ["imitation", l.bc_loss], ["ω", l.omega_mean]]
+    .filter(([, v]) => Number.isFinite(v)).map(([k, v]) => `${k} ${fmt(v, 3)}`);
+  $("ft-losses").textContent = parts.length ? parts.join(" · ") : "losses appear after the first round";
+  $("ft-losses").title = ft.error || "";
+  const select = $("sel-version");
+  const keep = S.versionPicked !== undefined ? S.versionPicked : String(ft.in_control);
+  const items = ft.versions.slice().reverse().map((v) => ({
+    value: String(v.number),
+    label: `${vname(v.number)}${v.parent !== null ? ` · from ${vname(v.parent)}` : " · deployed"}` +
+      `${v.updates ? ` · ${v.updates} upd` : ""}${v.number === ft.in_control ? " · in control" : ""}`,
+  }));
+  fillSelect(select, items, items.some((i) => i.value === keep) ? keep : String(ft.in_control));
+  drawTakeoverChart();
+}
+
+function drawTakeoverChart() {
+  const canvas = $("chart-takeover");
+  const dpr = window.devicePixelRatio || 1;
+  const w = canvas.clientWidth, h = canvas.clientHeight;
+  if (!w || !h) return;
+  if (canvas.width !== Math.round(w * dpr)) { canvas.width = Math.round(w * dpr); canvas.height = Math.round(h * dpr); }
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  ctx.clearRect(0, 0, w, h);
+  ctx.font = "10px system-ui, sans-serif";
+  const episodes = S.finetune ? S.finetune.episodes.slice(-60) : [];
+  ctx.fillStyle = color("--muted");
+  if (!episodes.length) {
+    ctx.fillText(S.finetune ? "takeover rate per episode appears as episodes end" : "no fine-tuning", 8, h / 2 + 3);
+    return;
+  }
+  const top = 12, bottom = h - 4, left = 26, slot = (w - left - 4) / Math.max(episodes.length, 12);
+  ctx.strokeStyle = "#26323f"; ctx.lineWidth = 1;
+  for (const frac of [0, 0.5, 1]) {
+    const y = bottom - frac * (bottom - top);
+    ctx.beginPath(); ctx.moveTo(left, y + 0.5); ctx.lineTo(w - 4, y + 0.5); ctx.stroke();
+    ctx.fillText(`${Math.round(frac * 100)}%`, 2, y + 3);
+  }
+  let previous = null, labelledAt = -Infinity;
+  episodes.forEach((e, i) => {
+    const x = left + i * slot;
+    const barH = Math.max(1, (bottom - top) * Math.min(1, e.takeover_rate || 0));
+    ctx.fillStyle = versionColor(e.version);
+    ctx.fillRect(x + 1, bottom - barH, Math.max(1, slot - 2), barH);
+    if (e.collision) { ctx.fillStyle = "#ef4444"; ctx.fillRect(x + 1, top - 4, Math.max(2, slot - 2), 3); }
+    if (e.version !== previous) {
+      ctx.fillStyle = versionColor(e.version);
+      ctx.fillRect(x, top, 1, bottom - top); // where a new version took over
+      if (x - labelledAt > 24) { ctx.fillText(vname(e.version).replace(/^v0+(?=\d)/, "v"), x + 2, 9); labelledAt = x; }
+      previous = e.version;
+    }
+  });
+}
+new ResizeObserver(() => drawTakeoverChart()).observe($("chart-takeover"));
+
+function versionAction(op) {
+  const number = Number($("sel-version").value);
+  if (op !== "follow" && !Number.isFinite(number)) { toast("Pick a version first."); return; }
+  sendOperator(op === "follow" ? { type: "version", op } : { type: "version", op, version: number });
+}
+$("btn-pin").onclick = (e) => { versionAction("pin"); e.target.blur(); };
+$("btn-rollback").onclick = (e) => { versionAction("rollback"); e.target.blur(); };
+$("btn-follow").onclick = (e) => { versionAction("follow"); e.target.blur(); };
+$("sel-version").onchange = (e) => { S.versionPicked = e.target.value; e.target.blur(); };
 
 // ---------------------------------------------------------------- operator input
 const keys = new Set();
