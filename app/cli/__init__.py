@@ -12,6 +12,7 @@ COMMAND_MODULES = (
     "app.cli.serve",  # sage serve
     "app.cli.export",  # sage export
     "app.cli.figures",  # sage figure
+    "app.cli.cycles",  # sage cycles
 )
 
 app = typer.Typer(

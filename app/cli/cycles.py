@@ -1,0 +1,86 @@
+"""``sage cycles``: deploy → takeover → fine-tune cycles, headless, and the paper's continual-adaptation figures.
+
+    sage cycles --sim ugv --scenario 3 --cycles 9 --episodes-per-cycle 3 --policy policies/ugv-default --out DIR
+
+Each cycle deploys the current policy version with its SAGE gate and the scripted expert, records the session, then
+fine-tunes on it with the same function the live server's worker runs (:mod:`core.finetune`) and deploys the new
+version in the next cycle (:mod:`app.studies.cycles`). Writes the per-cycle table (``table.md``), ``cycles.json``,
+and the figures (:mod:`app.cycles_plot`): ``trajectories.png`` (paths over the cycles, coloured by cycle),
+``signals_cycle<K>.png`` (fear, threshold and takeover intervals in cycle K) and ``cycles_summary.png``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``sage cycles``."""
+
+    @app.command("cycles")
+    def cycles(
+        sim: Annotated[str, typer.Option(help="Simulator.")] = "ugv",
+        scenario: Annotated[str, typer.Option(help="Scenario of every cycle (UGV 3: a crossing vehicle).")] = "3",
+        cycles: Annotated[int, typer.Option(min=1, help="Deployment cycles (fine-tuning rounds between them).")] = 9,
+        episodes_per_cycle: Annotated[int, typer.Option(min=1, help="Episodes deployed per cycle.")] = 3,
+        policy: Annotated[
+            str | None, typer.Option(help="Run folder or checkpoint deployed first (default: policies/<sim>-default).")
+        ] = None,
+        out: Annotated[Path | None, typer.Option(help="Run folder (default: runs/cycles-SIM-SCENARIO-sSEED).")] = None,
+        seed: Annotated[int, typer.Option(help="Episode e of every cycle uses seed + e.")] = 0,
+        show_cycle: Annotated[int, typer.Option(min=1, help="Cycle whose fear / threshold / takeovers are drawn.")] = 1,
+        updates: Annotated[int, typer.Option(min=0, help="Gradient updates per fine-tuning round.")] = 400,
+        set_: Annotated[
+            list[str] | None,
+            typer.Option("--set", help="Learner config override for fine-tuning, key=value (repeatable)."),
+        ] = None,
+        stochastic: Annotated[bool, typer.Option(help="Deploy the sampled policy instead of its mean action.")] = False,
+        max_episode_steps: Annotated[int | None, typer.Option(min=1, help="Cut episodes at this many steps.")] = None,
+        figures: Annotated[Path | None, typer.Option(help="Folder for the figures (default: the run folder).")] = None,
+        quiet: Annotated[bool, typer.Option(help="No per-cycle progress lines.")] = False,
+    ) -> None:
+        """Run deploy / takeover / fine-tune cycles headless; print the per-cycle table; draw the figures."""
+        import torch
+
+        from app.cycles_plot import write_figures
+        from app.studies.cycles import CyclesConfig, format_cycle_table, read_cycles, run_cycles
+        from app.studies.envs import env_factory
+        from core.finetune import FinetuneConfig, FinetuneError
+
+        torch.set_num_threads(1)
+        if show_cycle > cycles:
+            _fail(f"--show-cycle {show_cycle} is past the last cycle ({cycles})")
+        policy_path = policy or f"policies/{sim}-default"
+        if not Path(policy_path).exists():
+            _fail(f"no policy at {policy_path!r} (give --policy a run folder or a checkpoint)")
+        folder = out or Path("runs") / f"cycles-{sim}-{scenario}-s{seed}"
+        try:
+            make_env = env_factory(sim)
+            config = CyclesConfig(
+                sim=sim,
+                scenario=scenario,
+                policy=policy_path,
+                cycles=cycles,
+                episodes_per_cycle=episodes_per_cycle,
+                seed=seed,
+                deterministic=not stochastic,
+                max_episode_steps=max_episode_steps,
+                finetune=FinetuneConfig(updates=updates, overrides=tuple(set_ or ()), seed=seed),
+            )
+            result = run_cycles(config, folder, make_env, progress=None if quiet else typer.echo)
+        except (ValueError, FileNotFoundError, FileExistsError, FinetuneError) as exc:
+            _fail(str(exc))
+        table = format_cycle_table(result.cycles, result.rounds)
+        (folder / "table.md").write_text(table + "\n")
+        typer.echo(table)
+        for path in write_figures(folder, read_cycles(folder), show_cycle, figures):
+            typer.echo(f"figure: {path}")
+        typer.echo(f"run folder: {folder} ({result.seconds:.0f} s)")

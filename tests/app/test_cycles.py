@@ -1,0 +1,109 @@
+"""``sage cycles``: deploy → takeover → fine-tune cycles on the UGV crossing scenario, the table and the figures.
+
+They deploy the committed default UGV policy (``policies/ugv-default``; ``SAGE_UGV_POLICY`` names another one to
+try). The fast test runs the whole path (loop + gate + scripted expert + session store + the worker's fine-tuning
+round + the swap + the figures) on short episodes; the slow one checks that takeovers fall over the cycles.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from app.cli import app
+from app.cycles_plot import cycle_signals, load_paths, trajectories
+from app.studies.cycles import CyclesConfig, cycle_rows, read_cycles, run_cycles
+from app.studies.envs import env_factory
+from core.finetune import FinetuneConfig, VersionStore
+from core.sessions import SessionStore
+
+torch.set_num_threads(1)
+ROOT = Path(__file__).resolve().parents[2]
+POLICY = Path(os.environ.get("SAGE_UGV_POLICY", ROOT / "policies" / "ugv-default"))
+
+
+@pytest.fixture
+def policy() -> Path:
+    if not (POLICY / "checkpoint.pt").is_file():
+        pytest.skip(f"no committed default UGV policy at {POLICY}")
+    return POLICY
+
+
+def test_sage_cycles_deploys_fine_tunes_swaps_and_draws(policy: Path, tmp_path: Path) -> None:
+    out = tmp_path / "cycles"
+    args = ["cycles", "--sim", "ugv", "--scenario", "3", "--cycles", "2", "--episodes-per-cycle", "1"]
+    args += ["--policy", str(policy), "--out", str(out), "--updates", "30", "--max-episode-steps", "70"]
+    args += ["--show-cycle", "2", "--quiet"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "| 1 | v0000 | 1 |" in result.output and "| 2 | v0001 | 1 |" in result.output
+    data = read_cycles(out)
+    assert [e["cycle"] for e in data["episodes"]] == [1, 2] and [e["version"] for e in data["episodes"]] == [0, 1]
+    assert data["rounds"][0]["version"] == 1 and data["rounds"][0]["updates"] == 30
+    assert data["rounds"][0]["after_cycle"] == 1 and data["rounds"][0]["episodes"] == [0]
+    assert [v.number for v in VersionStore(out / "versions").versions()] == [0, 1]
+    store = SessionStore(out / "sessions")
+    assert store.info(data["session"]).episodes == 2
+    steps = store.steps(data["session"], 0)
+    assert steps["takeover"].any(), "the gate should hand the crossing to the expert at least once"
+    assert np.isfinite(steps["fear"]).all() and np.isfinite(steps["threshold"]).all()
+    for name in ("trajectories.png", "signals_cycle2.png", "cycles_summary.png", "table.md"):
+        assert (out / name).stat().st_size > 1000 or name == "table.md"
+        assert (out / name).read_bytes()[:4] == b"\x89PNG" or name == "table.md"
+    # one path per episode, each in its cycle's colour, over the scenario's map
+    paths = load_paths(store, data["session"], data["episodes"])
+    fig = trajectories(paths)
+    coloured = {tuple(line.get_color()) for line in fig.axes[0].get_lines() if line.get_linewidth() == 1.6}
+    assert len(coloured) == 2 and all(len(p.xy) == e["steps"] for p, e in zip(paths, data["episodes"], strict=True))
+    with pytest.raises(ValueError, match="no cycle 5"):
+        cycle_signals(paths, 5)
+
+
+def test_sage_cycles_refuses_bad_options_by_name(policy: Path, tmp_path: Path) -> None:
+    cli = CliRunner()
+    result = cli.invoke(app, ["cycles", "--cycles", "3", "--show-cycle", "4", "--policy", str(policy)])
+    assert result.exit_code == 2 and "--show-cycle 4" in result.output
+    result = cli.invoke(app, ["cycles", "--policy", str(tmp_path / "missing"), "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "missing" in result.output
+    (tmp_path / "used" / "versions").mkdir(parents=True)
+    result = cli.invoke(app, ["cycles", "--policy", str(policy), "--out", str(tmp_path / "used")])
+    assert result.exit_code == 2 and "already holds" in result.output
+
+
+def test_cycle_rows_weigh_takeovers_by_steps() -> None:
+    episodes: list[dict[str, Any]] = [
+        {"cycle": 1, "version": 0, "steps": 100, "takeovers": 50, "takeover_events": 2, "success": 1.0,
+         "collision": 0.0, "mean_fear": 0.3, "return": 10.0},
+        {"cycle": 1, "version": 0, "steps": 50, "takeovers": 0, "takeover_events": 0, "success": 0.0,
+         "collision": 1.0, "mean_fear": None, "return": -90.0},
+        {"cycle": 2, "version": 1, "steps": 80, "takeovers": 8, "takeover_events": 1, "success": 1.0,
+         "collision": 0.0, "mean_fear": 0.2, "return": 20.0},
+    ]  # fmt: skip
+    first, second = cycle_rows(episodes)
+    assert first["takeover_rate"] == pytest.approx(50 / 150) and first["success"] == 0.5
+    assert first["collision"] == 0.5 and first["mean_fear"] == pytest.approx(0.3) and first["return"] == -40.0
+    assert second["version"] == 1 and second["takeover_rate"] == pytest.approx(0.1)
+
+
+@pytest.mark.slow
+def test_takeovers_fall_over_deployment_and_fine_tuning_cycles(policy: Path, tmp_path: Path) -> None:
+    """The paper's field test 3 in small: the same two crossings deployed six times, fine-tuned in between."""
+    cfg = CyclesConfig(
+        sim="ugv",
+        scenario="3",
+        policy=str(policy),
+        cycles=6,
+        episodes_per_cycle=2,
+        finetune=FinetuneConfig(updates=300),
+    )
+    result = run_cycles(cfg, tmp_path / "cycles", env_factory("ugv"))
+    rates = [row["takeover_rate"] for row in result.cycles]
+    assert rates[-1] < rates[0], json.dumps(result.cycles, indent=1)
+    assert result.cycles[-1]["collision"] <= result.cycles[0]["collision"]
