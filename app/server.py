@@ -104,13 +104,13 @@ class ServerSettings:
     finetune: bool = True
     """Fine-tune a trained policy on the session it drives, in a worker process (needs ``sessions``)."""
     finetune_runs: Path | None = None
-    """Where fine-tuning versions go (``<runs>/<session id>/versions``); None: ``runs/live`` beside ``sessions``."""
+    """Where fine-tuning versions go (``<runs>/<session id>/versions``); None: ``<sessions>/finetune``."""
     finetune_config: FinetuneConfig = field(default_factory=FinetuneConfig)
 
     def finetune_settings(self) -> FinetuneSettings | None:
         if not self.finetune or self.sessions is None:
             return None
-        runs = self.finetune_runs or Path(self.sessions).resolve().parent / "runs" / "live"
+        runs = self.finetune_runs or Path(self.sessions) / "finetune"
         return FinetuneSettings(runs, self.finetune_config)
 
 
