@@ -132,8 +132,7 @@ def trajectories(paths: list[EpisodePath], title: str = "") -> Figure:
             xy = path.xy
             for first, last in _runs(path.takeover[: len(xy)]):
                 seg = xy[first : last + 2]
-                ax.plot(seg[:, 0], seg[:, 1], color=TAKEOVER_COLOUR, lw=6, alpha=0.22, zorder=4,
-                        solid_capstyle="round")
+                ax.plot(seg[:, 0], seg[:, 1], color=TAKEOVER_COLOUR, lw=6, alpha=0.22, zorder=4, solid_capstyle="round")
             ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.6, alpha=0.9, zorder=5)
             ax.plot(xy[0, 0], xy[0, 1], "o", color=colour, ms=3.5, zorder=6)
             if path.collision:
@@ -174,8 +173,7 @@ def cycle_signals(paths: list[EpisodePath], cycle: int, dt: float = 0.1) -> Figu
     fig = Figure(figsize=(11.0, 1.0 + 2.2 * rows), layout="constrained")
     axes = np.atleast_1d(fig.subplots(rows, 1, sharex=True))
     top = max(
-        [float(np.nanmax(v)) for p in group for v in (p.fear, p.threshold) if len(v) and np.isfinite(v).any()]
-        or [1.0]
+        [float(np.nanmax(v)) for p in group for v in (p.fear, p.threshold) if len(v) and np.isfinite(v).any()] or [1.0]
     )
     for ax, path in zip(axes, group, strict=False):
         time_s = path.t * dt
@@ -206,12 +204,13 @@ def cycle_summary(rows: list[dict[str, Any]]) -> Figure:
         raise ValueError("no cycles to draw")
     cycles = [int(r["cycle"]) for r in rows]
     cmap, norm = _cycle_colours(max(cycles))
-    fig = Figure(figsize=(8.0, 3.6), layout="constrained")
+    fig = Figure(figsize=(8.0, 3.9), layout="constrained")
     ax = fig.subplots()
     rates = [100 * float(r["takeover_rate"]) for r in rows]
     ax.bar(cycles, rates, color=[cmap(norm(c)) for c in cycles], alpha=0.85, label="takeover rate (steps)")
     for c, rate, row in zip(cycles, rates, rows, strict=True):
         ax.text(c, rate, f"v{int(row['version'])}", ha="center", va="bottom", fontsize=7, color="0.3")
+    ax.set_ylim(0, max(rates) * 1.15 + 1)  # room for the version labels
     ax.set_xlabel("cycle")
     ax.set_ylabel("takeover rate (% of steps)")
     ax.set_xticks(cycles)
@@ -224,8 +223,8 @@ def cycle_summary(rows: list[dict[str, Any]]) -> Figure:
     twin.set_ylim(-5, 105)
     lines = ax.get_legend_handles_labels()
     more = twin.get_legend_handles_labels()
-    ax.legend(lines[0] + more[0], lines[1] + more[1], loc="upper right", fontsize=8, framealpha=0.9)
-    fig.suptitle("Takeovers fall as the deployed policy learns from them", fontsize=11)
+    fig.legend(lines[0] + more[0], lines[1] + more[1], loc="outside lower center", ncol=3, frameon=False, fontsize=8)
+    fig.suptitle("Takeover rate, success and collision per deployment / fine-tuning cycle", fontsize=11)
     return fig
 
 

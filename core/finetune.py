@@ -464,8 +464,15 @@ class Finetuner:
                 result.skipped += 1
             if (k + 1) % cfg.report_every == 0 or k + 1 == cfg.updates:
                 means = {key: sums[key] / counts[key] for key in sums}
-                report({"phase": "training", "update": k + 1, "updates": cfg.updates, "skipped": result.skipped,
-                        "losses": means})
+                report(
+                    {
+                        "phase": "training",
+                        "update": k + 1,
+                        "updates": cfg.updates,
+                        "skipped": result.skipped,
+                        "losses": means,
+                    }
+                )
         result.losses = {key: sums[key] / counts[key] for key in sums} | wm_stats
         result.seconds = time.time() - started
         attempted = result.updates + result.skipped

@@ -11,6 +11,9 @@ while; a restarted worker rebuilds its buffer from the session and continues fro
 new version off the loop's thread (``loader``) and offers it to the loop, which takes it at the next episode
 boundary (:meth:`FinetuneService.take_pending`). The operator can pin a version (new versions are then only
 listed), follow the newest again, or roll back: deploy an older version and continue fine-tuning from it.
+
+Spawn starts a fresh interpreter that imports the parent's main module: a script that starts the live server
+(and so this service) must keep its work under ``if __name__ == "__main__":``, as ``sage`` and pytest do.
 """
 
 from __future__ import annotations
