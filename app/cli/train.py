@@ -5,7 +5,7 @@
     sage compare runs/s3 runs/s3-sac --episodes 20 --scenario 3
     sage train --sim highway --method sage --episodes 150            # closed-loop adversarial (CAT-style)
     sage eval runs/hw --sim highway --set test --mode normal,adversarial --episodes 50 --seeds 0,1,2,3,4
-    sage train --sim sumo --protocol route-shift --method sage --c1 60 --c2 30   # + figures in the run folder
+    sage train --sim sumo --protocol route-shift --method sage --c1 40 --c2 20   # + figures in the run folder
 
 ``--sim`` is any simulator of :data:`sims.SIMULATORS`; ``--scenario`` names its variant (a comma list
 trains on several in turn; :mod:`app.studies.envs`: UGV 1-4, highway train/test, SUMO c1/c2). The study
@@ -132,8 +132,8 @@ def register(app: typer.Typer) -> None:
         protocol: Annotated[
             str | None, typer.Option(help="Study protocol: route-shift (sumo: C1 on route 1, then C2).")
         ] = None,
-        c1: Annotated[int | None, typer.Option("--c1", help="route-shift: episodes of phase C1 (default 60).")] = None,
-        c2: Annotated[int | None, typer.Option("--c2", help="route-shift: episodes of phase C2 (default 30).")] = None,
+        c1: Annotated[int | None, typer.Option("--c1", help="route-shift: episodes of phase C1 (default 40).")] = None,
+        c2: Annotated[int | None, typer.Option("--c2", help="route-shift: episodes of phase C2 (default 20).")] = None,
         expert_c2: Annotated[
             str | None, typer.Option(help="route-shift: the expert run of phase C2 (default: the C1 expert).")
         ] = None,

@@ -104,7 +104,7 @@ def sage_signals(run: StudyRun, window: int | None = None) -> Figure:
     window = window or default_window(len(run.rows))
     episodes = np.arange(1, len(run.rows) + 1)
     colour = METHOD_COLOURS.get(run.method, "C3")
-    fig = Figure(figsize=(13.5, 4.0), layout="constrained")
+    fig = Figure(figsize=(13.5, 4.4), layout="constrained")
     axes = fig.subplots(1, len(SIGNAL_PANELS), sharex=True)
     for ax, (key, title, ylabel) in zip(axes, SIGNAL_PANELS, strict=True):
         raw = _column(run.rows, key)
@@ -118,7 +118,8 @@ def sage_signals(run: StudyRun, window: int | None = None) -> Figure:
         ax.set_ylabel(ylabel + (" (%)" if key == "takeover_rate" else ""))
         ax.set_xlim(0.5, len(run.rows) + 0.5)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=9, framealpha=0.9)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=2, fontsize=10, frameon=False)
     fig.suptitle(f"{run.label} internal signals over training ({run.path.name})", fontsize=12)
     return fig
 
