@@ -75,10 +75,17 @@ class RouteShift:
 
 
 def policy_expert(run: str | Path) -> PolicyExpert:
-    """A run's deterministic policy as the expert (``--expert-c2``)."""
+    """A run's deterministic policy as the expert of phase C2 (``--expert-c2``); it must fit the SUMO env."""
     from core.agents import load_agent
+    from sims.sumo.env import OBS_SIZE
 
-    return PolicyExpert(load_agent(run).policy)
+    agent = load_agent(run)
+    if (agent.meta.obs_dim, agent.meta.act_dim) != (OBS_SIZE, 1):
+        raise ValueError(
+            f"--expert-c2 {run}: its policy takes {agent.meta.obs_dim} observations / {agent.meta.act_dim} actions, "
+            f"the SUMO env has {OBS_SIZE} / 1"
+        )
+    return PolicyExpert(agent.policy)
 
 
 def write_study(out: Path, description: dict[str, Any]) -> Path:

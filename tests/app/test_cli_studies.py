@@ -123,6 +123,11 @@ def test_expert_option_is_recorded_and_a_misfit_expert_is_refused(highway_run: P
     )  # fmt: skip
     assert result.exit_code == 2
     assert "83 observations / 2 actions, this simulator has 29 / 1" in result.output
+    result = sage(
+        "train", "--sim", "sumo", "--protocol", "route-shift", "--c1", "1", "--c2", "1",
+        "--expert-c2", str(highway_run), "--out", str(tmp_path / "misfit-c2"), *TINY,
+    )  # fmt: skip
+    assert result.exit_code == 2 and "--expert-c2" in result.output and "the SUMO env has 29 / 1" in result.output
 
 
 @pytest.fixture(scope="module")
