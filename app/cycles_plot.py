@@ -235,16 +235,17 @@ def save(fig: Figure, path: Path, dpi: int = 110) -> Path:
     return path
 
 
-def write_figures(out: Path, data: dict[str, Any], show_cycle: int, figures: Path | None = None) -> list[Path]:
-    """Draw the three figures of the run in ``out`` (its ``cycles.json`` is ``data``) into ``figures``."""
+def write_figures(out: Path, data: dict[str, Any], show_cycles: list[int], figures: Path | None = None) -> list[Path]:
+    """Draw the figures of the run in ``out`` (its ``cycles.json`` is ``data``) into ``figures``: the trajectories,
+    the signals of each cycle in ``show_cycles``, and the summary."""
     figures = Path(figures or out)
     store = SessionStore(Path(out) / "sessions")
     paths = load_paths(store, data["session"], data["episodes"])
     info = store.info(data["session"])
     dt = float(info.meta.get("dt", 0.1))
     title = f"{info.sim} scenario {info.scenario}: trajectories over {max(p.cycle for p in paths)} cycles"
-    return [
-        save(trajectories(paths, title), figures / "trajectories.png"),
-        save(cycle_signals(paths, show_cycle, dt), figures / f"signals_cycle{show_cycle}.png"),
-        save(cycle_summary(data["cycles"]), figures / "cycles_summary.png"),
-    ]
+    written = [save(trajectories(paths, title), figures / "trajectories.png")]
+    for cycle in show_cycles:
+        written.append(save(cycle_signals(paths, cycle, dt), figures / f"signals_cycle{cycle}.png"))
+    written.append(save(cycle_summary(data["cycles"]), figures / "cycles_summary.png"))
+    return written

@@ -6,7 +6,8 @@ Each cycle deploys the current policy version with its SAGE gate and the scripte
 fine-tunes on it with the same function the live server's worker runs (:mod:`core.finetune`) and deploys the new
 version in the next cycle (:mod:`app.studies.cycles`). Writes the per-cycle table (``table.md``), ``cycles.json``,
 and the figures (:mod:`app.cycles_plot`): ``trajectories.png`` (paths over the cycles, coloured by cycle),
-``signals_cycle<K>.png`` (fear, threshold and takeover intervals in cycle K) and ``cycles_summary.png``.
+``signals_cycle<K>.png`` (fear, threshold and takeover intervals in cycle K, ``--show-cycle K``, repeatable) and
+``cycles_summary.png``.
 """
 
 from __future__ import annotations
@@ -36,7 +37,10 @@ def register(app: typer.Typer) -> None:
         ] = None,
         out: Annotated[Path | None, typer.Option(help="Run folder (default: runs/cycles-SIM-SCENARIO-sSEED).")] = None,
         seed: Annotated[int, typer.Option(help="Episode e of every cycle uses seed + e.")] = 0,
-        show_cycle: Annotated[int, typer.Option(min=1, help="Cycle whose fear / threshold / takeovers are drawn.")] = 1,
+        show_cycle: Annotated[
+            list[int] | None,
+            typer.Option(help="Cycle whose fear / threshold / takeovers are drawn (repeatable; default: the first)."),
+        ] = None,
         updates: Annotated[int, typer.Option(min=0, help="Gradient updates per fine-tuning round.")] = 400,
         set_: Annotated[
             list[str] | None,
@@ -56,8 +60,10 @@ def register(app: typer.Typer) -> None:
         from core.finetune import FinetuneConfig, FinetuneError
 
         torch.set_num_threads(1)
-        if show_cycle > cycles:
-            _fail(f"--show-cycle {show_cycle} is past the last cycle ({cycles})")
+        shown = show_cycle or [1]
+        for k in shown:
+            if not 1 <= k <= cycles:
+                _fail(f"--show-cycle {k} is not one of the cycles (1-{cycles})")
         policy_path = policy or f"policies/{sim}-default"
         if not Path(policy_path).exists():
             _fail(f"no policy at {policy_path!r} (give --policy a run folder or a checkpoint)")
@@ -81,6 +87,6 @@ def register(app: typer.Typer) -> None:
         table = format_cycle_table(result.cycles, result.rounds)
         (folder / "table.md").write_text(table + "\n")
         typer.echo(table)
-        for path in write_figures(folder, read_cycles(folder), show_cycle, figures):
+        for path in write_figures(folder, read_cycles(folder), shown, figures):
             typer.echo(f"figure: {path}")
         typer.echo(f"run folder: {folder} ({result.seconds:.0f} s)")

@@ -40,7 +40,7 @@ def test_sage_cycles_deploys_fine_tunes_swaps_and_draws(policy: Path, tmp_path: 
     out = tmp_path / "cycles"
     args = ["cycles", "--sim", "ugv", "--scenario", "3", "--cycles", "2", "--episodes-per-cycle", "1"]
     args += ["--policy", str(policy), "--out", str(out), "--updates", "30", "--max-episode-steps", "70"]
-    args += ["--show-cycle", "2", "--quiet"]
+    args += ["--show-cycle", "1", "--show-cycle", "2", "--quiet"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     assert "| 1 | v0000 | 1 |" in result.output and "| 2 | v0001 | 1 |" in result.output
@@ -54,7 +54,7 @@ def test_sage_cycles_deploys_fine_tunes_swaps_and_draws(policy: Path, tmp_path: 
     steps = store.steps(data["session"], 0)
     assert steps["takeover"].any(), "the gate should hand the crossing to the expert at least once"
     assert np.isfinite(steps["fear"]).all() and np.isfinite(steps["threshold"]).all()
-    for name in ("trajectories.png", "signals_cycle2.png", "cycles_summary.png", "table.md"):
+    for name in ("trajectories.png", "signals_cycle1.png", "signals_cycle2.png", "cycles_summary.png", "table.md"):
         assert (out / name).stat().st_size > 1000 or name == "table.md"
         assert (out / name).read_bytes()[:4] == b"\x89PNG" or name == "table.md"
     # one path per episode, each in its cycle's colour, over the scenario's map
@@ -69,7 +69,7 @@ def test_sage_cycles_deploys_fine_tunes_swaps_and_draws(policy: Path, tmp_path: 
 def test_sage_cycles_refuses_bad_options_by_name(policy: Path, tmp_path: Path) -> None:
     cli = CliRunner()
     result = cli.invoke(app, ["cycles", "--cycles", "3", "--show-cycle", "4", "--policy", str(policy)])
-    assert result.exit_code == 2 and "--show-cycle 4" in result.output
+    assert result.exit_code == 2 and "--show-cycle 4 is not one of the cycles (1-3)" in result.output
     result = cli.invoke(app, ["cycles", "--policy", str(tmp_path / "missing"), "--out", str(tmp_path / "x")])
     assert result.exit_code == 2 and "missing" in result.output
     (tmp_path / "used" / "versions").mkdir(parents=True)
@@ -92,18 +92,20 @@ def test_cycle_rows_weigh_takeovers_by_steps() -> None:
     assert second["version"] == 1 and second["takeover_rate"] == pytest.approx(0.1)
 
 
-@pytest.mark.slow
 def test_takeovers_fall_over_deployment_and_fine_tuning_cycles(policy: Path, tmp_path: Path) -> None:
-    """The paper's field test 3 in small: the same two crossings deployed six times, fine-tuned in between."""
+    """The paper's field test 3 in small: the same two crossings deployed four times, fine-tuned in between
+    (about 40 s on an idle core). The deployed policy never met a moving obstacle: in its first cycle the gate
+    hands much of the drive to the expert, and once a crossing vehicle hits it."""
     cfg = CyclesConfig(
         sim="ugv",
         scenario="3",
         policy=str(policy),
-        cycles=6,
+        cycles=4,
         episodes_per_cycle=2,
         finetune=FinetuneConfig(updates=300),
     )
     result = run_cycles(cfg, tmp_path / "cycles", env_factory("ugv"))
     rates = [row["takeover_rate"] for row in result.cycles]
-    assert rates[-1] < rates[0], json.dumps(result.cycles, indent=1)
+    assert rates[-1] < 0.75 * rates[0], json.dumps(result.cycles, indent=1)
     assert result.cycles[-1]["collision"] <= result.cycles[0]["collision"]
+    assert [row["version"] for row in result.cycles] == [0, 1, 2, 3]
