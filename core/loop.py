@@ -242,30 +242,32 @@ class Runner:
         return self.obs
 
     def step(self) -> StepRecord | None:
-        """One step of the loop. Returns None when the simulator failed (the episode was ended)."""
+        """One step of the loop. Returns None when the step failed (the episode was ended with the error)."""
         if self.obs is None:
             self.reset()
         obs = self.obs
         assert obs is not None
-        a_rl = np.asarray(self.policy.act(obs, deterministic=self.deterministic))
-        decision = self.gate.decide(obs, a_rl)
         expert = self.expert
-        takeover = expert is not None and (decision.fired or expert.wants_control())
         a_expert: np.ndarray | None = None
         actor: Actor = "agent"
-        action = a_rl
         try:
+            # Policies and gates may query the simulator too (the scripted expert as a policy does), so a
+            # dead simulator can surface anywhere in the step: any failure ends the episode, never the loop.
+            a_rl = np.asarray(self.policy.act(obs, deterministic=self.deterministic))
+            decision = self.gate.decide(obs, a_rl)
+            takeover = expert is not None and (decision.fired or expert.wants_control())
+            action = a_rl
             if takeover:
                 assert expert is not None
                 a_expert, actor = expert.act(self.env, obs)
                 a_expert = np.asarray(a_expert)
                 action = a_expert
             next_obs, reward, terminated, truncated, info = self.env.step(action)
-        except Exception as exc:  # a crashed simulator ends the episode, never the loop
+            curiosity = float(self.gate.observe(obs, action, next_obs))
+        except Exception as exc:
             self.end_episode(error=f"{type(exc).__name__}: {exc}")
-            log.warning("simulator error in episode %d: %s", self.episode, traceback.format_exc())
+            log.warning("step failed in episode %d: %s", self.episode, traceback.format_exc())
             return None
-        curiosity = float(self.gate.observe(obs, action, next_obs))
         record = StepRecord(
             episode=self.episode,
             t=self.t,

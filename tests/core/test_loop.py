@@ -106,3 +106,19 @@ def test_ending_an_episode_early_reports_it_once_and_starts_afresh() -> None:
     assert len(summaries) == 1 and summaries[0].steps == 2 and summaries[0].error is None
     record = runner.step()
     assert record is not None and record.episode == 1 and record.t == 0
+
+
+def test_a_policy_that_raises_ends_the_episode_not_the_loop() -> None:
+    class Flaky:
+        calls = 0
+
+        def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+            Flaky.calls += 1
+            if Flaky.calls == 3:
+                raise ConnectionResetError("simulator worker died")
+            return np.array([0.0], np.float32)
+
+    runner = Runner(LineEnv(horizon=5), Flaky())
+    summary = runner.run_episode()
+    assert summary.error is not None and "worker died" in summary.error and summary.steps == 2
+    assert runner.run_episode().error is None
