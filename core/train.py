@@ -232,12 +232,15 @@ class Trainer:
         rows: list[dict[str, Any]] = []
         if self.run.demo_episodes == 0:
             return rows
+        demonstrator = self.expert
+        if self.run.demo_noise > 0 and demonstrator is not None:
+            demonstrator = NoisyExpert(demonstrator, self.run.demo_noise, self.low, self.high, self.run.seed)
         runners = [
             Runner(
                 env,
                 self.learner,
                 AlwaysGate(),
-                self.expert,
+                demonstrator,
                 seed=self.run.seed + DEMO_SEED_OFFSET + j * SCENARIO_SEED_STRIDE,
             )
             for j, env in enumerate(self.envs.values())

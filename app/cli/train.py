@@ -186,6 +186,7 @@ def register(app: typer.Typer) -> None:
             seed=seed,
             init=init,
             demo_episodes=demo_episodes,
+            demo_noise=demo_noise,
             checkpoint_every=checkpoint_every,
             checkpoint_dtype=checkpoint_dtype,
             max_episode_steps=max_episode_steps,
