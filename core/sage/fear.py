@@ -16,8 +16,9 @@ state. At step k:
 ĉ and σ̂ are aggregated over the m steps separately (``max`` by default, or a discounted mean), so a danger
 three steps ahead counts as much as an immediate one, then F^m = β ĉ + (1 - β) σ̂ ∈ [0, 1].
 
-The same :func:`rollout` serves the gate (one state, ``torch.inference_mode``) and the learner (a batch,
-differentiable w.r.t. the first action and the policy, through the frozen folded weights of the model).
+:func:`rollout` / :func:`fear` serve the learner (a batch, differentiable w.r.t. the first action and the
+policy, through the frozen folded weights of the model) and any custom policy function; :class:`GateKernel`
+is the same computation for one state on preallocated buffers, for the gate (tested equal).
 
 Curiosity and threshold. C_t = ||ŝ_{t+1} - s_{t+1}||₂ on states normalised by the model's state std. With
 r = C_t / Ĉ_{t-1}, Ĉ an exponential moving average of recent curiosity (started at the held-out curiosity of the
@@ -184,13 +185,13 @@ class CuriosityThreshold:
 
 
 class GateKernel:
-    """The gate's F^m for one state: the computation of :func:`fear` on preallocated, contiguous buffers
-    with views prepared once, so that a step is a few dozen small tensor ops and no allocation of note.
+    """The gate's F^m for one state: the computation of :func:`fear` on preallocated buffers with views
+    prepared once, so that a step is a few dozen small tensor ops and no allocation of note.
 
-    States and actions live in separate contiguous buffers (the first layer's weights are split into a state
-    and an action part, so no concatenation is needed), the output layer is split into mean and log-variance
-    parts, and reductions over members run on contiguous memory: on a CPU, strided views and ``mean`` over
-    non-contiguous axes cost more than the matrix products here.
+    Each rollout step owns a block of rows [state, action] that the world model reads directly (no
+    concatenation); the next state and the policy's action are written into the next block in place, and
+    reductions over members use ``sum`` with the 1/N folded in (``mean`` over a strided axis costs more than
+    the matrix products on a CPU). The last rollout step needs no policy action.
 
     It reads the actor's parameters through views that stay valid while an optimiser updates them in
     place, and the world model's folded weights of the version it was built for (rebuild it after a fit).
@@ -211,29 +212,26 @@ class GateKernel:
         n, d, m = model.members, model.obs_dim, cfg.horizon
         act_dim = actor_layers[-1][0].shape[0]
         self.d, self.m, self.n = d, m, n
-        first_w, first_b = model.hidden[0]
-        self.first_state_w = first_w[:, :d].contiguous()
-        self.first_action_w = first_w[:, d:].contiguous()
-        self.first_b = first_b
-        self.rest = model.hidden[1:]
         self.out_w = model.out_weight[..., : 2 * d + 1].contiguous()  # (Δs, cost) means, then Δs log-variances
         self.out_b = model.out_bias[..., : 2 * d + 1].contiguous()
         self.delta_w = model.out_weight[..., :d].contiguous()
         self.delta_b = model.out_bias[..., :d].contiguous()
-        self.states = torch.zeros(m + 1, n, 1, d)
-        self.actions = torch.zeros(m, n, 1, act_dim)
+        self.x = torch.zeros(m + 1, n, 1, d + act_dim)  # rows [state, action], one block per step
+        self.states = self.x[..., :d]
+        self.actions = self.x[..., d:]
         self.outputs = torch.zeros(m, n, 1, 2 * d + 1)
         self.hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
         self.policy_buffers = [torch.empty(n, w.shape[0]) for w, _ in actor_layers]
         self.actor = [(b, w.t()) for w, b in actor_layers]
         self.scaled = not (bool((output_scale == 1).all()) and bool((output_bias == 0).all()))
         self.output_scale, self.output_bias = output_scale, output_bias
+        self.inputs = [self.x[k] for k in range(m)]
         self.state_steps = [self.states[k] for k in range(m + 1)]
         self.action_steps = [self.actions[k] for k in range(m)]
         self.output_steps = [self.outputs[k] for k in range(m)]
         self.raw_logvars = self.outputs[..., d + 1 :]
-        self.policy_inputs = [self.states[k + 1].view(n, d) for k in range(m)]
-        self.policy_outputs = [self.actions[k + 1].view(n, act_dim) for k in range(m - 1)]
+        self.policy_inputs = [self.x[k + 1, :, 0, :d] for k in range(m)]
+        self.policy_outputs = [self.x[k + 1, :, 0, d:] for k in range(m - 1)]
         self.deltas = [self.outputs[k, :, :, :d] for k in range(m)]
         self.predicted = self.states[1:]
         self.step_cost = self.outputs[..., d]
@@ -241,14 +239,12 @@ class GateKernel:
         self.sigma_divisor = 2.0 * step_scales(model.sigma_scale, m)
         self.weights = discount_weights(cfg)
         self.c_hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
+        self.c_input = torch.zeros(n, 1, d + act_dim)
         self.c_delta = torch.empty(n, 1, d)
 
-    def _trunk(self, state: Tensor, action: Tensor, buffers: list[Tensor]) -> Tensor:
-        h = buffers[0]
-        torch.baddbmm(self.first_b, state, self.first_state_w, out=h)
-        h.baddbmm_(action, self.first_action_w)
-        F.silu(h, inplace=True)
-        for (weight, bias), buf in zip(self.rest, buffers[1:], strict=True):
+    def _trunk(self, x: Tensor, buffers: list[Tensor]) -> Tensor:
+        h = x
+        for (weight, bias), buf in zip(self.model.hidden, buffers, strict=True):
             torch.baddbmm(bias, h, weight, out=buf)
             F.silu(buf, inplace=True)
             h = buf
@@ -262,7 +258,7 @@ class GateKernel:
         actions[0].copy_(action)
         last = len(self.actor) - 1
         for k in range(self.m):
-            h = self._trunk(states[k], actions[k], self.hidden)
+            h = self._trunk(self.inputs[k], self.hidden)
             torch.baddbmm(self.out_b, h, self.out_w, out=self.output_steps[k])
             torch.add(states[k], self.deltas[k], out=states[k + 1])
             if k + 1 < self.m:
@@ -301,8 +297,9 @@ class GateKernel:
         if reuse_first_step:
             delta = self.deltas[0]
         else:
-            n = self.n
-            h = self._trunk(obs.expand(n, 1, -1), action.expand(n, 1, -1), self.c_hidden)
+            self.c_input[:, :, : self.d].copy_(obs)
+            self.c_input[:, :, self.d :].copy_(action)
+            h = self._trunk(self.c_input, self.c_hidden)
             delta = torch.baddbmm(self.delta_b, h, self.delta_w, out=self.c_delta)
         error = delta.mean(0).add_(obs).sub_(next_obs).mul_(self.model.inv_obs_std)
         return float(error.norm())

@@ -15,20 +15,30 @@ when the expert is asked.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
+from core.sage.config import AgentConfig
 from core.sage.learner import BaseLearner
 
 
 class HGDAgger(BaseLearner):
     uses_random_warmup = False
 
-    def __init__(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
-        super().__init__(*args, **kwargs)
-        self.optimizer = torch.optim.Adam(self.actor.parameters(), lr=self.cfg.dagger_lr)
+    def __init__(
+        self,
+        cfg: AgentConfig,
+        obs_dim: int,
+        act_dim: int,
+        action_low: np.ndarray | None = None,
+        action_high: np.ndarray | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed)
+        self.optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.dagger_lr)
 
-    def policy_action(self, obs, deterministic: bool):  # type: ignore[no-untyped-def]
-        return super().policy_action(obs, deterministic=True)
+    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        return super().policy_action(obs, deterministic=True)  # HG-DAgger's learner never explores
 
     def update_threshold(self) -> int:
         return 1  # learn from the first expert label on
