@@ -129,8 +129,8 @@ class AgentConfig:
     """Real transitions collected before updates start (uniform random actions until then, without ``init``)."""
     updates_per_step: float = 1.0
     """Gradient updates per environment step (fractions mean one update every 1/x steps)."""
-    max_grad_norm: float = 10.0
-    """Gradient-norm clip of actor and critic updates (protects against the rare huge -c* targets)."""
+    max_grad_norm: float | None = 10.0
+    """Gradient-norm clip of actor and critic updates (protects against the rare huge -c* targets); None: off."""
 
     # -- fear regularisation -----------------------------------------------------------------------
     fear_budget: float = 0.2

@@ -50,6 +50,7 @@ class HGDAgger(BaseLearner):
         loss = (self.actor.deterministic(batch.obs) - batch.a_expert).pow(2).sum(-1).mean()
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
+        if self.cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
         self.optimizer.step()
         return {"bc_loss": loss.item(), "aggregate_size": float(self.buffer.takeover_count())}

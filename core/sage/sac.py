@@ -156,7 +156,8 @@ class SAC(BaseLearner):
         loss = F.mse_loss(q, y.unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
         self.critic_optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
+        if self.cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
         self.critic_optimizer.step()
         soft_update(self.critic_target, self.critic, self.cfg.polyak)
         return {"critic_loss": loss.item(), "q_mean": q.mean().item()}
@@ -215,7 +216,8 @@ class SAC(BaseLearner):
             loss.backward()
         finally:
             self.critic.requires_grad_(True)
-        torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
+        if self.cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
         self.actor_optimizer.step()
         if self.cfg.autotune_alpha:
             alpha_loss = -(self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
@@ -261,7 +263,8 @@ class SAC(BaseLearner):
             loss = F.mse_loss(q, targets[idx].unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
             self.critic_optimizer.zero_grad(set_to_none=True)
             loss.backward()
-            torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
+            if self.cfg.max_grad_norm is not None:
+                torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
             self.critic_optimizer.step()
         return loss.item()
 

@@ -61,7 +61,8 @@ class TD3(BaseLearner):
         critic_loss = F.mse_loss(q, y.unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()
-        torch.nn.utils.clip_grad_norm_(self.critic.parameters(), cfg.max_grad_norm)
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(self.critic.parameters(), cfg.max_grad_norm)
         self.critic_optimizer.step()
         stats = {"critic_loss": critic_loss.item(), "q_mean": q.mean().item()}
         if self.updates % cfg.td3_policy_delay == 0:
@@ -70,7 +71,8 @@ class TD3(BaseLearner):
             self.actor_optimizer.zero_grad(set_to_none=True)
             actor_loss.backward()
             self.critic.requires_grad_(True)
-            torch.nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.max_grad_norm)
+            if cfg.max_grad_norm is not None:
+                torch.nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.max_grad_norm)
             self.actor_optimizer.step()
             soft_update(self.critic_target, self.critic, cfg.polyak)
             soft_update(self.actor_target, self.actor, cfg.polyak)
