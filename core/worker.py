@@ -23,6 +23,7 @@ import dataclasses
 import logging
 import multiprocessing as mp
 import os
+import pickle
 import queue
 import threading
 import time
@@ -252,19 +253,22 @@ class FinetuneService:
     def _monitor(self) -> None:
         last_scan = 0.0
         while not self._stop.is_set():
-            changed = self._drain_events(timeout=0.2)
-            now = time.monotonic()
-            if now - last_scan > 1.0:
-                changed |= self._scan_versions()
-                last_scan = now
-            process = self._process
-            if process is not None and not process.is_alive() and not self._stop.is_set():
-                changed |= self._handle_death(process)
-            if changed and self.on_change is not None:
-                try:
+            try:
+                changed = self._drain_events(timeout=0.2)
+                now = time.monotonic()
+                if now - last_scan > 1.0:
+                    changed |= self._scan_versions()
+                    last_scan = now
+                process = self._process
+                if process is not None and not process.is_alive() and not self._stop.is_set():
+                    changed |= self._handle_death(process)
+                if changed and self.on_change is not None:
                     self.on_change()
-                except Exception:  # a listener's bug must not stop supervision
-                    log.exception("fine-tuning on_change failed")
+            except Exception as exc:  # supervision must outlive any one bad event, file or listener
+                log.exception("fine-tuning monitor")
+                with self._lock:
+                    self.state.error = f"monitor: {type(exc).__name__}: {exc}"
+                time.sleep(0.2)
 
     def _drain_events(self, timeout: float) -> bool:
         changed = False
@@ -276,7 +280,7 @@ class FinetuneService:
                 event = events.get(timeout=max(remaining, 0.001)) if not changed else events.get_nowait()
             except queue.Empty:
                 return changed
-            except (EOFError, OSError, ValueError) as exc:  # a worker killed mid-message
+            except (EOFError, OSError, ValueError, pickle.UnpicklingError) as exc:  # a worker killed mid-message
                 log.warning("fine-tuning event lost: %s", exc)
                 return changed
             self._apply_event(event)
