@@ -222,6 +222,12 @@ class FinetuneService:
                 process.join(2.0)
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout)
+        for channel in (self._commands, self._events):  # release their semaphores now, not at interpreter exit
+            if channel is not None:
+                with contextlib.suppress(Exception):
+                    channel.close()
+                    channel.join_thread()
+        self._commands = self._events = None
         with self._lock:
             self.state.alive = False
             self.state.phase = "stopped"
@@ -273,6 +279,8 @@ class FinetuneService:
     def _drain_events(self, timeout: float) -> bool:
         changed = False
         events = self._events
+        if events is None:  # stopped
+            return False
         deadline = time.monotonic() + timeout
         while True:
             remaining = deadline - time.monotonic()
@@ -405,8 +413,9 @@ class FinetuneService:
             self.pinned = None
             self._base = number
             commands = self._commands
-        with contextlib.suppress(Exception):
-            commands.put(("rebase", number))
+        if commands is not None:  # (a worker started later begins from _base anyway)
+            with contextlib.suppress(Exception):
+                commands.put(("rebase", number))
         self._offer(number)
 
     # -- what the page shows ----------------------------------------------------------------------------------
