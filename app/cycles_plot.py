@@ -27,7 +27,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from core.sessions import SessionStore
-from sims.ugv.plot import _draw_shape, stops
+from sims.ugv.plot import draw_shape, stops
 
 CYCLE_CMAP = "viridis"
 TAKEOVER_COLOUR = "#a855f7"
@@ -83,17 +83,17 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 def _draw_map(ax: Any, path: EpisodePath) -> None:
     for shape in path.static.get("static", []):
-        _draw_shape(ax, shape, alpha=0.9, zorder=2)
+        draw_shape(ax, shape, alpha=0.9, zorder=2)
     goal = path.first_scene.get("goal")
     if goal:
-        _draw_shape(ax, goal, alpha=0.35, zorder=1)
+        draw_shape(ax, goal, alpha=0.35, zorder=1)
     if path.movers and path.movers[0]:
         count = len(path.movers[0])
         tracks = np.array([step for step in path.movers if len(step) == count])
         for m in range(count):
             ax.plot(tracks[:, m, 0], tracks[:, m, 1], color="#e0812b", lw=1.0, alpha=0.45, ls=":", zorder=3)
         for shape in path.first_scene.get("movers", []):
-            _draw_shape(ax, shape, alpha=0.35, zorder=3)
+            draw_shape(ax, shape, alpha=0.35, zorder=3)
     bounds = path.static.get("bounds") or path.first_scene.get("bounds")
     if bounds:
         xmin, ymin, xmax, ymax = bounds

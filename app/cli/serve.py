@@ -32,6 +32,9 @@ def register(app: typer.Typer) -> None:
         speed: Annotated[float, typer.Option(min=0.1, max=20.0, help="Wall-clock speed multiplier.")] = 1.0,
         sessions: Annotated[Path, typer.Option(help="Folder where every live step is recorded.")] = Path("sessions"),
         paused: Annotated[bool, typer.Option(help="Start with the loop paused.")] = False,
+        finetune: Annotated[
+            bool, typer.Option(help="Fine-tune a trained policy on the session in a worker process.")
+        ] = True,
     ) -> None:
         """Serve the live dashboard: the SAGE loop at wall-clock rate, its fear / curiosity / threshold
         charts, keyboard and gamepad takeover, recorded sessions and replays."""
@@ -54,6 +57,7 @@ def register(app: typer.Typer) -> None:
             speed=speed,
             sessions=sessions,
             start_paused=paused,
+            finetune=finetune,
         )
         typer.echo(f"SAGE dashboard on http://{host}:{port}/  (Ctrl+C to stop)")
         uvicorn.run(create_app(settings), host=host, port=port, log_level="warning", ws_max_size=1 << 20)

@@ -44,7 +44,7 @@ def _corners(shape: Any) -> np.ndarray:
     )
 
 
-def _draw_shape(ax: Any, shape: Shape, alpha: float, zorder: int) -> None:
+def draw_shape(ax: Any, shape: Shape, alpha: float, zorder: int) -> None:
     from matplotlib.patches import Circle, Polygon
 
     kind = shape["kind"]
@@ -106,10 +106,10 @@ def plot_episodes(
         for shape in scene["static"]:
             if shape["kind"] == "polyline" and faint:
                 continue  # walls do not move between episodes
-            _draw_shape(ax, shape, alpha=0.08 if faint else 0.9, zorder=1 if faint else 2)
+            draw_shape(ax, shape, alpha=0.08 if faint else 0.9, zorder=1 if faint else 2)
         goal = scene.get("goal")
         if goal:
-            _draw_shape(ax, goal, alpha=0.12 if faint else 0.35, zorder=1)
+            draw_shape(ax, goal, alpha=0.12 if faint else 0.35, zorder=1)
     for trace in traces:
         if trace.movers and trace.movers[0]:
             paths = np.array([step for step in trace.movers if len(step) == len(trace.movers[0])])
@@ -117,7 +117,7 @@ def plot_episodes(
                 ax.plot(paths[:, m, 0], paths[:, m, 1], color="#e0812b", lw=0.8, alpha=0.25, ls=":", zorder=3)
     # the movers where the first episode started
     for shape in first["movers"]:
-        _draw_shape(ax, shape, alpha=0.5, zorder=3)
+        draw_shape(ax, shape, alpha=0.5, zorder=3)
     for trace in traces:
         if not trace.ego:
             continue
@@ -133,7 +133,7 @@ def plot_episodes(
             ax.plot(x, y, "s", mfc="none", mec="#222222", ms=6, mew=1.2, zorder=6)
     ego = dict(first["ego"])
     ego["color"] = "#1f3b70"
-    _draw_shape(ax, ego, alpha=0.8, zorder=5)  # type: ignore[arg-type]
+    draw_shape(ax, ego, alpha=0.8, zorder=5)  # type: ignore[arg-type]
 
     counts = {k: sum(t.outcome == k for t in traces) for k in ("success", "collision", "timeout")}
     handles = [Line2D([], [], color=OUTCOME_COLORS[k], lw=2, label=f"{k} ({n})") for k, n in counts.items() if n]
