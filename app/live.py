@@ -18,6 +18,7 @@ bound to the new policy. The operator can pin a version, follow the newest, or r
 from __future__ import annotations
 
 import concurrent.futures
+import functools
 import json
 import logging
 import math
@@ -39,6 +40,7 @@ from app.operator import OperatorConsole, PersonExpert
 from app.policies import LoadedPolicy
 from core.finetune import FinetuneConfig, FinetuneError, VersionStore
 from core.loop import EpisodeSummary, NoGate, Runner, StepRecord
+from core.promotion import PromotionConfig, evaluate_version
 from core.protocol import simulator
 from core.sessions import SessionStore, SessionWriter
 from core.worker import FinetuneService, WorkerSpec
@@ -121,6 +123,8 @@ class FinetuneSettings:
     config: FinetuneConfig = field(default_factory=FinetuneConfig)
     backoff: tuple[float, float] = (1.0, 30.0)
     """First and longest wait (s) before restarting a worker that died."""
+    promotion: PromotionConfig = field(default_factory=PromotionConfig)
+    """How a new version is evaluated before it may drive, and watched live once it does."""
 
 
 @dataclass
@@ -418,6 +422,10 @@ class LiveLoop:
         collision = summary.metrics.get("collision", summary.metrics.get("collisions", 0))
         collided = bool(collision) and not (isinstance(collision, float) and math.isnan(collision))
         world.counters.collisions += int(collided)
+        if world.finetune is not None and world.version is not None:
+            reason = world.finetune.record_episode(world.version, collided, summary.takeover_rate)
+            if reason is not None:
+                self.last_error = f"rolled back automatically: {reason}"
         world.episode_log.append(
             {
                 "episode": summary.episode,
@@ -546,7 +554,18 @@ class LiveLoop:
         assert settings is not None and store is not None and writer is not None
         versions = VersionStore(settings.runs / writer.session_id / "versions")
         versions.ensure_initial(world.config.policy)
-        spec = WorkerSpec(versions.root, store.root, writer.session_id, settings.config)
+        # every new version is evaluated headless (scripted expert, fixed seeds) beside the one in control before
+        # it may drive: the worker builds the session's env itself, so the factory must cross the spawn boundary
+        make_env = functools.partial(self.env_factory, world.config.sim, world.config.scenario)
+        evaluator = functools.partial(evaluate_version, make_env=make_env)
+        spec = WorkerSpec(
+            versions.root,
+            store.root,
+            writer.session_id,
+            settings.config,
+            evaluator=evaluator,
+            promotion=settings.promotion,
+        )
         env, base_label = world.env, world.loaded.label
 
         def load(path: Path) -> LoadedPolicy:  # runs on the service's thread, never the loop's

@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from core.agents import AgentMeta, load_checkpoint, meta_of, resolve_checkpoint, save_checkpoint
+from core.promotion import is_promoted, read_verdict
 from core.sage import make_learner
 from core.sage.config import AgentConfig, apply_overrides, from_dict
 from core.sage.learner import BaseLearner
@@ -73,8 +74,11 @@ class FinetuneConfig:
     """Gradient updates per round (critic + actor with value-weighted imitation, for SAGE)."""
     min_new_episodes: int = 1
     """Episodes that must have ended since the last round before the next one starts."""
-    min_steps: int = 32
-    """Recorded steps needed before the first round (fewer cannot fill a sensible batch)."""
+    min_steps: int = 200
+    """Recorded steps needed before the first round: a version fine-tuned on a single short episode (22 takeover
+    samples, measured) collided more than the one it replaced."""
+    min_takeover_samples: int = 50
+    """Takeover (expert-labelled) steps needed before the first round: they are what imitation learns from."""
     refit_world_model: bool = True
     """Refit the world model on the session's data at every round (fear and curiosity learn the new ground)."""
     wm_min_steps: int = 100
@@ -91,6 +95,8 @@ class FinetuneConfig:
     def __post_init__(self) -> None:
         if self.updates < 0 or self.min_new_episodes < 1 or self.min_steps < 1 or self.report_every < 1:
             raise ValueError("updates >= 0, min_new_episodes >= 1, min_steps >= 1 and report_every >= 1 are needed")
+        if self.min_takeover_samples < 0:
+            raise ValueError(f"min_takeover_samples must be >= 0, got {self.min_takeover_samples}")
         if not 0.0 <= self.max_skipped_fraction <= 1.0:
             raise ValueError(f"max_skipped_fraction must be in [0, 1], got {self.max_skipped_fraction}")
 
@@ -125,7 +131,18 @@ class Version:
             "episodes": m.get("episodes_total", 0),
             "takeover_samples": m.get("takeover_samples", 0),
             "losses": m.get("losses", {}),
+            "promotion": self.verdict(),
         }
+
+    def verdict(self) -> dict[str, Any] | None:
+        """Whether this version may drive (:mod:`core.promotion`): ``promoted``, ``reason``, ``evaluation``."""
+        if self.number == 0:
+            return read_verdict(self.path) or {"promoted": True, "reason": "the policy deployed by the operator"}
+        return read_verdict(self.path)
+
+    @property
+    def promoted(self) -> bool:
+        return is_promoted(self.path, self.number)
 
 
 def version_name(number: int) -> str:
@@ -422,10 +439,13 @@ class Finetuner:
         pending = self.pending_episodes()
         if len(pending) < self.cfg.min_new_episodes:
             return False
-        if len(self.learner.buffer) >= self.cfg.min_steps:
+        buffer = self.learner.buffer
+        if len(buffer) >= self.cfg.min_steps and buffer.takeover_count() >= self.cfg.min_takeover_samples:
             return True
-        steps = sum(r["steps"] for r in self.store.episodes(self.session_id) if r["episode"] in set(pending))
-        return len(self.learner.buffer) + steps >= self.cfg.min_steps
+        rows = [r for r in self.store.episodes(self.session_id) if r["episode"] in set(pending)]
+        steps = len(buffer) + sum(r["steps"] for r in rows)
+        takeovers = buffer.takeover_count() + sum(r["takeovers"] for r in rows)
+        return steps >= self.cfg.min_steps and takeovers >= self.cfg.min_takeover_samples
 
     # -- a round -------------------------------------------------------------------------------------------------
     def round(self, progress: Progress | None = None, should_stop: ShouldStop | None = None) -> RoundResult:
@@ -440,6 +460,11 @@ class Finetuner:
         result = RoundResult(None, ingested=ingested)
         if len(learner.buffer) < cfg.min_steps:
             result.reason = f"only {len(learner.buffer)} usable steps recorded, {cfg.min_steps} needed"
+            return result
+        if learner.buffer.takeover_count() < cfg.min_takeover_samples:
+            result.reason = (
+                f"only {learner.buffer.takeover_count()} takeover samples recorded, {cfg.min_takeover_samples} needed"
+            )
             return result
         wm_stats: dict[str, float] = {}
         if cfg.refit_world_model and learner.world_model is not None and len(learner.buffer) >= cfg.wm_min_steps:

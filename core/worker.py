@@ -57,6 +57,12 @@ class WorkerSpec:
     nice: int = 10
     """Added to the worker's scheduling niceness, so that the loop wins a contended core."""
     threads: int = 1
+    evaluator: Any = None
+    """A :data:`core.promotion.Evaluator` (picklable, e.g. a partial of :func:`core.promotion.evaluate_version`):
+    every published version is evaluated beside the version in control before it may drive. None: versions are
+    marked "not evaluated" and promoted as they come (headless tools only; the live server always passes one)."""
+    promotion: Any = None
+    """A :class:`core.promotion.PromotionConfig` (None: its defaults)."""
 
 
 # -- the worker process -------------------------------------------------------------------------------------------
@@ -133,6 +139,47 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
         emit({"kind": "phase", "phase": "starting a round", "base": finetuner.base.number})
         result = finetuner.round(progress=lambda e: emit({"kind": "progress", **e}), should_stop=interrupted)
         emit({"kind": "round", **result.as_dict(), "base": finetuner.base.number})
+        if result.version is not None:
+            emit({"kind": "phase", "phase": f"evaluating {result.version.name} before it may drive"})
+            verdict = judge(versions, result.version.number, spec.evaluator, spec.promotion)
+            emit({"kind": "promotion", "version": result.version.number, **verdict})
+
+
+def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> dict[str, Any]:
+    """Evaluate version ``number`` beside the latest promoted version before it and write its verdict.
+
+    The incumbent's evaluation is cached in its own ``promotion.json``, so each version is evaluated once."""
+    from core.promotion import Evaluation, PromotionConfig, decide, read_verdict, write_verdict
+
+    cfg = promotion or PromotionConfig()
+    candidate = versions.get(number)
+    if evaluator is None:
+        verdict: dict[str, Any] = {"promoted": True, "evaluated": False, "reason": "not evaluated (no evaluator)"}
+        write_verdict(candidate.path, verdict)
+        return verdict
+    incumbent = next((v for v in reversed(versions.versions()) if v.number < number and v.promoted), None)
+    if incumbent is None:
+        incumbent = versions.get(0)
+    cached = read_verdict(incumbent.path) or {}
+    if isinstance(cached.get("evaluation"), dict) and cached.get("evaluation_seed") == cfg.seed:
+        before = Evaluation.from_dict(cached["evaluation"])
+    else:
+        before = evaluator(incumbent.path, cfg)
+        base_verdict = cached or {"promoted": True, "reason": "the policy deployed by the operator"}
+        write_verdict(incumbent.path, {**base_verdict, "evaluation": before.as_dict(), "evaluation_seed": cfg.seed})
+    after = evaluator(candidate.path, cfg)
+    decision = decide(after, before, cfg)
+    verdict = {
+        "promoted": decision.promoted,
+        "evaluated": True,
+        "reason": decision.reason,
+        "against": incumbent.number,
+        "evaluation": after.as_dict(),
+        "evaluation_seed": cfg.seed,
+        "incumbent": before.as_dict(),
+    }
+    write_verdict(candidate.path, verdict)
+    return verdict
 
 
 # -- the supervisor in the loop's process -----------------------------------------------------------------------------
@@ -198,6 +245,11 @@ class FinetuneService:
         self._started_at = 0.0
         self._backoff = self.backoff_first
         self._thread: threading.Thread | None = None
+        from core.promotion import LiveWatch
+
+        self.watch = LiveWatch(spec.promotion)
+        self._offered: set[int] = set()
+        self.last_rollback: str | None = None
 
     # -- lifecycle ------------------------------------------------------------------------------------------
     def start(self) -> FinetuneService:
@@ -314,6 +366,10 @@ class FinetuneService:
                 state.phase = "round done" if event.get("version") is not None else f"round: {event.get('reason')}"
                 if event.get("losses"):
                     state.losses = dict(event["losses"])
+            elif kind == "promotion":
+                number = event.get("version")
+                verb = "promoted" if event.get("promoted") else "kept, not promoted"
+                state.phase = f"v{number:04d} {verb}: {event.get('reason')}" if isinstance(number, int) else state.phase
             elif kind == "stopped":
                 state.phase = "stopped"
             elif kind == "error":
@@ -323,19 +379,31 @@ class FinetuneService:
             self._scan_versions()
 
     def _scan_versions(self) -> bool:
-        """Pick up versions published since the last look (the folder is the truth; events may be lost)."""
+        """Pick up versions published or judged since the last look (the folder is the truth; events may be lost).
+
+        Following, the loop is offered the newest *promoted* version newer than the one in control: a version
+        the evaluation did not promote is listed with its reason and never drives unless the operator pins it."""
         versions = self.store.versions()
+        summaries = [v.summary() for v in versions]
         new = [v for v in versions if v.number not in self._known]
-        if not new:
-            return False
         with self._lock:
+            changed = bool(new) or summaries != self._versions
             self._known.update(v.number for v in new)
-            self._versions = [v.summary() for v in versions]
-            self._base = None  # the worker's line now ends in a published version: continue from the latest
+            self._versions = summaries
+            if new:
+                self._base = None  # the worker's line now ends in a published version: continue from the latest
             following = self.pinned is None
+            in_control = self.in_control
         if following:
-            self._offer(new[-1].number)
-        return True
+            promoted = [
+                v.number
+                for v in versions
+                if v.promoted and v.number not in self._offered and (in_control is None or v.number > in_control)
+            ]
+            if promoted:
+                self._offered.add(promoted[-1])
+                self._offer(promoted[-1])
+        return changed
 
     def _handle_death(self, process: Any) -> bool:
         with self._lock:
@@ -388,8 +456,39 @@ class FinetuneService:
         return pending.number, pending.loaded
 
     def mark_deployed(self, number: int) -> None:
+        from core.promotion import Evaluation
+
         with self._lock:
-            self.in_control = number
+            replaced, self.in_control = self.in_control, number
+        evaluation = None
+        if replaced is not None:
+            with contextlib.suppress(Exception):
+                data = (self.store.get(replaced).verdict() or {}).get("evaluation")
+                evaluation = Evaluation.from_dict(data) if isinstance(data, dict) else None
+        self.watch.deployed(number, replaced, evaluation)
+
+    def record_episode(self, number: int, collided: bool, takeover_rate: float) -> str | None:
+        """A live episode driven by version ``number`` ended. Returns the reason when it was rolled back: a
+        promoted version that does worse live than the one it replaced goes back to that one (and is marked)."""
+        from core.promotion import read_verdict, write_verdict
+
+        reason = self.watch.record(number, collided, takeover_rate)
+        previous = self.watch.predecessor(number)
+        if reason is None or previous is None:
+            return None
+        with contextlib.suppress(Exception):
+            path = self.store.get(number).path
+            write_verdict(path, {**(read_verdict(path) or {}), "rolled_back": True, "rollback_reason": reason})
+        with self._lock:
+            self.last_rollback = reason
+            pinned = self.pinned
+        log.warning("automatic rollback: %s", reason)
+        if pinned is None:
+            self.rollback(previous)
+        self._scan_versions()
+        if self.on_change is not None:
+            self.on_change()
+        return reason
 
     def pin(self, number: int) -> None:
         """Run ``number`` from the next episode on and keep it, whatever the worker publishes."""
@@ -399,8 +498,8 @@ class FinetuneService:
         self._offer(number)
 
     def follow(self) -> None:
-        """Unpin: run the newest version from the next episode on, and each new one as it is published."""
-        latest = self.store.latest()
+        """Unpin: run the newest promoted version from the next episode on, and each new one as it is promoted."""
+        latest = next((v for v in reversed(self.store.versions()) if v.promoted), None)
         with self._lock:
             self.pinned = None
         if latest is not None:
@@ -441,4 +540,5 @@ class FinetuneService:
                 "base": self._base,
                 "versions": list(self._versions),
                 "rounds": list(self.rounds)[-20:],
+                "last_rollback": self.last_rollback,
             }

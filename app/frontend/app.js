@@ -465,9 +465,16 @@ function renderFinetune() {
   const worker = ft.alive ? `worker pid ${ft.pid}` : ft.restart_in !== null ? `restarting in ${ft.restart_in.toFixed(0)} s` : "worker down";
   $("ft-worker").textContent = worker + (ft.restarts ? ` · ${ft.restarts} restart${ft.restarts > 1 ? "s" : ""}` : "");
   $("ft-version").textContent = vname(ft.in_control);
-  let mode = ft.pinned !== null ? `pinned to ${vname(ft.pinned)}` : "following the newest";
+  let mode = ft.pinned !== null ? `pinned to ${vname(ft.pinned)}` : "following the newest promoted version";
   if (ft.pending !== null) mode += ` · ${vname(ft.pending)} from the next episode`;
+  // a version drives only once its headless evaluation found it no worse than the one in control
+  const newest = ft.versions.length ? ft.versions[ft.versions.length - 1] : null;
+  const verdict = newest && newest.number > 0 ? newest.promotion : null;
+  if (ft.last_rollback) mode += ` · rolled back: ${ft.last_rollback}`;
+  else if (newest && newest.number > 0 && !verdict) mode += ` · ${vname(newest.number)} is being evaluated`;
+  else if (verdict && !verdict.promoted) mode += ` · ${vname(newest.number)} kept, not promoted: ${verdict.reason}`;
   $("ft-mode").textContent = mode;
+  $("ft-mode").title = mode;
   const p = ft.progress || {};
   const share = p.updates ? (100 * p.update) / p.updates : 0;
   $("ft-bar").style.setProperty("--p", `${ft.phase === "training" ? share : ft.phase === "round done" ? 100 : 0}%`);
@@ -482,10 +489,19 @@ function renderFinetune() {
   const items = ft.versions.slice().reverse().map((v) => ({
     value: String(v.number),
     label: `${vname(v.number)}${v.parent !== null ? ` · from ${vname(v.parent)}` : " · deployed"}` +
-      `${v.updates ? ` · ${v.updates} upd` : ""}${v.number === ft.in_control ? " · in control" : ""}`,
+      `${v.updates ? ` · ${v.updates} upd` : ""}${v.number === ft.in_control ? " · in control" : ""}` +
+      `${promotionTag(v)}`,
   }));
   fillSelect(select, items, items.some((i) => i.value === keep) ? keep : String(ft.in_control));
   drawTakeoverChart();
+}
+
+function promotionTag(v) {
+  if (v.number === 0) return "";
+  const p = v.promotion;
+  if (!p) return " · evaluating";
+  if (p.rolled_back) return " · rolled back";
+  return p.promoted ? " · promoted" : " · not promoted";
 }
 
 function drawTakeoverChart() {

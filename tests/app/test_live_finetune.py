@@ -88,6 +88,9 @@ class OneVersion:
     def mark_deployed(self, number: int) -> None:
         self.deployed.append(number)
 
+    def record_episode(self, number: int, collided: bool, takeover_rate: float) -> str | None:
+        return None
+
     def status(self) -> dict[str, Any]:
         return {"in_control": self.deployed[-1], "pinned": None, "pending": None, "versions": []}
 
@@ -176,7 +179,9 @@ def test_a_trained_policy_is_fine_tuned_live_and_the_operator_pins_and_rolls_bac
         policy_loader=agent_or_toy,
         speed=20.0,
         finetune_runs=tmp_path / "runs",
-        finetune_config=FinetuneConfig(updates=10, min_steps=16, wm_min_steps=40, report_every=5),
+        finetune_config=FinetuneConfig(
+            updates=10, min_steps=16, min_takeover_samples=4, wm_min_steps=40, report_every=5
+        ),
     )
     live, thread = start_server(settings)
     try:
@@ -205,6 +210,8 @@ def test_a_trained_policy_is_fine_tuned_live_and_the_operator_pins_and_rolls_bac
             assert ft["alive"] and ft["versions"][1]["parent"] == 0 and ft["rounds"][0]["updates"] == 10
             assert any(e["version"] == 0 for e in ft["episodes"]) and ft["in_control"] == version
             assert f"v{version:04d}" in live.state()["policy_label"]
+            verdict = ft["versions"][version]["promotion"]  # it drives because its evaluation promoted it
+            assert verdict["evaluated"] and verdict["promoted"] and verdict["evaluation"]["episodes"] >= 1
 
             reply = command({"type": "version", "op": "pin", "version": 0})
             assert reply["type"] == "ack" and reply["result"]["pinned"] == 0 and reply["result"]["pending"] == 0
@@ -239,7 +246,9 @@ def test_the_page_shows_versions_progress_and_takeovers_and_pins_a_version(brows
         policy_loader=agent_or_toy,
         speed=20.0,
         finetune_runs=tmp_path / "runs",
-        finetune_config=FinetuneConfig(updates=10, min_steps=16, wm_min_steps=40, report_every=5),
+        finetune_config=FinetuneConfig(
+            updates=10, min_steps=16, min_takeover_samples=4, wm_min_steps=40, report_every=5
+        ),
     )
     live, thread = start_server(settings)
     try:

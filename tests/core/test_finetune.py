@@ -68,7 +68,13 @@ def setup(deployed: Path, tmp_path: Path) -> tuple[VersionStore, SessionStore, s
 
 
 def fast(**overrides: Any) -> FinetuneConfig:
-    values: dict[str, Any] = {"updates": 60, "min_steps": 16, "wm_min_steps": 40, "report_every": 10}
+    values: dict[str, Any] = {
+        "updates": 60,
+        "min_steps": 16,
+        "min_takeover_samples": 4,
+        "wm_min_steps": 40,
+        "report_every": 10,
+    }
     values.update(overrides)
     return FinetuneConfig(**values)
 

@@ -23,7 +23,7 @@ from tests.core.test_finetune import deployed, point_env  # noqa: F401  (the mod
 
 torch.set_num_threads(1)
 
-CONFIG = FinetuneConfig(updates=20, min_steps=16, wm_min_steps=40, report_every=5)
+CONFIG = FinetuneConfig(updates=20, min_steps=16, min_takeover_samples=4, wm_min_steps=40, report_every=5)
 
 
 def wait_for(condition: Callable[[], bool], timeout: float, what: str) -> None:
