@@ -79,7 +79,10 @@ def register(app: typer.Typer) -> None:
                 seed=seed,
                 deterministic=not stochastic,
                 max_episode_steps=max_episode_steps,
-                finetune=FinetuneConfig(updates=updates, overrides=tuple(set_ or ()), seed=seed),
+                # each cycle is the unit of data the user chose (see CyclesConfig.finetune)
+                finetune=FinetuneConfig(
+                    updates=updates, overrides=tuple(set_ or ()), seed=seed, min_steps=1, min_takeover_samples=0
+                ),
             )
             result = run_cycles(config, folder, make_env, progress=None if quiet else typer.echo)
         except (ValueError, FileNotFoundError, FileExistsError, FinetuneError) as exc:

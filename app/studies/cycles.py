@@ -54,7 +54,9 @@ class CyclesConfig:
     """Deploy the deterministic policy (its mean action), as a fielded policy runs; False samples it."""
     max_episode_steps: int | None = None
     """Cut episodes at this many steps (None: the scenario's time limit)."""
-    finetune: FinetuneConfig = field(default_factory=FinetuneConfig)
+    finetune: FinetuneConfig = field(default_factory=lambda: FinetuneConfig(min_steps=1, min_takeover_samples=0))
+    """Each cycle is the unit of data the study chose, so its round runs whatever its size (the live worker's
+    minimum-data rule guards rounds that nobody asked for)."""
 
     def __post_init__(self) -> None:
         if self.cycles < 1 or self.episodes_per_cycle < 1:

@@ -102,7 +102,7 @@ def test_takeovers_fall_over_deployment_and_fine_tuning_cycles(policy: Path, tmp
         policy=str(policy),
         cycles=4,
         episodes_per_cycle=2,
-        finetune=FinetuneConfig(updates=300),
+        finetune=FinetuneConfig(updates=300, min_steps=1, min_takeover_samples=0),
     )
     result = run_cycles(cfg, tmp_path / "cycles", env_factory("ugv"))
     rates = [row["takeover_rate"] for row in result.cycles]
