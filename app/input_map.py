@@ -1,48 +1,33 @@
-"""From the operator's two manual axes to a simulator's action, one small table per simulator.
+"""From the operator's two manual axes to a simulator's action (the mapping is the simulator descriptor's).
 
 The page always sends the same two normalised axes, whatever the simulator:
 ``throttle`` in [-1, 1] (up arrow / W / left stick up = +1) and ``steer`` in [-1, 1] (left arrow / A /
 stick left = +1, i.e. counter-clockwise, matching a positive yaw rate in the x-east, y-north scene).
-Each simulator says which action component each axis drives and with which sign; a ``Box`` action is
-then scaled from [-1, 1] to its bounds. A simulator missing from the table gets a mapping from its action
-space alone: two components mean (throttle/speed, steer/yaw), one means accelerate/brake.
+Each simulator's descriptor says which action component each axis drives and with which sign; a ``Box``
+action is then scaled from [-1, 1] to its bounds. An unregistered env gets a mapping from its action space
+alone: two components mean (throttle/speed, steer/yaw), one means accelerate/brake.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from core.descriptor import InputMapping
 
-@dataclass(frozen=True)
-class InputMapping:
-    throttle_index: int | None
-    """Action component driven by the throttle axis (None: not used)."""
-    steer_index: int | None
-    """Action component driven by the steer axis (None: not used)."""
-    steer_sign: float = 1.0
-    """+1 when a positive action component turns left (counter-clockwise)."""
-    throttle_sign: float = 1.0
-
-
-INPUT_MAPPINGS: dict[str, InputMapping] = {
-    # linear speed and yaw rate, both normalised to [-1, 1]; positive yaw rate turns left
-    "ugv": InputMapping(throttle_index=0, steer_index=1),
-    # sage/Highway-v0's action is [steer, acc] (sims/highway/env.py); y points north, the left of the driving
-    # direction, so a positive steering angle turns left
-    "highway": InputMapping(throttle_index=1, steer_index=0),
-    # the SUMO ego is driven longitudinally only: accelerate / brake
-    "sumo": InputMapping(throttle_index=0, steer_index=None),
-}
+__all__ = ["InputMapping", "mapping_for", "to_action"]
 
 
 def mapping_for(sim: str, action_space: gym.Space[Any]) -> InputMapping:
-    """The table's entry for ``sim``, or one derived from the action space's shape."""
-    if sim in INPUT_MAPPINGS:
-        return INPUT_MAPPINGS[sim]
+    """The simulator's own mapping (its descriptor), or one derived from the action space's shape."""
+    import sims
+
+    try:
+        return sims.descriptor(sim).input_mapping
+    except ValueError:  # not a registered simulator (a test's toy env): go by the action space
+        pass
     if isinstance(action_space, gym.spaces.Box) and int(np.prod(action_space.shape)) >= 2:
         return InputMapping(throttle_index=0, steer_index=1)
     return InputMapping(throttle_index=0, steer_index=None)
@@ -57,6 +42,8 @@ def to_action(mapping: InputMapping, action_space: gym.Space[Any], throttle: flo
     throttle = float(np.clip(throttle, -1.0, 1.0)) * mapping.throttle_sign
     steer = float(np.clip(steer, -1.0, 1.0)) * mapping.steer_sign
     if isinstance(action_space, gym.spaces.Discrete):
+        if mapping.discrete is not None:
+            return np.asarray(int(mapping.discrete(throttle, steer)), dtype=np.int64)
         n = int(action_space.n)
         return np.asarray(int(action_space.start) + min(n - 1, int((throttle + 1.0) / 2.0 * n)), dtype=np.int64)
     if not isinstance(action_space, gym.spaces.Box):

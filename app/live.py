@@ -60,32 +60,24 @@ EPISODE_LOG = 300
 @dataclass(frozen=True)
 class LiveConfig:
     sim: str = "ugv"
-    scenario: int | None = 1
+    scenario: str | None = None
+    """A scenario name of the simulator (None: its default)."""
     policy: str = "scripted"
     expert_mode: ExpertMode = "person"
     speed: float = 1.0
     seed: int = 0
 
 
-def control_period(env: gym.Env[Any, Any]) -> float:
-    """Seconds of simulated time per step, from whichever of the usual places the simulator keeps it:
-    ``dt`` / ``control_dt``, its config's ``dt`` / ``step_length`` / ``1 / policy_frequency``, or
-    ``1 / metadata['render_fps']``; 0.1 s when none is found."""
-    inner = env.unwrapped
-    config = getattr(inner, "config", None)
-    candidates: list[Any] = [getattr(inner, "control_dt", None), getattr(inner, "dt", None)]
-    if config is not None:
-        candidates += [getattr(config, "dt", None), getattr(config, "step_length", None)]
-        frequency = getattr(config, "policy_frequency", None)
-        if isinstance(frequency, int | float) and frequency > 0:
-            candidates.append(1.0 / frequency)
-    fps = (getattr(inner, "metadata", None) or {}).get("render_fps")
-    if isinstance(fps, int | float) and fps > 0:
-        candidates.append(1.0 / fps)
-    for value in candidates:
-        if isinstance(value, int | float) and not isinstance(value, bool) and 0 < value < 10:
-            return float(value)
-    return 0.1
+def control_period(sim: str, env: gym.Env[Any, Any]) -> float:
+    """Seconds of simulated time per step: the simulator descriptor's ``dt`` (an unregistered env, such as a
+    test's toy simulator, may say it as ``env.unwrapped.dt``; otherwise 0.1 s)."""
+    import sims
+
+    try:
+        return sims.descriptor(sim).dt
+    except ValueError:
+        value = getattr(env.unwrapped, "dt", None)
+        return float(value) if isinstance(value, int | float) and value > 0 else 0.1
 
 
 def _clean(value: Any) -> Any:
@@ -340,10 +332,12 @@ class LiveLoop:
                 scenario=config.scenario,
                 policy=config.policy,
                 expert_mode=config.expert_mode,
-                meta={"policy_label": loaded.label, "seed": config.seed, "dt": control_period(env)},
+                meta={"policy_label": loaded.label, "seed": config.seed, "dt": control_period(config.sim, env)},
                 scene_source=lambda: self.scene,
             )
-        world = World(config, env, runner, expert, loaded, writer, control_period(env), base_label=loaded.label)
+        world = World(
+            config, env, runner, expert, loaded, writer, control_period(config.sim, env), base_label=loaded.label
+        )
         if writer is not None and self.finetune is not None and self.store is not None and _is_agent(config, loaded):
             try:
                 world.finetune = self._start_finetune(world)

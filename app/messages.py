@@ -79,7 +79,8 @@ class Configure(_Operator):
 
     type: Literal["configure"]
     sim: str | None = Field(default=None, max_length=64)
-    scenario: int | None = Field(default=None, ge=0, le=10_000)
+    scenario: str | None = Field(default=None, min_length=1, max_length=512)
+    """A scenario name of the simulator (the picker lists them)."""
     policy: str | None = Field(default=None, max_length=512)
     expert_mode: ExpertMode | None = None
 

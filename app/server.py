@@ -19,8 +19,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
-import importlib
-import importlib.util
 import io
 import json
 import logging
@@ -40,7 +38,6 @@ from app.hub import Client, Hub
 from app.live import CommandError, FinetuneSettings, LiveConfig, LiveLoop, PolicyLoader, dumps
 from app.operator import ControlDesk, OperatorConsole
 from app.policies import SCRIPTED, default_policy, discover, load_policy
-from app.sim_choices import listed, make_kwargs
 from app.viser_proxy import ViserProxy
 from core.finetune import FinetuneConfig
 from core.sessions import SessionError, SessionStore
@@ -52,32 +49,34 @@ COMMAND_TIMEOUT = 60.0
 """Seconds a page waits for the loop to apply a command (building a SUMO world takes a few)."""
 
 
-LIVE_ENV_OPTIONS: dict[str, dict[str, Any]] = {"sumo": {"process": True}}
-"""Per-simulator options of live envs. SUMO steps in its own process: libsumo holds the GIL while it steps, which
-would stall the event loop (and the page's input) for the whole step."""
-
-
-def make_env(sim: str, scenario: int | None) -> gym.Env[Any, Any]:
+def make_env(sim: str, scenario: str | None) -> gym.Env[Any, Any]:
+    """The live env of a named scenario, with the simulator's live options (its descriptor says which)."""
     import sims
 
-    return sims.make(sim, **make_kwargs(sim, scenario), **LIVE_ENV_OPTIONS.get(sim, {}))
+    return sims.make(sim, scenario, live=True)
 
 
 def sim_catalogue() -> dict[str, dict[str, Any]]:
-    """Every registered simulator, whether its package is present, and its scenarios when it lists them."""
+    """Every registered simulator, whether its package imports, and its scenarios by name (from its descriptor)."""
     import sims
 
     out: dict[str, dict[str, Any]] = {}
-    for name, (package, env_id) in sims.SIMULATORS.items():
-        available = importlib.util.find_spec(package) is not None
-        scenarios = listed(name)
-        if available:
-            try:
-                importlib.import_module(package)
-            except Exception as exc:  # a broken simulator is shown as unavailable, not fatal
-                available = False
-                log.warning("simulator %s failed to import: %s", name, exc)
-        out[name] = {"name": name, "env_id": env_id, "available": available, "scenarios": scenarios}
+    for name in sims.names():
+        try:
+            d = sims.descriptor(name)
+        except Exception as exc:  # a broken simulator is shown as unavailable, not fatal
+            log.warning("simulator %s failed to import: %s", name, exc)
+            out[name] = {"name": name, "title": name, "env_id": "", "available": False, "scenarios": []}
+            continue
+        scenarios = [{"id": s.name, "label": s.label} for s in d.scenarios]
+        out[name] = {
+            "name": name,
+            "title": d.title,
+            "env_id": d.env_id,
+            "available": True,
+            "scenarios": scenarios,
+            "default_scenario": d.default_scenario,
+        }
     return out
 
 
@@ -86,7 +85,8 @@ class ServerSettings:
     host: str = "127.0.0.1"
     port: int = 8000
     sim: str = "ugv"
-    scenario: int | None = 1
+    scenario: str | None = None
+    """A scenario name of the simulator (its descriptor lists them; the UGV also takes a YAML file); None: default."""
     policy: str | None = None
     """A run folder, a checkpoint, ``"scripted"``, or None for the committed default of ``sim``."""
     expert_mode: m.ExpertMode = "person"
@@ -96,7 +96,7 @@ class ServerSettings:
     """Where sessions are recorded; None records nothing."""
     policy_roots: list[Path] = field(default_factory=lambda: [Path("policies"), Path("runs")])
     start_paused: bool = False
-    env_factory: Callable[[str, int | None], gym.Env[Any, Any]] = make_env
+    env_factory: Callable[[str, str | None], gym.Env[Any, Any]] = make_env
     policy_loader: PolicyLoader = load_policy
     catalogue: Callable[[], dict[str, dict[str, Any]]] = sim_catalogue
     viser_host: str = "127.0.0.1"
@@ -146,9 +146,12 @@ class Dashboard:
         self.scene_view = SceneView(self.viser)
         self.proxy = ViserProxy(self.viser.get_port(), settings.viser_host)
         policy = settings.policy or default_policy(settings.policy_roots, settings.sim)
+        scenario = settings.scenario
+        if scenario is None:  # the simulator's default, by name, so that the page shows which one drives
+            scenario = self.catalogue().get(settings.sim, {}).get("default_scenario")
         config = LiveConfig(
             sim=settings.sim,
-            scenario=settings.scenario,
+            scenario=scenario,
             policy=policy,
             expert_mode=settings.expert_mode,
             speed=settings.speed,
@@ -240,8 +243,11 @@ async def _handle(dash: Dashboard, client: Client, raw: str | bytes) -> str | No
             if msg.sim not in catalogue or not catalogue[msg.sim]["available"]:
                 return _error(f"simulator {msg.sim!r} is not available here", op="configure")
             args["default_policy"] = default_policy(dash.settings.policy_roots, msg.sim)
-            if msg.scenario is None and catalogue[msg.sim]["scenarios"]:
-                args["scenario"] = catalogue[msg.sim]["scenarios"][0]["id"]
+            if msg.scenario is None:
+                entry = catalogue[msg.sim]
+                args["scenario"] = entry.get("default_scenario") or (
+                    entry["scenarios"][0]["id"] if entry["scenarios"] else None
+                )
         future = dash.live.submit("configure", **args)
     elif isinstance(msg, m.VersionControl):
         future = dash.live.submit("version", action=msg.op, number=msg.version)

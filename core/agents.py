@@ -131,7 +131,9 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     try:
         payload = torch.load(file, map_location="cpu", weights_only=True)
     except Exception as exc:
-        raise ValueError(f"{file} is not a readable checkpoint: {type(exc).__name__}: {exc}") from None
+        # torch's own message may advise weights_only=False, which would run arbitrary code from the file: never
+        # pass that advice on
+        raise ValueError(f"{file} is not a readable SAGE checkpoint ({type(exc).__name__})") from None
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{file} is not a SAGE checkpoint (no format {CHECKPOINT_FORMAT!r})")
     if payload.get("version") != CHECKPOINT_VERSION:

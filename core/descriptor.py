@@ -94,8 +94,9 @@ class SimDescriptor:
             raise ValueError(f"{self.name}: default scenario {self.default_scenario!r} is not one of {names}")
 
     def scenario(self, name: str) -> ScenarioSpec | None:
+        key = name.strip().lower()
         for spec in self.scenarios:
-            if spec.name == name.strip():
+            if spec.name.lower() == key:
                 return spec
         return None
 

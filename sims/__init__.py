@@ -1,8 +1,13 @@
 """Simulators, one package each, registered with gymnasium under the ``sage/`` namespace.
 
-Each package provides a gymnasium ``Env`` whose ``unwrapped`` implements
-:class:`core.protocol.SimulatorEnv` (``expert_action``, ``scene``, ``metrics``), its scenarios and
-its scripted expert. :func:`make` builds one by its short name.
+Each package provides a gymnasium ``Env`` whose ``unwrapped`` implements :class:`core.protocol.SimulatorEnv`
+(``expert_action``, ``scene``, ``metrics``) and exports ``DESCRIPTOR`` (:class:`core.descriptor.SimDescriptor`):
+env id, scenarios by name, control period, key mapping, metric columns, safe action, live options. Every other
+layer reads the descriptor, so adding a simulator is one package plus one line in :data:`SIMULATORS`.
+
+    env = sims.make("ugv", scenario="3")                 # a named scenario
+    env = sims.make("sumo", scenario="c2", live=True)     # with the descriptor's live options
+    sims.descriptor("highway").dt
 """
 
 from __future__ import annotations
@@ -12,18 +17,59 @@ from typing import Any
 
 import gymnasium as gym
 
-SIMULATORS: dict[str, tuple[str, str]] = {
-    "ugv": ("sims.ugv", "sage/UGV-v0"),
-    "highway": ("sims.highway", "sage/Highway-v0"),
-    "sumo": ("sims.sumo", "sage/Sumo-v0"),
+from core.descriptor import ScenarioNameError, SimDescriptor
+
+SIMULATORS: dict[str, str] = {
+    "ugv": "sims.ugv",
+    "highway": "sims.highway",
+    "sumo": "sims.sumo",
 }
-"""Short name -> (package that registers it on import, gymnasium id)."""
+"""Short name -> the package that exports its ``DESCRIPTOR`` (and registers its env on import)."""
+
+_EXTRA: dict[str, SimDescriptor] = {}
 
 
-def make(sim: str, **kwargs: Any) -> gym.Env[Any, Any]:
-    """``make("ugv", scenario=3)``: import the simulator's package (which registers it) and build it."""
-    if sim not in SIMULATORS:
-        raise ValueError(f"unknown simulator {sim!r}; choose one of {', '.join(SIMULATORS)}")
-    package, env_id = SIMULATORS[sim]
-    importlib.import_module(package)
-    return gym.make(env_id, **kwargs)
+class UnknownSimulatorError(ValueError):
+    """A simulator name that is not registered; the message lists those that are."""
+
+
+def register(descriptor: SimDescriptor) -> None:
+    """Add a simulator at run time (a plug-in, or a test's toy simulator) by its descriptor alone."""
+    _EXTRA[descriptor.name] = descriptor
+
+
+def names() -> list[str]:
+    return [*SIMULATORS, *(n for n in _EXTRA if n not in SIMULATORS)]
+
+
+def descriptor(name: str) -> SimDescriptor:
+    """The descriptor of ``name`` (imports its package). Raises :class:`UnknownSimulatorError`."""
+    if name in _EXTRA:
+        return _EXTRA[name]
+    if name not in SIMULATORS:
+        raise UnknownSimulatorError(f"unknown simulator {name!r}; choose one of {', '.join(names())}")
+    module = importlib.import_module(SIMULATORS[name])
+    found = getattr(module, "DESCRIPTOR", None)
+    if not isinstance(found, SimDescriptor):
+        raise TypeError(f"{SIMULATORS[name]} exports no DESCRIPTOR")
+    return found
+
+
+def descriptors() -> dict[str, SimDescriptor]:
+    """Every simulator that imports cleanly (a broken package is left out, not fatal)."""
+    out: dict[str, SimDescriptor] = {}
+    for name in names():
+        try:
+            out[name] = descriptor(name)
+        except Exception:
+            continue
+    return out
+
+
+def make(name: str, scenario: str | int | None = None, *, live: bool = False, **overrides: Any) -> gym.Env[Any, Any]:
+    """Build simulator ``name`` on a named ``scenario`` (None: its default); ``overrides`` are more
+    ``make()`` keyword arguments and win over the scenario's."""
+    return descriptor(name).make(None if scenario is None else str(scenario), live=live, **overrides)
+
+
+__all__ = ["SIMULATORS", "ScenarioNameError", "UnknownSimulatorError", "descriptor", "descriptors", "make", "names"]

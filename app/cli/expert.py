@@ -38,13 +38,7 @@ def run_expert(
     from core.loop import EpisodeSummary, Runner, StepRecord
     from core.protocol import simulator
 
-    kwargs: dict[str, Any] = {}
-    if scenario is not None:
-        kwargs["scenario"] = int(scenario) if scenario.strip().isdigit() else scenario
-    try:
-        env = sims.make(sim, **kwargs)
-    except TypeError as exc:  # the simulator's constructor does not take what was given
-        raise ValueError(f"cannot build simulator {sim!r} with {kwargs}: {exc}") from None
+    env = sims.make(sim, scenario)  # a clear ValueError for an unknown simulator or scenario name
     plot_module = None
     if plot is not None:
         try:

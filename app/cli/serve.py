@@ -19,8 +19,11 @@ def register(app: typer.Typer) -> None:
             "127.0.0.1"
         ),
         port: Annotated[int, typer.Option(help="Port of the dashboard (viser gets its own loopback port).")] = 8000,
-        sim: Annotated[str, typer.Option(help="Simulator to open on: ugv, highway or sumo.")] = "ugv",
-        scenario: Annotated[int, typer.Option(help="Scenario of the simulator.")] = 1,
+        sim: Annotated[str, typer.Option(help="Simulator to open on (sage serve --help lists them).")] = "ugv",
+        scenario: Annotated[
+            str | None,
+            typer.Option(help="Scenario name of the simulator (e.g. 3, c2, test-adversarial, or a UGV .yaml file)."),
+        ] = None,
         policy: Annotated[
             str | None,
             typer.Option(
@@ -45,7 +48,8 @@ def register(app: typer.Typer) -> None:
         from app.server import ServerSettings, create_app
 
         if expert not in EXPERT_MODES:
-            raise typer.BadParameter(f"--expert must be one of {', '.join(EXPERT_MODES)}, not {expert!r}")
+            _fail(f"--expert must be one of {', '.join(EXPERT_MODES)}, not {expert!r}")
+        _check_startup(sim, scenario, policy)
         logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
         settings = ServerSettings(
             host=host,
@@ -61,3 +65,30 @@ def register(app: typer.Typer) -> None:
         )
         typer.echo(f"SAGE dashboard on http://{host}:{port}/  (Ctrl+C to stop)")
         uvicorn.run(create_app(settings), host=host, port=port, log_level="warning", ws_max_size=1 << 20)
+
+
+def _fail(message: str) -> None:
+    """One clear line on stderr, before any banner, and a non-zero exit."""
+    typer.secho(f"sage serve: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def _check_startup(sim: str, scenario: str | None, policy: str | None) -> None:
+    """Refuse a bad simulator, scenario or policy before the server starts (one line each, no traceback)."""
+    import sims
+    from core.agents import load_checkpoint
+
+    try:
+        sims.descriptor(sim).scenario_kwargs(scenario)
+    except ValueError as exc:
+        _fail(str(exc))
+    if policy is not None and policy != "scripted":
+        try:
+            load_checkpoint(policy)
+        except (OSError, ValueError) as exc:
+            _fail(f"policy {policy!r} cannot be loaded: {_first_line(exc)}")
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

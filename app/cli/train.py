@@ -18,7 +18,6 @@ metric columns, then return and cost.
 
 from __future__ import annotations
 
-import importlib
 import json
 import time
 from pathlib import Path
@@ -57,13 +56,12 @@ def _ints(value: str) -> list[int]:
 
 
 def table_columns(sim: str, rows: list[dict[str, Any]], gated: bool = False) -> list[str]:
-    """The simulator's metric columns (its package's METRIC_COLUMNS, else the keys its metrics() gave)."""
+    """The simulator's metric columns (its descriptor's, else the keys its metrics() gave)."""
+    import sims
+
     columns: list[str] = []
-    try:
-        module = importlib.import_module(f"sims.{sim}")
-        columns = list(getattr(module, "METRIC_COLUMNS", ()))
-    except ModuleNotFoundError:
-        pass
+    with contextlib.suppress(ValueError):  # an unregistered simulator: the keys its metrics() gave
+        columns = list(sims.descriptor(sim).metric_columns)
     if not columns:
         skip = {
             "episode",

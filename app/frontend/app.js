@@ -314,7 +314,7 @@ function renderControls() {
 
 function configure(fields) { sendOperator({ type: "configure", ...fields }); }
 $("sel-sim").onchange = (e) => { configure({ sim: e.target.value }); e.target.blur(); };
-$("sel-scenario").onchange = (e) => { configure({ scenario: Number(e.target.value) }); e.target.blur(); };
+$("sel-scenario").onchange = (e) => { configure({ scenario: e.target.value }); e.target.blur(); };
 $("sel-policy").onchange = (e) => { configure({ policy: e.target.value }); e.target.blur(); };
 for (const button of $("seg-expert").querySelectorAll("button")) {
   button.onclick = () => { configure({ expert_mode: button.dataset.mode }); button.blur(); };

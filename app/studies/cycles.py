@@ -210,9 +210,9 @@ def run_cycles(
                 f"{cfg.sim} scenario {cfg.scenario} has {obs_dim} / {act_dim}"
             )
         store = SessionStore(out / "sessions")
-        from app.live import control_period
+        import sims
 
-        dt = control_period(env)
+        dt = sims.descriptor(cfg.sim).dt
         writer = store.create(
             cfg.sim,
             scenario=cfg.scenario,

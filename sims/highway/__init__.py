@@ -11,6 +11,7 @@ from __future__ import annotations
 from gymnasium.envs.registration import register, registry
 
 from sims.highway.config import HighwayConfig
+from sims.highway.descriptor import DESCRIPTOR
 from sims.highway.env import HighwayEnv
 from sims.highway.evaluate import PAPER_COLUMNS, evaluate, paper_table
 from sims.highway.scenarios import load_log, scenario_ids, scenario_spec, warm_cache
@@ -21,6 +22,7 @@ if ENV_ID not in registry:
     register(id=ENV_ID, entry_point="sims.highway.env:HighwayEnv")
 
 __all__ = [
+    "DESCRIPTOR",
     "ENV_ID",
     "PAPER_COLUMNS",
     "HighwayConfig",

@@ -11,6 +11,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from sims.sumo.descriptor import DESCRIPTOR
 from sims.sumo.engine import SumoError
 from sims.sumo.env import SumoConfig, SumoEnv
 from sims.sumo.study import apply_scenario, rolling_rates, route_shift_phases, route_shift_schedule
@@ -31,6 +32,7 @@ if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point=make_sumo_env, disable_env_checker=False)
 
 __all__ = [
+    "DESCRIPTOR",
     "ENV_ID",
     "SumoConfig",
     "SumoEnv",

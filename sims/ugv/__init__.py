@@ -39,6 +39,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 from sims.ugv.config import UGVConfig
+from sims.ugv.descriptor import DESCRIPTOR
 from sims.ugv.metrics import METRIC_COLUMNS
 from sims.ugv.scenario import BUILTIN_SCENARIOS, Scenario, ScenarioError, load_scenario
 
@@ -47,4 +48,13 @@ ENV_ID = "sage/UGV-v0"
 if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point="sims.ugv.env:UGVEnv")
 
-__all__ = ["BUILTIN_SCENARIOS", "ENV_ID", "METRIC_COLUMNS", "Scenario", "ScenarioError", "UGVConfig", "load_scenario"]
+__all__ = [
+    "BUILTIN_SCENARIOS",
+    "DESCRIPTOR",
+    "ENV_ID",
+    "METRIC_COLUMNS",
+    "Scenario",
+    "ScenarioError",
+    "UGVConfig",
+    "load_scenario",
+]

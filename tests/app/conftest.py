@@ -70,7 +70,7 @@ def stop_server(live: LiveServer, thread: threading.Thread) -> None:
 def toy_settings(tmp: Path, **overrides: Any) -> ServerSettings:
     values: dict[str, Any] = {
         "sim": "toy",
-        "scenario": 1,
+        "scenario": "1",
         "policy": "wave",
         "sessions": tmp / "sessions",
         "policy_roots": [tmp / "policies"],

@@ -27,8 +27,8 @@ class ToyRobotEnv(gym.Env[np.ndarray, np.ndarray]):
     action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
     metadata: ClassVar[dict[str, Any]] = {"render_fps": 10}
 
-    def __init__(self, scenario: int | None = 1, horizon: int = 200) -> None:
-        self.scenario = scenario or 1
+    def __init__(self, scenario: int | str | None = 1, horizon: int = 200) -> None:
+        self.scenario = int(scenario or 1)
         self.horizon = horizon
         self.dt = 0.1
         self.state = np.zeros(3)
@@ -182,7 +182,7 @@ class Wander:
         return np.array([0.6, 0.3 * math.sin(8 * float(obs[4]))], np.float32)
 
 
-def toy_env_factory(sim: str, scenario: int | None) -> gym.Env[Any, Any]:
+def toy_env_factory(sim: str, scenario: str | None) -> gym.Env[Any, Any]:
     if sim not in ("toy", "ugv"):
         raise ValueError(f"unknown simulator {sim!r}")
     return ToyRobotEnv(scenario)
@@ -204,7 +204,8 @@ def toy_catalogue() -> dict[str, dict[str, Any]]:
             "name": "toy",
             "env_id": "toy",
             "available": True,
-            "scenarios": [{"id": 1, "label": "1"}, {"id": 2, "label": "2"}],
+            "scenarios": [{"id": "1", "label": "1"}, {"id": "2", "label": "2"}],
+            "default_scenario": "1",
         },
         "sumo": {"name": "sumo", "env_id": "sage/Sumo-v0", "available": False, "scenarios": []},
     }

@@ -7,7 +7,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from app.input_map import INPUT_MAPPINGS, InputMapping, mapping_for, to_action
+from app.input_map import InputMapping, mapping_for, to_action
 from app.operator import ControlDesk, OperatorConsole, PersonExpert
 from tests.app.fakesim import ToyRobotEnv
 
@@ -26,7 +26,7 @@ class Clock:
 def setup() -> tuple[Clock, OperatorConsole, PersonExpert, ToyRobotEnv]:
     clock = Clock()
     console = OperatorConsole(clock=clock, timeout=0.2)
-    expert = PersonExpert(console, INPUT_MAPPINGS["ugv"], BOX2, mode="person")
+    expert = PersonExpert(console, mapping_for("ugv", BOX2), BOX2, mode="person")
     env = ToyRobotEnv()
     env.reset(seed=0)
     return clock, console, expert, env
@@ -146,9 +146,9 @@ def test_control_desk_issues_one_token_at_a_time() -> None:
 
 
 def test_input_mapping_table_and_fallback_by_action_space() -> None:
-    ugv = to_action(INPUT_MAPPINGS["ugv"], BOX2, throttle=0.5, steer=1.0)
+    ugv = to_action(mapping_for("ugv", BOX2), BOX2, throttle=0.5, steer=1.0)
     assert ugv.dtype == np.float32 and np.allclose(ugv, [0.5, 1.0])
-    highway = to_action(INPUT_MAPPINGS["highway"], BOX2, throttle=0.5, steer=1.0)
+    highway = to_action(mapping_for("highway", BOX2), BOX2, throttle=0.5, steer=1.0)
     assert np.allclose(highway, [1.0, 0.5])  # sage/Highway-v0 takes [steer, acceleration], left positive
     sumo = to_action(mapping_for("sumo", gym.spaces.Box(-3.0, 2.0, (1,))), gym.spaces.Box(-3.0, 2.0, (1,)), 0.0, 1.0)
     assert np.allclose(sumo, [-0.5])  # scaled into [-3, 2]: the middle of the range, steering ignored

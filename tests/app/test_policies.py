@@ -56,5 +56,5 @@ def test_loading_reports_what_is_wrong(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="no policy"):
         load_policy(str(tmp_path / "missing"), env)
     broken = run(tmp_path, "broken", "ugv")
-    with pytest.raises(ValueError, match="not a readable checkpoint"):
+    with pytest.raises(ValueError, match="not a readable SAGE checkpoint"):
         load_policy(str(broken), env)

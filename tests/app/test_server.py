@@ -110,9 +110,9 @@ def test_one_operator_viewers_are_refused_and_commands_apply(fast_server) -> Non
         until(operator, lambda m: m["type"] == "ack")
         assert fast_server.state()["session"] == session, "changing who answers needs no new session"
         assert fast_server.dash.live.world.expert.mode == "scripted"
-        operator.send(json.dumps({"type": "configure", "token": token, "scenario": 2}))
+        operator.send(json.dumps({"type": "configure", "token": token, "scenario": "2"}))
         until(operator, lambda m: m["type"] == "ack")
-        assert fast_server.state()["session"] != session and fast_server.state()["config"]["scenario"] == 2
+        assert fast_server.state()["session"] != session and fast_server.state()["config"]["scenario"] == "2"
 
         operator.send(json.dumps({"type": "configure", "token": token, "sim": "sumo"}))
         assert "not available" in until(operator, lambda m: m["type"] == "error")["error"]
@@ -232,7 +232,7 @@ def test_the_default_server_opens_on_the_ugv_with_the_committed_policy(tmp_path)
     live, thread = start_server(settings)
     try:
         state = live.state()
-        assert state["config"]["sim"] == "ugv" and state["config"]["scenario"] == 1
+        assert state["config"]["sim"] == "ugv" and state["config"]["scenario"] == "1"
         assert state["config"]["policy"] == (str(default) if default else SCRIPTED)
         assert state["has_gate"] == bool(default)
         with ws(live) as conn:

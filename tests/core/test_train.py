@@ -123,7 +123,7 @@ def test_bad_paths_and_runs_without_a_world_model_fail_clearly(tmp_path: Path) -
         load_agent(tmp_path)
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")
-    with pytest.raises(ValueError, match="not a readable checkpoint"):
+    with pytest.raises(ValueError, match="not a readable SAGE checkpoint"):
         load_agent(junk)
     torch.save({"hello": 1}, tmp_path / "other.pt")
     with pytest.raises(ValueError, match="not a SAGE checkpoint"):
@@ -162,7 +162,7 @@ def test_returns_to_go_restart_at_episode_ends() -> None:
 def point_sim(monkeypatch: pytest.MonkeyPatch) -> None:
     import sims
 
-    monkeypatch.setitem(sims.SIMULATORS, "point", ("tests.core.sage.envs", envs.ENV_ID))
+    monkeypatch.setitem(sims.SIMULATORS, "point", "tests.core.sage.envs")  # its DESCRIPTOR is all it takes
 
 
 def test_cli_train_eval_compare(point_sim, tmp_path: Path) -> None:

@@ -9,7 +9,7 @@ from app.studies.envs import default_scenario, env_factory, scenario_kwargs
 
 def test_each_simulator_reads_its_own_scenario_names() -> None:
     assert scenario_kwargs("ugv", "3") == {"scenario": 3}
-    assert scenario_kwargs("highway", "test") == {"split": "test"}
+    assert scenario_kwargs("highway", "test") == {"split": "test", "mode": "normal"}
     assert scenario_kwargs("highway", "17") == {"scenario_id": 17}
     assert scenario_kwargs("sumo", "c1") == {"route": 1, "special_vehicles": False}
     assert scenario_kwargs("sumo", "C2") == {"route": 2, "special_vehicles": True}

@@ -17,6 +17,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
+
 ENV_ID = "sage-test/Point-v0"
 STEP = 0.25
 GOAL = np.array([4.0, 0.0])
@@ -122,6 +124,22 @@ if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point="tests.core.sage.envs:PointNavEnv")
 
 METRIC_COLUMNS = ("success", "collision", "travel_distance")
+
+DESCRIPTOR = SimDescriptor(
+    name="point",
+    title="point robot (tests)",
+    env_id=ENV_ID,
+    entry_point="tests.core.sage.envs:PointNavEnv",
+    dt=0.1,
+    scenarios=(
+        ScenarioSpec("static", "static obstacle", {"scenario": "static"}),
+        ScenarioSpec("dynamic", "moving obstacle", {"scenario": "dynamic"}),
+    ),
+    default_scenario="static",
+    input_mapping=InputMapping(throttle_index=0, steer_index=1),
+    metric_columns=METRIC_COLUMNS,
+    safe_action=(0.0, 0.0),
+)
 
 
 def make(scenario: str = "static", **kwargs: Any) -> gym.Env[Any, Any]:

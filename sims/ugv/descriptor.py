@@ -1,0 +1,41 @@
+"""What the rest of the product knows about the UGV simulator (:class:`core.descriptor.SimDescriptor`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
+from sims.ugv.config import UGVConfig
+from sims.ugv.metrics import METRIC_COLUMNS
+
+
+def _scenario_file(name: str) -> dict[str, Any]:
+    """Any scenario YAML file (schema: :mod:`sims.ugv.scenario`) is a scenario too."""
+    path = Path(name).expanduser()
+    if path.suffix.lower() in (".yaml", ".yml"):
+        if not path.is_file():
+            raise ValueError(f"scenario file not found: {path}")
+        return {"scenario": str(path)}
+    raise ValueError("give 1-4 (the paper's field tests) or the path of a scenario .yaml file")
+
+
+DESCRIPTOR = SimDescriptor(
+    name="ugv",
+    title="UGV (pymunk ground robot)",
+    env_id="sage/UGV-v0",
+    entry_point="sims.ugv.env:UGVEnv",
+    dt=UGVConfig().dt,
+    scenarios=(
+        ScenarioSpec("1", "1 · narrow passage", {"scenario": 1}),
+        ScenarioSpec("2", "2 · detour", {"scenario": 2}),
+        ScenarioSpec("3", "3 · crossing", {"scenario": 3}),
+        ScenarioSpec("4", "4 · cut-in", {"scenario": 4}),
+    ),
+    default_scenario="1",
+    # linear speed and yaw rate, both normalised to [-1, 1]; positive yaw rate turns left
+    input_mapping=InputMapping(throttle_index=0, steer_index=1),
+    metric_columns=METRIC_COLUMNS,
+    safe_action=(-1.0, 0.0),  # a0 = -1 is v = 0: stand still, no turning
+    parse_scenario=_scenario_file,
+)
