@@ -18,6 +18,7 @@ metric columns, then return and cost.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from pathlib import Path
