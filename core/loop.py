@@ -263,6 +263,12 @@ class Runner:
                 a_expert = np.asarray(a_expert)
                 action = a_expert
             next_obs, reward, terminated, truncated, info = self.env.step(action)
+            executed = info.get("executed_action") if takeover else None
+            if executed is not None:
+                # a simulator whose own driver took the wheel (SUMO's) reports what it really did: that is the
+                # expert's label and the transition's action, not the prediction made before the step
+                action = np.asarray(executed, dtype=np.asarray(action).dtype).reshape(np.shape(action))
+                a_expert = action
             curiosity = float(self.gate.observe(obs, action, next_obs))
         except Exception as exc:
             self.end_episode(error=f"{type(exc).__name__}: {exc}")

@@ -26,6 +26,9 @@ class SimulatorEnv(Protocol):
         """Plain data describing what to draw now (see :mod:`core.scene`). The sim never draws."""
         ...
 
+    # ``step``'s info may carry ``executed_action``: the action the simulator really executed when its own driver
+    # model acted for the expert (SUMO); the loop then records it as the expert's action (the imitation label).
+
     def metrics(self) -> dict[str, float]:
         """Metrics of the current (or just finished) episode, computed from the executed trajectory."""
         ...

@@ -154,6 +154,11 @@ class ReplayBuffer:
             "violation": self.violation[:n],
         }
 
+    def reward_magnitude(self) -> float:
+        """The largest |reward| recorded, terminal transitions included (0 when empty)."""
+        n = self.size
+        return float(np.abs(self.reward[:n]).max()) if n else 0.0
+
     def reward_bounds(self) -> tuple[float, float] | None:
         """(min, max) reward over non-terminal transitions (terminal bonuses happen once per episode)."""
         n = self.size

@@ -91,6 +91,10 @@ class AgentConfig:
     """Fear terms in the critic target (-λF_{t+1}), in the actor loss (+λF) and the dual update of λ."""
     violation_penalty: bool = True
     """A safety violation makes the transition terminal with the target -c* of eq:penalty."""
+    c_star_floor: float = 1.0
+    """c* is never below this, nor below the largest reward magnitude recorded: with a narrow or unknown reward
+    range (highway at the start) eq:penalty gives c* = 0, and a violation's target would then beat its own
+    recorded penalty (the -10 off-road reward replaced by 0)."""
     takeover: bool = True
     """The SAGE gate hands control to the expert while training (needs an expert and the world model)."""
     imitation: bool = True

@@ -134,9 +134,11 @@ class SAC(BaseLearner):
 
     def c_star(self) -> float:
         low, high = self.reward_bounds()
-        return penalty_c_star(
+        paper = penalty_c_star(
             low, high, self.cfg.gamma, self.cfg.safety_horizon, self.lam if self.fear_active() else 0.0
         )
+        recorded = self.buffer.reward_magnitude()
+        return max(paper, self.cfg.c_star_floor, abs(low), abs(high), recorded)
 
     def critic_target_values(self, batch: Batch) -> Tensor:
         cfg = self.cfg

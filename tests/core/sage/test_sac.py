@@ -85,6 +85,18 @@ def test_a_violation_gets_the_terminal_target_minus_c_star() -> None:
     )
 
 
+def test_c_star_is_a_real_penalty_whenever_rewards_are_bounded() -> None:
+    """eq:penalty gives 0 for a flat reward range with λ = 0 (highway at the start); our c* does not."""
+    assert penalty_c_star(0.0, 0.0, 0.99, 5, 0.0) < 1e-3
+    learner = filled("sage", n=60)
+    learner.buffer.reward[: learner.buffer.size] = 0.0
+    learner.buffer.reward[3] = -10.0  # a terminal off-road penalty, outside the live bounds
+    learner.buffer.terminated[3] = 1.0
+    assert learner.c_star() >= 10.0
+    learner.buffer.reward[3] = 0.0
+    assert learner.c_star() >= learner.cfg.c_star_floor > 0.0
+
+
 # -- λ --------------------------------------------------------------------------------------------
 def test_lambda_rises_while_fear_exceeds_the_budget_and_never_goes_negative() -> None:
     learner = filled("sage", fear_budget=0.0, lambda_init=0.5, lambda_lr=0.05)

@@ -299,3 +299,30 @@ def test_registered_and_passes_gymnasiums_env_checker() -> None:
         assert isinstance(made.unwrapped, SumoEnv) and made.unwrapped.config.phase == "C2"
     finally:
         made.close()
+
+
+def test_a_takeover_records_the_action_sumo_executed_as_the_experts_label(make_env: MakeEnv) -> None:
+    """SUMO's driver may not do what expert_action() predicted: the loop records what it did."""
+    from core.experts import ScriptedExpert
+    from core.sage.gate import AlwaysGate
+
+    class Hold:
+        def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+            return np.zeros(1, np.float32)
+
+    env = make_env(route=1)
+    runner = Runner(env, Hold(), AlwaysGate(), ScriptedExpert(), seed=0)
+    records: list[StepRecord] = []
+    runner.step_listeners.append(records.append)
+    runner.reset()
+    for _ in range(60):
+        if runner.step() is None or records[-1].done:
+            break
+    assert records and all(r.takeover for r in records)
+    for r in records:
+        assert r.a_expert is not None
+        assert float(r.a_expert[0]) == pytest.approx(r.info["executed_action"], abs=1e-6)
+        assert np.array_equal(r.action, r.a_expert)
+    # the label is what SUMO's driver executed, which is not always what was predicted before the step
+    speeds = [r.info["speed"] for r in records]
+    assert max(speeds) > 1.0, "the expert should have driven off"
