@@ -154,6 +154,31 @@ class ReplayBuffer:
             "violation": self.violation[:n],
         }
 
+    def violation_soon(self, steps: int) -> np.ndarray:
+        """Per stored row (in the order of :meth:`arrays`): 1 when a violation happens at this transition or
+        within the next ``steps - 1`` transitions of the same episode, else 0.
+
+        Episodes are followed through the ring in insertion order: a row continues into the next one when it
+        did not terminate and its next state is the next row's state."""
+        n = self.size
+        if n == 0:
+            return np.zeros(0, np.float32)
+        order = np.arange(n) if n < self.capacity else (np.arange(n) + self.pos) % n
+        violated = self.violation[order] > 0.5
+        continues = np.zeros(n, bool)
+        if n > 1:
+            same = np.all(np.abs(self.next_obs[order[:-1]] - self.obs[order[1:]]) <= 1e-6, axis=1)
+            continues[:-1] = (self.terminated[order[:-1]] < 0.5) & same
+        distance = np.full(n, np.iinfo(np.int64).max // 2, np.int64)
+        for i in range(n - 1, -1, -1):
+            if violated[i]:
+                distance[i] = 0
+            elif continues[i]:
+                distance[i] = distance[i + 1] + 1
+        soon = np.zeros(n, np.float32)
+        soon[order] = (distance < max(int(steps), 1)).astype(np.float32)
+        return soon
+
     def reward_magnitude(self) -> float:
         """The largest |reward| recorded, terminal transitions included (0 when empty)."""
         n = self.size

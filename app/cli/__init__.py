@@ -13,6 +13,7 @@ COMMAND_MODULES = (
     "app.cli.export",  # sage export
     "app.cli.figures",  # sage figure
     "app.cli.cycles",  # sage cycles
+    "app.cli.calibrate",  # sage calibrate
 )
 
 app = typer.Typer(

@@ -46,6 +46,9 @@ class WorldModelConfig:
     """Epochs without a held-out improvement (of any member) before a fit stops."""
     max_updates_per_fit: int = 3000
     """Gradient-step cap of one fit, which bounds its wall time on big buffers."""
+    violation_steps: int = 5
+    """The violation head predicts "a violation at this transition or within the next this-many steps"; the
+    fear rollout then looks m steps further along the policy's imagined path."""
     logvar_bound_weight: float = 0.01
     """Weight of the PETS term ``sum(max_logvar) - sum(min_logvar)`` that keeps the learnable bounds tight."""
 
@@ -71,6 +74,16 @@ class GateConfig:
     curiosity_sharpness: float = 2.0
     """p in ρ = r^p / (1 + r^p), r = C_t / EMA(C): 1 is the plain ratio C / (C + EMA); 2 makes ρ ≈ 0.8 at twice
     the usual curiosity and ≈ 0.2 at half of it, so that surprises move τ and everyday noise does not."""
+    tau_from_data: bool = True
+    """Take τ_min and τ_max from the fear of familiar states at every world-model fit (quantiles below), per
+    simulator and per model; False uses the constants above."""
+    tau_min_quantile: float = 0.90
+    """τ_min = this quantile of fear on real states under the policy (most ready to ask: novel ground)."""
+    tau_max_quantile: float = 0.99
+    """τ_max = this quantile of fear on real states under the policy (familiar ground)."""
+    curiosity_smoothing: float = 0.3
+    """Weight of the newest curiosity in the short moving average that ρ reads, so that τ does not jump with
+    every noisy transition (1: no smoothing)."""
     use_curiosity: bool = True
     """False fixes τ at (τ_min + τ_max) / 2, the value ρ = 1/2 gives for typical curiosity (FNI-RL, ablations)."""
     hold_steps: int = 5
@@ -268,6 +281,10 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"gate.beta must be in [0, 1], got {cfg.gate.beta}")
     if not 0.0 <= cfg.gate.tau_min <= cfg.gate.tau_max:
         raise ValueError(f"need 0 <= gate.tau_min <= gate.tau_max, got {cfg.gate.tau_min}, {cfg.gate.tau_max}")
+    if not 0.0 <= cfg.gate.tau_min_quantile < cfg.gate.tau_max_quantile <= 1.0:
+        raise ValueError("need 0 <= gate.tau_min_quantile < gate.tau_max_quantile <= 1")
+    if not 0.0 < cfg.gate.curiosity_smoothing <= 1.0:
+        raise ValueError(f"gate.curiosity_smoothing must be in (0, 1], got {cfg.gate.curiosity_smoothing}")
     if cfg.gate.horizon < 1 or cfg.gate.hold_steps < 1:
         raise ValueError("gate.horizon and gate.hold_steps must be >= 1")
     if not 0.0 < cfg.gamma < 1.0:

@@ -4,7 +4,8 @@ Short-horizon fear F^m. From (s_t, a_t) every member n of the ensemble rolls its
 the actions after the first coming from the current policy's deterministic action on that member's predicted
 state. At step k:
 
-- ĉ_k = mean_n clip(μ^c_{n,k}, 0, 1), the predicted violation probability (see :mod:`core.sage.world_model`);
+- ĉ_k = mean_n sigmoid(ℓ_{n,k}), ℓ the members' calibrated logit of "a violation within the next few steps"
+  (see :mod:`core.sage.world_model`): a predicted violation probability;
 - σ_raw,k = mean_d sqrt(mean_n σ²_{n,k,d} + var_n ŝ_{n,k+1,d}) in normalised Δ-state units: the mixture's
   total predictive std, whose disagreement part also holds the members' divergence over earlier steps;
 - σ̂_k = tanh(σ_raw,k / (2 κ_k)), κ_k the 95th percentile of σ_raw,k over real states rolled out under the
@@ -56,7 +57,7 @@ class Rollout:
     actions: Tensor
     """(m, N, B, A): the first action, then the policy's actions on the predicted states."""
     cost: Tensor
-    """(m, N, B): each member's predicted cost of each step, clipped to [0, 1]."""
+    """(m, N, B): each member's predicted violation probability at each step."""
     sigma_raw: Tensor
     """(m, B): the mixture's predictive std of each step (normalised units, averaged over state dims)."""
 
@@ -88,7 +89,7 @@ def rollout(model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, h
         s = s + out[..., :d]
         states.append(s)
         actions.append(a)
-        costs.append(out[..., d])
+        costs.append(out[..., d])  # the violation logit
         raw_logvars.append(out[..., d + 1 : 2 * d + 1])
         if k + 1 < horizon:
             a = policy(s.reshape(n * batch, d)).reshape(n, batch, -1)
@@ -100,7 +101,7 @@ def rollout(model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, h
     epistemic = (next_states - next_states.mean(1, keepdim=True)).square().mean(1) * model.inv_delta_var
     aleatoric = logvar.exp().mean(1)
     sigma_raw = (epistemic + aleatoric).clamp_min(1e-12).sqrt().mean(-1)
-    return Rollout(torch.stack(states), torch.stack(actions), torch.stack(costs).clamp(0.0, 1.0), sigma_raw)
+    return Rollout(torch.stack(states), torch.stack(actions), torch.sigmoid(torch.stack(costs)), sigma_raw)
 
 
 def aggregate(per_step: Tensor, how: str, discount: float) -> Tensor:
@@ -142,15 +143,29 @@ def fear(
 
 
 def calibrate(
-    world_model: EnsembleWorldModel, policy: PolicyFn, obs: Tensor, horizon: int, quantile: float = 0.95
+    world_model: EnsembleWorldModel,
+    policy: PolicyFn,
+    obs: Tensor,
+    horizon: int,
+    quantile: float = 0.95,
+    cfg: GateConfig | None = None,
 ) -> Tensor:
-    """Set κ_k, the ``quantile`` of σ_raw at each rollout step k from real states ``obs`` under ``policy``."""
+    """Set κ_k, the ``quantile`` of σ_raw at each rollout step k from real states ``obs`` under ``policy``; with
+    ``cfg``, also the threshold bounds (τ_min, τ_max): the ``tau_min_quantile`` and ``tau_max_quantile`` of the
+    fear of those states, so that each simulator's threshold sits where its familiar fear lies (a UGV-tuned
+    constant range put every SUMO and highway fear below τ_max)."""
     with torch.no_grad():
         folded = world_model.folded()
         ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON))
         scale = torch.quantile(ro.sigma_raw, quantile, dim=1).clamp_min(1e-6)
         world_model.sigma_scale[: len(scale)] = scale
         world_model.sigma_scale[len(scale) :] = scale[-1]
+        world_model.touch()
+        if cfg is not None and len(obs) >= 20:
+            terms = fear_of(world_model.folded(), ro, cfg)
+            lo = float(torch.quantile(terms.fear, cfg.tau_min_quantile))
+            hi = float(torch.quantile(terms.fear, cfg.tau_max_quantile))
+            world_model.tau_bounds.copy_(torch.tensor([lo, max(hi, lo + 1e-3)]))
     world_model.touch()
     return scale
 
@@ -158,13 +173,24 @@ def calibrate(
 class CuriosityThreshold:
     """τ_t = τ_max - ρ(C_t)(τ_max - τ_min), ρ(C) = C / (C + EMA of recent C) (see the module docstring)."""
 
-    def __init__(self, cfg: GateConfig, reference: float = 1.0) -> None:
+    def __init__(self, cfg: GateConfig, reference: float = 1.0, bounds: tuple[float, float] | None = None) -> None:
         self.cfg = cfg
         self.ema = max(float(reference), 1e-8)
+        self.smoothed: float | None = None
+        """C_t smoothed over a few steps (``curiosity_smoothing``): one noisy transition must not swing τ."""
+        self.tau_min, self.tau_max = cfg.tau_min, cfg.tau_max
+        self.set_bounds(bounds)
         self.threshold = self.neutral()
 
+    def set_bounds(self, bounds: tuple[float, float] | None) -> None:
+        """(τ_min, τ_max) measured from data (:func:`calibrate`); None or non-finite keeps the config's."""
+        if bounds is not None and all(math.isfinite(b) for b in bounds) and bounds[1] > bounds[0]:
+            self.tau_min, self.tau_max = float(bounds[0]), float(bounds[1])
+        else:
+            self.tau_min, self.tau_max = self.cfg.tau_min, self.cfg.tau_max
+
     def neutral(self) -> float:
-        return self.cfg.tau_max - 0.5 * (self.cfg.tau_max - self.cfg.tau_min)
+        return self.tau_max - 0.5 * (self.tau_max - self.tau_min)
 
     def rho(self, curiosity: float) -> float:
         if not math.isfinite(curiosity) or curiosity < 0:
@@ -172,13 +198,20 @@ class CuriosityThreshold:
         ratio = (curiosity / self.ema) ** self.cfg.curiosity_sharpness
         return ratio / (1.0 + ratio) if math.isfinite(ratio) else 1.0
 
+    def reset_smoothing(self) -> None:
+        """A new episode: its first transition is not smoothed with the last one's."""
+        self.smoothed = None
+
     def update(self, curiosity: float) -> float:
         """Take C_t, return the threshold τ_t it sets, then fold C_t into the moving average."""
         if not self.cfg.use_curiosity:
             self.threshold = self.neutral()
             return self.threshold
-        rho = self.rho(curiosity)
-        self.threshold = self.cfg.tau_max - rho * (self.cfg.tau_max - self.cfg.tau_min)
+        if math.isfinite(curiosity) and curiosity >= 0:
+            alpha = self.cfg.curiosity_smoothing
+            self.smoothed = curiosity if self.smoothed is None else (1 - alpha) * self.smoothed + alpha * curiosity
+        rho = self.rho(self.smoothed if self.smoothed is not None else curiosity)
+        self.threshold = self.tau_max - rho * (self.tau_max - self.tau_min)
         if math.isfinite(curiosity):
             self.ema = max((1.0 - self.cfg.curiosity_ema) * self.ema + self.cfg.curiosity_ema * curiosity, 1e-8)
         return self.threshold
@@ -282,7 +315,7 @@ class GateKernel:
         total = total.add_(logvar.exp_()).sum(1).mul_(self.inv_members)
         sigma_raw = total.sqrt_().mean(-1)  # (m, 1)
         sigma = torch.tanh(sigma_raw.div_(self.sigma_divisor))
-        cost = self.step_cost.clamp(0.0, 1.0).sum(1)
+        cost = torch.sigmoid(self.step_cost).sum(1)
         if self.weights is None:
             c, sg = float(cost.max()) * self.inv_members, float(sigma.max())
         else:

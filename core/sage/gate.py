@@ -52,7 +52,7 @@ class SageGate:
         self.actor = policy if isinstance(policy, Actor) else None
         self.policy: PolicyFn = policy.deterministic if isinstance(policy, Actor) else policy
         self.cfg = cfg or GateConfig()
-        self.threshold = CuriosityThreshold(self.cfg, float(world_model.curiosity_ref))
+        self.threshold = CuriosityThreshold(self.cfg, float(world_model.curiosity_ref), self._model_bounds())
         self._reference_version = world_model.version
         self._kernel: tuple[int, GateKernel] | None = None
         self._fitted_version, self._fitted = -1, False
@@ -73,12 +73,21 @@ class SageGate:
     def reset(self) -> None:
         self.hold_remaining = 0
         self.detail.hold_remaining = 0
+        self.threshold.reset_smoothing()
+
+    def _model_bounds(self) -> tuple[float, float] | None:
+        """The (τ_min, τ_max) measured at the model's last calibration, when the config asks for them."""
+        if not self.cfg.tau_from_data:
+            return None
+        lo, hi = (float(v) for v in self.world_model.tau_bounds)
+        return (lo, hi)
 
     def _refresh_reference(self) -> None:
         # after a refit the model's errors change scale: restart the curiosity average at the new reference
         if self.world_model.version != self._reference_version:
             self._reference_version = self.world_model.version
             self.threshold.ema = max(float(self.world_model.curiosity_ref), 1e-8)
+            self.threshold.set_bounds(self._model_bounds())
 
     def _ready(self) -> bool:
         """Whether the model is fitted (read once per model version, not at every step)."""

@@ -158,11 +158,14 @@ class BaseLearner:
         if self.world_model is None:
             return None
         data = self.buffer.arrays()
-        report = self.world_model.fit(data["obs"], data["action"], data["next_obs"], data["cost"], self.rng)
+        labels = self.buffer.violation_soon(self.world_model.cfg.violation_steps)
+        report = self.world_model.fit(
+            data["obs"], data["action"], data["next_obs"], data["cost"], self.rng, violation_soon=labels
+        )
         self._steps_at_last_fit = self.env_steps
         self.last_fit = report
         starts = self.buffer.sample(min(len(self.buffer), 2048), self.rng).obs
-        calibrate(self.world_model, self.rollout_policy, starts, self.cfg.gate.horizon)
+        calibrate(self.world_model, self.rollout_policy, starts, self.cfg.gate.horizon, cfg=self.cfg.gate)
         self.info.update(wm_holdout_nll=report.holdout_nll, wm_holdout_mse=report.holdout_mse, wm_epochs=report.epochs)
         self.virtual_rollout()
         return report

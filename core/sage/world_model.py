@@ -6,10 +6,19 @@ learnable soft bounds (``max_logvar - softplus(max_logvar - lv)`` then ``min_log
 with a small penalty on ``max_logvar - min_logvar``); inputs and targets are normalised; a held-out split
 drives early stopping (each member keeps its best held-out snapshot, as in MBPO).
 
-The cost channel's target is ``max(cost, violation)`` clipped to [0, 1]: a violation always counts as full
-cost. Its conditional mean is then the violation probability when a simulator's cost is binary, and an
-expected proximity risk that upper-bounds it when the cost is dense (as the UGV's); the clipped ensemble
-mean is the ĉ of eq:fear.
+The cost channel is a classifier, not a Gaussian: its output is the logit of "a violation happens at this
+transition or within the next ``violation_steps``" (labels from the replay buffer's episodes,
+:meth:`core.replay.ReplayBuffer.violation_soon`, joined by a dense safety cost as a soft label). Violations
+are rare, and a Gaussian NLL head absorbs a rare binary target as variance and predicts "never" (measured:
+0.008 vs 0.003). So each member minimises a class-balanced binary cross-entropy (positives weighted by
+n_neg / n_pos), and the balancing's known shift of the logit, log(n_neg / n_pos), is taken back out of the
+output bias afterwards (prior correction), so that sigmoid(logit) is a calibrated probability again: the
+ĉ of eq:fear is the members' mean of it.
+
+Normalisers are refitted at every fit, on all the data so far, and the first and last layers are rewritten
+so that the network computes the same function under the new normalisers (an affine change of variables):
+a model first fitted on violation-free demonstrations keeps learning when violations and new states arrive,
+and a warm-started model keeps its meaning.
 
 Uncertainty. The paper's σ̂ averages the members' own standard deviations. That is aleatoric noise: it
 does not grow off the training distribution (a released predecessor used one random member's own std and
@@ -42,6 +51,10 @@ from core.sage.config import WorldModelConfig
 from core.sage.networks import VectorizedLinear
 
 STD_FLOOR = 1e-3
+IN_STD_FLOOR = 1e-2
+"""Input std floor: a constant (or binary, rarely set) observation channel must not blow up after normalising."""
+MAX_POS_WEIGHT = 1000.0
+"""Largest class-balancing weight of positive (violation-soon) samples."""
 MAX_HORIZON = 16
 """Longest rollout whose per-step σ scale is stored (longer horizons reuse the last step's scale)."""
 
@@ -104,6 +117,10 @@ class EnsembleWorldModel(nn.Module):
         self.register_buffer("sigma_scale", torch.ones(MAX_HORIZON))
         self.register_buffer("curiosity_ref", torch.tensor(1.0))
         self.register_buffer("fitted", torch.tensor(False))
+        self.register_buffer("pos_weight", torch.tensor(1.0))
+        """Class-balancing weight of the last fit (n_neg / n_pos); log of it is taken out of the cost logit."""
+        self.register_buffer("tau_bounds", torch.tensor([float("nan"), float("nan")]))
+        """(τ_min, τ_max) from the fear of familiar states at the last calibration (NaN: use the config's)."""
         self.version = 0
         self._folded: tuple[int, FoldedModel] | None = None
         self._optimizer: torch.optim.Optimizer | None = None
@@ -142,10 +159,21 @@ class EnsembleWorldModel(nn.Module):
         return (epistemic + aleatoric).sqrt().mean(-1)
 
     # -- training --------------------------------------------------------------------------------
-    def _nll(self, x: Tensor, y: Tensor) -> Tensor:
-        """Per-member Gaussian NLL (without the constant), averaged over samples and dims: shape (N,)."""
+    def _nll(self, x: Tensor, y: Tensor, pos_weight: Tensor | None = None) -> Tensor:
+        """Per-member loss, shape (N,): Gaussian NLL (without the constant) of the Δ-state dims averaged over
+        samples and dims, plus the class-balanced binary cross-entropy of the violation logit."""
         mean, logvar = self.forward_normalised(x)
-        return 0.5 * (((mean - y) ** 2) * torch.exp(-logvar) + logvar).mean(dim=(1, 2))
+        d = self.obs_dim
+        state = 0.5 * (((mean[..., :d] - y[..., :d]) ** 2) * torch.exp(-logvar[..., :d]) + logvar[..., :d])
+        weight = self.pos_weight if pos_weight is None else pos_weight
+        bce = F.binary_cross_entropy_with_logits(
+            mean[..., d] + self._logit_offset(), y[..., d], pos_weight=weight, reduction="none"
+        )
+        return state.mean(dim=(1, 2)) + bce.mean(dim=1)
+
+    def _logit_offset(self) -> Tensor:
+        """The balancing shift log(pos_weight): training sees logit + it, inference the bare (calibrated) logit."""
+        return torch.log(self.pos_weight.clamp_min(1.0))
 
     def fit(
         self,
@@ -154,29 +182,41 @@ class EnsembleWorldModel(nn.Module):
         next_obs: np.ndarray,
         cost: np.ndarray,
         rng: np.random.Generator,
+        violation_soon: np.ndarray | None = None,
     ) -> FitReport:
         """Train on real transitions with a held-out split; keep each member's best held-out snapshot.
 
-        The normalisers are set by the first fit and then frozen, so that warm-started weights keep their
-        meaning when a run continues from a checkpoint on a small new buffer.
+        ``violation_soon``: the classifier's labels (1 when a violation happens within the next
+        ``violation_steps``), joined by the clipped ``cost`` as a soft label (a dense cost warns earlier).
+        The normalisers are refitted on this data first, preserving the function the network computes (see the
+        module docstring).
         """
         cfg = self.cfg
         n = len(obs)
         if n < 10:
             raise ValueError(f"world model fit needs at least 10 transitions, got {n}")
+        # a dense safety cost (the UGV's proximity cost) is a graded early warning: it joins the label as a soft
+        # target; a binary cost equals the violation flag and adds nothing
+        label = np.clip(cost, 0.0, 1.0)
+        if violation_soon is not None:
+            label = np.maximum(label, np.clip(violation_soon, 0.0, 1.0))
+        label = label.astype(np.float32)
         inputs = torch.as_tensor(np.concatenate([obs, action], axis=1), dtype=torch.float32)
-        targets = torch.as_tensor(
-            np.concatenate([next_obs - obs, np.clip(cost, 0.0, 1.0)[:, None]], axis=1), dtype=torch.float32
-        )
+        targets = torch.as_tensor(np.concatenate([next_obs - obs, label[:, None]], axis=1), dtype=torch.float32)
         perm = rng.permutation(n)
         n_hold = max(1, min(int(n * cfg.holdout_ratio), cfg.max_holdout))
         hold, train = perm[:n_hold], perm[n_hold:]
-        if not bool(self.fitted):
-            with torch.no_grad():
-                self.in_mean.copy_(inputs[train].mean(0))
-                self.in_std.copy_(inputs[train].std(0).clamp_min(1e-2))
-                self.out_mean.copy_(targets[train].mean(0))
-                self.out_std.copy_(targets[train].std(0).clamp_min(STD_FLOOR))
+        self.renormalise(inputs[train], targets[train])
+        positives = float(targets[train, self.obs_dim].sum())
+        negatives = float(len(train)) - positives
+        with torch.no_grad():
+            new_weight = min(max(negatives / max(positives, 1e-6), 1.0), MAX_POS_WEIGHT) if positives > 0 else 1.0
+            # the network's output stays the calibrated logit: only the training-time shift log(w) changes
+            self.pos_weight.fill_(new_weight)
+            if not bool(self.fitted):
+                # start the violation logit at the base rate (a rare class learns slowly from logit 0)
+                rate = min(max(positives / max(len(train), 1), 1e-3), 0.5)
+                self.out.bias[..., self.obs_dim] = float(np.log(rate / (1.0 - rate)))
         x = (inputs - self.in_mean) / self.in_std
         y = (targets - self.out_mean) / self.out_std
         x_hold = x[hold].unsqueeze(0).expand(self.members, -1, -1)
@@ -240,13 +280,46 @@ class EnsembleWorldModel(nn.Module):
             final = self._nll(x_hold, y_hold)
             mean, _ = self.forward_normalised(x_hold)
             report.holdout_nll = float(final.mean())
-            report.holdout_mse = float(((mean.mean(0) - y[hold]) ** 2).mean())
+            report.holdout_mse = float(((mean.mean(0)[:, : self.obs_dim] - y[hold, : self.obs_dim]) ** 2).mean())
             self.fitted.fill_(True)
             hold_obs, hold_action = inputs[hold, : self.obs_dim], inputs[hold, self.obs_dim :]
             hold_next = torch.as_tensor(next_obs[hold], dtype=torch.float32)
             self.curiosity_ref.fill_(float(self.curiosity(hold_obs, hold_action, hold_next).mean()))
         self.touch()
         return report
+
+    @torch.no_grad()
+    def renormalise(self, inputs: Tensor, targets: Tensor) -> None:
+        """Set the normalisers from this data and rewrite the first and last layers so that the network's
+        de-normalised outputs are unchanged (an exact affine change of variables). The violation logit is not
+        normalised (mean 0, std 1): it is a logit."""
+        d = self.obs_dim
+        in_mean, in_std = inputs.mean(0), inputs.std(0).clamp_min(IN_STD_FLOOR)
+        out_mean, out_std = targets.mean(0), targets.std(0).clamp_min(STD_FLOOR)
+        out_mean[d], out_std[d] = 0.0, 1.0
+        if bool(self.fitted):
+            first = self.hidden_layers[0]
+            # x_old = (x - m_old) / s_old = x_new * (s_new / s_old) + (m_new - m_old) / s_old
+            scale = in_std / self.in_std
+            shift = (in_mean - self.in_mean) / self.in_std
+            first.bias += torch.matmul(shift.view(1, 1, -1), first.weight)
+            first.weight *= scale.view(1, -1, 1)
+            # y_new = (y_old * s_old + m_old - m_new) / s_new, for the means; log-vars shift by 2 log(s_old / s_new)
+            ratio = self.out_std / out_std
+            offset = (self.out_mean - out_mean) / out_std
+            out = self.out
+            out.weight[..., : d + 1] *= ratio.view(1, 1, -1)
+            out.bias[..., : d + 1] = out.bias[..., : d + 1] * ratio.view(1, 1, -1) + offset.view(1, 1, -1)
+            log_ratio = 2.0 * torch.log(ratio)
+            out.bias[..., d + 1 :] += log_ratio.view(1, 1, -1)
+            self.max_logvar += log_ratio.view(1, 1, -1)
+            self.min_logvar += log_ratio.view(1, 1, -1)
+        self.in_mean.copy_(in_mean)
+        self.in_std.copy_(in_std)
+        self.out_mean.copy_(out_mean)
+        self.out_std.copy_(out_std)
+        self._optimizer = None  # Adam's moments were for the old parametrisation
+        self.touch()
 
     def _member_parameter_names(self) -> list[str]:
         layers = [f"hidden_layers.{i}" for i in range(len(self.hidden_layers))] + ["out"]
@@ -264,6 +337,21 @@ class EnsembleWorldModel(nn.Module):
         self.version += 1
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):  # type: ignore[no-untyped-def]
+        if "pos_weight" not in state_dict and "out.bias" in state_dict:
+            # a checkpoint from before the violation classifier: its cost column was a Gaussian regression, which
+            # means nothing as a logit. Keep its dynamics and uncertainty; its ĉ says "no violation known" until
+            # the next fit (refit it, or retrain the policy)
+            state_dict = dict(state_dict)
+            d = self.obs_dim
+            weight, bias = state_dict["out.weight"].clone(), state_dict["out.bias"].clone()
+            weight[..., d] = 0.0
+            bias[..., d] = float(np.log(1e-3 / (1 - 1e-3)))
+            state_dict["out.weight"], state_dict["out.bias"] = weight, bias
+            out_mean, out_std = state_dict["out_mean"].clone(), state_dict["out_std"].clone()
+            out_mean[d], out_std[d] = 0.0, 1.0
+            state_dict["out_mean"], state_dict["out_std"] = out_mean, out_std
+            state_dict["pos_weight"] = torch.tensor(1.0)
+            state_dict["tau_bounds"] = torch.tensor([float("nan"), float("nan")])
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
         self.touch()
         return result

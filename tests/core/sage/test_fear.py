@@ -85,7 +85,8 @@ def test_multi_step_disagreement_grows_along_the_rollout() -> None:
 
 
 def test_threshold_falls_as_curiosity_rises() -> None:
-    cfg = GateConfig(tau_min=0.2, tau_max=0.8, curiosity_ema=0.0)  # a frozen average isolates ρ
+    # a frozen average and no smoothing isolate ρ
+    cfg = GateConfig(tau_min=0.2, tau_max=0.8, curiosity_ema=0.0, curiosity_smoothing=1.0)
     threshold = CuriosityThreshold(cfg, reference=1.0)
     taus = [threshold.update(c) for c in (0.0, 0.5, 1.0, 2.0, 10.0, 1e6)]
     assert taus[0] == pytest.approx(0.8) and taus[2] == pytest.approx(0.5)
@@ -93,8 +94,44 @@ def test_threshold_falls_as_curiosity_rises() -> None:
     assert taus[-1] == pytest.approx(0.2, abs=1e-4) and min(taus) >= 0.2
 
 
+def test_smoothed_curiosity_keeps_tau_from_jumping_step_to_step() -> None:
+    rng = np.random.default_rng(0)
+    noisy = np.exp(rng.normal(0.0, 0.8, size=400))  # everyday curiosity: log-normal noise around its average
+    jumps = {}
+    for alpha in (1.0, 0.3):
+        cfg = GateConfig(tau_min=0.2, tau_max=0.8, curiosity_ema=0.0, curiosity_smoothing=alpha)
+        threshold = CuriosityThreshold(cfg, reference=1.0)
+        taus = np.array([threshold.update(float(c)) for c in noisy])
+        jumps[alpha] = float(np.abs(np.diff(taus)).mean())
+    assert jumps[0.3] < 0.5 * jumps[1.0], jumps
+    # a sustained surprise still moves τ within a few steps
+    cfg = GateConfig(tau_min=0.2, tau_max=0.8, curiosity_ema=0.0, curiosity_smoothing=0.3)
+    threshold = CuriosityThreshold(cfg, reference=1.0)
+    taus = [threshold.update(c) for c in (1.0, 1.0, 6.0, 6.0, 6.0, 6.0)]
+    assert taus[-1] < 0.3 < taus[1]
+
+
+def test_tau_bounds_follow_the_fear_distribution() -> None:
+    """Data-driven bounds: the quantiles of fear on familiar states, so they move when that fear moves."""
+    cfg = GateConfig(tau_min_quantile=0.5, tau_max_quantile=0.9)
+    low, high = [], []
+    for shift in (0.0, 0.3):
+        model = EnsembleWorldModel(4, 2, WorldModelConfig(members=3, hidden=16, patience=20))
+        rng = np.random.default_rng(0)
+        s = rng.normal(size=(300, 4)).astype(np.float32)
+        a = rng.uniform(-1, 1, (300, 2)).astype(np.float32)
+        labels = (rng.random(300) < shift).astype(np.float32)  # more violations ahead: higher predicted ĉ
+        model.fit(s, a, s + 0.1 * rng.normal(size=s.shape).astype(np.float32), labels, rng, violation_soon=labels)
+        calibrate(model, lambda o: torch.zeros(o.shape[0], 2), torch.as_tensor(s), 5, cfg=cfg)
+        lo, hi = (float(v) for v in model.tau_bounds)
+        assert 0.0 <= lo < hi <= 1.0
+        low.append(lo)
+        high.append(hi)
+    assert low[1] > low[0] + 0.05 and high[1] > high[0] + 0.05, (low, high)
+
+
 def test_curiosity_average_adapts_and_curiosity_can_be_switched_off() -> None:
-    cfg = GateConfig(tau_min=0.2, tau_max=0.8, curiosity_ema=0.2)
+    cfg = GateConfig(tau_min=0.2, tau_max=0.8, curiosity_ema=0.2, curiosity_smoothing=1.0)
     threshold = CuriosityThreshold(cfg, reference=1.0)
     first = threshold.update(4.0)
     for _ in range(50):

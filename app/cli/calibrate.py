@@ -1,0 +1,54 @@
+"""``sage calibrate``: does the policy's fear predict danger? (:mod:`studies.calibrate`)
+
+sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve-episodes 20 --out calib/ugv3
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def calibrate(
+        run: Annotated[str, typer.Argument(help="Run folder or checkpoint with a world model.")],
+        sim: Annotated[str, typer.Option(help="Simulator.")] = "ugv",
+        scenario: Annotated[str | None, typer.Option(help="Scenario name (default: the simulator's).")] = None,
+        episodes: Annotated[int, typer.Option(min=1, help="Episodes driven by the policy alone (no expert).")] = 20,
+        horizon: Annotated[float, typer.Option(help="Label: a violation within this many seconds.")] = 1.0,
+        curve_episodes: Annotated[
+            int, typer.Option(min=0, help="Episodes per point of the operating curve (0: no curve).")
+        ] = 0,
+        max_steps: Annotated[int | None, typer.Option(help="Cut episodes at this many steps.")] = None,
+        out: Annotated[Path | None, typer.Option(help="Folder for report.json and the PNG figures.")] = None,
+    ) -> None:
+        """Run the policy with its gate and no expert; report how well fear ranks the steps before a
+        violation (AUROC, average precision), the gate's firing, a reliability diagram and the operating curve."""
+        import sims
+        from studies.calibrate import calibrate_run, write_figures
+
+        try:
+            descriptor = sims.descriptor(sim)
+            name = scenario or descriptor.default_scenario
+            descriptor.scenario_kwargs(name)
+            report = calibrate_run(
+                run,
+                lambda: descriptor.make(name),
+                descriptor.dt,
+                sim=sim,
+                scenario=name,
+                episodes=episodes,
+                horizon_s=horizon,
+                max_steps=max_steps,
+                curve_episodes=curve_episodes,
+            )
+        except (ValueError, FileNotFoundError, LookupError) as exc:
+            typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+            raise typer.Exit(code=2) from None
+        typer.echo(report.summary())
+        if out is not None:
+            for path in write_figures(report, out):
+                typer.echo(f"wrote {path}")

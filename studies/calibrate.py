@@ -1,0 +1,381 @@
+"""Does fear predict danger? ``sage calibrate``: measure the self-awareness signals against what happened.
+
+The policy drives with its SAGE gate and **no expert**, so danger plays out. Every step is labelled "a violation
+happens within the next H seconds" (1 s by default; H / dt steps from the simulator's descriptor). Then:
+
+- AUROC and average precision of fear F, of its parts ĉ (predicted violation probability) and σ̂ (normalised
+  uncertainty), and of curiosity C (the one observed on arriving at the state) for that label;
+- the gate's firing rate on pre-violation steps against the other steps;
+- the share of violations preceded by a firing within H, and the lead time (first firing -> violation);
+- a reliability diagram: predicted ĉ against the observed rate of violations within the model's horizon;
+- the gate's operating curve (:func:`operating_curve`): with the gate and the scripted expert, episodes with a
+  violation against the takeover rate, sweeping a scale on τ; beside random gating and curiosity-only gating
+  swept over their own knobs, so that the three are compared at equal takeover rates.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from core.agents import load_agent
+from core.experts import ScriptedExpert
+from core.loop import Gate, GateDecision, Runner, StepRecord
+from core.metrics import auroc, average_precision, reliability
+
+EVAL_SEED = 3_000_000
+"""Calibration episodes use seeds apart from training (episode i: EVAL_SEED + i)."""
+
+
+@dataclass
+class SignalScore:
+    auroc: float
+    average_precision: float
+
+
+@dataclass
+class CalibrationReport:
+    """What :func:`calibrate_run` measured."""
+
+    run: str
+    sim: str
+    scenario: str
+    episodes: int
+    steps: int
+    horizon_s: float
+    horizon_steps: int
+    violations: int
+    """Episodes that ended in (or contained) a violation."""
+    positives: int
+    """Steps labelled "violation within H"."""
+    scores: dict[str, SignalScore]
+    """fear, cost (ĉ), sigma (σ̂), curiosity."""
+    fire_rate_before_violation: float
+    fire_rate_elsewhere: float
+    violations_warned: float
+    """Share of violations with a gate firing within H before them."""
+    mean_lead_time_s: float
+    """Mean time from the first firing in that window to the violation (warned violations only)."""
+    reliability: list[tuple[float, float, int]] = field(default_factory=list)
+    curve: dict[str, list[dict[str, float]]] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def summary(self) -> str:
+        lines = [
+            f"{self.run} on {self.sim} {self.scenario}: {self.episodes} episodes, {self.steps} steps, "
+            f"{self.violations} with a violation; label: violation within {self.horizon_s:g} s "
+            f"({self.horizon_steps} steps), {self.positives} positive steps",
+            "",
+            "| signal | AUROC | average precision |",
+            "|---|---|---|",
+        ]
+        for name, score in self.scores.items():
+            lines.append(f"| {name} | {_fmt(score.auroc)} | {_fmt(score.average_precision)} |")
+        lines += [
+            "",
+            f"gate firing rate: {_pct(self.fire_rate_before_violation)} of pre-violation steps, "
+            f"{_pct(self.fire_rate_elsewhere)} of the others",
+            f"violations preceded by a firing within {self.horizon_s:g} s: {_pct(self.violations_warned)}, "
+            f"mean lead time {_fmt(self.mean_lead_time_s)} s",
+        ]
+        for name, points in self.curve.items():
+            pairs = ", ".join(f"{p['takeover_rate']:.0%}→{p['violation_rate']:.0%}" for p in points)
+            lines.append(f"operating curve {name} (takeover → episodes with a violation): {pairs}")
+        return "\n".join(lines)
+
+
+def _fmt(value: float) -> str:
+    return "–" if value is None or not math.isfinite(value) else f"{value:.3f}"
+
+
+def _pct(value: float) -> str:
+    return "–" if not math.isfinite(value) else f"{value:.0%}"
+
+
+@dataclass
+class _Step:
+    episode: int
+    fear: float
+    cost: float
+    sigma: float
+    curiosity_in: float
+    fired: bool
+    violation: bool
+
+
+def labels_within(violation: np.ndarray, episode: np.ndarray, steps: int) -> np.ndarray:
+    """1 where a violation happens at this step or within the next ``steps - 1`` steps of the same episode."""
+    n = len(violation)
+    out = np.zeros(n, bool)
+    next_violation = -1
+    for i in range(n - 1, -1, -1):
+        if i + 1 < n and episode[i + 1] != episode[i]:
+            next_violation = -1
+        if violation[i]:
+            next_violation = i
+        out[i] = next_violation >= 0 and next_violation - i < steps
+    return out
+
+
+def collect(
+    make_env: Callable[[], gym.Env[Any, Any]], run: str | Path, episodes: int, max_steps: int | None = None
+) -> tuple[list[_Step], Any]:
+    """Run the policy with its gate and no expert; record the signals of every step."""
+    agent = load_agent(run)
+    gate = agent.make_gate()
+    env = make_env()
+    steps: list[_Step] = []
+    previous_curiosity = [math.nan]
+    try:
+        runner = Runner(env, agent.policy, gate, None, seed=EVAL_SEED, deterministic=True)
+
+        def record(r: StepRecord) -> None:
+            d = gate.detail
+            steps.append(
+                _Step(r.episode, r.fear, d.cost, d.sigma, previous_curiosity[0], r.gate_fired, bool(r.violation))
+            )
+            previous_curiosity[0] = r.curiosity if not r.done else math.nan
+
+        runner.step_listeners.append(record)
+        for _ in range(episodes):
+            previous_curiosity[0] = math.nan
+            runner.run_episode(max_steps=max_steps)
+    finally:
+        env.close()
+    return steps, agent
+
+
+def calibrate_run(
+    run: str | Path,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    dt: float,
+    *,
+    sim: str = "",
+    scenario: str = "",
+    episodes: int = 20,
+    horizon_s: float = 1.0,
+    max_steps: int | None = None,
+    curve_episodes: int = 0,
+    curve_scales: Sequence[float] = (0.6, 0.8, 1.0, 1.25, 1.6, 2.2),
+) -> CalibrationReport:
+    """Measure how well fear predicts "violation within ``horizon_s``" (see the module docstring)."""
+    steps, agent = collect(make_env, run, episodes, max_steps)
+    if not steps:
+        raise ValueError("no steps were recorded: every episode failed (see the log)")
+    h = max(1, round(horizon_s / dt))
+    episode = np.array([s.episode for s in steps])
+    violation = np.array([s.violation for s in steps])
+    label = labels_within(violation, episode, h)
+    fired = np.array([s.fired for s in steps])
+    signals = {
+        "fear": np.array([s.fear for s in steps]),
+        "cost": np.array([s.cost for s in steps]),
+        "sigma": np.array([s.sigma for s in steps]),
+        "curiosity": np.array([s.curiosity_in for s in steps]),
+    }
+    scores = {k: SignalScore(auroc(v, label), average_precision(v, label)) for k, v in signals.items()}
+    warned, leads = 0, []
+    violation_idx = np.flatnonzero(violation)
+    for i in violation_idx:
+        window = [j for j in range(max(0, i - h + 1), i + 1) if episode[j] == episode[i]]
+        firing = [j for j in window if fired[j]]
+        if firing:
+            warned += 1
+            leads.append((i - firing[0]) * dt)
+    model_steps = agent.config.world_model_config.violation_steps
+    model_label = labels_within(violation, episode, model_steps)
+    report = CalibrationReport(
+        run=str(run),
+        sim=sim,
+        scenario=scenario,
+        episodes=episodes,
+        steps=len(steps),
+        horizon_s=horizon_s,
+        horizon_steps=h,
+        violations=len(set(episode[violation_idx].tolist())),
+        positives=int(label.sum()),
+        scores=scores,
+        fire_rate_before_violation=float(fired[label].mean()) if label.any() else math.nan,
+        fire_rate_elsewhere=float(fired[~label].mean()) if (~label).any() else math.nan,
+        violations_warned=warned / len(violation_idx) if len(violation_idx) else math.nan,
+        mean_lead_time_s=float(np.mean(leads)) if leads else math.nan,
+        reliability=reliability(signals["cost"], model_label),
+    )
+    if curve_episodes > 0:
+        report.curve = operating_curve(run, make_env, curve_episodes, curve_scales, max_steps)
+    return report
+
+
+# -- the operating curve ------------------------------------------------------------------------------------------
+class _HoldGate:
+    """Fires by its own rule and holds control for ``hold`` steps, as the SAGE gate does."""
+
+    def __init__(self, inner: Gate, hold: int) -> None:
+        self.inner, self.hold, self.remaining = inner, hold, 0
+        self.last_curiosity = math.nan
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.remaining = 0
+        self.last_curiosity = math.nan
+
+    def rule(self, decision: GateDecision) -> bool:
+        raise NotImplementedError
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
+        decision = self.inner.decide(obs, a_rl)
+        if self.rule(decision):
+            self.remaining = self.hold
+        fired = self.remaining > 0
+        if fired:
+            self.remaining -= 1
+        return GateDecision(decision.fear, decision.threshold, fired)
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        self.last_curiosity = float(self.inner.observe(obs, action, next_obs))
+        return self.last_curiosity
+
+
+class ScaledFearGate(_HoldGate):
+    """SAGE's rule with τ scaled: fire when F > scale · τ."""
+
+    def __init__(self, inner: Gate, hold: int, scale: float) -> None:
+        super().__init__(inner, hold)
+        self.scale = scale
+
+    def rule(self, decision: GateDecision) -> bool:
+        return math.isfinite(decision.fear) and decision.fear > self.scale * decision.threshold
+
+
+class RandomGate(_HoldGate):
+    """Fires with probability ``p`` at each step, whatever the state."""
+
+    def __init__(self, inner: Gate, hold: int, p: float, seed: int = 0) -> None:
+        super().__init__(inner, hold)
+        self.p, self.rng = p, np.random.default_rng(seed)
+
+    def rule(self, decision: GateDecision) -> bool:
+        return bool(self.rng.random() < self.p)
+
+
+class CuriosityGate(_HoldGate):
+    """Fires when the curiosity of the last transition exceeds ``level`` (curiosity alone, no fear)."""
+
+    def __init__(self, inner: Gate, hold: int, level: float) -> None:
+        super().__init__(inner, hold)
+        self.level = level
+
+    def rule(self, decision: GateDecision) -> bool:
+        return math.isfinite(self.last_curiosity) and self.last_curiosity > self.level
+
+
+def _run_gated(
+    agent: Any, make_env: Callable[[], gym.Env[Any, Any]], gate: Gate, episodes: int, max_steps: int | None
+) -> dict[str, float]:
+    env = make_env()
+    try:
+        runner = Runner(env, agent.policy, gate, ScriptedExpert(), seed=EVAL_SEED, deterministic=True)
+        violated = [False]
+
+        def watch(r: StepRecord) -> None:
+            violated[0] = violated[0] or bool(r.violation)
+
+        runner.step_listeners.append(watch)
+        bad = takeovers = steps = 0
+        for _ in range(episodes):
+            violated[0] = False
+            summary = runner.run_episode(max_steps=max_steps)
+            bad += int(violated[0])
+            takeovers += summary.takeovers
+            steps += summary.steps
+    finally:
+        env.close()
+    return {"takeover_rate": takeovers / max(steps, 1), "violation_rate": bad / episodes}
+
+
+def operating_curve(
+    run: str | Path,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    episodes: int,
+    scales: Sequence[float],
+    max_steps: int | None = None,
+) -> dict[str, list[dict[str, float]]]:
+    """Episodes with a violation against the takeover rate for SAGE's gate (τ scaled), random gating and
+    curiosity-only gating, each swept over its knob, on the same seeds."""
+    agent = load_agent(run)
+    hold = agent.config.gate.hold_steps
+    curve: dict[str, list[dict[str, float]]] = {"fear (SAGE)": [], "random": [], "curiosity only": []}
+    for scale in scales:
+        point = _run_gated(agent, make_env, ScaledFearGate(agent.make_gate(), hold, scale), episodes, max_steps)
+        curve["fear (SAGE)"].append({"knob": scale, **point})
+    rates = sorted(p["takeover_rate"] for p in curve["fear (SAGE)"])
+    for rate in rates:
+        # per-step firing probability that yields this takeover rate with a hold of k steps: r = k p / (1 + (k-1) p)
+        p = rate / max(hold - (hold - 1) * rate, 1e-9)
+        point = _run_gated(agent, make_env, RandomGate(agent.make_gate(), hold, min(p, 1.0)), episodes, max_steps)
+        curve["random"].append({"knob": p, **point})
+    reference = float(agent.make_gate().world_model.curiosity_ref)
+    for multiple in (0.8, 1.2, 1.6, 2.2, 3.0, 4.5):
+        level = multiple * reference
+        point = _run_gated(agent, make_env, CuriosityGate(agent.make_gate(), hold, level), episodes, max_steps)
+        curve["curiosity only"].append({"knob": level, **point})
+    for points in curve.values():
+        points.sort(key=lambda q: q["takeover_rate"])
+    return curve
+
+
+# -- figures ------------------------------------------------------------------------------------------------------
+def write_figures(report: CalibrationReport, out: Path) -> list[Path]:
+    """reliability.png and (with a curve) operating_curve.png, plus report.json."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    (out / "report.json").write_text(json.dumps(report.as_dict(), indent=1, default=float))
+    fig, ax = plt.subplots(figsize=(4.6, 4.2), dpi=120)
+    ax.plot([0, 1], [0, 1], color="#888", lw=1, ls="--", label="perfect calibration")
+    if report.reliability:
+        pred, obs, _ = zip(*report.reliability, strict=True)
+        ax.plot(pred, obs, "o-", color="#d62728", label="ĉ (predicted violation probability)")
+        for x, y, n in report.reliability:
+            ax.annotate(str(n), (x, y), textcoords="offset points", xytext=(4, -10), fontsize=7, color="#555")
+    ax.set_xlabel("predicted ĉ")
+    ax.set_ylabel("observed rate of a violation ahead")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    ax.set_title(f"{report.sim} {report.scenario}: reliability of ĉ", fontsize=10)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(out / "reliability.png")
+    plt.close(fig)
+    written.append(out / "reliability.png")
+    if report.curve:
+        fig, ax = plt.subplots(figsize=(5.2, 4.2), dpi=120)
+        colours = {"fear (SAGE)": "#d62728", "random": "#7f7f7f", "curiosity only": "#1f77b4"}
+        for name, points in report.curve.items():
+            xs = [p["takeover_rate"] for p in points]
+            ys = [p["violation_rate"] for p in points]
+            ax.plot(xs, ys, "o-", label=name, color=colours.get(name))
+        ax.set_xlabel("takeover rate (share of steps under the expert)")
+        ax.set_ylabel("episodes with a violation")
+        ax.set_xlim(0, 1)
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_title(f"{report.sim} {report.scenario}: the gate's operating curve", fontsize=10)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out / "operating_curve.png")
+        plt.close(fig)
+        written.append(out / "operating_curve.png")
+    return written

@@ -1,0 +1,26 @@
+"""AUROC and average precision against hand-computed cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from core.metrics import auroc, average_precision, reliability
+
+
+def test_auroc_counts_ordered_pairs_and_ties_half() -> None:
+    assert auroc(np.array([0.1, 0.2, 0.8, 0.9]), np.array([0, 0, 1, 1])) == 1.0
+    assert auroc(np.array([0.9, 0.8, 0.2, 0.1]), np.array([0, 0, 1, 1])) == 0.0
+    # positives 0.5, 0.7 against negatives 0.5, 0.1: pairs (0.5 vs 0.5 tie) 0.5 + 1 + 1 + 1 = 3.5 of 4
+    assert auroc(np.array([0.5, 0.7, 0.5, 0.1]), np.array([1, 1, 0, 0])) == 3.5 / 4
+    assert math.isnan(auroc(np.array([0.1, 0.2]), np.array([0, 0])))
+    rng = np.random.default_rng(0)
+    assert abs(auroc(rng.random(20000), rng.random(20000) < 0.1) - 0.5) < 0.02
+
+
+def test_average_precision_and_reliability() -> None:
+    # ranking: pos, neg, pos -> precision at the hits 1 and 2/3
+    assert average_precision(np.array([0.9, 0.8, 0.7]), np.array([1, 0, 1])) == (1 + 2 / 3) / 2
+    bins = reliability(np.array([0.05, 0.05, 0.95, 0.95]), np.array([0, 0, 1, 0]), bins=10)
+    assert bins == [(0.05, 0.0, 2), (0.95, 0.5, 2)]

@@ -1,0 +1,55 @@
+"""sage calibrate: labels, scores and the operating curve on the point world."""
+
+from __future__ import annotations
+
+import functools
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from studies.calibrate import calibrate_run, labels_within, write_figures
+from tests.core.sage import envs
+from tests.core.test_finetune import deployed  # noqa: F401  (the module fixture)
+
+torch.set_num_threads(1)
+
+
+def test_labels_mark_the_steps_before_a_violation_within_the_episode() -> None:
+    violation = np.array([0, 0, 0, 1, 0, 0, 1, 0, 0, 0], bool)
+    episode = np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 2])
+    assert labels_within(violation, episode, 2).tolist() == [0, 0, 1, 1, 0, 1, 1, 0, 0, 0]
+    # a violation never labels the previous episode's steps
+    assert labels_within(violation, episode, 5).tolist() == [1, 1, 1, 1, 1, 1, 1, 0, 0, 0]
+
+
+def test_calibrate_scores_fear_against_what_happened(deployed: Path, tmp_path: Path) -> None:  # noqa: F811
+    report = calibrate_run(
+        deployed,
+        functools.partial(envs.make, "dynamic"),
+        dt=0.1,
+        sim="point",
+        scenario="dynamic",
+        episodes=16,
+        horizon_s=0.5,
+        curve_episodes=3,
+        curve_scales=(0.5, 1.0, 2.0),
+    )
+    assert report.horizon_steps == 5 and report.steps > 100
+    assert set(report.scores) == {"fear", "cost", "sigma", "curiosity"}
+    assert report.violations > 0, "the statically trained policy should meet the moving obstacle"
+    assert report.positives > 0
+    for score in report.scores.values():
+        assert 0.0 <= score.auroc <= 1.0 and 0.0 < score.average_precision <= 1.0
+    assert 0.0 <= report.fire_rate_elsewhere <= 1.0 and not math.isnan(report.fire_rate_before_violation)
+    assert sum(n for _, _, n in report.reliability) == report.steps
+    sage = report.curve["fear (SAGE)"]
+    assert len(sage) == 3 and len(report.curve["random"]) == 3 and report.curve["curiosity only"]
+    # a lower threshold scale hands over more
+    by_knob = {p["knob"]: p["takeover_rate"] for p in sage}
+    assert by_knob[0.5] >= by_knob[2.0]
+    paths = write_figures(report, tmp_path)
+    assert [p.name for p in paths] == ["reliability.png", "operating_curve.png"]
+    assert all(p.read_bytes()[:4] == b"\x89PNG" for p in paths) and (tmp_path / "report.json").is_file()
+    assert "AUROC" in report.summary()
