@@ -4,8 +4,8 @@
 
 Each cycle deploys the current policy version with its SAGE gate and the scripted expert, records the session, then
 fine-tunes on it with the same function the live server's worker runs (:mod:`core.finetune`) and deploys the new
-version in the next cycle (:mod:`app.studies.cycles`). Writes the per-cycle table (``table.md``), ``cycles.json``,
-and the figures (:mod:`app.cycles_plot`): ``trajectories.png`` (paths over the cycles, coloured by cycle),
+version in the next cycle (:mod:`studies.cycles`). Writes the per-cycle table (``table.md``), ``cycles.json``,
+and the figures (:mod:`studies.cycles_figures`): ``trajectories.png`` (paths over the cycles, coloured by cycle),
 ``signals_cycle<K>.png`` (fear, threshold and takeover intervals in cycle K, ``--show-cycle K``, repeatable) and
 ``cycles_summary.png``.
 """
@@ -54,10 +54,10 @@ def register(app: typer.Typer) -> None:
         """Run deploy / takeover / fine-tune cycles headless; print the per-cycle table; draw the figures."""
         import torch
 
-        from app.cycles_plot import write_figures
-        from app.studies.cycles import CyclesConfig, format_cycle_table, read_cycles, run_cycles
-        from app.studies.envs import env_factory
         from core.finetune import FinetuneConfig, FinetuneError
+        from studies.cycles import CyclesConfig, format_cycle_table, read_cycles, run_cycles
+        from studies.cycles_figures import write_figures
+        from studies.envs import env_factory
 
         torch.set_num_threads(1)
         shown = show_cycle or [1]

@@ -4,7 +4,7 @@
 
 ``route-shift`` overlays the success, collision and red-light rates of several route-shift runs (one line per
 run, the switch marked) and draws the SAGE signals (takeover frequency, mean fear, mean curiosity) of every
-run that recorded fear. Figures are PNG files; the drawing is :mod:`app.studies.figures`.
+run that recorded fear. Figures are PNG files; the drawing is :mod:`studies.route_shift_figures`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,8 @@ def register(app: typer.Typer) -> None:
         prefix: Annotated[str, typer.Option(help="File name prefix.")] = "route_shift",
     ) -> None:
         """Success / collision / red-light rates over episodes with the route switch marked, and SAGE's signals."""
-        from app.studies.route_shift import phase_table, read_run, write_figures
+        from studies.route_shift import phase_table, read_run
+        from studies.route_shift_figures import write_figures
 
         labels = [s.strip() for s in label.split(",")] if label else []
         if labels and len(labels) != len(runs):

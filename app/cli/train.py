@@ -8,8 +8,8 @@
     sage train --sim sumo --protocol route-shift --method sage --c1 40 --c2 20   # + figures in the run folder
 
 ``--sim`` is any simulator of :data:`sims.SIMULATORS`; ``--scenario`` names its variant (a comma list
-trains on several in turn; :mod:`app.studies.envs`: UGV 1-4, highway train/test, SUMO c1/c2). The study
-protocols (highway closed-loop adversaries, SUMO route shift) live in :mod:`app.studies`. In ``sage train``,
+trains on several in turn; :mod:`studies.envs`: UGV 1-4, highway train/test, SUMO c1/c2). The study
+protocols (highway closed-loop adversaries, SUMO route shift) live in :mod:`studies`. In ``sage train``,
 ``--set key=value`` edits the learner's config (``--set gate.tau_max=0.7``; fields: :mod:`core.sage.config`);
 in ``sage eval`` / ``compare`` on highway, ``--set`` is the logged set (train or test), as in the paper.
 The tables are the paper's (:mod:`core.report`): one row per run and scenario, the simulator's own
@@ -41,7 +41,7 @@ def _scenarios(value: str) -> list[str]:
 
 
 def _make_env_factory(sim: str, overrides: dict[str, Any] | None = None) -> Any:
-    from app.studies.envs import env_factory
+    from studies.envs import env_factory
 
     try:
         return env_factory(sim, **(overrides or {}))
@@ -143,11 +143,11 @@ def register(app: typer.Typer) -> None:
         """Train a learner on a simulator with the one step loop; write a run folder."""
         import torch
 
-        from app.studies import prepare_training
         from core.agents import load_checkpoint
         from core.report import format_table
         from core.sage.config import apply_overrides, for_method, from_dict
         from core.train import RunConfig, Trainer
+        from studies.training import prepare_training
 
         torch.set_num_threads(1)
         try:
@@ -294,8 +294,8 @@ def _highway_table(
     import torch
     from tqdm import tqdm
 
-    from app.studies import highway
     from core.agents import load_agent
+    from studies import highway
 
     torch.set_num_threads(1)
     try:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from sims.ugv.config import UGVConfig
 from sims.ugv.scenario import Layout
 
 if TYPE_CHECKING:
-    from sims.ugv.env import UGVEnv
+    from sims.ugv.world import World
 
 SQRT2 = math.sqrt(2.0)
 NEIGHBOURS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
@@ -239,10 +239,19 @@ def _resample(points: np.ndarray) -> Path:
     return Path(xy, s)
 
 
+class ExpertView(Protocol):
+    """What the expert reads of the env (its privileged view), so that it depends on no env class."""
+
+    world: World | None
+    layout: Layout | None
+    config: UGVConfig
+    episode: int
+
+
 class UGVExpert:
     """The expert of one env; call :meth:`act` at any step (takeovers may start mid-episode)."""
 
-    def __init__(self, env: UGVEnv, yield_to_movers: bool = True) -> None:
+    def __init__(self, env: ExpertView, yield_to_movers: bool = True) -> None:
         self.env = env
         self.yield_to_movers = yield_to_movers
         """False gives the naive goal seeker: the same planner and tracker, blind to movers."""

@@ -14,11 +14,11 @@ import torch
 from typer.testing import CliRunner
 
 from app.cli import app
-from app.studies.envs import env_factory
 from core.agents import load_agent
 from core.experts import PolicyExpert
 from core.sage.config import for_method
 from core.train import RunConfig, Trainer
+from studies.envs import env_factory
 
 torch.set_num_threads(1)
 TINY = ["--set", "hidden=16", "--set", "batch_size=8", "--set", "learning_starts=10", "--quiet"]

@@ -18,11 +18,11 @@ import torch
 from typer.testing import CliRunner
 
 from app.cli import app
-from app.cycles_plot import cycle_signals, load_paths, trajectories
-from app.studies.cycles import CyclesConfig, cycle_rows, read_cycles, run_cycles
-from app.studies.envs import env_factory
 from core.finetune import FinetuneConfig, VersionStore
 from core.sessions import SessionStore
+from studies.cycles import CyclesConfig, cycle_rows, read_cycles, run_cycles
+from studies.cycles_figures import cycle_signals, load_paths, trajectories
+from studies.envs import env_factory
 
 torch.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,11 +10,11 @@ import pytest
 import torch
 
 import sims
-from app.studies.envs import env_factory
-from app.studies.highway import ClosedLoopAdversary, evaluate_policy, paper_table, parse_modes, parse_sets
 from core.loop import Runner
 from core.sage.config import for_method
 from core.train import RunConfig, Trainer
+from studies.envs import env_factory
+from studies.highway import ClosedLoopAdversary, evaluate_policy, paper_table, parse_modes, parse_sets
 
 torch.set_num_threads(1)
 

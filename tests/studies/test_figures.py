@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.studies import figures
-from app.studies.route_shift import StudyRun, read_run, write_figures
+from studies import route_shift_figures as figures
+from studies.route_shift import StudyRun, read_run
+from studies.route_shift_figures import write_figures
 
 
 def synthetic_run(method: str, c1: int = 12, c2: int = 6, fear: bool = True) -> StudyRun:
@@ -31,7 +32,7 @@ def synthetic_run(method: str, c1: int = 12, c2: int = 6, fear: bool = True) -> 
 
 
 def figures_label(method: str) -> str:
-    from app.studies.route_shift import method_label
+    from studies.route_shift import method_label
 
     return method_label(method)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from app.studies.envs import default_scenario, env_factory, scenario_kwargs
+from studies.envs import default_scenario, env_factory, scenario_kwargs
 
 
 def test_each_simulator_reads_its_own_scenario_names() -> None:

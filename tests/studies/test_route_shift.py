@@ -8,8 +8,8 @@ from typing import Any
 
 import pytest
 
-from app.studies import prepare_training
-from app.studies.route_shift import RouteShift, phase_rows
+from studies.route_shift import RouteShift, phase_rows
+from studies.training import prepare_training
 
 
 class FakeSumo:
@@ -86,7 +86,7 @@ def test_prepare_training_checks_the_protocol_options() -> None:
 
 
 def test_phase_rows_take_the_end_of_c1_and_both_ends_of_c2() -> None:
-    from app.studies.route_shift import StudyRun
+    from studies.route_shift import StudyRun
 
     rows = [{"episode": i} for i in range(9)]
     run = StudyRun(Path("r"), "X", "sac", rows, 6)

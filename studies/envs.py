@@ -1,0 +1,44 @@
+"""What a ``--scenario`` string means to each simulator: its descriptor's scenario names.
+
+The naming lives in each simulator's descriptor (``sims/<name>/descriptor.py``), so the CLI, the dashboard and
+the studies mean the same env by the same name; a run records the name (``RunConfig.scenarios``) and evaluation
+rebuilds the same env from it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+
+
+def default_scenario(sim: str) -> str:
+    import sims
+
+    return sims.descriptor(sim).default_scenario
+
+
+def scenario_kwargs(sim: str, scenario: str) -> dict[str, Any]:
+    """``make()`` keyword arguments of a scenario name; a clear error for a bad name."""
+    import sims
+
+    return sims.descriptor(sim).scenario_kwargs(scenario)
+
+
+def env_factory(sim: str, **fixed: Any) -> Callable[[str], gym.Env[Any, Any]]:
+    """``make_env(scenario)`` for :class:`core.train.Trainer` and :func:`core.train.evaluate`.
+
+    ``fixed``: more keyword arguments for every env (e.g. ``mode="adversarial"``), winning over the scenario's.
+    """
+    import sims
+
+    descriptor = sims.descriptor(sim)  # a clear error for an unknown simulator, before any training
+
+    def make_env(scenario: str) -> gym.Env[Any, Any]:
+        try:
+            return descriptor.make(scenario, **fixed)
+        except TypeError as exc:  # the simulator's constructor does not take what was given
+            raise ValueError(f"cannot build simulator {sim!r} scenario {scenario!r} with {fixed}: {exc}") from None
+
+    return make_env

@@ -1,0 +1,176 @@
+"""The paper's route-shift study on SUMO: phase C1 on route 1, then phase C2 on route 2 with special vehicles.
+
+:class:`RouteShift` is a ``core.train`` episode hook: before each training episode it applies that episode's
+scenario from :func:`sims.sumo.route_shift_schedule` (it takes effect at the env's next reset) and, at the
+switch, hands the expert role to the C2 expert when one was given (the paper supervises each phase with an RL
+policy trained on that route; by default SUMO's own driver model is the expert in both phases).
+
+A run folder of this protocol holds ``study.json`` (``{"protocol": "route-shift", "c1": N, "c2": M, ...}``)
+beside ``metrics.jsonl``, whose rows carry ``route`` and ``special_vehicles`` (the env's metrics), so the
+schedule actually driven can be read back. :func:`studies.route_shift_figures.write_figures` draws the paper's
+panels into the folder.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from core.experts import PolicyExpert
+from core.loop import Expert, Runner
+
+PROTOCOL = "route-shift"
+STUDY_FILE = "study.json"
+DEFAULT_C1 = 40
+"""C1 episodes by default (the paper: 1,000). With 10 demonstrations and ``updates_per_step=0.5``, C1 + C2 took
+2 minutes of wall time for SAC (6.5k steps) and ~24 minutes for SAGE / FNI-RL (10-13k steps, world-model fits)
+on this 2-core machine while other jobs kept its load at 5-17 (docs/figures/README.md)."""
+DEFAULT_C2 = 20
+"""C2 episodes by default (the paper: 500; the same 2:1 ratio of C1 to C2)."""
+
+
+@dataclass
+class RouteShift:
+    """Apply the route-shift schedule episode by episode; swap the expert at the switch if a C2 expert is given."""
+
+    c1: int = DEFAULT_C1
+    c2: int = DEFAULT_C2
+    expert_c2: Expert | None = None
+    """The expert of phase C2 (None: keep the C1 expert, e.g. SUMO's driver model, in both phases)."""
+    applied: list[dict[str, Any]] = field(default_factory=list)
+    """The scenario applied before each episode, in order."""
+
+    def __post_init__(self) -> None:
+        from sims.sumo import route_shift_schedule
+
+        self.schedule = route_shift_schedule(self.c1, self.c2)
+
+    @property
+    def episodes(self) -> int:
+        return self.c1 + self.c2
+
+    def __call__(self, episode: int, runner: Runner) -> None:
+        from sims.sumo import apply_scenario
+
+        if episode >= len(self.schedule):
+            raise ValueError(f"episode {episode} is past the route-shift schedule of {len(self.schedule)} episodes")
+        entry = self.schedule[episode]
+        kwargs = entry.env_kwargs()
+        apply_scenario(runner.env, kwargs)
+        if episode == self.c1 and self.expert_c2 is not None and runner.expert is not None:
+            runner.set_expert(self.expert_c2)  # only methods with takeovers have an expert to swap
+        self.applied.append({"episode": episode, "phase": entry.phase, **kwargs})
+
+    def describe(self, method: str, expert: str | None, expert_c2: str | None) -> dict[str, Any]:
+        return {
+            "protocol": PROTOCOL,
+            "c1": self.c1,
+            "c2": self.c2,
+            "switch_episode": self.c1,
+            "method": method,
+            "expert_c1": expert or "sumo",
+            "expert_c2": expert_c2 or expert or "sumo",
+        }
+
+
+def policy_expert(run: str | Path) -> PolicyExpert:
+    """A run's deterministic policy as the expert of phase C2 (``--expert-c2``); it must fit the SUMO env."""
+    from core.agents import load_agent
+    from sims.sumo.env import OBS_SIZE
+
+    agent = load_agent(run)
+    if (agent.meta.obs_dim, agent.meta.act_dim) != (OBS_SIZE, 1):
+        raise ValueError(
+            f"--expert-c2 {run}: its policy takes {agent.meta.obs_dim} observations / {agent.meta.act_dim} actions, "
+            f"the SUMO env has {OBS_SIZE} / 1"
+        )
+    return PolicyExpert(agent.policy)
+
+
+def write_study(out: Path, description: dict[str, Any]) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / STUDY_FILE
+    path.write_text(json.dumps(description, indent=2) + "\n")
+    return path
+
+
+@dataclass
+class StudyRun:
+    """A route-shift run folder as the figures need it."""
+
+    path: Path
+    label: str
+    method: str
+    rows: list[dict[str, Any]]
+    """The training episodes' rows (demonstrations left out), in order."""
+    switch: int
+    """Index (0-based, in ``rows``) of the first C2 episode."""
+
+
+def read_run(path: str | Path, label: str | None = None) -> StudyRun:
+    """Read a route-shift run folder (``metrics.jsonl`` + ``study.json``); a clear error when it is not one."""
+    folder = Path(path)
+    metrics = folder / "metrics.jsonl"
+    if not metrics.is_file():
+        raise FileNotFoundError(f"{folder} has no metrics.jsonl: not a run folder")
+    rows = []
+    for number, line in enumerate(metrics.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{metrics}:{number} is not JSON: {exc}") from None
+        if row.get("phase", "train") == "train":
+            rows.append(row)
+    if not rows:
+        raise ValueError(f"{metrics} holds no training episodes")
+    study: dict[str, Any] = {}
+    if (folder / STUDY_FILE).is_file():
+        study = json.loads((folder / STUDY_FILE).read_text())
+    switch = study.get("switch_episode")
+    if switch is None:  # a run without study.json: the first episode on another route than the first one
+        routes = [r.get("route") for r in rows]
+        switch = next((i for i, route in enumerate(routes) if route != routes[0]), None)
+        if switch is None:
+            raise ValueError(f"{folder} is not a route-shift run: no study.json and every episode on one route")
+    method = study.get("method")
+    if method is None and (folder / "config.json").is_file():
+        method = json.loads((folder / "config.json").read_text()).get("agent", {}).get("method")
+    method = method or "?"
+    return StudyRun(folder, label or method_label(method), method, rows, int(switch))
+
+
+PHASE_COLUMNS = ("success", "collision", "red_light", "timeout", "takeover_rate", "mean_fear", "mean_curiosity")
+
+
+def phase_rows(run: StudyRun, part: int = 3) -> dict[str, list[dict[str, Any]]]:
+    """The episodes that tell the story: the end of C1 (stable?), the start of C2 (the drop) and the end of C2
+    (recovered?), each a ``1/part`` share of its phase."""
+    c1, c2 = run.rows[: run.switch], run.rows[run.switch :]
+    k1, k2 = max(1, len(c1) // part), max(1, len(c2) // part)
+    out: dict[str, list[dict[str, Any]]] = {}
+    if c1:
+        out[f"{run.label}: C1 last {k1}"] = c1[-k1:]
+    if c2:
+        out[f"{run.label}: C2 first {k2}"] = c2[:k2]
+        out[f"{run.label}: C2 last {k2}"] = c2[-k2:]
+    return out
+
+
+def phase_table(runs: list[StudyRun], part: int = 3) -> str:
+    """A plain-text table of :func:`phase_rows` for every run (rates as counts and percentages)."""
+    from core.report import format_table
+
+    named: dict[str, list[dict[str, Any]]] = {}
+    for run in runs:
+        named.update(phase_rows(run, part))
+    return format_table(named, PHASE_COLUMNS)
+
+
+def method_label(method: str) -> str:
+    return {"sage": "SAGE-RL", "sac": "RL (SAC)", "fni-rl": "FNI-RL", "td3": "TD3", "hg-dagger": "HG-DAgger"}.get(
+        method, method
+    )
