@@ -33,9 +33,18 @@ def mapping_for(sim: str, action_space: gym.Space[Any]) -> InputMapping:
     return InputMapping(throttle_index=0, steer_index=None)
 
 
-def to_action(mapping: InputMapping, action_space: gym.Space[Any], throttle: float, steer: float) -> np.ndarray:
+def to_action(
+    mapping: InputMapping,
+    action_space: gym.Space[Any],
+    throttle: float,
+    steer: float,
+    safe: np.ndarray | None = None,
+) -> np.ndarray:
     """The action the operator's axes ask for, inside ``action_space``.
 
+    ``safe``: the simulator's safe action (its descriptor's: stop or brake). With it, the throttle axis is
+    anchored there: no throttle input is the safe action's throttle component (a person holding control without
+    pressing forward stops or brakes; never cruises), +1 the component's maximum, -1 its minimum.
     ``Discrete(n)`` spaces (e.g. keep / slow down / speed up) get the throttle axis split into ``n``
     equal bins, so full brake is action 0 and full throttle action ``n - 1``.
     """
@@ -57,4 +66,8 @@ def to_action(mapping: InputMapping, action_space: gym.Space[Any], throttle: flo
     high = np.broadcast_to(action_space.high, action_space.shape).reshape(-1).astype(np.float64)
     bounded = np.isfinite(low) & np.isfinite(high)
     scaled = np.where(bounded, low + (unit + 1.0) / 2.0 * (high - low), unit)
+    index = mapping.throttle_index
+    if safe is not None and index is not None and index < unit.size and bounded[index]:
+        anchor = float(np.asarray(safe, np.float64).reshape(-1)[index])
+        scaled[index] = anchor + throttle * ((high[index] - anchor) if throttle >= 0 else (anchor - low[index]))
     return scaled.reshape(action_space.shape).astype(action_space.dtype)

@@ -68,6 +68,16 @@ class LiveConfig:
     seed: int = 0
 
 
+def safe_action(sim: str, action_space: gym.Space[Any]) -> np.ndarray | None:
+    """The simulator's safe action (stop or brake) from its descriptor; None for an unregistered env."""
+    import sims
+
+    try:
+        return sims.descriptor(sim).safe(action_space)
+    except ValueError:
+        return None
+
+
 def control_period(sim: str, env: gym.Env[Any, Any]) -> float:
     """Seconds of simulated time per step: the simulator descriptor's ``dt`` (an unregistered env, such as a
     test's toy simulator, may say it as ``env.unwrapped.dt``; otherwise 0.1 s)."""
@@ -319,7 +329,11 @@ class LiveLoop:
             simulator(env)
             loaded = self.policy_loader(config.policy, env)
             expert = PersonExpert(
-                self.console, mapping_for(config.sim, env.action_space), env.action_space, config.expert_mode
+                self.console,
+                mapping_for(config.sim, env.action_space),
+                env.action_space,
+                config.expert_mode,
+                safe=safe_action(config.sim, env.action_space),
             )
             runner = Runner(env, loaded.policy, loaded.gate, expert, seed=config.seed)
         except Exception:
@@ -345,6 +359,7 @@ class LiveLoop:
             except Exception as exc:  # the loop drives on without fine-tuning, and says why
                 log.exception("fine-tuning could not start")
                 self.last_error = f"fine-tuning is off: {exc}"
+        runner.step_listeners.append(lambda r: expert.note_executed(r.action, r.actor, r.takeover))
         runner.step_listeners.append(self._capture_scene)
         if writer is not None:
             writer.attach(runner)
@@ -389,7 +404,7 @@ class LiveLoop:
         message["request_person"] = bool(record.gate_fired and world.expert.mode == "person")
         operator = self.console.snapshot()
         message["operator_held"] = operator.held and operator.answering
-        message["counters"] = world.counters.as_dict()
+        message["counters"] = {**world.counters.as_dict(), **world.expert.handover_stats()}
         person_input = world.expert.last_input if record.actor == "person" else None
         if person_input is not None:
             message["input_seq"] = person_input.seq

@@ -24,12 +24,17 @@ EXPERT_MODES: tuple[str, ...] = ("person", "scripted", "person_fallback")
 
 MAX_MESSAGE_BYTES = 16_384
 """Anything longer is refused before JSON parsing (a page never needs more)."""
+MAX_DEPTH = 8
+"""Deepest nesting of JSON arrays and objects accepted (a page's messages are flat)."""
+MAX_NUMBER_CHARS = 32
+"""Longest number literal accepted (a 5,000-digit integer would otherwise reach Python's int limits)."""
 
 Axis = Annotated[float, Field(ge=-1.0, le=1.0)]
 
 
 class _Message(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+    # strict: "yes" is not a bool and "1" is not a number (a page that means them sends JSON true and 1)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True, strict=True)
 
 
 class _Operator(_Message):
@@ -144,14 +149,50 @@ class MessageError(ValueError):
     """A message that cannot be accepted; ``str()`` is a short, human-readable reason."""
 
 
+def _depth(text: str) -> int:
+    """The deepest nesting of brackets outside strings (a cheap bound checked before parsing)."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for char in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif char == "\\":
+                escaped = True
+            elif char == '"':
+                in_string = False
+        elif char == '"':
+            in_string = True
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    return deepest
+
+
+def _number(kind: type) -> Any:
+    def parse(literal: str) -> Any:
+        if len(literal) > MAX_NUMBER_CHARS:
+            raise MessageError(f"number too long ({len(literal)} characters > {MAX_NUMBER_CHARS})")
+        return kind(literal)
+
+    return parse
+
+
 def parse_message(raw: str | bytes) -> ClientMessage:
     """Parse and validate one websocket frame; :class:`MessageError` says what is wrong."""
     if len(raw) > MAX_MESSAGE_BYTES:
         raise MessageError(f"message too long ({len(raw)} bytes > {MAX_MESSAGE_BYTES})")
+    text = raw.decode("utf-8", errors="replace") if isinstance(raw, bytes) else raw
+    if _depth(text) > MAX_DEPTH:
+        raise MessageError(f"message nested deeper than {MAX_DEPTH} levels")
     try:
-        data: Any = json.loads(raw)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise MessageError(f"not JSON: {exc}") from None
+        data: Any = json.loads(text, parse_int=_number(int), parse_float=_number(float))
+    except MessageError:
+        raise
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError
+        raise MessageError(f"not JSON: {str(exc)[:120]}") from None
     if not isinstance(data, dict):
         raise MessageError(f"expected a JSON object with a 'type' field, got {type(data).__name__}")
     try:

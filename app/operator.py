@@ -6,10 +6,16 @@ is injected so the fail-safe timing is tested without sleeping.
 
 Fail-safe: the person counts as *answering* only while their page is connected, focused and visible
 and their last input is at most ``timeout`` (200 ms) old. The page sends input on every change and as a
-20 Hz heartbeat. Whenever a takeover is due and the person is not answering, the scripted expert acts
-with actor ``"fallback"``; the loop never waits. A person who vanishes while holding the takeover key
-leaves the scripted expert in charge (latched) until they are back or the episode ends, rather than
-handing control back to the agent they were stopping.
+20 Hz heartbeat, but a heartbeat is presence, not action: a person *drives* only while they actively hold
+control (the takeover key or trigger, or sticky mode) and are answering. When the gate asks for help and
+the person is not holding, the page alerts them and the scripted expert drives (``"fallback"``) until they
+take hold: never a neutral action, and the loop never waits. A person who vanishes while holding is
+latched out for at least ``rejoin_after`` (so late heartbeats under load do not flip control step to step)
+and the scripted expert stays in charge rather than handing control back to the agent they were stopping.
+
+Handover is bumpless: for a ``Box`` action the person's (or fallback's) first actions after a handover move
+from the executed action towards the target by at most ``max_jump`` of the action range per step, and every
+handover's action jump and the handover latency (gate request -> the person taking hold) are measured.
 
 :class:`ControlDesk` issues the one control token: one operator at a time, any number of viewers.
 """
@@ -35,6 +41,10 @@ Clock = Callable[[], float]
 
 DEFAULT_TIMEOUT = 0.2
 """Seconds without operator input after which the scripted expert stands in."""
+REJOIN_AFTER = 0.5
+"""Seconds a person who went silent while holding stays latched out before their input drives again."""
+MAX_JUMP = 0.25
+"""Largest change of each action component per step at a handover, as a share of its range."""
 
 
 @dataclass(frozen=True)
@@ -132,38 +142,67 @@ class PersonExpert:
         action_space: gym.Space[Any],
         mode: ExpertMode = "person",
         scripted: Expert | None = None,
+        *,
+        rejoin_after: float = REJOIN_AFTER,
+        max_jump: float = MAX_JUMP,
+        safe: np.ndarray | None = None,
     ) -> None:
+        """``safe``: the simulator's safe action (stop or brake), where the person's throttle axis rests."""
         self.console = console
         self.mapping = mapping
         self.action_space = action_space
         self.mode: ExpertMode = mode
         self.scripted: Expert = scripted or ScriptedExpert()
+        self.rejoin_after = rejoin_after
+        self.max_jump = max_jump
+        self.safe = safe
         self.latched = False
         """The person left mid-takeover: the scripted expert keeps control until they are back."""
+        self._latched_at = -float("inf")
         self._holding = False
         self.last_input: OperatorSnapshot | None = None
         """The operator input behind the latest person action (for latency accounting)."""
+        self._previous: np.ndarray | None = None
+        self._previous_actor: str | None = None
+        self._ramping = False
+        self._request_at: float | None = None
+        self.latencies: list[float] = []
+        """Seconds from a gate request to the person taking hold, per handover to the person."""
+        self.jumps: list[float] = []
+        """Largest action-component change (share of its range) at each handover between actors."""
 
     def reset(self) -> None:
         self.latched = False
         self._holding = False
+        self._previous = None
+        self._previous_actor = None
+        self._ramping = False
+        self._request_at = None
         self.scripted.reset()
 
     def _look(self) -> OperatorSnapshot:
         snap = self.console.snapshot()
-        if snap.answering:
+        now = self.console.clock()
+        # back and released: control returns at once; back and holding: only after ``rejoin_after`` (late
+        # heartbeats under load must not flip control between the person and the fallback step to step)
+        if snap.answering and (not self.latched or not snap.held or now - self._latched_at >= self.rejoin_after):
             self.latched = False
             self._holding = snap.held
-        elif self._holding:  # they were holding the takeover when they went silent, hid or left
+        elif self._holding and not snap.answering:  # they were holding when they went silent, hid or left
             self.latched = True
+            self._latched_at = now
             self._holding = False
         return snap
+
+    def acting(self, snap: OperatorSnapshot) -> bool:
+        """The person drives only while answering and actively holding control (key, trigger or sticky)."""
+        return snap.answering and snap.held and not self.latched
 
     def wants_control(self) -> bool:
         if self.mode == "scripted":
             return False
         snap = self._look()
-        return (snap.answering and snap.held) or self.latched
+        return self.acting(snap) or self.latched
 
     def act(self, env: gym.Env[Any, Any], obs: np.ndarray) -> tuple[np.ndarray, Actor]:
         self.last_input = None
@@ -171,13 +210,65 @@ class PersonExpert:
             action, _ = self.scripted.act(env, obs)
             return action, "expert"
         snap = self._look()
-        if snap.answering and (self.mode == "person" or snap.held):
+        if self.acting(snap):
+            if self._request_at is not None:
+                self.latencies.append(self.console.clock() - self._request_at)
+                self._request_at = None
             self.last_input = snap
-            return to_action(self.mapping, self.action_space, snap.throttle, snap.steer), "person"
+            target = to_action(self.mapping, self.action_space, snap.throttle, snap.steer, self.safe)
+            return self._bumpless(target, "person"), "person"
+        if self._request_at is None and self.mode == "person" and not self.latched:
+            self._request_at = self.console.clock()  # the gate asked, nobody holds: the page alerts the person
         action, _ = self.scripted.act(env, obs)
-        if self.mode == "person_fallback" and not self.latched:
-            return action, "expert"  # the scripted expert answering the gate is this mode's normal case
-        return action, "fallback"
+        actor: Actor = "expert" if self.mode == "person_fallback" and not self.latched else "fallback"
+        return self._bumpless(np.asarray(action), actor), actor
+
+    def _bumpless(self, target: np.ndarray, actor: str) -> np.ndarray:
+        """Move from the last executed action towards ``target`` by at most ``max_jump`` of the range per
+        step while a handover is under way (Box actions; discrete actions switch at once)."""
+        space = self.action_space
+        previous = self._previous
+        if previous is None or not isinstance(space, gym.spaces.Box):
+            return target
+        if actor != self._previous_actor:
+            self._ramping = True
+        if not self._ramping:
+            return target
+        low = np.broadcast_to(space.low, space.shape).astype(np.float64)
+        high = np.broadcast_to(space.high, space.shape).astype(np.float64)
+        span = np.where(np.isfinite(high - low), high - low, 2.0)
+        step = self.max_jump * span
+        goal = np.asarray(target, np.float64).reshape(space.shape)
+        limited = previous.reshape(space.shape) + np.clip(goal - previous.reshape(space.shape), -step, step)
+        if np.allclose(limited, goal):
+            self._ramping = False
+        return limited.astype(space.dtype)
+
+    def note_executed(self, action: np.ndarray, actor: str, takeover: bool) -> None:
+        """A step listener's report of what was executed: the reference of the next bumpless handover and the
+        measured jump at each change of actor. A ramp ends once the executed action reached its target."""
+        a = np.asarray(action, np.float64).reshape(-1)
+        space = self.action_space
+        handover = self._previous is not None and self._previous_actor not in (None, actor)
+        if handover and isinstance(space, gym.spaces.Box) and self._previous is not None:
+            low = np.broadcast_to(space.low, space.shape).reshape(-1).astype(np.float64)
+            high = np.broadcast_to(space.high, space.shape).reshape(-1).astype(np.float64)
+            span = np.where(np.isfinite(high - low), high - low, 2.0)
+            self.jumps.append(float(np.max(np.abs(a - self._previous.reshape(-1)) / span)))
+        if not takeover:
+            self._request_at = None
+        self._previous = a.reshape(np.shape(action)) if np.ndim(action) else a
+        self._previous_actor = actor
+
+    def handover_stats(self) -> dict[str, float | None]:
+        """The measured handover latency (s) and action jump (share of range), last and worst."""
+        return {
+            "handover_latency_last": self.latencies[-1] if self.latencies else None,
+            "handover_latency_median": float(np.median(self.latencies)) if self.latencies else None,
+            "handover_jump_last": self.jumps[-1] if self.jumps else None,
+            "handover_jump_max": max(self.jumps) if self.jumps else None,
+            "handovers": len(self.jumps),
+        }
 
 
 class ControlDesk:

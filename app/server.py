@@ -37,9 +37,11 @@ from app import messages as m
 from app.hub import Client, Hub
 from app.live import CommandError, FinetuneSettings, LiveConfig, LiveLoop, PolicyLoader, dumps
 from app.operator import ControlDesk, OperatorConsole
+from app.origin import OriginGuard, allowed_hosts
 from app.policies import SCRIPTED, default_policy, discover, load_policy
 from app.viser_proxy import ViserProxy
 from core.finetune import FinetuneConfig
+from core.promotion import PromotionConfig
 from core.sessions import SessionError, SessionStore
 
 log = logging.getLogger(__name__)
@@ -106,12 +108,16 @@ class ServerSettings:
     finetune_runs: Path | None = None
     """Where fine-tuning versions go (``<runs>/<session id>/versions``); None: ``<sessions>/finetune``."""
     finetune_config: FinetuneConfig = field(default_factory=FinetuneConfig)
+    allow_hosts: list[str] = field(default_factory=list)
+    """Host names besides the loopback ones (and ``host``) that may reach the dashboard (serving on a LAN)."""
+    promotion: PromotionConfig = field(default_factory=PromotionConfig)
+    """How a fine-tuned version is evaluated before it may drive (:mod:`core.promotion`)."""
 
     def finetune_settings(self) -> FinetuneSettings | None:
         if not self.finetune or self.sessions is None:
             return None
         runs = self.finetune_runs or Path(self.sessions) / "finetune"
-        return FinetuneSettings(runs, self.finetune_config)
+        return FinetuneSettings(runs, self.finetune_config, promotion=self.promotion)
 
 
 class Dashboard:
@@ -285,6 +291,8 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
             await asyncio.get_running_loop().run_in_executor(None, dash.close)
 
     app = FastAPI(title="SAGE live dashboard", lifespan=lifespan)
+    # same origin only: unknown Host names (DNS rebinding) and cross-origin websockets are refused
+    app.add_middleware(OriginGuard, hosts=allowed_hosts(settings.host, settings.allow_hosts))
 
     def dash_of(app: FastAPI) -> Dashboard:
         return app.state.dash  # type: ignore[no-any-return]

@@ -69,7 +69,9 @@ class WorkerSpec:
 def worker_main(spec: WorkerSpec, events: Any, commands: Any) -> None:
     """Entry point of the worker process: rounds whenever there is new data, until told to stop.
 
-    Any error ends the process after reporting it (``{"kind": "error"}``); the service restarts it."""
+    Any error ends the process after reporting it (``{"kind": "error"}``); the service restarts it. The worker
+    also ends when its parent dies (a ``kill -9`` of the server leaves no orphan training on)."""
+    _watch_parent(os.getppid())
     try:
         _work(spec, events, commands)
     except BaseException as exc:
@@ -78,6 +80,23 @@ def worker_main(spec: WorkerSpec, events: Any, commands: Any) -> None:
             events.close()
             events.join_thread()  # the report must reach the pipe before the process ends
         raise
+
+
+PARENT_POLL_SECONDS = 0.25
+
+
+def _watch_parent(parent: int) -> None:
+    """A daemon thread that ends this process as soon as ``parent`` is gone (re-parented: getppid changes).
+
+    It must not wait for the main thread, which may be inside a long torch operation: ``os._exit``."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_SECONDS)
+            if os.getppid() != parent:
+                os._exit(0)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:

@@ -35,6 +35,10 @@ def register(app: typer.Typer) -> None:
         speed: Annotated[float, typer.Option(min=0.1, max=20.0, help="Wall-clock speed multiplier.")] = 1.0,
         sessions: Annotated[Path, typer.Option(help="Folder where every live step is recorded.")] = Path("sessions"),
         paused: Annotated[bool, typer.Option(help="Start with the loop paused.")] = False,
+        allow_host: Annotated[
+            list[str] | None,
+            typer.Option(help="Another host name the page may be opened under (serving on a LAN); repeatable."),
+        ] = None,
         finetune: Annotated[
             bool, typer.Option(help="Fine-tune a trained policy on the session in a worker process.")
         ] = True,
@@ -62,6 +66,7 @@ def register(app: typer.Typer) -> None:
             sessions=sessions,
             start_paused=paused,
             finetune=finetune,
+            allow_hosts=list(allow_host or []),
         )
         typer.echo(f"SAGE dashboard on http://{host}:{port}/  (Ctrl+C to stop)")
         uvicorn.run(create_app(settings), host=host, port=port, log_level="warning", ws_max_size=1 << 20)

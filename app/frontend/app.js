@@ -75,8 +75,14 @@ function sendOperator(message) {
 
 function connect() {
   ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
-  ws.onopen = () => { S.connected = true; renderConnection(); send({ type: "claim" }); };
+  ws.onopen = () => {
+    S.connected = true; renderConnection(); send({ type: "claim" });
+    // back after a lost connection (a server restart): viser's viewer does not reconnect by itself, so the
+    // 3D view would freeze on its last frame; reload it so the operator never drives blind
+    if (S.lostConnection) { S.lostConnection = false; reloadFrame(); }
+  };
   ws.onclose = () => {
+    if (S.connected) S.lostConnection = true;
     S.connected = false; S.role = "viewer"; S.token = null; renderConnection(); renderRole();
     setTimeout(connect, 1000);
   };
@@ -615,7 +621,12 @@ const attachFrame = () => {
   } catch (err) { /* not same-origin: keys pressed inside the view then go to viser */ }
 };
 frame.addEventListener("load", attachFrame);
-frame.src = `/viser/?darkMode${sceneDpr ? `&fixedDpr=${encodeURIComponent(sceneDpr)}` : ""}`;
+const frameUrl = () => `/viser/?darkMode${sceneDpr ? `&fixedDpr=${encodeURIComponent(sceneDpr)}` : ""}`;
+function reloadFrame() {
+  S.frameReloads = (S.frameReloads || 0) + 1;
+  frame.src = `${frameUrl()}&reconnect=${S.frameReloads}`;
+}
+frame.src = frameUrl();
 
 function deadzone(v) {
   const a = Math.abs(v);

@@ -20,6 +20,7 @@ from app.policies import LoadedPolicy, load_policy
 from core.agents import AgentMeta, save_checkpoint
 from core.finetune import FinetuneConfig
 from core.loop import GateDecision, NoGate
+from core.promotion import PromotionConfig
 from core.sage import make_learner
 from core.sage.config import for_method
 from tests.app.conftest import start_server, stop_server, toy_settings
@@ -182,6 +183,8 @@ def test_a_trained_policy_is_fine_tuned_live_and_the_operator_pins_and_rolls_bac
         finetune_config=FinetuneConfig(
             updates=10, min_steps=16, min_takeover_samples=4, wm_min_steps=40, report_every=5
         ),
+        # judged on collisions only, so that a version takes over within the test (promotion has its own tests)
+        promotion=PromotionConfig(episodes=2, max_steps=40, takeover_margin=1.0),
     )
     live, thread = start_server(settings)
     try:
@@ -249,6 +252,8 @@ def test_the_page_shows_versions_progress_and_takeovers_and_pins_a_version(brows
         finetune_config=FinetuneConfig(
             updates=10, min_steps=16, min_takeover_samples=4, wm_min_steps=40, report_every=5
         ),
+        # judged on collisions only, so that a version takes over within the test (promotion has its own tests)
+        promotion=PromotionConfig(episodes=2, max_steps=40, takeover_margin=1.0),
     )
     live, thread = start_server(settings)
     try:

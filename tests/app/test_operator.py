@@ -3,6 +3,8 @@ the three expert modes, the control token, and the per-simulator input mapping."
 
 from __future__ import annotations
 
+import itertools
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -49,8 +51,61 @@ def test_fresh_input_drives_and_silence_hands_over_to_the_fallback_after_200_ms(
     action, actor = expert.act(env, env._obs())
     assert actor == "fallback" and np.allclose(action, env.expert_action())
     assert expert.wants_control(), "a silent operator who was holding keeps the takeover, with the fallback"
-    send(console, 1300.0, held=True, seq=1)  # the heartbeat is back
+    send(console, 1300.0, held=True, seq=1)  # the heartbeat is back...
+    assert expert.act(env, env._obs())[1] == "fallback"  # ...but a late heartbeat must not flip control at once
+    clock.now += expert.rejoin_after
+    send(console, 1800.0, held=True, seq=2)
     assert expert.act(env, env._obs())[1] == "person"
+
+
+def test_an_idle_page_never_drives_the_fallback_does_and_the_latency_is_measured(setup) -> None:
+    """Heartbeats say the page is there, not that a person acts: the gate's request goes to the fallback until
+    the person takes hold, and no person step is recorded without input."""
+    clock, console, expert, env = setup
+    console.connect()
+    for k in range(10):  # a focused, idle page: fresh heartbeats, nothing held
+        send(console, 1000.0 + 50 * k, held=False, seq=k)
+        clock.now += 0.05
+        action, actor = expert.act(env, env._obs())  # the gate fires
+        assert actor == "fallback" and np.allclose(action, env.expert_action())
+        expert.note_executed(action, actor, takeover=True)
+    send(console, 1600.0, held=True, throttle=1.0, seq=20)  # the person answers the alert
+    assert expert.act(env, env._obs())[1] == "person"
+    assert expert.latencies and abs(expert.latencies[-1] - 0.45) < 1e-9  # first request to first hold
+
+
+def test_late_heartbeats_do_not_flip_control_step_to_step(setup) -> None:
+    clock, console, expert, env = setup
+    console.connect()
+    actors = []
+    for k in range(40):  # a person holding, heartbeats arriving every 50 ms but one in four 300 ms late
+        clock.now += 0.3 if k % 4 == 3 else 0.05
+        send(console, 2000.0 + 100 * k, held=True, seq=k)
+        actors.append(expert.act(env, env._obs())[1])
+    switches = sum(a != b for a, b in itertools.pairwise(actors))
+    assert switches <= 2 * 40 * 0.05 / expert.rejoin_after + 2, actors
+
+
+def test_handover_is_bumpless_and_neutral_input_stops() -> None:
+    clock = Clock()
+    console = OperatorConsole(clock=clock, timeout=0.2)
+    safe = np.array([-1.0, 0.0], np.float32)  # the UGV's: speed 0, no turning
+    expert = PersonExpert(console, mapping_for("ugv", BOX2), BOX2, mode="person", safe=safe, max_jump=0.25)
+    env = ToyRobotEnv()
+    env.reset(seed=0)
+    console.connect()
+    expert.note_executed(np.array([1.0, 1.0], np.float32), "agent", takeover=False)  # full speed, turning
+    send(console, 1.0, held=True, throttle=0.0, steer=0.0)  # holding, no direction: the safe action
+    steps = []
+    for _ in range(6):
+        action, actor = expert.act(env, env._obs())
+        assert actor == "person"
+        expert.note_executed(action, actor, takeover=True)
+        steps.append(action.copy())
+    jumps = np.abs(np.diff(np.vstack([[1.0, 1.0], *steps]), axis=0)).max(axis=1)
+    assert (jumps <= 0.25 * 2.0 + 1e-6).all(), jumps  # never more than a quarter of the range per step
+    assert np.allclose(steps[-1], safe)  # and it arrives at a stop, not at half speed
+    assert expert.handover_stats()["handover_jump_max"] <= 0.25 + 1e-6
 
 
 def test_gate_requested_takeover_without_any_operator_goes_to_the_fallback_at_once(setup) -> None:
@@ -129,7 +184,10 @@ def test_modes(setup) -> None:
     # the gate asks while the person is not holding: the scripted expert answers as a normal expert
     assert not expert.wants_control() and expert.act(env, env._obs())[1] == "expert"
     expert.mode = "person"
-    assert expert.act(env, env._obs())[1] == "person"  # the person answers the gate (present, fresh)
+    # present and fresh but not holding: a heartbeat is not a person driving, the fallback answers the gate
+    assert expert.act(env, env._obs())[1] == "fallback"
+    send(console, 4.0, held=True, throttle=0.3, seq=3)
+    assert expert.act(env, env._obs())[1] == "person"
 
 
 def test_control_desk_issues_one_token_at_a_time() -> None:

@@ -18,7 +18,7 @@ from core.experts import ScriptedExpert
 from core.finetune import FinetuneConfig, FinetuneError, VersionStore
 from core.loop import Runner
 from core.sessions import SessionStore
-from core.worker import FinetuneService, WorkerSpec
+from core.worker import FinetuneService, WorkerSpec, worker_main
 from tests.core.test_finetune import deployed, point_env  # noqa: F401  (the module fixture)
 
 torch.set_num_threads(1)
@@ -158,3 +158,51 @@ def test_a_worker_that_fails_says_why_and_is_retried_with_backoff(tmp_path: Path
         assert status["in_control"] == 0  # the loop's policy is untouched
     finally:
         service.stop()
+
+
+def _server_stand_in(spec: WorkerSpec, pid_file: str) -> None:
+    """A parent process that starts the worker as the server does, then waits to be killed."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    events, commands = ctx.Queue(), ctx.Queue()
+    worker = ctx.Process(target=worker_main, args=(spec, events, commands), daemon=True)
+    worker.start()
+    Path(pid_file).write_text(str(worker.pid))
+    while True:
+        time.sleep(1)
+
+
+def test_the_worker_exits_within_2_s_when_its_parent_is_killed(versions: VersionStore, tmp_path: Path) -> None:
+    import multiprocessing
+
+    store = SessionStore(tmp_path / "sessions")
+    spec = WorkerSpec(versions.root, store.root, "no-session-yet", CONFIG, poll_seconds=0.2)
+    pid_file = tmp_path / "worker.pid"
+    parent = multiprocessing.get_context("spawn").Process(target=_server_stand_in, args=(spec, str(pid_file)))
+    parent.start()
+    try:
+        wait_for(pid_file.exists, 60, "the worker to start")
+        worker = int(pid_file.read_text())
+        time.sleep(1.0)  # the worker is up and waiting for episodes
+        assert _alive(worker)
+        os.kill(parent.pid, signal.SIGKILL)  # type: ignore[arg-type]
+        killed_at = time.monotonic()
+        wait_for(lambda: not _alive(worker), 5, "the orphaned worker to exit")
+        assert time.monotonic() - killed_at < 2.0
+    finally:
+        parent.kill()
+        parent.join(5)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie waiting for its (new) parent to reap it has exited
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split(") ")[-1][:1] != "Z"
+    except OSError:
+        return False
+    return True
