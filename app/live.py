@@ -488,7 +488,7 @@ class LiveLoop:
         except Exception as exc:  # a policy or gate bug: report it, keep the loop alive, start over
             self.last_error = f"step failed: {type(exc).__name__}: {exc}"
             log.exception("live step failed")
-            self.world.runner.obs = None
+            self.world.runner.end_episode(error=f"{type(exc).__name__}: {exc}")
         self.step_costs.append(time.perf_counter() - started)
         self.step_times.append(time.monotonic())
 
@@ -599,8 +599,7 @@ class LiveLoop:
             return
         number, loaded = pending
         # the runner swaps the policy when it resets for the next episode; the gate must watch that policy
-        world.runner.set_policy_at_boundary(loaded.policy)
-        world.runner.gate = loaded.gate
+        world.runner.set_policy_at_boundary(loaded.policy, loaded.gate)
         world.loaded = loaded
         world.version = number
         world.finetune.mark_deployed(number)

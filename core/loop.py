@@ -217,12 +217,24 @@ class Runner:
         self.t = 0
         self.obs: np.ndarray | None = None
         self._pending_policy: Policy | None = None
+        self._pending_gate: Gate | None = None
+        self._next_reset_options: dict[str, Any] | None = None
         self._acc: dict[str, Any] = {}
 
     # -- configuration -------------------------------------------------------------------------
-    def set_policy_at_boundary(self, policy: Policy) -> None:
-        """Swap the policy when the next episode starts (never mid-episode)."""
+    def set_policy_at_boundary(self, policy: Policy, gate: Gate | None = None) -> None:
+        """Swap the policy (and the gate that watches it) when the next episode starts (never mid-episode)."""
         self._pending_policy = policy
+        self._pending_gate = gate
+
+    def set_next_reset_options(self, options: dict[str, Any] | None) -> None:
+        """gymnasium ``reset(options=...)`` of the next episode (a scenario change, a mode): the env itself
+        applies them, nobody sets its fields behind gymnasium's back."""
+        self._next_reset_options = dict(options) if options else None
+
+    def reseed(self, seed: int) -> None:
+        """Episode seeds from now on: the next episode's is ``seed + its index``."""
+        self.seed = seed
 
     def set_expert(self, expert: Expert | None) -> None:
         self.expert = expert
@@ -231,10 +243,15 @@ class Runner:
     def reset(self, seed: int | None = None) -> np.ndarray:
         if self._pending_policy is not None:
             self.policy, self._pending_policy = self._pending_policy, None
+        if self._pending_gate is not None:
+            self.gate, self._pending_gate = self._pending_gate, None
         self.episode += 1
         self.t = 0
         episode_seed = self.seed + self.episode if seed is None else seed
-        self.obs, _ = self.env.reset(seed=episode_seed)
+        options, self._next_reset_options = self._next_reset_options, None
+        self.obs, _ = (
+            self.env.reset(seed=episode_seed, options=options) if options else self.env.reset(seed=episode_seed)
+        )
         self.gate.reset()
         if self.expert is not None:
             self.expert.reset()

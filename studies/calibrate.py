@@ -165,7 +165,7 @@ def calibrate_run(
     horizon_s: float = 1.0,
     max_steps: int | None = None,
     curve_episodes: int = 0,
-    curve_scales: Sequence[float] = (0.6, 0.8, 1.0, 1.25, 1.6, 2.2),
+    curve_scales: Sequence[float] = (0.15, 0.3, 0.5, 0.7, 1.0, 1.4),
 ) -> CalibrationReport:
     """Measure how well fear predicts "violation within ``horizon_s``" (see the module docstring)."""
     steps, agent = collect(make_env, run, episodes, max_steps)

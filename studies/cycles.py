@@ -231,7 +231,7 @@ def run_cycles(
         version = v0.number
         try:
             for cycle in range(1, cfg.cycles + 1):
-                runner.seed = cfg.seed - (runner.episode + 1)  # episode e of every cycle gets seed + e
+                runner.reseed(cfg.seed - (runner.episode + 1))  # episode e of every cycle gets seed + e
                 for _ in range(cfg.episodes_per_cycle):
                     summary = runner.run_episode(cfg.max_episode_steps)
                     episodes.append({**summary.as_row(), "cycle": cycle, "version": version})
@@ -247,8 +247,7 @@ def run_cycles(
                     continue
                 agent = load_agent(result.version.path)
                 # the runner is between episodes: the new policy and its gate start with the next one
-                runner.set_policy_at_boundary(agent.policy)
-                runner.gate = gate_for(agent)
+                runner.set_policy_at_boundary(agent.policy, gate_for(agent))
                 version = result.version.number
                 say(
                     f"  fine-tuned v{version:04d}: {result.updates} updates ({result.skipped} skipped), "

@@ -33,6 +33,10 @@ from core.sage.gate import SageGate
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel, FitReport
 
+SAFE_LABEL = 0.1
+"""A state counts as safe for the threshold bounds when no violation lies ahead and its cost is below this (a
+dense proximity cost of 0.3 near a wall is not a state the gate should learn to leave alone)."""
+
 
 class ActorPolicy:
     """A :class:`core.loop.Policy` over an actor: its sample, or its deterministic action.
@@ -164,8 +168,11 @@ class BaseLearner:
         )
         self._steps_at_last_fit = self.env_steps
         self.last_fit = report
-        starts = self.buffer.sample(min(len(self.buffer), 2048), self.rng).obs
-        calibrate(self.world_model, self.rollout_policy, starts, self.cfg.gate.horizon, cfg=self.cfg.gate)
+        idx = self.rng.integers(0, len(self.buffer), size=min(len(self.buffer), 2048))
+        starts = torch.from_numpy(data["obs"][idx])
+        # the threshold bounds come from the fear of states that were safe (no violation ahead, low cost)
+        safe = torch.from_numpy(np.maximum(data["cost"][idx], labels[idx]) < SAFE_LABEL)
+        calibrate(self.world_model, self.rollout_policy, starts, self.cfg.gate.horizon, cfg=self.cfg.gate, safe=safe)
         self.info.update(wm_holdout_nll=report.holdout_nll, wm_holdout_mse=report.holdout_mse, wm_epochs=report.epochs)
         self.virtual_rollout()
         return report

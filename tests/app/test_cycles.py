@@ -92,10 +92,13 @@ def test_cycle_rows_weigh_takeovers_by_steps() -> None:
     assert second["version"] == 1 and second["takeover_rate"] == pytest.approx(0.1)
 
 
-def test_takeovers_fall_over_deployment_and_fine_tuning_cycles(policy: Path, tmp_path: Path) -> None:
+def test_deployment_and_fine_tuning_cycles_learn_the_danger_and_stop_colliding(policy: Path, tmp_path: Path) -> None:
     """The paper's field test 3 in small: the same two crossings deployed four times, fine-tuned in between
-    (about 40 s on an idle core). The deployed policy never met a moving obstacle: in its first cycle the gate
-    hands much of the drive to the expert, and once a crossing vehicle hits it."""
+    (about 40 s on an idle core). The deployed policy never met a moving obstacle and its world model never saw
+    one: in the first cycle its fear stays low and a crossing vehicle hits it. Fine-tuning on that session
+    teaches the violation classifier what a crossing looks like: the gate then asks for help before the
+    crossing, and the cycles end without collisions. (With the earlier Gaussian cost head and UGV-tuned τ the
+    gate fired on ~40% of ordinary steps from the start, and the story was "takeovers fall"; see issue #11.)"""
     cfg = CyclesConfig(
         sim="ugv",
         scenario="3",
@@ -105,7 +108,9 @@ def test_takeovers_fall_over_deployment_and_fine_tuning_cycles(policy: Path, tmp
         finetune=FinetuneConfig(updates=300, min_steps=1, min_takeover_samples=0),
     )
     result = run_cycles(cfg, tmp_path / "cycles", env_factory("ugv"))
-    rates = [row["takeover_rate"] for row in result.cycles]
-    assert rates[-1] < 0.75 * rates[0], json.dumps(result.cycles, indent=1)
-    assert result.cycles[-1]["collision"] <= result.cycles[0]["collision"]
+    table = json.dumps(result.cycles, indent=1)
+    first, last = result.cycles[0], result.cycles[-1]
+    assert first["collision"] > 0, table  # the first encounter is dangerous
+    assert last["collision"] < first["collision"] and last["success"] > first["success"], table
+    assert all(row["takeover_rate"] > 0 for row in result.cycles[1:]), table  # the gate asks on the crossing
     assert [row["version"] for row in result.cycles] == [0, 1, 2, 3]

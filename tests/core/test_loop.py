@@ -122,3 +122,38 @@ def test_a_policy_that_raises_ends_the_episode_not_the_loop() -> None:
     summary = runner.run_episode()
     assert summary.error is not None and "worker died" in summary.error and summary.steps == 2
     assert runner.run_episode().error is None
+
+
+def test_policy_and_gate_swap_together_at_the_boundary_and_reset_options_reach_the_env() -> None:
+    from core.sage.gate import AlwaysGate
+    from tests.core.sage import envs
+
+    env = envs.make("static")
+    seen: list[dict | None] = []
+    original_reset = env.reset
+
+    def spy(*, seed=None, options=None):  # type: ignore[no-untyped-def]
+        seen.append(options)
+        return original_reset(seed=seed, options=options)
+
+    env.reset = spy  # type: ignore[method-assign]
+
+    class Still:
+        def act(self, obs, deterministic=False):  # type: ignore[no-untyped-def]
+            return np.zeros(2, np.float32)
+
+    first, second = Still(), Still()
+    runner = Runner(env, first, None, None, seed=0)
+    runner.reset()
+    runner.step()
+    runner.set_policy_at_boundary(second, AlwaysGate())
+    runner.set_next_reset_options({"mode": "x"})
+    runner.step()
+    assert runner.policy is first and not isinstance(runner.gate, AlwaysGate)  # never mid-episode
+    runner.end_episode()
+    runner.step()  # the next episode starts with both
+    assert runner.policy is second and isinstance(runner.gate, AlwaysGate)
+    assert seen[-1] == {"mode": "x"} and seen[0] is None
+    runner.end_episode()
+    runner.step()
+    assert seen[-1] is None  # options are for one reset only
