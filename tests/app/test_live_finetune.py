@@ -200,11 +200,22 @@ def test_a_trained_policy_is_fine_tuned_live_and_the_operator_pins_and_rolls_bac
                 conn.send(json.dumps({**message, "token": token}))
                 return until(conn, lambda msg: msg["type"] in ("ack", "error"), timeout=30)
 
+            seq = [0]
+
+            def hold(held: bool) -> None:  # the operator takes over (and teaches) by holding control
+                seq[0] += 1
+                message = {"type": "input", "seq": seq[0], "ts": float(seq[0]), "held": held, "throttle": 0.5}
+                conn.send(json.dumps({**message, "token": token}))
+
             def next_episode_until(pred: Callable[[dict[str, Any]], bool], what: str, timeout: float = 120) -> None:
                 deadline = time.monotonic() + timeout
                 while not pred(live.state()):
                     assert time.monotonic() < deadline, f"timed out waiting for {what}: {live.state()['finetune']}"
-                    time.sleep(0.4)
+                    for _ in range(4):  # takeover samples for the worker: the person drives a little
+                        hold(True)
+                        time.sleep(0.05)
+                    hold(False)
+                    time.sleep(0.2)
                     command({"type": "control", "op": "new_episode"})  # episodes end: data, and boundaries
 
             # the newest version takes over at a boundary (v0001, or a later one if the worker was quicker)
@@ -266,8 +277,11 @@ def test_the_page_shows_versions_progress_and_takeovers_and_pins_a_version(brows
         deadline = time.monotonic() + 120
         while not live.state()["version"]:  # episodes end (data for the worker, and boundaries for the swap)
             assert time.monotonic() < deadline, live.state()["finetune"]
+            page.keyboard.down("Space")  # the person takes over for a moment: takeover samples for the worker
+            time.sleep(0.25)
+            page.keyboard.up("Space")
             page.click("#btn-new")
-            time.sleep(0.5)
+            time.sleep(0.3)
         shown = f"v{live.state()['version']:04d}"
         page.wait_for_function(f"document.getElementById('ft-version').textContent === '{shown}'", timeout=WAIT_MS)
         assert "critic" in page.locator("#ft-losses").inner_text()
