@@ -38,6 +38,11 @@ def register(descriptor: SimDescriptor) -> None:
     _EXTRA[descriptor.name] = descriptor
 
 
+def unregister(name: str) -> None:
+    """Remove a simulator added with :func:`register` (no-op for the built-in ones)."""
+    _EXTRA.pop(name, None)
+
+
 def names() -> list[str]:
     return [*SIMULATORS, *(n for n in _EXTRA if n not in SIMULATORS)]
 
@@ -72,4 +77,14 @@ def make(name: str, scenario: str | int | None = None, *, live: bool = False, **
     return descriptor(name).make(None if scenario is None else str(scenario), live=live, **overrides)
 
 
-__all__ = ["SIMULATORS", "ScenarioNameError", "UnknownSimulatorError", "descriptor", "descriptors", "make", "names"]
+__all__ = [
+    "SIMULATORS",
+    "ScenarioNameError",
+    "UnknownSimulatorError",
+    "descriptor",
+    "descriptors",
+    "make",
+    "names",
+    "register",
+    "unregister",
+]
