@@ -179,6 +179,19 @@ class ReplayBuffer:
         soon[order] = (distance < max(int(steps), 1)).astype(np.float32)
         return soon
 
+    def previous_deltas(self) -> np.ndarray:
+        """Per stored row (the order of :meth:`arrays`): s_t - s_{t-1} when the previous row led into this one
+        (same episode), else zeros: the motion input of the world model."""
+        n = self.size
+        out = np.zeros((n, self.obs_dim), np.float32)
+        if n < 2:
+            return out
+        order = np.arange(n) if n < self.capacity else (np.arange(n) + self.pos) % n
+        prev, cur = order[:-1], order[1:]
+        linked = (self.terminated[prev] < 0.5) & np.all(np.abs(self.next_obs[prev] - self.obs[cur]) <= 1e-6, axis=1)
+        out[cur[linked]] = self.obs[cur[linked]] - self.obs[prev[linked]]
+        return out
+
     def reward_magnitude(self) -> float:
         """The largest |reward| recorded, terminal transitions included (0 when empty)."""
         n = self.size

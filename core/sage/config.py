@@ -46,6 +46,10 @@ class WorldModelConfig:
     """Epochs without a held-out improvement (of any member) before a fit stops."""
     max_updates_per_fit: int = 3000
     """Gradient-step cap of one fit, which bounds its wall time on big buffers."""
+    motion_input: bool = True
+    """The model also reads the last observed change of state (s_t - s_{t-1}; zero at an episode's start): one
+    lidar frame carries no motion, so without it a crossing mover is unforeseeable until it is close. The
+    policy's observation is unchanged; in a rollout the next step's motion is the model's own predicted Δ."""
     violation_steps: int = 5
     """The violation head predicts "a violation at this transition or within the next this-many steps"; the
     fear rollout then looks m steps further along the policy's imagined path."""
@@ -304,6 +308,11 @@ def to_dict(cfg: AgentConfig) -> dict[str, Any]:
 
 def from_dict(data: dict[str, Any]) -> AgentConfig:
     """Inverse of :func:`to_dict`; unknown keys are an error naming them (a config from another version)."""
+    data = dict(data)
+    wm = data.get("world_model_config")
+    if isinstance(wm, dict) and "motion_input" not in wm:
+        # a checkpoint from before the motion input: its world model reads (s, a) only
+        data["world_model_config"] = {**wm, "motion_input": False}
     return _build(AgentConfig, data, prefix="")
 
 

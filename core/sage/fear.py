@@ -77,18 +77,27 @@ class Fear:
     """(B,) σ_raw aggregated over the horizon (before the scale and squash)."""
 
 
-def rollout(model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, horizon: int) -> Rollout:
-    """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm."""
+def rollout(
+    model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, horizon: int, motion: Tensor | None = None
+) -> Rollout:
+    """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
+    the last observed change of state (zeros when None), for a model with the motion input; later steps take
+    each member's own predicted Δ as their motion."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
     a = action.unsqueeze(0).expand(n, batch, action.shape[-1])
+    m = None
+    if model.motion:
+        m = (torch.zeros_like(obs) if motion is None else motion).unsqueeze(0).expand(n, batch, d)
     states, actions, costs = [s], [], []
     for k in range(horizon):
-        h = torch.cat([s, a], dim=-1)
+        h = torch.cat([s, a] if m is None else [s, a, m], dim=-1)
         for weight, bias in model.hidden:
             h = F.silu(torch.baddbmm(bias, h, weight))
         out = torch.baddbmm(model.out_bias, h, model.out_weight)
+        if m is not None:
+            m = out[..., :d]
         s = s + out[..., :d]
         states.append(s)
         actions.append(a)
@@ -132,12 +141,19 @@ def fear_of(model: FoldedModel, ro: Rollout, cfg: GateConfig) -> Fear:
 
 
 def fear(
-    model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, cfg: GateConfig, horizon: int | None = None
+    model: FoldedModel,
+    policy: PolicyFn,
+    obs: Tensor,
+    action: Tensor,
+    cfg: GateConfig,
+    horizon: int | None = None,
+    motion: Tensor | None = None,
 ) -> Fear:
     """F^m for a batch of (state, first action), m = ``horizon`` or ``cfg.horizon``; differentiable w.r.t.
     the action and the policy unless called under no_grad / inference_mode (the model's folded weights are
-    constants, so the world model itself never receives a gradient)."""
-    return fear_of(model, rollout(model, policy, obs, action, horizon or cfg.horizon), cfg)
+    constants, so the world model itself never receives a gradient). ``motion``: see :func:`rollout` (the
+    learner's batches pass none: their fear terms then assume no motion)."""
+    return fear_of(model, rollout(model, policy, obs, action, horizon or cfg.horizon, motion), cfg)
 
 
 def calibrate(
@@ -148,6 +164,7 @@ def calibrate(
     quantile: float = 0.95,
     cfg: GateConfig | None = None,
     safe: Tensor | None = None,
+    motion: Tensor | None = None,
 ) -> Tensor:
     """Set κ_k, the ``quantile`` of σ_raw at each rollout step k from real states ``obs`` under ``policy``; with
     ``cfg``, also the threshold bounds (τ_min, τ_max): the ``tau_min_quantile`` and ``tau_max_quantile`` of the
@@ -157,7 +174,7 @@ def calibrate(
     fear that precedes a collision)."""
     with torch.no_grad():
         folded = world_model.folded()
-        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON))
+        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON), motion)
         scale = torch.quantile(ro.sigma_raw, quantile, dim=1).clamp_min(1e-6)
         world_model.sigma_scale[: len(scale)] = scale
         world_model.sigma_scale[len(scale) :] = scale[-1]
@@ -252,9 +269,12 @@ class GateKernel:
         self.out_b = model.out_bias[..., : d + 1].contiguous()
         self.delta_w = model.out_weight[..., :d].contiguous()
         self.delta_b = model.out_bias[..., :d].contiguous()
-        self.x = torch.zeros(m + 1, n, 1, d + act_dim)  # rows [state, action], one block per step
+        self.motion = model.motion
+        width = d + act_dim + (d if self.motion else 0)
+        self.x = torch.zeros(m + 1, n, 1, width)  # rows [state, action (, motion)], one block per step
         self.states = self.x[..., :d]
-        self.actions = self.x[..., d:]
+        self.actions = self.x[..., d : d + act_dim]
+        self.motions = self.x[..., d + act_dim :]
         self.outputs = torch.zeros(m, n, 1, d + 1)
         self.hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
         self.policy_buffers = [torch.empty(n, w.shape[0]) for w, _ in actor_layers]
@@ -266,14 +286,16 @@ class GateKernel:
         self.action_steps = [self.actions[k] for k in range(m)]
         self.output_steps = [self.outputs[k] for k in range(m)]
         self.policy_inputs = [self.x[k + 1, :, 0, :d] for k in range(m)]
-        self.policy_outputs = [self.x[k + 1, :, 0, d:] for k in range(m - 1)]
+        self.policy_outputs = [self.x[k + 1, :, 0, d : d + act_dim] for k in range(m - 1)]
+        self.motion_steps = [self.motions[k] for k in range(m + 1)]
         self.deltas = [self.outputs[k, :, :, :d] for k in range(m)]
         self.step_cost = self.outputs[..., d]
         self.inv_members = 1.0 / n
         self.sigma_divisor = 2.0 * step_scales(model.sigma_scale, m)
         self.weights = discount_weights(cfg)
         self.c_hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
-        self.c_input = torch.zeros(n, 1, d + act_dim)
+        self.c_input = torch.zeros(n, 1, width)
+        self.act_dim = act_dim
         self.c_delta = torch.empty(n, 1, d)
 
     def _trunk(self, x: Tensor, buffers: list[Tensor]) -> Tensor:
@@ -284,16 +306,24 @@ class GateKernel:
             h = buf
         return h
 
-    def __call__(self, obs: Tensor, action: Tensor) -> tuple[float, float, float]:
-        """(F^m, ĉ, σ̂) of a (1, D) state and (1, A) first action; call under ``torch.inference_mode``."""
+    def __call__(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> tuple[float, float, float]:
+        """(F^m, ĉ, σ̂) of a (1, D) state and (1, A) first action (``motion``: the last observed change of state,
+        zeros when None); call under ``torch.inference_mode``."""
         states, actions = self.state_steps, self.action_steps
         states[0].copy_(obs)
         actions[0].copy_(action)
+        if self.motion:
+            if motion is None:
+                self.motion_steps[0].zero_()
+            else:
+                self.motion_steps[0].copy_(motion)
         last = len(self.actor) - 1
         for k in range(self.m):
             h = self._trunk(self.inputs[k], self.hidden)
             torch.baddbmm(self.out_b, h, self.out_w, out=self.output_steps[k])
             torch.add(states[k], self.deltas[k], out=states[k + 1])
+            if self.motion:
+                self.motion_steps[k + 1].copy_(self.deltas[k])  # each member's own predicted change
             if k + 1 < self.m:
                 x = self.policy_inputs[k]
                 for i, ((bias, weight_t), buf) in enumerate(zip(self.actor, self.policy_buffers, strict=True)):
@@ -319,15 +349,28 @@ class GateKernel:
             sg = float((sigma[:, 0] * self.weights).sum())
         return self.cfg.beta * c + (1.0 - self.cfg.beta) * sg, c, sg
 
-    def curiosity(self, obs: Tensor, action: Tensor, next_obs: Tensor, reuse_first_step: bool = False) -> float:
+    def curiosity(
+        self,
+        obs: Tensor,
+        action: Tensor,
+        next_obs: Tensor,
+        reuse_first_step: bool = False,
+        motion: Tensor | None = None,
+    ) -> float:
         """C = ||s + mean_n Δ_n(s, a) - s'||₂ on normalised states, for (1, D) / (1, A) tensors.
-        ``reuse_first_step``: (obs, action) are those of the last call, whose first rollout step already
+        ``reuse_first_step``: (obs, action, motion) are those of the last call, whose first rollout step already
         predicted Δ_n(s, a) (the common case: the executed action is the policy's)."""
         if reuse_first_step:
             delta = self.deltas[0]
         else:
-            self.c_input[:, :, : self.d].copy_(obs)
-            self.c_input[:, :, self.d :].copy_(action)
+            d, a = self.d, self.act_dim
+            self.c_input[:, :, :d].copy_(obs)
+            self.c_input[:, :, d : d + a].copy_(action)
+            if self.motion:
+                if motion is None:
+                    self.c_input[:, :, d + a :].zero_()
+                else:
+                    self.c_input[:, :, d + a :].copy_(motion)
             h = self._trunk(self.c_input, self.c_hidden)
             delta = torch.baddbmm(self.delta_b, h, self.delta_w, out=self.c_delta)
         error = delta.mean(0).add_(obs).sub_(next_obs).mul_(self.model.inv_obs_std)

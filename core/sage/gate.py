@@ -59,6 +59,8 @@ class SageGate:
         self._last: tuple[object, object, int] = (None, None, -1)
         self.hold_remaining = 0
         self.detail = GateDetail(threshold=self.threshold.threshold)
+        self._previous_obs: np.ndarray | None = None
+        """The last observation the gate saw in this episode: the world model's motion input is obs - it."""
 
     def kernel(self) -> GateKernel | None:
         if self.actor is None:
@@ -74,6 +76,14 @@ class SageGate:
         self.hold_remaining = 0
         self.detail.hold_remaining = 0
         self.threshold.reset_smoothing()
+        self._previous_obs = None
+
+    def _motion(self, obs: np.ndarray) -> torch.Tensor | None:
+        """s_t - s_{t-1} as a (1, D) tensor (None at an episode's start, or for a model without the input)."""
+        if not self.world_model.motion or self._previous_obs is None:
+            return None
+        delta = np.asarray(obs, dtype=np.float32).reshape(-1) - self._previous_obs
+        return torch.from_numpy(delta).view(1, -1)
 
     def _model_bounds(self) -> tuple[float, float] | None:
         """The (τ_min, τ_max) measured at the model's last calibration, when the config asks for them."""
@@ -106,11 +116,12 @@ class SageGate:
             o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
             a = torch.from_numpy(np.asarray(a_rl, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
+            motion = self._motion(obs)
             if kernel is not None:
-                value, cost, sigma = kernel(o, a)
+                value, cost, sigma = kernel(o, a, motion)
                 self._last = (obs, a_rl, self.world_model.version)
             else:
-                terms = fear(self.world_model.folded(), self.policy, o, a, self.cfg)
+                terms = fear(self.world_model.folded(), self.policy, o, a, self.cfg, motion=motion)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
         if value > threshold:
             self.hold_remaining = self.cfg.hold_steps
@@ -131,12 +142,14 @@ class SageGate:
             a = torch.from_numpy(np.asarray(action, dtype=np.float32)).view(1, -1)
             s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
+            motion = self._motion(obs)
             if kernel is not None:
                 last_obs, last_action, version = self._last
                 reuse = version == self.world_model.version and last_obs is obs and np.array_equal(last_action, action)
-                curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse)
+                curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)
             else:
-                curiosity = float(curiosity_folded(self.world_model, o, a, s1)[0])
+                curiosity = float(curiosity_folded(self.world_model, o, a, s1, motion)[0])
+        self._previous_obs = np.asarray(obs, dtype=np.float32).reshape(-1).copy()
         self.detail.rho = self.threshold.rho(curiosity)
         self.threshold.update(curiosity)
         self.detail.curiosity = curiosity
@@ -153,11 +166,15 @@ class SageGate:
 
 
 def curiosity_folded(
-    world_model: EnsembleWorldModel, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor
+    world_model: EnsembleWorldModel,
+    obs: torch.Tensor,
+    action: torch.Tensor,
+    next_obs: torch.Tensor,
+    motion: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """C on the folded weights (no normalisation arithmetic): ||(s + mean_n Δ_n - s') / std(s)||₂."""
     fm = world_model.folded()
-    h = torch.cat([obs, action], dim=-1).unsqueeze(0).expand(fm.members, obs.shape[0], -1)
+    h = world_model.inputs(obs, action, motion).unsqueeze(0).expand(fm.members, obs.shape[0], -1)
     for weight, bias in fm.hidden:
         h = torch.nn.functional.silu(torch.baddbmm(bias, h, weight))
     delta = torch.baddbmm(fm.out_bias[..., : fm.obs_dim], h, fm.out_weight[..., : fm.obs_dim]).mean(0)

@@ -163,8 +163,9 @@ class BaseLearner:
             return None
         data = self.buffer.arrays()
         labels = self.buffer.violation_soon(self.world_model.cfg.violation_steps)
+        motion = self.buffer.previous_deltas() if self.world_model.motion else None
         report = self.world_model.fit(
-            data["obs"], data["action"], data["next_obs"], data["cost"], self.rng, violation_soon=labels
+            data["obs"], data["action"], data["next_obs"], data["cost"], self.rng, violation_soon=labels, motion=motion
         )
         self._steps_at_last_fit = self.env_steps
         self.last_fit = report
@@ -172,7 +173,16 @@ class BaseLearner:
         starts = torch.from_numpy(data["obs"][idx])
         # the threshold bounds come from the fear of states that were safe (no violation ahead, low cost)
         safe = torch.from_numpy(np.maximum(data["cost"][idx], labels[idx]) < SAFE_LABEL)
-        calibrate(self.world_model, self.rollout_policy, starts, self.cfg.gate.horizon, cfg=self.cfg.gate, safe=safe)
+        start_motion = None if motion is None else torch.from_numpy(motion[idx])
+        calibrate(
+            self.world_model,
+            self.rollout_policy,
+            starts,
+            self.cfg.gate.horizon,
+            cfg=self.cfg.gate,
+            safe=safe,
+            motion=start_motion,
+        )
         self.info.update(wm_holdout_nll=report.holdout_nll, wm_holdout_mse=report.holdout_mse, wm_epochs=report.epochs)
         self.virtual_rollout()
         return report
@@ -254,6 +264,8 @@ class BaseLearner:
         loaded: list[str] = []
         for name, module in self._modules_for_state().items():
             if name in state:
+                if not strict and name == "world_model" and not _same_shapes(module, state[name]):
+                    continue  # a warm start from a model of another input layout (no motion input): refit it
                 module.load_state_dict(state[name])
                 loaded.append(name)
             elif strict:
@@ -269,3 +281,11 @@ class BaseLearner:
         if self.world_model is not None:
             modules["world_model"] = self.world_model
         return modules
+
+
+def _same_shapes(module: torch.nn.Module, state: dict[str, Any]) -> bool:
+    """Whether ``state`` fits ``module`` tensor for tensor (names and shapes)."""
+    own = module.state_dict()
+    return all(k in state and tuple(state[k].shape) == tuple(v.shape) for k, v in own.items() if k in state) and all(
+        k in own for k in state
+    )

@@ -76,6 +76,8 @@ class FoldedModel:
     """1 / std(s) per state dim: curiosity is measured on normalised states."""
     obs_dim: int
     members: int
+    motion: bool
+    """Whether the first layer also reads the last change of state (after obs and action)."""
     sigma_scale: Tensor
     """(MAX_HORIZON,) scale κ_k of σ_raw at rollout step k on real states (see :func:`core.sage.fear.calibrate`)."""
     curiosity_ref: float
@@ -104,7 +106,8 @@ class EnsembleWorldModel(nn.Module):
         super().__init__()
         self.obs_dim, self.act_dim, self.cfg = obs_dim, act_dim, cfg
         self.members = cfg.members
-        in_dim, out_dim = obs_dim + act_dim, obs_dim + 1
+        self.motion = bool(cfg.motion_input)
+        in_dim, out_dim = obs_dim + act_dim + (obs_dim if self.motion else 0), obs_dim + 1
         dims = [in_dim] + [cfg.hidden] * cfg.layers
         self.hidden_layers = nn.ModuleList(VectorizedLinear(i, o, cfg.members) for i, o in itertools.pairwise(dims))
         self.out = VectorizedLinear(cfg.hidden, 2 * out_dim, cfg.members)
@@ -139,19 +142,26 @@ class EnsembleWorldModel(nn.Module):
         logvar = self.max_logvar - F.softplus(self.max_logvar - raw)
         return self.min_logvar + F.softplus(logvar - self.min_logvar)
 
-    def normalise_inputs(self, obs: Tensor, action: Tensor) -> Tensor:
-        return (torch.cat([obs, action], dim=-1) - self.in_mean) / self.in_std
+    def inputs(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> Tensor:
+        """The raw model input: (s, a) and, with ``motion_input``, the last change of state (zeros if unknown)."""
+        if not self.motion:
+            return torch.cat([obs, action], dim=-1)
+        return torch.cat([obs, action, torch.zeros_like(obs) if motion is None else motion], dim=-1)
 
-    def predict(self, obs: Tensor, action: Tensor) -> tuple[Tensor, Tensor]:
-        """Per-member de-normalised means (N, B, D + 1) of (Δs, cost) and log-variances in normalised units."""
-        x = self.normalise_inputs(obs, action)
+    def normalise_inputs(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> Tensor:
+        return (self.inputs(obs, action, motion) - self.in_mean) / self.in_std
+
+    def predict(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Per-member de-normalised means (N, B, D + 1) of (Δs, violation logit) and log-variances in normalised
+        units; ``motion``: s_t - s_{t-1} (the model's motion input; zeros when None)."""
+        x = self.normalise_inputs(obs, action, motion)
         x = x.unsqueeze(0).expand(self.members, *x.shape) if x.dim() == 2 else x
         mean, logvar = self.forward_normalised(x)
         return mean * self.out_std + self.out_mean, logvar
 
-    def predictive_std(self, obs: Tensor, action: Tensor) -> Tensor:
-        """σ_raw per sample: mean over normalised state dims of the mixture std (see the module docstring)."""
-        mean, logvar = self.predict(obs, action)
+    def predictive_std(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> Tensor:
+        """The state mixture's std per sample: mean over normalised state dims of sqrt(mean σ² + var μ)."""
+        mean, logvar = self.predict(obs, action, motion)
         d = self.obs_dim
         delta = mean[..., :d]
         epistemic = (delta - delta.mean(0, keepdim=True)).square().mean(0) / self.out_std[:d].pow(2)
@@ -183,6 +193,7 @@ class EnsembleWorldModel(nn.Module):
         cost: np.ndarray,
         rng: np.random.Generator,
         violation_soon: np.ndarray | None = None,
+        motion: np.ndarray | None = None,
     ) -> FitReport:
         """Train on real transitions with a held-out split; keep each member's best held-out snapshot.
 
@@ -201,7 +212,10 @@ class EnsembleWorldModel(nn.Module):
         if violation_soon is not None:
             label = np.maximum(label, np.clip(violation_soon, 0.0, 1.0))
         label = label.astype(np.float32)
-        inputs = torch.as_tensor(np.concatenate([obs, action], axis=1), dtype=torch.float32)
+        parts = [obs, action]
+        if self.motion:
+            parts.append(np.zeros_like(obs) if motion is None else motion)
+        inputs = torch.as_tensor(np.concatenate(parts, axis=1), dtype=torch.float32)
         targets = torch.as_tensor(np.concatenate([next_obs - obs, label[:, None]], axis=1), dtype=torch.float32)
         perm = rng.permutation(n)
         n_hold = max(1, min(int(n * cfg.holdout_ratio), cfg.max_holdout))
@@ -282,9 +296,11 @@ class EnsembleWorldModel(nn.Module):
             report.holdout_nll = float(final.mean())
             report.holdout_mse = float(((mean.mean(0)[:, : self.obs_dim] - y[hold, : self.obs_dim]) ** 2).mean())
             self.fitted.fill_(True)
-            hold_obs, hold_action = inputs[hold, : self.obs_dim], inputs[hold, self.obs_dim :]
+            d, a = self.obs_dim, self.act_dim
+            hold_obs, hold_action = inputs[hold, :d], inputs[hold, d : d + a]
+            hold_motion = inputs[hold, d + a :] if self.motion else None
             hold_next = torch.as_tensor(next_obs[hold], dtype=torch.float32)
-            self.curiosity_ref.fill_(float(self.curiosity(hold_obs, hold_action, hold_next).mean()))
+            self.curiosity_ref.fill_(float(self.curiosity(hold_obs, hold_action, hold_next, hold_motion).mean()))
         self.touch()
         return report
 
@@ -325,9 +341,9 @@ class EnsembleWorldModel(nn.Module):
         layers = [f"hidden_layers.{i}" for i in range(len(self.hidden_layers))] + ["out"]
         return [f"{layer}.{kind}" for layer in layers for kind in ("weight", "bias")]
 
-    def curiosity(self, obs: Tensor, action: Tensor, next_obs: Tensor) -> Tensor:
+    def curiosity(self, obs: Tensor, action: Tensor, next_obs: Tensor, motion: Tensor | None = None) -> Tensor:
         """C = ||ŝ_{t+1} - s_{t+1}||₂ on normalised states, ŝ the ensemble-mean prediction (eq:curiosity)."""
-        mean, _ = self.predict(obs, action)
+        mean, _ = self.predict(obs, action, motion)
         predicted = obs + mean[..., : self.obs_dim].mean(0)
         return ((predicted - next_obs) / self.in_std[: self.obs_dim]).norm(dim=-1)
 
@@ -384,6 +400,7 @@ class EnsembleWorldModel(nn.Module):
                 inv_obs_std=self.in_std[:d].reciprocal().clone(),
                 obs_dim=d,
                 members=self.members,
+                motion=self.motion,
                 sigma_scale=self.sigma_scale.clone(),
                 curiosity_ref=float(self.curiosity_ref),
             )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -95,3 +97,15 @@ def test_virtual_buffer_wraps_and_samples_states() -> None:
     big = np.arange(12, dtype=np.float32)[:, None].repeat(3, 1)
     virtual.add_batch(big, np.zeros((12, 2)), big, np.zeros(12))
     assert sorted(virtual.obs[:, 0].tolist()) == [7.0, 8.0, 9.0, 10.0, 11.0]
+
+
+def test_previous_deltas_follow_episodes_through_the_ring() -> None:
+    buffer = ReplayBuffer(1, 1, capacity=4)
+    states = [0.0, 1.0, 3.0, 6.0]  # one episode: 0 -> 1 -> 3 -> 6, then a new one from 10
+    for s, s1 in itertools.pairwise(states):
+        buffer.add(np.array([s]), np.zeros(1), 0.0, np.array([s1]), False)
+    buffer.add(np.array([10.0]), np.zeros(1), 0.0, np.array([11.0]), False)
+    buffer.add(np.array([11.0]), np.zeros(1), 0.0, np.array([13.0]), False)  # overwrites the first row
+    deltas = buffer.previous_deltas()[:, 0]
+    by_state = dict(zip(buffer.obs[: buffer.size, 0].tolist(), deltas.tolist(), strict=True))
+    assert by_state == {1.0: 0.0, 3.0: 2.0, 10.0: 0.0, 11.0: 1.0}  # 1.0's predecessor was overwritten

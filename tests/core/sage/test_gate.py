@@ -25,12 +25,19 @@ class ScriptedFear:
     def __init__(self, values: list[float]) -> None:
         self.values = list(values)
 
-    def __call__(self, obs: torch.Tensor, action: torch.Tensor) -> tuple[float, float, float]:
+    def __call__(
+        self, obs: torch.Tensor, action: torch.Tensor, motion: torch.Tensor | None = None
+    ) -> tuple[float, float, float]:
         value = self.values.pop(0)
         return value, value, 0.0
 
     def curiosity(
-        self, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor, reuse_first_step: bool = False
+        self,
+        obs: torch.Tensor,
+        action: torch.Tensor,
+        next_obs: torch.Tensor,
+        reuse_first_step: bool = False,
+        motion: torch.Tensor | None = None,
     ) -> float:
         return 1.0
 
