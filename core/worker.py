@@ -63,6 +63,9 @@ class WorkerSpec:
     marked "not evaluated" and promoted as they come (headless tools only; the live server always passes one)."""
     promotion: Any = None
     """A :class:`core.promotion.PromotionConfig` (None: its defaults)."""
+    parent_pid: int | None = None
+    """The process that started the worker (set by :class:`FinetuneService`): the worker ends when it is gone,
+    even if that happened while the worker was still starting."""
 
 
 # -- the worker process -------------------------------------------------------------------------------------------
@@ -71,7 +74,7 @@ def worker_main(spec: WorkerSpec, events: Any, commands: Any) -> None:
 
     Any error ends the process after reporting it (``{"kind": "error"}``); the service restarts it. The worker
     also ends when its parent dies (a ``kill -9`` of the server leaves no orphan training on)."""
-    _watch_parent(os.getppid())
+    _watch_parent(spec.parent_pid or os.getppid())
     try:
         _work(spec, events, commands)
     except BaseException as exc:
@@ -92,9 +95,9 @@ def _watch_parent(parent: int) -> None:
 
     def watch() -> None:
         while True:
-            time.sleep(PARENT_POLL_SECONDS)
             if os.getppid() != parent:
                 os._exit(0)
+            time.sleep(PARENT_POLL_SECONDS)
 
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
@@ -310,7 +313,7 @@ class FinetuneService:
 
     def _spawn(self) -> None:
         with self._lock:
-            spec = dataclasses.replace(self.spec, base=self._base)
+            spec = dataclasses.replace(self.spec, base=self._base, parent_pid=os.getpid())
             # fresh queues for every worker: one killed while writing may leave a queue's lock or pipe broken
             self._events = self._ctx.Queue()
             self._commands = self._ctx.Queue()

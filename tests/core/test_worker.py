@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import threading
@@ -166,6 +167,7 @@ def _server_stand_in(spec: WorkerSpec, pid_file: str) -> None:
 
     ctx = multiprocessing.get_context("spawn")
     events, commands = ctx.Queue(), ctx.Queue()
+    spec = dataclasses.replace(spec, parent_pid=os.getpid())
     worker = ctx.Process(target=worker_main, args=(spec, events, commands), daemon=True)
     worker.start()
     Path(pid_file).write_text(str(worker.pid))
