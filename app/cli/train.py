@@ -4,14 +4,14 @@
     sage eval runs/s3 --episodes 20 --scenario 1,2,3,4
     sage compare runs/s3 runs/s3-sac --episodes 20 --scenario 3
     sage train --sim highway --method sage --episodes 150            # closed-loop adversarial (CAT-style)
-    sage eval runs/hw --sim highway --set test --mode normal,adversarial --episodes 50 --seeds 0,1,2,3,4
+    sage eval runs/hw --sim highway --split test --mode normal,adversarial --episodes 50 --seeds 0,1,2,3,4
     sage train --sim sumo --protocol route-shift --method sage --c1 40 --c2 20   # + figures in the run folder
 
 ``--sim`` is any simulator of :data:`sims.SIMULATORS`; ``--scenario`` names its variant (a comma list
 trains on several in turn; :mod:`studies.envs`: UGV 1-4, highway train/test, SUMO c1/c2). The study
 protocols (highway closed-loop adversaries, SUMO route shift) live in :mod:`studies`. In ``sage train``,
 ``--set key=value`` edits the learner's config (``--set gate.tau_max=0.7``; fields: :mod:`core.sage.config`);
-in ``sage eval`` / ``compare`` on highway, ``--set`` is the logged set (train or test), as in the paper.
+in ``sage eval`` / ``compare`` on highway, ``--split`` is the logged split (train or test), as in the paper.
 The tables are the paper's (:mod:`core.report`): one row per run and scenario, the simulator's own
 metric columns, then return and cost.
 """
@@ -27,7 +27,7 @@ from typing import Annotated, Any
 import typer
 
 BASE_COLUMNS_AFTER = ("return", "cost")
-SetOption = Annotated[str, typer.Option("--set", help="highway: logged set(s), train and/or test (comma list).")]
+SplitOption = Annotated[str, typer.Option("--split", help="highway: logged split(s), train and/or test (comma list).")]
 ModeOption = Annotated[str, typer.Option(help="highway: normal and/or adversarial (comma list).")]
 SeedsOption = Annotated[str | None, typer.Option(help="Evaluation seeds, pooled (comma list; overrides --seed).")]
 GATED_COLUMNS = ("takeover_rate", "mean_fear")
@@ -227,7 +227,7 @@ def register(app: typer.Typer) -> None:
         save: Annotated[Path | None, typer.Option(help="Also write the rows to this JSON-lines file.")] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
         sim: Annotated[str | None, typer.Option(help="Simulator (default: the run's own; must match it).")] = None,
-        split: SetOption = "test",
+        split: SplitOption = "test",
         mode: ModeOption = "normal,adversarial",
         seeds: SeedsOption = None,
     ) -> None:
@@ -250,7 +250,7 @@ def register(app: typer.Typer) -> None:
         seed: Annotated[int, typer.Option(help="Evaluation seed (the same episodes for every run).")] = 0,
         save: Annotated[Path | None, typer.Option(help="Also write the rows to this JSON-lines file.")] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
-        split: SetOption = "test",
+        split: SplitOption = "test",
         mode: ModeOption = "normal,adversarial",
         seeds: SeedsOption = None,
     ) -> None:

@@ -254,6 +254,11 @@ function renderCounters(c) {
   $("st-steps").textContent = `${c.steps} steps`;
   $("st-events").textContent = c.takeover_events;
   $("st-person").textContent = `person ${c.person_steps} · fallback ${c.fallback_steps}`;
+  // how long the person took to take hold after the gate asked, and the largest action jump at a handover
+  const latency = Number.isFinite(c.handover_latency_last) ? `answered in ${Math.round(1000 * c.handover_latency_last)} ms` : "";
+  const jump = Number.isFinite(c.handover_jump_max) ? `max handover jump ${Math.round(100 * c.handover_jump_max)}%` : "";
+  $("st-person").title = [latency, jump].filter(Boolean).join(" · ") || "no handover yet";
+  if (latency) $("st-person").textContent += ` · ${latency}`;
 }
 
 function renderConnection() {

@@ -57,7 +57,7 @@ def test_highway_training_is_closed_loop_adversarial(highway_run: Path) -> None:
 def test_highway_eval_prints_the_paper_columns_for_both_modes(highway_run: Path, tmp_path: Path) -> None:
     save = tmp_path / "rows.jsonl"
     result = sage(
-        "eval", str(highway_run), "--sim", "highway", "--set", "test", "--mode", "normal,adversarial",
+        "eval", str(highway_run), "--sim", "highway", "--split", "test", "--mode", "normal,adversarial",
         "--episodes", "2", "--seeds", "0,1", "--save", str(save), "--quiet",
     )  # fmt: skip
     assert result.exit_code == 0, result.output
@@ -85,7 +85,7 @@ def test_highway_eval_prints_the_paper_columns_for_both_modes(highway_run: Path,
 
 
 def test_highway_eval_refuses_a_bad_set_or_another_simulator(highway_run: Path) -> None:
-    result = sage("eval", str(highway_run), "--set", "validation", "--episodes", "1", "--quiet")
+    result = sage("eval", str(highway_run), "--split", "validation", "--episodes", "1", "--quiet")
     assert result.exit_code == 2 and "choose from train, test" in result.output
     result = sage("eval", str(highway_run), "--sim", "sumo", "--episodes", "1", "--quiet")
     assert result.exit_code == 2 and "trained on highway" in result.output
