@@ -6,6 +6,8 @@ free loopback port, connects three viewer websockets and one operator websocket,
 * loop rate (steps/s achieved vs the wall-clock target) and the cost of one live step, at 1x and at the
   highest speed multiplier (to show the headroom),
 * stream rate: step messages per second received by each viewer,
+* hostile messages: 1,000 malformed, oversized, deeply nested, mistyped or cross-typed messages from one
+  connection, while the loop runs at 1x: internal errors (target 0) and the loop rate beside a quiet run,
 * key press to applied action (page timestamp of the input -> wall time of the env step that used it):
   - takeover onset (Space pressed): the loop wakes at once, target p95 <= 50 ms,
   - a steering change during a takeover: waits for the next control tick, so bounded by the control
@@ -161,6 +163,44 @@ async def measure_latency(port: int, samples: int) -> dict[str, list[float]]:
     return {"onset": onset, "steer": steer}
 
 
+def hostile_messages(rng: random.Random, n: int) -> list[str]:
+    """Messages no page sends: malformed, oversized, deeply nested, mistyped, unknown, huge numbers."""
+    shapes = [
+        lambda: "[" * rng.randint(9, 20_000),
+        lambda: '{"type": "ping", "ts": ' + "9" * rng.randint(33, 6000) + "}",
+        lambda: json.dumps({"type": "input", "token": "x" * 16, "seq": 1, "ts": 1.0, "held": "yes"}),
+        lambda: json.dumps({"type": rng.choice(["", "eval", None, 3])}),
+        lambda: json.dumps({"type": "speed", "token": "x" * 16, "value": rng.choice([0, 1e308, "fast"])}),
+        lambda: "".join(chr(rng.randint(0, 0x2FFF)) for _ in range(rng.randint(0, 200))),
+        lambda: '{"type": "input", "a": ' + '{"b": ' * 30 + "1" + "}" * 30 + "}",
+        lambda: '"' + "x" * 20_000 + '"',
+    ]
+    return [rng.choice(shapes)() for _ in range(n)]
+
+
+async def measure_hostile(port: int, app: Any, count: int) -> dict[str, float]:
+    """The loop rate while one connection sends ``count`` hostile messages, and how they were answered."""
+    live = app.state.dash.live
+    internal = answered = 0
+    async with websockets.connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as ws:
+        await ws.recv()  # the welcome
+        steps0, t0 = live.world.counters.steps, time.monotonic()
+        for raw in hostile_messages(random.Random(0), count):
+            await ws.send(raw)
+        while answered < count and time.monotonic() - t0 < 60:
+            try:
+                msg = json.loads(await asyncio.wait_for(ws.recv(), 5))
+            except TimeoutError:
+                break
+            if msg.get("type") == "error":
+                answered += 1
+                internal += int("internal" in str(msg.get("error", "")))
+        await asyncio.sleep(max(0.0, 3.0 - (time.monotonic() - t0)))
+        elapsed = time.monotonic() - t0
+        loop = (live.world.counters.steps - steps0) / elapsed
+    return {"internal": internal, "answered": answered, "loop": loop, "target": live.speed / live.world.dt}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, default=8.0, help="measurement window per rate run")
@@ -171,7 +211,7 @@ def main() -> None:
     random.seed(0)
     sessions = Path(tempfile.mkdtemp(prefix="bench-server-"))
     settings = ServerSettings(
-        sim="ugv", scenario=3, sessions=sessions, policy=args.policy, policy_roots=[ROOT / "policies", ROOT / "runs"]
+        sim="ugv", scenario="3", sessions=sessions, policy=args.policy, policy_roots=[ROOT / "policies", ROOT / "runs"]
     )
     server, thread, port, app = start(settings)
     try:
@@ -189,6 +229,12 @@ def main() -> None:
                 f"{r['step_ms_p50']:.2f} ms, p95 {r['step_ms_p95']:.2f} ms"
             )
         live.submit("speed", value=1.0).result(timeout=10)
+        quiet = asyncio.run(measure_rates(port, app, 3.0))
+        h = asyncio.run(measure_hostile(port, app, 1000))
+        print(
+            f"  1,000 hostile messages: {h['answered']} validation errors, {h['internal']} internal errors "
+            f"(target 0); loop {h['loop']:.1f} steps/s beside {quiet['loop']:.1f} quiet (target {h['target']:.0f})"
+        )
         live.submit("configure", expert_mode="person").result(timeout=10)
         lat = asyncio.run(measure_latency(port, args.samples))
         for name, label, target in (
