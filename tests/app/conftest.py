@@ -48,9 +48,9 @@ class LiveServer:
         return self.dash.live.state()
 
 
-def start_server(settings: ServerSettings) -> tuple[LiveServer, threading.Thread]:
+def start_server(settings: ServerSettings, port: int = 0) -> tuple[LiveServer, threading.Thread]:
     app = create_app(settings)
-    server = ThreadedServer(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning", lifespan="on"))
+    server = ThreadedServer(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
     thread = threading.Thread(target=server.run, name="test-uvicorn", daemon=True)
     thread.start()
     deadline = time.monotonic() + 30

@@ -348,3 +348,30 @@ def test_replay_scrub_bar_moves_the_scene_and_the_charts_together(browser: Any, 
         page.context.close()
     finally:
         stop_server(live, thread)
+
+
+def test_the_3d_view_reconnects_by_itself_after_a_server_restart(browser: Any, tmp_path: Path) -> None:
+    """viser's viewer does not reconnect on its own: after a restart the page reloads it, and the scene moves
+    again without the operator reloading anything."""
+    live, thread = start_server(toy_settings(tmp_path, policy="calm"))
+    port = live.port
+    page = open_page(browser, live, scene=True)
+    page.frame_locator("#scene").locator("canvas").first.wait_for(timeout=WAIT_MS)
+    stop_server(live, thread)
+    page.wait_for_function("!window.sage.connected", timeout=WAIT_MS)
+    live, thread = start_server(toy_settings(tmp_path / "again", policy="calm"), port=port)
+    try:
+        page.wait_for_function("window.sage.connected && (window.sage.frameReloads || 0) >= 1", timeout=WAIT_MS)
+        frame = page.frame_locator("#scene")
+        frame.locator("canvas").first.wait_for(timeout=WAIT_MS)
+        assert "reconnect=1" in page.locator("#scene").get_attribute("src")
+        steps = page.evaluate("window.sage.steps")
+        page.wait_for_function(f"window.sage.steps > {steps + 10}", timeout=WAIT_MS)  # the stream is live again
+        first = page.locator("#scene").screenshot()
+        deadline = time.monotonic() + 20
+        while page.locator("#scene").screenshot() == first:  # the 3D scene changes again
+            assert time.monotonic() < deadline, "the 3D view stayed frozen after the restart"
+            time.sleep(0.5)
+    finally:
+        page.context.close()
+        stop_server(live, thread)
