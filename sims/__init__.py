@@ -23,6 +23,7 @@ SIMULATORS: dict[str, str] = {
     "ugv": "sims.ugv",
     "highway": "sims.highway",
     "sumo": "sims.sumo",
+    "pedestrian": "sims.pedestrian",
 }
 """Short name -> the package that exports its ``DESCRIPTOR`` (and registers its env on import)."""
 

@@ -1,0 +1,42 @@
+"""What the rest of the product knows about the pedestrian simulator (:class:`core.descriptor.SimDescriptor`)."""
+
+from __future__ import annotations
+
+from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
+from sims.pedestrian.config import PedestrianConfig
+from sims.pedestrian.metrics import METRIC_COLUMNS
+from sims.pedestrian.world import encode
+
+
+def keys_to_action(throttle: float, steer: float) -> int:
+    """Operator axes in [-1, 1] -> one of the 9 actions (a dead zone of 0.3 means 'maintain' / 'keep')."""
+    t = 1 if throttle > 0.3 else (-1 if throttle < -0.3 else 0)
+    s = 1 if steer > 0.3 else (-1 if steer < -0.3 else 0)
+    return encode(t, s)
+
+
+DESCRIPTOR = SimDescriptor(
+    name="pedestrian",
+    title="Occluded pedestrian (urban road, parked truck)",
+    env_id="sage/Pedestrian-v0",
+    entry_point="sims.pedestrian.env:PedestrianEnv",
+    dt=PedestrianConfig().dt,
+    scenarios=(
+        ScenarioSpec("crossing", "crossing · a pedestrian steps out in front of the truck", {}),
+        ScenarioSpec("clear", "clear · the truck, no pedestrian", {"pedestrian_probability": 0.0}),
+        ScenarioSpec(
+            "parked",
+            "parked · more parked cars, no pedestrian",
+            {"pedestrian_probability": 0.0, "parked_vehicles": (1, 4)},
+        ),
+        ScenarioSpec(
+            "rare",
+            "rare · training mix: parked cars, a pedestrian in 20% of episodes",
+            {"pedestrian_probability": 0.2, "parked_vehicles": (0, 4)},
+        ),
+    ),
+    default_scenario="crossing",
+    input_mapping=InputMapping(throttle_index=None, steer_index=None, discrete=keys_to_action),
+    metric_columns=METRIC_COLUMNS,
+    safe_action=encode(-1, 0),  # brake, keep the wheel straight
+)
