@@ -9,8 +9,10 @@ from sims.pedestrian.world import encode
 
 
 def keys_to_action(throttle: float, steer: float) -> int:
-    """Operator axes in [-1, 1] -> one of the 9 actions (a dead zone of 0.3 means 'maintain' / 'keep')."""
-    t = 1 if throttle > 0.3 else (-1 if throttle < -0.3 else 0)
+    """Operator axes in [-1, 1] -> one of the 9 actions. No throttle input brakes (a person holding control
+    without pressing forward never cruises: the safe action); up to half forward maintains the speed, more
+    accelerates. Steering beyond ±0.3 turns the wheel."""
+    t = 1 if throttle > 0.5 else (0 if throttle > 0.05 else -1)
     s = 1 if steer > 0.3 else (-1 if steer < -0.3 else 0)
     return encode(t, s)
 

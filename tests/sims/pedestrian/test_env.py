@@ -31,6 +31,8 @@ def test_registered_with_descriptor_and_spaces() -> None:
     assert scene["sim"] == "pedestrian" and len(scene["rays"]["ends"]) == env.unwrapped.lidar.n_rays
     mapping = sims.descriptor("pedestrian").input_mapping.discrete
     assert mapping(1.0, 0.0) == encode(1, 0) and mapping(-1.0, 1.0) == encode(-1, 1)
+    assert mapping(0.0, 0.0) == encode(-1, 0) == sims.descriptor("pedestrian").safe_action  # resting brakes
+    assert mapping(0.3, -1.0) == encode(0, -1)
 
 
 def test_bad_action_and_config_are_clear_errors() -> None:
@@ -95,3 +97,14 @@ def test_scenarios_keep_the_pedestrian_rare() -> None:
     assert 0.1 < np.mean(seen) < 0.3
     clear = sims.descriptor("pedestrian").make("clear").unwrapped
     assert not any(clear.reset(seed=s)[1]["pedestrian"] for s in range(20))
+
+
+def test_runs_in_the_shared_loop_with_the_scripted_expert() -> None:
+    from core.experts import ExpertPolicy, ScriptedExpert
+    from core.loop import Runner
+
+    env = sims.make("pedestrian", "rare", live=True)
+    runner = Runner(env, ExpertPolicy(env), expert=ScriptedExpert(), seed=0)
+    summaries = [runner.run_episode() for _ in range(5)]
+    assert all(s.error is None and s.metrics["success"] == 1.0 and s.cost == 0.0 for s in summaries)
+    assert set(summaries[0].metrics) == set(sims.descriptor("pedestrian").metric_columns)
