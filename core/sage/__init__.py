@@ -25,12 +25,8 @@ def make_learner(
     action_high: np.ndarray | None = None,
     seed: int = 0,
 ) -> BaseLearner:
-    """The learner class of ``cfg.method`` (SAC carries sage, sac and fni-rl through its switches)."""
-    from core.sage.hg_dagger import HGDAgger
-    from core.sage.sac import SAC
-    from core.sage.td3 import TD3
+    """The learner of ``cfg.method`` from the registry (:mod:`core.learners`; SAC carries sage, sac and fni-rl
+    through its switches)."""
+    from core.learners import make_learner as make_registered
 
-    classes: dict[str, type[BaseLearner]] = {"sage": SAC, "sac": SAC, "fni-rl": SAC, "td3": TD3, "hg-dagger": HGDAgger}
-    if cfg.method not in classes:
-        raise ValueError(f"unknown method {cfg.method!r}; choose one of {', '.join(classes)}")
-    return classes[cfg.method](cfg, obs_dim, act_dim, action_low, action_high, seed)
+    return make_registered(cfg.method, cfg, obs_dim, act_dim, action_low, action_high, seed)

@@ -1,0 +1,119 @@
+"""The learner registry: one entry per training method (its learner class and its configuration preset).
+
+Before this module the methods were split over ``core.sage.make_learner``'s class table, ``core.sage.config``'s
+presets and ``core.agents``. A new method (e.g. a discrete-action D3QN) registers itself once:
+
+    register_learner("my-method", MyLearner, preset=my_preset)
+    learner = make_learner("my-method", cfg, obs_dim, act_dim, low, high, seed=0)
+    learner_names()                                    # every registered method, in registration order
+
+``preset(base, **overrides) -> AgentConfig`` builds the method's configuration (the built-in methods use
+:func:`core.sage.config.for_method`). Pure torch/numpy: nothing here imports a simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from core.sage.config import AgentConfig
+from core.sage.learner import BaseLearner
+
+Preset = Callable[..., AgentConfig]
+"""``preset(base: AgentConfig | None = None, **overrides) -> AgentConfig``."""
+
+
+@dataclass(frozen=True)
+class LearnerEntry:
+    """One registered method."""
+
+    name: str
+    cls: type[BaseLearner]
+    """Built as ``cls(cfg, obs_dim, act_dim, action_low, action_high, seed)``."""
+    preset: Preset
+    """The method's configuration preset."""
+
+
+_REGISTRY: dict[str, LearnerEntry] = {}
+
+
+def register_learner(name: str, cls: type[BaseLearner], preset: Preset, replace: bool = False) -> None:
+    """Register method ``name``; registering a taken name is an error unless ``replace``."""
+    if not name or not isinstance(name, str):
+        raise ValueError(f"a learner name must be a non-empty string, got {name!r}")
+    if not (isinstance(cls, type) and issubclass(cls, BaseLearner)):
+        raise TypeError(f"learner {name!r}: {cls!r} is not a BaseLearner subclass")
+    _builtins()
+    if name in _REGISTRY and not replace:
+        raise ValueError(f"learner {name!r} is already registered (pass replace=True to override it)")
+    _REGISTRY[name] = LearnerEntry(name, cls, preset)
+
+
+def unregister_learner(name: str) -> None:
+    """Remove method ``name`` (tests register toy learners and remove them again)."""
+    _builtins()
+    if name not in _REGISTRY:
+        raise KeyError(f"no learner {name!r}; registered: {', '.join(_REGISTRY)}")
+    del _REGISTRY[name]
+
+
+def learner_names() -> tuple[str, ...]:
+    """Every registered method, built-ins first."""
+    _builtins()
+    return tuple(_REGISTRY)
+
+
+def learner_entry(name: str) -> LearnerEntry:
+    """The entry of ``name`` (a clear error naming the choices otherwise)."""
+    _builtins()
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(_REGISTRY)}")
+    return _REGISTRY[name]
+
+
+def preset(name: str, base: AgentConfig | None = None, **overrides: Any) -> AgentConfig:
+    """The configuration preset of method ``name`` (see :func:`core.sage.config.for_method`)."""
+    return learner_entry(name).preset(base, **overrides)
+
+
+def make_learner(
+    name: str,
+    cfg: AgentConfig,
+    obs_dim: int,
+    act_dim: int,
+    action_low: np.ndarray | None = None,
+    action_high: np.ndarray | None = None,
+    seed: int = 0,
+) -> BaseLearner:
+    """A fresh learner of method ``name`` built from ``cfg``."""
+    return learner_entry(name).cls(cfg, obs_dim, act_dim, action_low, action_high, seed)
+
+
+_BUILTINS_DONE = False
+
+
+def _builtins() -> None:
+    """Register the built-in methods on first use (lazily: the learner modules import torch networks)."""
+    global _BUILTINS_DONE
+    if _BUILTINS_DONE:
+        return
+    _BUILTINS_DONE = True
+    from core.sage.config import for_method
+    from core.sage.hg_dagger import HGDAgger
+    from core.sage.sac import SAC
+    from core.sage.td3 import TD3
+
+    classes: dict[str, type[BaseLearner]] = {"sage": SAC, "sac": SAC, "fni-rl": SAC, "td3": TD3, "hg-dagger": HGDAgger}
+    for method, cls in classes.items():
+        _REGISTRY[method] = LearnerEntry(method, cls, _method_preset(method, for_method))
+
+
+def _method_preset(method: str, for_method: Callable[..., AgentConfig]) -> Preset:
+    def build(base: AgentConfig | None = None, **overrides: Any) -> AgentConfig:
+        return for_method(method, base, **overrides)
+
+    build.__doc__ = f"The {method!r} preset of core.sage.config.for_method."
+    return build

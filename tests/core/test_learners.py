@@ -1,0 +1,59 @@
+"""The learner registry (core.learners): built-ins, registering a toy method, clear errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core import learners
+from core.sage import make_learner as make_from_config
+from core.sage.config import AgentConfig, for_method
+from core.sage.hg_dagger import HGDAgger
+from core.sage.learner import BaseLearner
+from core.sage.sac import SAC
+from core.sage.td3 import TD3
+
+
+def test_builtin_methods_are_registered_with_their_classes_and_presets() -> None:
+    assert learners.learner_names()[:5] == ("sage", "sac", "fni-rl", "td3", "hg-dagger")
+    assert learners.learner_entry("td3").cls is TD3
+    assert learners.learner_entry("hg-dagger").cls is HGDAgger
+    assert learners.preset("fni-rl") == for_method("fni-rl")
+    assert learners.preset("sac", hidden=32).hidden == 32
+
+
+def test_make_learner_by_name_and_by_config_agree() -> None:
+    cfg = for_method("sac", hidden=16, layers=1)
+    by_name = learners.make_learner("sac", cfg, 4, 2, seed=3)
+    by_config = make_from_config(cfg, 4, 2, seed=3)
+    assert isinstance(by_name, SAC) and type(by_config) is SAC
+    obs = np.zeros(4, np.float32)
+    np.testing.assert_allclose(by_name.policy_action(obs, True), by_config.policy_action(obs, True))
+
+
+class ToyLearner(SAC):
+    """A registered method that is not built in (stands for D3QN and the UGV baselines)."""
+
+
+def test_a_registered_toy_method_is_built_listed_and_removed() -> None:
+    learners.register_learner("toy", ToyLearner, preset=lambda base=None, **kw: for_method("sac", base, **kw))
+    try:
+        assert "toy" in learners.learner_names()
+        learner = learners.make_learner("toy", learners.preset("toy", hidden=8, layers=1), 3, 1)
+        assert isinstance(learner, ToyLearner)
+        with pytest.raises(ValueError, match="already registered"):
+            learners.register_learner("toy", ToyLearner, preset=for_method)
+    finally:
+        learners.unregister_learner("toy")
+    assert "toy" not in learners.learner_names()
+
+
+def test_bad_registrations_and_unknown_names_are_clear_errors() -> None:
+    with pytest.raises(ValueError, match="unknown method 'nope'; choose one of sage"):
+        learners.make_learner("nope", AgentConfig(), 3, 1)
+    with pytest.raises(TypeError, match="not a BaseLearner subclass"):
+        learners.register_learner("bad", dict, preset=for_method)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="non-empty"):
+        learners.register_learner("", BaseLearner, preset=for_method)
+    with pytest.raises(KeyError, match="no learner 'nope'"):
+        learners.unregister_learner("nope")
