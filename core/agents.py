@@ -30,7 +30,7 @@ import torch
 
 from core.sage.config import AgentConfig, GateConfig, from_dict, set_field, to_dict, validate
 from core.sage.gate import SageGate
-from core.sage.learner import ActorPolicy, BaseLearner
+from core.sage.learner import BaseLearner
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel
 
@@ -159,7 +159,7 @@ class LoadedAgent:
     config: AgentConfig
     actor: Actor
     world_model: EnsembleWorldModel | None
-    policy: ActorPolicy
+    policy: LearnerPolicy
     """``policy.act(obs, deterministic)`` (:class:`core.loop.Policy`); the training-time stochastic policy when
     ``deterministic`` is False."""
     gate_state: dict[str, float] = field(default_factory=dict)
@@ -206,14 +206,15 @@ def load_agent(path: str | Path) -> LoadedAgent:
     meta = meta_of(payload)
     config = from_dict(payload["agent_config"])
     state = payload["state"]
-    low = torch.as_tensor(meta.action_low, dtype=torch.float32)
-    high = torch.as_tensor(meta.action_high, dtype=torch.float32)
-    actor = Actor(meta.obs_dim, meta.act_dim, config.hidden, config.layers, low, high)
+    learner = _learner_for_acting(payload["file"], meta, config)
+    parts = {name: value for name, value in state.items() if name not in ("world_model", "gate")}
     try:
-        actor.load_state_dict(state["actor"])
-    except (KeyError, RuntimeError) as exc:
+        loaded = learner.load_state_dict(parts, strict=False)
+    except RuntimeError as exc:
         raise ValueError(f"{payload['file']}: actor weights do not match its config: {exc}") from None
-    actor.requires_grad_(False).eval()
+    if "actor" not in loaded:
+        raise ValueError(f"{payload['file']}: the checkpoint holds no actor (it has {', '.join(sorted(state))})")
+    actor = learner.actor.requires_grad_(False).eval()
     world_model = None
     if "world_model" in state:
         world_model = EnsembleWorldModel(meta.obs_dim, meta.act_dim, config.world_model_config)
@@ -223,7 +224,32 @@ def load_agent(path: str | Path) -> LoadedAgent:
             raise ValueError(f"{payload['file']}: world model weights do not match its config: {exc}") from None
         world_model.requires_grad_(False).eval()
     gate_state = {k: float(v) for k, v in state.get("gate", {}).items() if math.isfinite(float(v))}
-    return LoadedAgent(Path(payload["file"]), meta, config, actor, world_model, ActorPolicy(actor), gate_state)
+    return LoadedAgent(Path(payload["file"]), meta, config, actor, world_model, LearnerPolicy(learner), gate_state)
+
+
+class LearnerPolicy:
+    """A :class:`core.loop.Policy` that acts as the loaded learner does (its own exploration, e.g. TD3's
+    Gaussian noise, when ``deterministic`` is False; HG-DAgger never explores)."""
+
+    def __init__(self, learner: BaseLearner) -> None:
+        self.learner = learner
+
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        return self.learner.policy_action(obs, deterministic)
+
+
+def _learner_for_acting(file: str, meta: AgentMeta, config: AgentConfig) -> BaseLearner:
+    """The run's learner class from the registry, built for acting only (a one-slot replay buffer, no world
+    model or virtual buffer: the world model is loaded on its own below, whatever the method's switches)."""
+    from core.learners import learner_names, make_learner
+
+    if meta.method not in learner_names():
+        raise ValueError(f"{file}: method {meta.method!r} is not a registered learner ({', '.join(learner_names())})")
+    acting = dataclasses.replace(config, buffer_size=1, virtual_size=1, world_model=False, virtual_rollouts=False)
+    low = np.asarray(meta.action_low, np.float32)
+    high = np.asarray(meta.action_high, np.float32)
+    with torch.random.fork_rng(devices=[]):  # a learner seeds torch when built: loading must not reseed the caller
+        return make_learner(meta.method, acting, meta.obs_dim, meta.act_dim, low, high, meta.seed)
 
 
 def read_run_config(run: str | Path) -> dict[str, Any]:
@@ -235,10 +261,12 @@ def read_run_config(run: str | Path) -> dict[str, Any]:
 
 
 def action_bounds(space: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) of a Box action space as float32 arrays (a clear error for anything else)."""
+    """(low, high) of the action space as float32 arrays: a Box's bounds, or for a ``Discrete(n)`` space the
+    index range ``[start, start + n - 1]`` as one value (a discrete learner reads ``n`` from it)."""
+    n, start = getattr(space, "n", None), getattr(space, "start", None)
+    if n is not None and start is not None and np.ndim(n) == 0:  # Discrete (MultiBinary has n but no start)
+        return np.array([int(start)], np.float32), np.array([int(start) + int(n) - 1], np.float32)
     low, high = getattr(space, "low", None), getattr(space, "high", None)
     if low is None or high is None:
-        raise TypeError(
-            f"action space {space} is not a Box: continuous learners only (a discrete D3QN learner is planned)"
-        )
+        raise TypeError(f"action space {space} is neither a Box nor a Discrete space")
     return np.asarray(low, np.float32).reshape(-1), np.asarray(high, np.float32).reshape(-1)

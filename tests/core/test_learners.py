@@ -57,3 +57,32 @@ def test_bad_registrations_and_unknown_names_are_clear_errors() -> None:
         learners.register_learner("", BaseLearner, preset=for_method)
     with pytest.raises(KeyError, match="no learner 'nope'"):
         learners.unregister_learner("nope")
+
+
+def test_action_bounds_take_box_and_discrete_spaces() -> None:
+    import gymnasium as gym
+
+    from core.agents import action_bounds
+
+    low, high = action_bounds(gym.spaces.Box(-2.0, 3.0, (2,)))
+    assert low.tolist() == [-2.0, -2.0] and high.tolist() == [3.0, 3.0]
+    low, high = action_bounds(gym.spaces.Discrete(9, start=1))
+    assert low.tolist() == [1.0] and high.tolist() == [9.0]
+    with pytest.raises(TypeError, match="neither a Box nor a Discrete"):
+        action_bounds(gym.spaces.MultiBinary(3))
+
+
+def test_a_committed_checkpoint_loads_through_the_registry() -> None:
+    import torch
+
+    from core.agents import LearnerPolicy, load_agent
+
+    agent = load_agent("policies/ugv-default")
+    assert isinstance(agent.policy, LearnerPolicy)
+    assert isinstance(agent.policy.learner, learners.learner_entry(agent.meta.method).cls)
+    assert agent.policy.learner.actor is agent.actor
+    obs = np.random.default_rng(0).normal(size=agent.meta.obs_dim).astype(np.float32)
+    with torch.no_grad():
+        expected = agent.actor.deterministic(torch.from_numpy(obs).view(1, -1))[0].numpy()
+    np.testing.assert_allclose(agent.policy.act(obs, deterministic=True), expected, rtol=1e-5, atol=1e-6)
+    assert agent.has_world_model  # the world model is loaded whatever the acting learner's switches
