@@ -106,7 +106,9 @@ const handlers = {
   step(msg) { onStep(msg); },
   episode(msg) {
     const outcome = msg.collision ? "collision" : msg.success ? "success" : msg.error ? "error" : "done";
-    toast(`Episode ${msg.episode} ${outcome}: ${msg.steps} steps, takeover ${pct(msg.takeover_rate)}`, "info");
+    // a collision is an alert the operator must see, not a routine notice
+    toast(`Episode ${msg.episode} ${outcome}: ${msg.steps} steps, takeover ${pct(msg.takeover_rate)}`,
+      msg.collision ? "alert" : msg.error ? "error" : "info");
     if (S.finetune && msg.session === S.session) {
       S.finetune.episodes.push({ episode: msg.episode, version: msg.version, takeover_rate: msg.takeover_rate,
         steps: msg.steps, collision: Boolean(msg.collision), success: Boolean(msg.success) });
@@ -134,6 +136,8 @@ const handlers = {
   pong() {},
 };
 
+S.receive = (msg) => { const handler = handlers[msg.type]; if (handler) handler(msg); }; // tests feed messages here
+
 // ---------------------------------------------------------------- state and steps
 function applyState(state) {
   S.state = state;
@@ -142,6 +146,7 @@ function applyState(state) {
     if (!S.replay) redrawLive();
   }
   const c = state.config;
+  if (c.sim !== S.rateSim) { S.rateSim = c.sim; stepTimes.length = 0; renderRate(); } // a new simulator's rate starts afresh
   $("run-summary").textContent =
     `${c.sim} · scenario ${c.scenario ?? "–"} · ${state.policy_label} · expert: ${c.expert_mode.replace("_", " + ")}`;
   $("session-id").textContent = state.session || "not recording";
@@ -577,6 +582,8 @@ const OURS = new Set(["Space", "KeyT", "Escape", ...Object.keys(DRIVE)]);
 // Taking over must work wherever the focus is: these keys are always the operator's (the page has no
 // text fields); pickers and sliders give the focus back as soon as they change.
 function onKey(event, down) {
+  if (event.key === "?") { if (down && !event.repeat) toggleHelp(); event.preventDefault(); return; }
+  if (event.code === "Escape" && down && !$("help").hidden) toggleHelp(false);
   if (!OURS.has(event.code)) return;
   event.preventDefault();
   event.stopImmediatePropagation(); // viser's camera keys never see these
@@ -718,6 +725,12 @@ function beep() {
   } catch (err) { /* no audio device */ }
 }
 let toastTimer = null;
+// The help overlay explains the signals; `?` (anywhere, the 3D view included) or the ? pill opens it.
+function toggleHelp(show = $("help").hidden) {
+  $("help").hidden = !show;
+}
+$("btn-help").onclick = (e) => { toggleHelp(); e.currentTarget.blur(); };
+
 function toast(text, kind = "error") {
   const el = $("toast");
   el.textContent = text; el.dataset.kind = kind; el.hidden = false;

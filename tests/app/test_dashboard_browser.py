@@ -375,3 +375,34 @@ def test_the_3d_view_reconnects_by_itself_after_a_server_restart(browser: Any, t
     finally:
         page.context.close()
         stop_server(live, thread)
+
+
+def test_help_overlay_explains_the_signals_in_readable_text(browser: Any, calm_server: LiveServer) -> None:
+    page = open_page(browser, calm_server)
+    help_box = page.locator("#help")
+    assert help_box.is_hidden()
+    page.keyboard.press("?")
+    help_box.wait_for(state="visible", timeout=WAIT_MS)
+    text = help_box.inner_text()
+    for term in ("fear", "threshold τ", "curiosity", "Person + scripted", "Scripted"):
+        assert term in text, term
+    sizes = page.evaluate(
+        "[...document.querySelectorAll('#help dt, #help dd')].map((e) => parseFloat(getComputedStyle(e).fontSize))"
+    )
+    assert sizes and min(sizes) >= 13
+    page.keyboard.press("Escape")
+    help_box.wait_for(state="hidden", timeout=WAIT_MS)
+    page.locator("#btn-help").click()
+    help_box.wait_for(state="visible", timeout=WAIT_MS)
+    page.context.close()
+
+
+def test_a_collision_is_an_alert_and_a_plain_episode_end_is_not(browser: Any, calm_server: LiveServer) -> None:
+    page = open_page(browser, calm_server)
+    episode = {"type": "episode", "episode": 7, "steps": 40, "takeover_rate": 0.1, "session": "elsewhere"}
+    page.evaluate("(m) => sage.receive(m)", {**episode, "success": True})
+    assert page.locator("#toast").get_attribute("data-kind") == "info"
+    page.evaluate("(m) => sage.receive(m)", {**episode, "collision": True})
+    assert page.locator("#toast").get_attribute("data-kind") == "alert"
+    assert "collision" in page.locator("#toast").inner_text()
+    page.context.close()
