@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
-from sims.sumo.env import SumoConfig
+from sims.sumo.config import SumoConfig
 
 METRIC_COLUMNS = ("success", "collision", "red_light", "timeout", "route_progress", "speed_mean")
 

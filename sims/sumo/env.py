@@ -46,9 +46,7 @@ Expert (:meth:`SumoEnv.expert_action`): SUMO's own driver model. When the execut
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
-from dataclasses import asdict, dataclass, field, fields, replace
-from pathlib import Path
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import gymnasium as gym
@@ -57,146 +55,26 @@ import numpy as np
 from core.scene import Scene
 from sims.sumo import engine
 from sims.sumo import scene as drawing
+from sims.sumo.config import (
+    AGENT_SPEED_MODE,
+    CONFIG_FIELDS,
+    EGO,
+    EGO_LANE_CHANGE_MODE,
+    EXPERT_SPEED_MODE,
+    GOAL_EDGE,
+    RED_STATES,
+    ROUTES,
+    SumoConfig,
+    check_xml_file,
+)
 from sims.sumo.engine import SumoError
-from sims.sumo.network import DATA_DIR, NET_FILE
+from sims.sumo.expert import predict_sumo_speed
+from sims.sumo.reward import step_reward
+from sims.sumo.sensing import OBS_SIZE, heading_from_sumo, observe
 
 libsumo = engine.libsumo
 
-EGO = "ego"
-GOAL_EDGE = "exit"
-ROUTES = {1: "ego_r1", 2: "ego_r2"}
-"""Route number -> route id in ``common.rou.xml``."""
-AGENT_SPEED_MODE = 32
-"""All of SUMO's speed checks off: the agent's acceleration is applied as is (it may collide or run a red)."""
-EXPERT_SPEED_MODE = 31
-"""SUMO's default: safe speed, acceleration bounds, right of way and red lights all respected."""
-EGO_LANE_CHANGE_MODE = 0b011001010101
-"""SUMO's default lane-change mode (1621): strategic, cooperative, speed-gain and keep-right changes."""
-SECTORS = ("front", "rear", "left_front", "left_rear", "right_front", "right_rear")
-OBS_SIZE = 4 * len(SECTORS) + 5
-EMPTY_SECTOR = (1.0, 0.0, 0.0, 0.0)
-TLS_STATE_VALUE = {"G": 0.0, "g": 0.0, "s": 0.0, "y": 0.5, "Y": 0.5, "u": 0.5, "r": 1.0, "R": 1.0}
-"""Light state -> observation value (how strongly it says stop); unknown or off reads 0."""
-RED_STATES = frozenset("rR")
-RED_STOP_GAP = 1.0
-"""SUMO stops this far before the stop line of a red light (``DIST_TO_STOPLINE_EXPECT_PRIORITY``)."""
-FOE_VISIBILITY = 4.5
-"""netconvert's default foe visibility distance at a junction (m)."""
-ROUNDABOUT_VISIBILITY = 9.0
-"""netconvert's ``--roundabouts.visibility-distance`` default (m)."""
-
-
-@dataclass
-class SumoConfig:
-    """Every default of the SUMO study in one place. Any field can be given to ``SumoEnv(...)`` or ``gym.make``."""
-
-    route: int = 1
-    """Which composite route the ego drives: 1 (phase C1) or 2 (phase C2)."""
-    special_vehicles: bool = False
-    """Add the special vehicles (bus, fire truck, police car, ambulance) to the traffic, as in phase C2."""
-    step_length: float = 0.5
-    """Seconds of simulated time per env step (SUMO's step length)."""
-    max_steps: int = 800
-    """Step limit of an episode (truncation): 400 s at the default step length, about twice the expert's mean."""
-    warmup: float = 60.0
-    """Seconds of background traffic simulated before the ego departs, so the roads are not empty."""
-    a_min: float = -4.5
-    """Strongest deceleration (m/s^2) at action -1 (the ego type's comfortable maximum, ``decel``)."""
-    a_max: float = 3.0
-    """Strongest acceleration (m/s^2) at action +1 (the ego type's ``accel``)."""
-    perception_range: float = 200.0
-    """Neighbour and traffic-light perception range (m); also the distance normaliser."""
-    speed_scale: float = 30.0
-    """Speed normaliser (m/s) for the ego speed and the relative speeds."""
-    speed_reward_divisor: float = 5.0
-    """The reward's speed term is ``v / speed_reward_divisor``."""
-    goal_reward: float = 100.0
-    """Reward on arrival at the off-ramp exit."""
-    collision_penalty: float = 1.0
-    """Subtracted from the reward on a collision (the paper's binary c_col)."""
-    red_light_penalty: float = 1.0
-    """Subtracted from the reward on a red-light violation (the paper's binary c_red)."""
-    traffic_scale: float = 1.0
-    """Multiplies every background flow (SUMO's ``--scale``)."""
-    randomize_signals: bool = True
-    """Start each traffic light in a seeded random phase, so that the ego meets every signal state."""
-    teleport_time: float = 120.0
-    """SUMO's ``--time-to-teleport`` for jammed vehicles (s); an ego teleport ends the episode (truncated). Longer
-    than any wait of the expert at a signal or a busy yield junction."""
-    net_file: str | None = None
-    """Network file; None is the committed composite network."""
-    route_files: tuple[str, ...] | None = None
-    """Route files (vehicle types, the ego routes ``ego_r1``/``ego_r2``, flows); None picks the scenario's."""
-    extra_args: tuple[str, ...] = ()
-    """More SUMO command-line options, appended as given."""
-
-    def __post_init__(self) -> None:
-        if self.route not in ROUTES:
-            raise ValueError(f"route must be one of {sorted(ROUTES)}, got {self.route!r}")
-        if not self.step_length > 0:
-            raise ValueError(f"step_length must be positive, got {self.step_length}")
-        if not self.a_min < 0 < self.a_max:
-            raise ValueError(f"need a_min < 0 < a_max, got a_min={self.a_min}, a_max={self.a_max}")
-        if self.max_steps < 1:
-            raise ValueError(f"max_steps must be at least 1, got {self.max_steps}")
-        self.special_vehicles = bool(self.special_vehicles)
-        if self.route_files is not None:
-            self.route_files = tuple(str(f) for f in self.route_files)
-        self.extra_args = tuple(str(a) for a in self.extra_args)
-
-    @property
-    def phase(self) -> str:
-        """The paper's phase: "C1" (route 1, ordinary traffic), "C2" (route 2 with special vehicles), else a name."""
-        if (self.route, self.special_vehicles) == (1, False):
-            return "C1"
-        if (self.route, self.special_vehicles) == (2, True):
-            return "C2"
-        return f"route {self.route}" + (" + special vehicles" if self.special_vehicles else "")
-
-    def network_path(self) -> Path:
-        return Path(self.net_file) if self.net_file is not None else NET_FILE
-
-    def route_paths(self) -> list[Path]:
-        if self.route_files is not None:
-            return [Path(f) for f in self.route_files]
-        files = [DATA_DIR / "common.rou.xml", DATA_DIR / f"route{self.route}.rou.xml"]
-        if self.special_vehicles:
-            files.append(DATA_DIR / "special.rou.xml")
-        return files
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-
-CONFIG_FIELDS = frozenset(f.name for f in fields(SumoConfig))
-
-
-def _check_xml_file(path: Path, root_tag: str, what: str) -> None:
-    """A clear error naming the file when it is missing or is not a SUMO ``<root_tag>`` XML file."""
-    if not path.is_file():
-        raise FileNotFoundError(f"SUMO {what} not found: {path}")
-    root: str | None = None
-    try:
-        for event, element in ET.iterparse(path, events=("start", "end")):
-            if root is None:
-                root = element.tag
-                if root != root_tag:
-                    raise SumoError(f"SUMO {what} {path} is not a <{root_tag}> file (its root is <{root}>)")
-            elif event == "end":
-                element.clear()  # read to the end (so truncated files are caught) without keeping the tree
-    except ET.ParseError as exc:
-        raise SumoError(f"SUMO {what} {path} is not valid XML: {exc}") from exc
-    if root is None:
-        raise SumoError(f"SUMO {what} {path} is empty")
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def _heading(sumo_angle_deg: float) -> float:
-    """SUMO's angle (degrees, 0 = north, clockwise) -> heading (radians, 0 = east, counter-clockwise)."""
-    return _wrap(math.radians(90.0 - sumo_angle_deg))
+__all__ = ["CONFIG_FIELDS", "EGO", "OBS_SIZE", "SumoConfig", "SumoEnv", "libsumo"]
 
 
 @dataclass
@@ -257,9 +135,9 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
     # -- configuration -------------------------------------------------------------------------
     @staticmethod
     def _check_inputs(config: SumoConfig) -> None:
-        _check_xml_file(config.network_path(), "net", "network file")
+        check_xml_file(config.network_path(), "net", "network file")
         for path in config.route_paths():
-            _check_xml_file(path, "routes", "route file")
+            check_xml_file(path, "routes", "route file")
 
     def set_scenario(self, route: int | None = None, special_vehicles: bool | None = None) -> None:
         """Switch route and/or special vehicles from the next ``reset`` on (the route-shift study's phase switch)."""
@@ -518,12 +396,15 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
         speed = self._speed
         ep.speeds.append(speed)
 
-        reward = speed / cfg.speed_reward_divisor
-        if arrived:
-            reward += cfg.goal_reward
-        else:
-            reward += -math.log1p(ep.remaining / ep.route_length) - 1.0
-        reward -= cfg.collision_penalty * float(collision) + cfg.red_light_penalty * float(red_light)
+        reward = step_reward(
+            cfg,
+            speed=speed,
+            arrived=arrived,
+            remaining=ep.remaining,
+            route_length=ep.route_length,
+            collision=collision,
+            red_light=red_light,
+        )
 
         terminated = collision or arrived
         truncated = not terminated and (ep.steps >= cfg.max_steps or teleported)
@@ -570,7 +451,7 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
     def _read_ego(self) -> None:
         angle = libsumo.vehicle.getAngle(EGO)
         x, y = libsumo.vehicle.getPosition(EGO)
-        heading = _heading(angle)
+        heading = heading_from_sumo(angle)
         half = 0.5 * self._ego_length
         self._last_position = (x - half * math.cos(heading), y - half * math.sin(heading))  # front bumper -> centre
         self._last_heading = heading
@@ -582,111 +463,13 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
         return float(d) if d >= 0.0 else self._episode.remaining
 
     def _observe(self) -> np.ndarray:
-        cfg = self.config
-        rng = cfg.perception_range
-        vs = cfg.speed_scale
-        ego_x, ego_y = self._last_position
-        he = self._last_heading
-        ve = self._speed
-        cos_e, sin_e = math.cos(he), math.sin(he)
-        ego_lane = libsumo.vehicle.getLaneID(EGO)
-        others = libsumo.vehicle.getContextSubscriptionResults(EGO) or {}
-        leader = libsumo.vehicle.getLeader(EGO, rng)
-        follower = libsumo.vehicle.getFollower(EGO, rng)
-        leader_id = leader[0] if leader else ""
-        follower_id = follower[0] if follower else ""
-
-        best: dict[str, tuple[float, tuple[float, float, float, float]]] = {}
-        for vid, var in others.items():
-            if vid == EGO:
-                continue
-            h = _heading(var[libsumo.VAR_ANGLE])
-            fx, fy = var[libsumo.VAR_POSITION]
-            half = 0.5 * var[libsumo.VAR_LENGTH]
-            dx = fx - half * math.cos(h) - ego_x
-            dy = fy - half * math.sin(h) - ego_y
-            dist = math.hypot(dx, dy)
-            if dist > rng:
-                continue
-            along = dx * cos_e + dy * sin_e
-            across = -dx * sin_e + dy * cos_e
-            if vid == leader_id:
-                sector = "front"
-            elif vid == follower_id:
-                sector = "rear"
-            elif var[libsumo.VAR_LANE_ID] == ego_lane:
-                continue  # further along the ego's own lane: hidden behind the leader or follower
-            elif across >= 0.0:
-                sector = "left_front" if along >= 0.0 else "left_rear"
-            else:
-                sector = "right_front" if along >= 0.0 else "right_rear"
-            if sector in best and best[sector][0] <= dist:
-                continue
-            v = var[libsumo.VAR_SPEED]
-            rel_vx = v * math.cos(h) - ve * cos_e
-            rel_vy = v * math.sin(h) - ve * sin_e
-            rel_along = rel_vx * cos_e + rel_vy * sin_e
-            rel_across = -rel_vx * sin_e + rel_vy * cos_e
-            direction = math.atan2(rel_across, rel_along) if math.hypot(rel_vx, rel_vy) > 1e-3 else 0.0
-            best[sector] = (
-                dist,
-                (dist / rng, _wrap(h - he) / math.pi, (v - ve) / vs, direction / math.pi),
-            )
-        obs: list[float] = []
-        for sector in SECTORS:
-            obs.extend(best[sector][1] if sector in best else EMPTY_SECTOR)
-        obs.append(ve / vs)
-        obs.append(he / math.pi)
-        tls = libsumo.vehicle.getNextTLS(EGO)
-        if tls and tls[0][2] <= rng:
-            obs.append(tls[0][2] / rng)
-            obs.append(TLS_STATE_VALUE.get(tls[0][3], 0.0))
-        else:
-            obs.extend((1.0, 0.0))
-        obs.append(self._episode.remaining / self._episode.route_length)
-        return np.clip(np.asarray(obs, dtype=np.float32), -1.0, 1.0)
+        ep = self._episode
+        return observe(
+            self.config, self._last_position, self._last_heading, self._speed, ep.remaining / ep.route_length
+        )
 
     def _predict_sumo_speed(self) -> float:
-        """SUMO's speed for the next step as its own API computes it (the label of the expert's action).
-
-        The bounds mirror what SUMO's vehicle applies (``MSVehicle::planMove``): acceleration and speed limits,
-        the Krauss follow speed behind the leader, stopping 1 m before a red light or a yellow one it can still
-        stop for, arriving at a link without priority slowly enough to stop within the foe visibility distance,
-        stopping at it while it is closed, and slowing down in time for lower speed limits ahead.
-        """
-        v = self._speed
-        dt = self.config.step_length
-        decel = self._ego_decel
-        bounds = [v + self._ego_accel * dt, self._ego_max_speed, libsumo.vehicle.getAllowedSpeed(EGO)]
-
-        def reach(target: float, dist: float) -> float:
-            # highest speed from which `target` is reached within `dist` (one step of reaction on an Euler grid)
-            return math.sqrt(target * target + 2.0 * decel * max(dist - v * dt, 0.0))
-
-        leader = libsumo.vehicle.getLeader(EGO, self.config.perception_range)
-        if leader and leader[0]:
-            lid, gap = leader
-            leader_speed = libsumo.vehicle.getSpeed(lid)
-            leader_decel = libsumo.vehicle.getDecel(lid)
-            bounds.append(libsumo.vehicle.getFollowSpeed(EGO, v, max(gap, 0.0), leader_speed, leader_decel, lid))
-        tls = libsumo.vehicle.getNextTLS(EGO)
-        if tls:
-            _tls_id, _index, dist, state = tls[0]
-            can_stop = dist > v * v / (2.0 * decel)
-            if state in RED_STATES or (state in "yY" and can_stop):
-                bounds.append(libsumo.vehicle.getStopSpeed(EGO, v, max(dist - RED_STOP_GAP, 0.0)))
-        lane = libsumo.vehicle.getLaneID(EGO)
-        if not lane.startswith(":"):
-            dist = libsumo.lane.getLength(lane) - libsumo.vehicle.getLanePosition(EGO)
-            links = libsumo.vehicle.getNextLinks(EGO)
-            if links:
-                next_lane, has_prio, is_open, has_foe, via, state, _direction, _length = links[0]
-                if not has_prio and state not in RED_STATES:
-                    if not is_open or has_foe:
-                        bounds.append(libsumo.vehicle.getStopSpeed(EGO, v, max(dist, 0.0)))
-                    visibility = ROUNDABOUT_VISIBILITY if via in self._roundabout_entries else FOE_VISIBILITY
-                    bounds.append(reach(math.sqrt(2.0 * decel * visibility), dist))
-                for ahead in (via, next_lane):
-                    if ahead:
-                        bounds.append(reach(libsumo.lane.getMaxSpeed(ahead), dist))
-        return max(0.0, min(bounds))
+        """SUMO's next speed as its own API computes it (see :func:`sims.sumo.expert.predict_sumo_speed`)."""
+        return predict_sumo_speed(
+            self.config, self._speed, self._ego_accel, self._ego_decel, self._ego_max_speed, self._roundabout_entries
+        )
