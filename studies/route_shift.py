@@ -43,7 +43,7 @@ class RouteShift:
     """The scenario applied before each episode, in order."""
 
     def __post_init__(self) -> None:
-        from sims.sumo import route_shift_schedule
+        from studies.route_shift_schedule import route_shift_schedule
 
         self.schedule = route_shift_schedule(self.c1, self.c2)
 
@@ -52,7 +52,7 @@ class RouteShift:
         return self.c1 + self.c2
 
     def __call__(self, episode: int, runner: Runner) -> None:
-        from sims.sumo import apply_scenario
+        from studies.route_shift_schedule import apply_scenario
 
         if episode >= len(self.schedule):
             raise ValueError(f"episode {episode} is past the route-shift schedule of {len(self.schedule)} episodes")

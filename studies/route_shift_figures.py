@@ -38,7 +38,7 @@ def default_window(episodes: int) -> int:
 
 def trailing_mean(values: Sequence[float | None], window: int) -> np.ndarray:
     """Entry i averages the finite values among episodes max(0, i - window + 1) .. i (NaN when there are none)."""
-    from sims.sumo import rolling_rates
+    from studies.route_shift_schedule import rolling_rates
 
     rows = [{"v": v} for v in values]
     return rolling_rates(rows, ("v",), window)["v"]

@@ -14,7 +14,6 @@ import gymnasium as gym
 from sims.sumo.descriptor import DESCRIPTOR
 from sims.sumo.engine import SumoError
 from sims.sumo.env import SumoConfig, SumoEnv
-from sims.sumo.study import apply_scenario, rolling_rates, route_shift_phases, route_shift_schedule
 
 ENV_ID = "sage/Sumo-v0"
 
@@ -37,9 +36,5 @@ __all__ = [
     "SumoConfig",
     "SumoEnv",
     "SumoError",
-    "apply_scenario",
     "make_sumo_env",
-    "rolling_rates",
-    "route_shift_phases",
-    "route_shift_schedule",
 ]

@@ -15,9 +15,10 @@ from gymnasium.utils.env_checker import check_env
 import sims
 from core.experts import ExpertPolicy
 from core.loop import Runner, StepRecord
-from sims.sumo import SumoEnv, SumoError, apply_scenario
+from sims.sumo import SumoEnv, SumoError
 from sims.sumo.env import EGO, OBS_SIZE, libsumo
 from sims.sumo.scene import SPECIAL_LABELS
+from studies.route_shift_schedule import apply_scenario
 
 MakeEnv = Callable[..., SumoEnv]
 

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sims.sumo import apply_scenario, rolling_rates, route_shift_phases, route_shift_schedule
+from studies.route_shift_schedule import apply_scenario, rolling_rates, route_shift_phases, route_shift_schedule
 
 
 def test_schedule_is_c1_on_route_1_then_c2_on_route_2_with_special_vehicles() -> None:
