@@ -1,0 +1,155 @@
+"""Run a study's trials (method x training seed) on Ray Tune, one process per trial.
+
+libsumo allows one simulation per process and is not thread-safe, so every trial runs in its own Ray worker
+process (never in threads, never in a home-made pool). Locally Ray uses this machine's cores (``cpus``, default
+all of them, each trial taking one); ``address`` joins an existing Ray cluster instead, which is how a ``full``
+budget is meant to run. Tune keeps its experiment state under ``storage/name``: calling :func:`run_sweep` again
+with the same folder resumes it, rerunning only the trials that had not finished or had failed. A progress bar
+counts finished trials.
+
+A trial is a plain picklable function ``trial(config) -> {metric: value}``; ``config`` holds ``method``,
+``seed`` and the sweep's fixed settings. Each trial process sets torch to one thread so that concurrent
+trials do not oversubscribe the cores.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+TrialFn = Callable[[dict[str, Any]], Mapping[str, float]]
+
+
+class SweepError(RuntimeError):
+    """Some trials failed; the finished ones are kept in the sweep folder and a rerun resumes the rest."""
+
+
+def _run_trial(config: dict[str, Any], trial: TrialFn) -> dict[str, float]:
+    """Inside the Ray worker: one torch thread, then the trial itself (its return value is the result)."""
+    import torch
+
+    torch.set_num_threads(1)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    result = dict(trial(dict(config)))
+    bad = [k for k, v in result.items() if not isinstance(v, (int, float))]
+    if bad:
+        raise TypeError(f"trial results must be numbers; {bad} are not")
+    return result
+
+
+def _progress_callback(total: int) -> Any:
+    from ray.tune import Callback
+    from tqdm import tqdm
+
+    class _Progress(Callback):
+        """A progress bar over trials (finished or failed) for the person waiting on the sweep."""
+
+        def __init__(self) -> None:
+            self.bar: Any = None
+
+        def __getstate__(self) -> dict[str, Any]:
+            # Tune pickles its callbacks with the experiment state; a terminal stream does not pickle.
+            return {"bar": None}
+
+        def _tick(self) -> None:
+            if self.bar is None:
+                self.bar = tqdm(total=total, desc="trials", unit="trial")
+            self.bar.update(1)
+
+        def on_trial_complete(self, iteration: int, trials: list[Any], trial: Any, **info: Any) -> None:
+            self._tick()
+
+        def on_trial_error(self, iteration: int, trials: list[Any], trial: Any, **info: Any) -> None:
+            self._tick()
+
+        def on_experiment_end(self, trials: list[Any], **info: Any) -> None:
+            if self.bar is not None:
+                self.bar.close()
+
+    return _Progress()
+
+
+def ensure_ray(address: str | None = None, cpus: int | None = None) -> None:
+    """Start local Ray with ``cpus`` cores (default: all), or join the cluster at ``address``."""
+    import ray
+
+    if ray.is_initialized():
+        return
+    if address is not None:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    else:
+        ray.init(num_cpus=cpus or os.cpu_count() or 1, include_dashboard=False, log_to_driver=False)
+
+
+def run_sweep(
+    trial: TrialFn,
+    methods: Sequence[str],
+    seeds: Sequence[int],
+    storage: Path,
+    name: str,
+    settings: Mapping[str, Any] | None = None,
+    address: str | None = None,
+    cpus: int | None = None,
+    max_concurrent: int | None = None,
+) -> list[dict[str, Any]]:
+    """Run ``trial`` for every (method, seed), resuming ``storage/name`` if it exists; one row per trial.
+
+    Each row holds ``method``, ``seed`` and the trial's metrics, sorted by method then seed. ``settings``
+    are passed to every trial unchanged (budget, study options). ``max_concurrent`` caps simultaneous
+    trials (default: as many as the cores allow). Raises :class:`SweepError` naming the failed trials after
+    all others have finished.
+    """
+    if not methods or not seeds:
+        raise ValueError("a sweep needs at least one method and one seed")
+    if len(set(seeds)) != len(seeds) or len(set(methods)) != len(methods):
+        raise ValueError(f"duplicate methods or seeds: {list(methods)}, {list(seeds)}")
+    from ray import tune
+
+    ensure_ray(address, cpus)
+    storage = Path(storage).resolve()
+    storage.mkdir(parents=True, exist_ok=True)
+    trainable = tune.with_resources(tune.with_parameters(_run_trial, trial=trial), {"cpu": 1})
+    path = storage / name
+    total = len(methods) * len(seeds)
+    run_config = tune.RunConfig(storage_path=str(storage), name=name, callbacks=[_progress_callback(total)], verbose=0)
+    if tune.Tuner.can_restore(str(path)):
+        tuner = tune.Tuner.restore(str(path), trainable, resume_errored=False, restart_errored=True, param_space=None)
+    else:
+        param_space = {
+            **dict(settings or {}),
+            "method": tune.grid_search(list(methods)),
+            "seed": tune.grid_search(list(seeds)),
+        }
+        tuner = tune.Tuner(
+            trainable,
+            param_space=param_space,
+            tune_config=tune.TuneConfig(max_concurrent_trials=max_concurrent or 0),
+            run_config=run_config,
+        )
+    grid = tuner.fit()
+    rows: list[dict[str, Any]] = []
+    failed: list[str] = []
+    for result in grid:
+        config = result.config or {}
+        if result.error is not None:
+            failed.append(f"{config.get('method')} seed {config.get('seed')}: {result.error!r}")
+            continue
+        metrics = {k: v for k, v in (result.metrics or {}).items() if k in _metric_keys(result)}
+        rows.append({"method": config["method"], "seed": config["seed"], **metrics})
+    if failed:
+        raise SweepError(f"{len(failed)} of {total} trials failed (rerun to resume): " + "; ".join(failed))
+    return sorted(rows, key=lambda r: (list(methods).index(r["method"]), r["seed"]))
+
+
+_TUNE_KEYS = {
+    "timestamp", "checkpoint_dir_name", "done", "training_iteration", "trial_id", "date", "time_this_iter_s",
+    "time_total_s", "pid", "hostname", "node_ip", "config", "time_since_restore", "iterations_since_restore",
+    "experiment_tag",
+}  # fmt: skip
+"""What Tune adds to every result; everything else is the trial's own metrics."""
+
+
+def _metric_keys(result: Any) -> set[str]:
+    return {k for k in (result.metrics or {}) if k not in _TUNE_KEYS}
