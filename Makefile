@@ -26,4 +26,4 @@ bench: setup
 
 screenshot:  # refresh docs/dashboard.png (the README's picture) from a real browser session
 	bash scripts/setup.sh --browser
-	SAGE_UPDATE_SCREENSHOT=1 $(PY) -m pytest -q tests/app/test_dashboard_browser.py -k readme_screenshot
+	SAGE_UPDATE_SCREENSHOT=1 $(PY) -m pytest -q tests/app/test_dashboard_browser.py -k "readme_screenshot or layout_fits"

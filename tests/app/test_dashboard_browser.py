@@ -406,3 +406,55 @@ def test_a_collision_is_an_alert_and_a_plain_episode_end_is_not(browser: Any, ca
     assert page.locator("#toast").get_attribute("data-kind") == "alert"
     assert "collision" in page.locator("#toast").inner_text()
     page.context.close()
+
+
+LAYOUT_SIZES = ((1366, 768), (1440, 900))
+LAYOUT_REFERENCES = ROOT / "tests" / "app" / "layout"
+
+
+@pytest.mark.parametrize(("width", "height"), LAYOUT_SIZES)
+def test_layout_fits_the_screen_with_the_operator_card_and_readable_text(
+    browser: Any, calm_server: LiveServer, tmp_path: Path, width: int, height: int
+) -> None:
+    """At common laptop sizes the operator card is on screen without scrolling, no visible text is under
+    13 px, and the page matches its committed reference (live regions masked) within a tolerance."""
+    import numpy as np
+    from PIL import Image
+
+    context = browser.new_context(viewport={"width": width, "height": height}, device_scale_factor=1)
+    context.route("**/viser/**", lambda route: route.abort())
+    page = context.new_page()
+    page.goto(calm_server.url)
+    page.wait_for_function("window.sage && sage.role === 'operator' && sage.steps > 5", timeout=WAIT_MS)
+    box = page.locator("#card-operator").bounding_box()
+    assert box is not None and box["y"] >= 0 and box["y"] + box["height"] <= height, box
+    assert box["x"] + box["width"] <= width, box
+    small = page.evaluate(
+        """() => [...document.querySelectorAll('body *')].filter((e) => e.offsetParent &&
+             [...e.childNodes].some((n) => n.nodeType === 3 && n.textContent.trim()) &&
+             parseFloat(getComputedStyle(e).fontSize) < 13).map((e) => e.className || e.tagName)"""
+    )
+    assert small == [], f"text under 13 px: {small}"
+    overflow = page.evaluate("document.documentElement.scrollWidth - window.innerWidth")
+    assert overflow <= 0, f"the page scrolls sideways by {overflow} px"
+
+    live_regions = [
+        page.locator(selector)
+        for selector in ("#scene-wrap", "canvas", "#pill-rate", "#card-finetune", "#toast", "#sel-session")
+    ]
+    live_regions += [page.locator(".card", has_text=title) for title in ("Session", "Recorded sessions")]
+    shot = tmp_path / f"layout-{width}x{height}.png"
+    page.screenshot(path=str(shot), mask=live_regions, animations="disabled")
+    context.close()
+    reference = LAYOUT_REFERENCES / f"{width}x{height}.png"
+    if os.environ.get("SAGE_UPDATE_SCREENSHOT") or not reference.exists():
+        reference.parent.mkdir(exist_ok=True)
+        reference.write_bytes(shot.read_bytes())
+        if not os.environ.get("SAGE_UPDATE_SCREENSHOT"):
+            pytest.fail(f"no reference for {width}x{height}: wrote {reference}, commit it")
+    got = np.asarray(Image.open(shot).convert("RGB"), dtype=np.int16)
+    want = np.asarray(Image.open(reference).convert("RGB"), dtype=np.int16)
+    assert got.shape == want.shape
+    # anti-aliasing and font hinting move a few pixels between runs; a moved card or wrapped line moves thousands
+    changed = float((np.abs(got - want).max(axis=2) > 48).mean())
+    assert changed < 0.01, f"{100 * changed:.2f}% of pixels differ from {reference.name}"
