@@ -100,7 +100,7 @@ def sage_rate(spec: ScenarioSpec, steps: int, expert: bool, repeats: int = 3) ->
 
 
 def evaluate_table(episodes: int) -> None:
-    from sims.highway.evaluate import evaluate, paper_table
+    from studies.highway_evaluate import evaluate, paper_table
 
     class LaneKeeper:
         def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:

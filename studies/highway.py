@@ -7,7 +7,7 @@ reset rolls the policy as it is now through the scenario and resamples opponents
 path it drives, so the adversaries follow the policy as it learns.
 
 Evaluation. :func:`evaluate_policy` runs a policy once per scenario of a split, per mode and seed, through
-:func:`sims.highway.evaluate` with ``predictor="policy"`` (adversaries aimed at the evaluated policy), and
+:func:`studies.highway_evaluate.evaluate` with ``predictor="policy"`` (adversaries aimed at the evaluated policy), and
 :func:`paper_table` prints the paper's layout: per run and set, success rate, collision rate, speed mean ± std
 and acceleration mean ± std, normal and adversarial side by side.
 """
@@ -93,7 +93,7 @@ def evaluate_policy(
     mode the adversaries are aimed at this policy; the seed draws the adversarial resampling (normal replays are
     the same for every seed).
     """
-    from sims.highway import evaluate
+    from studies.highway_evaluate import evaluate
 
     results: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for split in sets:

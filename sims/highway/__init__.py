@@ -2,8 +2,8 @@
 
 ``import sims.highway`` registers ``sage/Highway-v0``; build it with ``sims.make("highway", split="test",
 mode="adversarial")``. See env.py for observation, action, reward and cost, scenarios.py for the pool
-of 500 logged scenarios, adversary.py for the CAT-style resampling, expert.py for the scripted expert
-and evaluate.py for the paper's evaluation table.
+of 500 logged scenarios, adversary.py for the CAT-style resampling, expert.py for the scripted expert;
+the paper's evaluation protocol is studies/highway_evaluate.py.
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ from gymnasium.envs.registration import register, registry
 from sims.highway.config import HighwayConfig
 from sims.highway.descriptor import DESCRIPTOR
 from sims.highway.env import HighwayEnv
-from sims.highway.evaluate import PAPER_COLUMNS, evaluate, paper_table
 from sims.highway.scenarios import load_log, scenario_ids, scenario_spec, warm_cache
 
 ENV_ID = "sage/Highway-v0"
@@ -24,12 +23,9 @@ if ENV_ID not in registry:
 __all__ = [
     "DESCRIPTOR",
     "ENV_ID",
-    "PAPER_COLUMNS",
     "HighwayConfig",
     "HighwayEnv",
-    "evaluate",
     "load_log",
-    "paper_table",
     "scenario_ids",
     "scenario_spec",
     "warm_cache",

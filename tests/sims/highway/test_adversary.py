@@ -9,9 +9,9 @@ import sims
 from sims.highway.adversary import resample
 from sims.highway.config import DEFAULT
 from sims.highway.env import predict_ego_path
-from sims.highway.evaluate import PAPER_COLUMNS, evaluate, paper_table
 from sims.highway.scenarios import load_log
 from sims.highway.traffic import Paths
+from studies.highway_evaluate import PAPER_COLUMNS, evaluate, paper_table
 from tests.sims.highway.conftest import FEW_TEST_IDS, LaneKeeper
 
 

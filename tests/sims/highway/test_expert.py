@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import sims
-from sims.highway.evaluate import evaluate
+from studies.highway_evaluate import evaluate
 from tests.sims.highway.conftest import FEW_TEST_IDS
 
 
