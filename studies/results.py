@@ -1,0 +1,134 @@
+"""A study's results folder: per-seed rows, a mean ± 95% CI table with the paper's numbers beside, figures.
+
+Written by the study command, never by hand:
+
+- ``seeds.csv``: one row per (row key, training seed) with every metric, as measured.
+- ``table.md``: one row per key (method, or split/method/condition), each metric as mean ± 95% t-interval
+  over seeds, and the paper's reported number in the next column where it has one; the header names the
+  study, the budget, the commit and the wall time.
+- ``summary.json``: the same table as data (mean, half-width, n, paper value).
+- ``<metric>.png``: per-key means with their 95% intervals, one figure per plotted metric.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from studies.budgets import Budget
+from studies.paper import paper_value
+from studies.stats import Interval, mean_ci
+
+
+def current_commit(repo: Path | None = None) -> str:
+    """The short commit id of the code that produced the results (``unknown`` outside a git checkout)."""
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=repo, capture_output=True, text=True, check=True
+        )
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return out.stdout.strip() or "unknown"
+
+
+def summarise(
+    rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metrics: Sequence[str]
+) -> dict[tuple[str, ...], dict[str, Interval]]:
+    """Mean ± 95% CI of each metric over the seeds of each row key, keys in order of first appearance."""
+    groups: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
+    for row in rows:
+        missing = [k for k in (*keys, "seed", *metrics) if k not in row]
+        if missing:
+            raise ValueError(f"result row {dict(row)} lacks {missing}")
+        groups.setdefault(tuple(str(row[k]) for k in keys), []).append(row)
+    return {key: {m: mean_ci([r[m] for r in group]) for m in metrics} for key, group in groups.items()}
+
+
+def write_results(
+    out: Path,
+    study: str,
+    rows: Sequence[Mapping[str, Any]],
+    keys: Sequence[str],
+    metrics: Sequence[str],
+    budget: Budget,
+    wall_s: float,
+    commit: str | None = None,
+    plot: Sequence[str] = (),
+    notes: Sequence[str] = (),
+) -> Path:
+    """Write the results folder ``out`` for ``study`` and return the table's path.
+
+    ``keys`` name a row (``("method",)`` or ``("split", "method", "condition")``), matched against the
+    paper's table by :func:`studies.paper.paper_value`; ``plot`` lists the metrics to draw; ``notes`` are
+    printed under the table (what could not be run, and why).
+    """
+    if not rows:
+        raise ValueError(f"study {study!r} produced no result rows")
+    out.mkdir(parents=True, exist_ok=True)
+    commit = commit or current_commit()
+    columns = [*keys, "seed", *metrics]
+    with (out / "seeds.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    summary = summarise(rows, keys, metrics)
+
+    header = [*keys, "seeds"]
+    for m in metrics:
+        header += [m, f"paper {m}"]
+    lines = [
+        f"# {study}: mean ± 95% CI over training seeds",
+        "",
+        f"Budget `{budget.name}` ({budget.train_steps} environment steps per method and seed, "
+        f"{budget.eval_episodes} evaluation episodes), commit `{commit}`, wall time {wall_s / 60:.1f} min. "
+        "Paper columns are the paper's reported values (± is its spread over episodes, not a CI).",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
+    data: list[dict[str, Any]] = []
+    for key, cells in summary.items():
+        n = next(iter(cells.values())).n
+        row_text = [*key, str(n)]
+        entry: dict[str, Any] = {**dict(zip(keys, key, strict=True)), "seeds": n, "metrics": {}}
+        for m in metrics:
+            paper = paper_value(study, key, m)
+            row_text += [cells[m].format(3), paper.format() if paper else "—"]
+            entry["metrics"][m] = {
+                "mean": cells[m].mean,
+                "ci95_half_width": cells[m].half_width,
+                "paper": None if paper is None else {"mean": paper.mean, "spread": paper.spread},
+            }
+        lines.append("| " + " | ".join(row_text) + " |")
+        data.append(entry)
+    lines += ["", *[f"- {note}" for note in notes]]
+    table = out / "table.md"
+    table.write_text("\n".join(lines).rstrip() + "\n")
+    meta = {"study": study, "budget": budget.name, "commit": commit, "wall_s": wall_s, "rows": data}
+    (out / "summary.json").write_text(json.dumps(meta, indent=2, default=float))
+    for metric in plot:
+        _plot(out / f"{metric}.png", study, summary, metric)
+    return table
+
+
+def _plot(path: Path, study: str, summary: Mapping[tuple[str, ...], Mapping[str, Interval]], metric: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = ["/".join(k) for k in summary]
+    means = [cells[metric].mean for cells in summary.values()]
+    errors = [0.0 if cells[metric].n < 2 else cells[metric].half_width for cells in summary.values()]
+    fig, ax = plt.subplots(figsize=(max(4.0, 0.8 * len(labels) + 2), 3.5))
+    ax.bar(range(len(labels)), means, yerr=errors, capsize=4, color="#4c72b0")
+    ax.set_xticks(range(len(labels)), labels, rotation=30, ha="right")
+    ax.set_ylabel(metric)
+    ax.set_title(f"{study}: {metric} (mean ± 95% CI over seeds)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
