@@ -28,7 +28,6 @@ fully written temporary folder, so a reader never sees a half-written version, a
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import json
 import math
@@ -242,65 +241,15 @@ class VersionStore:
 
 
 # -- guarded updates ---------------------------------------------------------------------------------------------
-def _snapshot(learner: BaseLearner) -> dict[str, tuple[str, Any]]:
-    """Everything :meth:`BaseLearner.update` may change: networks (not the world model, which only ``fit``
-    trains), optimisers, tensors such as SAC's log α, and plain numbers such as λ."""
-    snap: dict[str, tuple[str, Any]] = {}
-    for name, value in vars(learner).items():
-        if name == "world_model" or name.startswith("_"):
-            continue
-        if isinstance(value, torch.nn.Module):
-            snap[name] = ("module", {k: v.detach().clone() for k, v in value.state_dict().items()})
-        elif isinstance(value, torch.optim.Optimizer):
-            snap[name] = ("optimizer", copy.deepcopy(value.state_dict()))
-        elif isinstance(value, torch.Tensor):
-            snap[name] = ("tensor", value.detach().clone())
-        elif isinstance(value, float):
-            snap[name] = ("float", value)
-    return snap
-
-
-def _restore(learner: BaseLearner, snap: dict[str, tuple[str, Any]]) -> None:
-    for name, (kind, saved) in snap.items():
-        current = getattr(learner, name)
-        if kind == "module":
-            current.load_state_dict(saved)  # copies in place: views of the weights (ActorPolicy) stay valid
-        elif kind == "optimizer":
-            current.load_state_dict(saved)
-        elif kind == "tensor":
-            with torch.no_grad():
-                current.copy_(saved)
-        else:
-            setattr(learner, name, saved)
-
-
 def weights_finite(learner: BaseLearner) -> bool:
-    """Whether every trained weight of the learner (and its plain-number state, e.g. λ) is finite."""
-    for name, value in vars(learner).items():
-        if isinstance(value, torch.nn.Module):
-            if not all(bool(torch.isfinite(p).all()) for p in value.parameters()):
-                return False
-        elif isinstance(value, torch.Tensor) and value.is_floating_point():
-            if not bool(torch.isfinite(value).all()):
-                return False
-        elif isinstance(value, float) and not name.startswith("_") and not math.isfinite(value):
-            return False
-    return True
+    """Whether every trained value the learner declares (and its world model) is finite."""
+    return learner.weights_finite()
 
 
 def guarded_update(learner: BaseLearner) -> tuple[dict[str, float], bool]:
-    """One ``learner.update()``, undone when a loss or a weight comes out NaN/inf. Returns (stats, applied)."""
-    snap = _snapshot(learner)
-    try:
-        stats = learner.update()
-    except FloatingPointError:
-        stats = {"error": math.nan}
-    finite = all(math.isfinite(float(v)) for v in stats.values() if isinstance(v, int | float))
-    if finite and weights_finite(learner):
-        learner.updates += 1
-        return stats, True
-    _restore(learner, snap)
-    return stats, False
+    """One ``learner.update()``, undone when a loss or a weight comes out NaN/inf: the learner's own guarded
+    update (:meth:`BaseLearner.guarded_update`, the one online training uses too). Returns (stats, applied)."""
+    return learner.guarded_update()
 
 
 # -- the session as training data -----------------------------------------------------------------------------

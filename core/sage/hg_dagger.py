@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from core.sage.config import AgentConfig
-from core.sage.learner import BaseLearner
+from core.sage.learner import BaseLearner, DeclaredState
 
 
 class HGDAgger(BaseLearner):
@@ -39,6 +39,9 @@ class HGDAgger(BaseLearner):
 
     def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
         return super().policy_action(obs, deterministic=True)  # HG-DAgger's learner never explores
+
+    def declared_state(self) -> DeclaredState:
+        return DeclaredState(modules=("actor",), optimizers=("optimizer",))
 
     def update_threshold(self) -> int:
         return 1  # learn from the first expert label on

@@ -18,7 +18,9 @@ and hand the gate a one-hot greedy policy function (see :data:`core.sage.fear.Po
 
 from __future__ import annotations
 
+import copy
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -67,6 +69,20 @@ class ActorPolicy:
             if self._scaled:
                 action = action * self.actor.action_scale + self.actor.action_bias
             return action[0].numpy()
+
+
+@dataclass(frozen=True)
+class DeclaredState:
+    """What :meth:`BaseLearner.update` trains, by attribute name (Stable-Baselines3 style): checkpoints save and
+    load optimisers from it, and the guarded update snapshots and restores exactly these. The world model is
+    not here: only ``fit`` trains it (it is checkpointed on its own)."""
+
+    modules: tuple[str, ...] = ("actor",)
+    optimizers: tuple[str, ...] = ()
+    tensors: tuple[str, ...] = ()
+    """Tensors changed in place (e.g. SAC's log α)."""
+    scalars: tuple[str, ...] = ()
+    """Plain floats (e.g. SAC's λ)."""
 
 
 class BaseLearner:
@@ -137,14 +153,72 @@ class BaseLearner:
         self._update_credit += self.cfg.updates_per_step
         while self._update_credit >= 1.0:
             self._update_credit -= 1.0
-            self.info.update(self.update())
-            self.updates += 1
+            stats, applied = self.guarded_update()
+            self.info.update(stats)
+            if not applied:
+                self.info["skipped_updates"] = self.info.get("skipped_updates", 0.0) + 1.0
 
     def update_threshold(self) -> int:
         return self.cfg.batch_size if self.warm else max(self.cfg.learning_starts, self.cfg.batch_size)
 
     def update(self) -> dict[str, float]:
         raise NotImplementedError
+
+    def declared_state(self) -> DeclaredState:
+        """The state :meth:`update` trains (subclasses declare their networks, optimisers and numbers)."""
+        return DeclaredState()
+
+    def guarded_update(self) -> tuple[dict[str, float], bool]:
+        """One :meth:`update`, undone when a loss or a trained value comes out NaN/inf (as if it had never run).
+
+        Online training (:meth:`observe`) and fine-tuning both update through here. Returns (stats, applied);
+        ``updates`` counts applied updates only."""
+        snapshot = self._snapshot()
+        try:
+            stats = self.update()
+        except FloatingPointError:
+            stats = {"error": math.nan}
+        finite = all(math.isfinite(float(v)) for v in stats.values() if isinstance(v, int | float))
+        if finite and self.weights_finite():
+            self.updates += 1
+            return stats, True
+        self._restore(snapshot)
+        return stats, False
+
+    def weights_finite(self) -> bool:
+        """Whether every declared trained value (and the world model) is finite."""
+        declared = self.declared_state()
+        modules = [getattr(self, name) for name in declared.modules]
+        if self.world_model is not None:
+            modules.append(self.world_model)
+        for module in modules:
+            if not all(bool(torch.isfinite(p).all()) for p in module.parameters()):
+                return False
+        if not all(bool(torch.isfinite(getattr(self, name)).all()) for name in declared.tensors):
+            return False
+        return all(math.isfinite(float(getattr(self, name))) for name in declared.scalars)
+
+    def _snapshot(self) -> dict[str, Any]:
+        declared = self.declared_state()
+        return {
+            "modules": {
+                n: {k: v.detach().clone() for k, v in getattr(self, n).state_dict().items()} for n in declared.modules
+            },
+            "optimizers": {n: copy.deepcopy(getattr(self, n).state_dict()) for n in declared.optimizers},
+            "tensors": {n: getattr(self, n).detach().clone() for n in declared.tensors},
+            "scalars": {n: getattr(self, n) for n in declared.scalars},
+        }
+
+    def _restore(self, snapshot: dict[str, Any]) -> None:
+        for name, saved in snapshot["modules"].items():
+            getattr(self, name).load_state_dict(saved)  # copies in place: views of the weights (ActorPolicy) stay valid
+        for name, saved in snapshot["optimizers"].items():
+            getattr(self, name).load_state_dict(saved)
+        with torch.no_grad():
+            for name, saved in snapshot["tensors"].items():
+                getattr(self, name).copy_(saved)
+        for name, saved in snapshot["scalars"].items():
+            setattr(self, name, saved)
 
     # -- world model -------------------------------------------------------------------------------
     def world_model_ready(self) -> bool:
@@ -256,6 +330,9 @@ class BaseLearner:
             state["world_model"] = self.world_model.state_dict()
         if self._gates:
             state["gate"] = {k: torch.tensor(v) for k, v in self._gates[-1].state().items()}
+        optimizers = self.declared_state().optimizers
+        if optimizers:  # a warm start continues (Adam's moments and step), rather than restarts
+            state["optimizers"] = {name: getattr(self, name).state_dict() for name in optimizers}
         return state
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
@@ -270,10 +347,31 @@ class BaseLearner:
                 loaded.append(name)
             elif strict:
                 raise KeyError(f"checkpoint has no {name!r} (it has {', '.join(sorted(state))})")
+        loaded.extend(self._load_optimizers(state.get("optimizers", {}), strict))
         if "actor" in loaded:
             self.warm = True
         if self.world_model is not None and "world_model" in loaded:
             self._steps_at_last_fit = None  # refit on this run's data once there is enough of it
+        return loaded
+
+    def _load_optimizers(self, saved: dict[str, Any], strict: bool) -> list[str]:
+        """Restore the declared optimisers the checkpoint holds (older checkpoints hold none: fresh optimisers).
+        The learning rates stay this run's configuration's; only the optimiser's memory is restored."""
+        loaded: list[str] = []
+        for name in self.declared_state().optimizers:
+            if name not in saved:
+                continue
+            optimizer: torch.optim.Optimizer = getattr(self, name)
+            rates = [group["lr"] for group in optimizer.param_groups]
+            try:
+                optimizer.load_state_dict(saved[name])
+            except (ValueError, KeyError) as exc:
+                if strict:
+                    raise ValueError(f"optimizer {name!r} does not fit this learner: {exc}") from None
+                continue
+            for group, lr in zip(optimizer.param_groups, rates, strict=True):
+                group["lr"] = lr
+            loaded.append(f"optimizers.{name}")
         return loaded
 
     def _modules_for_state(self) -> dict[str, torch.nn.Module]:

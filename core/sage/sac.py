@@ -45,7 +45,7 @@ from torch import Tensor
 from core.replay import Batch
 from core.sage.config import AgentConfig
 from core.sage.fear import fear
-from core.sage.learner import BaseLearner
+from core.sage.learner import BaseLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, soft_update
 
 
@@ -295,6 +295,14 @@ class SAC(BaseLearner):
         if "critic" in loaded and "critic_target" not in state:
             self.critic_target.load_state_dict(self.critic.state_dict())
         return loaded
+
+    def declared_state(self) -> DeclaredState:
+        return DeclaredState(
+            modules=("actor", "critic", "critic_target"),
+            optimizers=("actor_optimizer", "critic_optimizer", "alpha_optimizer"),
+            tensors=("log_alpha",),
+            scalars=("lam",),
+        )
 
     def _modules_for_state(self) -> dict[str, torch.nn.Module]:
         modules = super()._modules_for_state()

@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from core.sage.config import AgentConfig
-from core.sage.learner import BaseLearner
+from core.sage.learner import BaseLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, soft_update
 
 
@@ -101,6 +101,12 @@ class TD3(BaseLearner):
         if "critic" in loaded and "critic_target" not in loaded:
             self.critic_target.load_state_dict(self.critic.state_dict())
         return loaded
+
+    def declared_state(self) -> DeclaredState:
+        return DeclaredState(
+            modules=("actor", "critic", "critic_target", "actor_target"),
+            optimizers=("actor_optimizer", "critic_optimizer"),
+        )
 
     def _modules_for_state(self) -> dict[str, torch.nn.Module]:
         modules = super()._modules_for_state()

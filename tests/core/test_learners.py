@@ -86,3 +86,75 @@ def test_a_committed_checkpoint_loads_through_the_registry() -> None:
         expected = agent.actor.deterministic(torch.from_numpy(obs).view(1, -1))[0].numpy()
     np.testing.assert_allclose(agent.policy.act(obs, deterministic=True), expected, rtol=1e-5, atol=1e-6)
     assert agent.has_world_model  # the world model is loaded whatever the acting learner's switches
+
+
+def _trained_sac(seed: int = 0, **overrides: object) -> SAC:
+    from core.loop import StepRecord
+
+    cfg = for_method("sac", hidden=16, layers=1, batch_size=8, learning_starts=8, **overrides)
+    learner = learners.make_learner("sac", cfg, 3, 1, seed=seed)
+    rng = np.random.default_rng(seed)
+    for t in range(20):
+        obs = rng.normal(size=3).astype(np.float32)
+        action = rng.uniform(-1, 1, size=1).astype(np.float32)
+        learner.observe(
+            StepRecord(
+                episode=0,
+                t=t,
+                obs=obs,
+                a_rl=action,
+                a_expert=None,
+                action=action,
+                takeover=False,
+                gate_fired=False,
+                actor="agent",
+                fear=0.0,
+                threshold=1.0,
+                curiosity=0.0,
+                reward=float(action[0]),
+                cost=0.0,
+                violation=False,
+                terminated=False,
+                truncated=t == 19,
+                next_obs=obs,
+                wall_time=0.0,
+            )
+        )
+    return learner
+
+
+def test_checkpoints_keep_optimiser_state_and_load_with_weights_only(tmp_path) -> None:
+    import torch
+
+    from core.agents import AgentMeta, load_checkpoint, save_checkpoint
+
+    learner = _trained_sac()
+    assert learner.updates > 0
+    meta = AgentMeta("sac", "toy", [], 3, 1, [-1.0], [1.0], updates=learner.updates)
+    file = save_checkpoint(tmp_path / "c.pt", learner, meta)
+    raw = torch.load(file, weights_only=True)
+    assert set(raw["state"]["optimizers"]) == {"actor_optimizer", "critic_optimizer", "alpha_optimizer"}
+    warm = learners.make_learner("sac", for_method("sac", hidden=16, layers=1, actor_lr=1e-5), 3, 1, seed=1)
+    loaded = warm.load_state_dict(load_checkpoint(file)["state"], strict=False)
+    assert "optimizers.critic_optimizer" in loaded
+    saved_steps = learner.critic_optimizer.state_dict()["state"][0]["step"]
+    assert float(warm.critic_optimizer.state_dict()["state"][0]["step"]) == float(saved_steps) > 0  # continues
+    assert warm.actor_optimizer.param_groups[0]["lr"] == 1e-5  # the new run's learning rate, not the old one's
+
+
+def test_the_guarded_update_undoes_a_nan_update_from_the_declared_state() -> None:
+    learner = _trained_sac()
+    before = {k: v.clone() for k, v in learner.critic.state_dict().items()}
+    lam, updates = learner.lam, learner.updates
+
+    def poisoned() -> dict[str, float]:
+        for p in learner.critic.parameters():
+            p.data.fill_(float("nan"))
+        learner.lam = float("nan")
+        return {"critic_loss": 1.0}
+
+    learner.update = poisoned  # type: ignore[method-assign]
+    _stats, applied = learner.guarded_update()
+    assert not applied and learner.updates == updates and learner.lam == lam
+    for k, v in learner.critic.state_dict().items():
+        assert bool((v == before[k]).all())
