@@ -91,21 +91,30 @@ class StripChart {
     const h = cssH - pad.top - pad.bottom;
     const n = this.x.length;
 
-    // y range: fixed bounds widened by the data
+    // y range: fixed bounds widened by the data, but robust: a few outliers (one fear spike of 40 among
+    // values near 0.5) would flatten every other point, so the range stops at the inner quantiles
+    // stretched by their spread, and points beyond it are drawn on the edge with a marker.
+    const finite = [];
+    for (const s of options.series) {
+      for (const v of this.values[s.key]) if (v !== null && Number.isFinite(v)) finite.push(v);
+    }
     let lo = options.yMin ?? Infinity;
     let hi = options.yMax ?? -Infinity;
-    for (const s of options.series) {
-      for (const v of this.values[s.key]) {
-        if (v === null || !Number.isFinite(v)) continue;
-        if (v < lo) lo = v;
-        if (v > hi) hi = v;
-      }
+    if (finite.length) {
+      const sorted = finite.slice().sort((a, b) => a - b);
+      const q = (p) => sorted[Math.min(sorted.length - 1, Math.max(0, Math.round(p * (sorted.length - 1))))];
+      const [qLo, qHi] = sorted.length >= 20 ? [q(0.02), q(0.98)] : [sorted[0], sorted[sorted.length - 1]];
+      const spread = Math.max(qHi - qLo, 1e-6);
+      lo = Math.min(lo, Math.max(sorted[0], qLo - spread));
+      hi = Math.max(hi, Math.min(sorted[sorted.length - 1], qHi + spread));
     }
     if (!Number.isFinite(lo) || !Number.isFinite(hi)) { lo = 0; hi = 1; }
     if (hi - lo < 1e-6) { hi = lo + 1; }
     const span = hi - lo;
     hi += span * 0.08;
     if (options.yMin === undefined) lo -= span * 0.04;
+    const clipped = finite.filter((v) => v > hi || v < lo).length;
+    this.range = { lo, hi, clipped }; // for tests
 
     const x0 = n ? this.x[0] : 0;
     const x1 = n ? Math.max(this.x[n - 1], x0 + (this.window || 1) - 1) : 1;
@@ -170,7 +179,7 @@ class StripChart {
         const v = values[k];
         if (v === null || !Number.isFinite(v)) { pen = false; continue; }
         const px = sx(this.x[k]);
-        const py = sy(v);
+        const py = sy(Math.min(hi, Math.max(lo, v)));
         if (pen) ctx.lineTo(px, py); else ctx.moveTo(px, py);
         pen = true;
       }
@@ -189,13 +198,19 @@ class StripChart {
           if (v === null || !Number.isFinite(v)) continue;
           const px = sx(this.x[k]);
           if (!started) { ctx.moveTo(px, sy(lo)); started = true; }
-          ctx.lineTo(px, sy(v));
+          ctx.lineTo(px, sy(Math.min(hi, Math.max(lo, v))));
           lastX = px;
         }
         if (started) { ctx.lineTo(lastX, sy(lo)); ctx.closePath(); ctx.fill(); }
       }
     }
     ctx.setLineDash([]);
+    if (clipped) { // outliers are drawn on the edge; say so, so that nobody reads the edge as their value
+      ctx.fillStyle = "#fbbf24";
+      ctx.textAlign = "right";
+      ctx.textBaseline = "top";
+      ctx.fillText(`▲ ${clipped} off scale`, pad.left + w, pad.top + 2);
+    }
 
     // replay cursor
     if (this.cursor !== null && n) {

@@ -458,3 +458,23 @@ def test_layout_fits_the_screen_with_the_operator_card_and_readable_text(
     # anti-aliasing and font hinting move a few pixels between runs; a moved card or wrapped line moves thousands
     changed = float((np.abs(got - want).max(axis=2) > 48).mean())
     assert changed < 0.01, f"{100 * changed:.2f}% of pixels differ from {reference.name}"
+
+
+def test_chart_y_scale_ignores_an_outlier_and_marks_it(browser: Any, calm_server: LiveServer) -> None:
+    """One fear spike of 40 among values in [0.4, 0.6] keeps the scale near the data and is counted off scale."""
+    page = open_page(browser, calm_server)
+    script = """() => {
+      const series = [{key: 'fear', label: 'f', color: '#f00'}];
+      const chart = new StripChart(document.createElement('canvas'), {series});
+      const n = 200, xs = [], fear = [];
+      for (let i = 0; i < n; i++) { xs.push(i); fear.push(0.5 + 0.1 * Math.sin(i / 7)); }
+      fear[120] = 40;
+      chart.setAll(xs, {fear}, new Array(n).fill(null));
+      document.body.appendChild(chart.canvas); chart.canvas.style.width = '400px'; chart.canvas.style.height = '120px';
+      chart.draw();
+      return chart.range;
+    }"""
+    scale = page.evaluate(script)
+    assert scale["hi"] < 1.5 and scale["lo"] > 0.0, scale
+    assert scale["clipped"] == 1
+    page.context.close()
