@@ -20,15 +20,10 @@ from typing import Any
 
 from core.experts import PolicyExpert
 from core.loop import Expert, Runner
+from studies.route_shift_schedule import DEFAULT_C1, DEFAULT_C2
 
 PROTOCOL = "route-shift"
 STUDY_FILE = "study.json"
-DEFAULT_C1 = 40
-"""C1 episodes by default (the paper: 1,000). With 10 demonstrations and ``updates_per_step=0.5``, C1 + C2 took
-2 minutes of wall time for SAC (6.5k steps) and ~24 minutes for SAGE / FNI-RL (10-13k steps, world-model fits)
-on this 2-core machine while other jobs kept its load at 5-17 (docs/figures/README.md)."""
-DEFAULT_C2 = 20
-"""C2 episodes by default (the paper: 500; the same 2:1 ratio of C1 to C2)."""
 
 
 @dataclass
