@@ -1,0 +1,41 @@
+"""``sage study NAME``: train every method of a study over its seeds on Ray, evaluate, write the results folder.
+
+    sage study NAME --budget small --out results/NAME [--address HOST:PORT] [--cpus 2] [--max-concurrent 2]
+
+The budget (``smoke|small|full``) is counted in environment steps, the same for every method. Rerunning the
+same command resumes the sweep in ``OUT/sweep``. Writes ``seeds.csv``, ``table.md`` (mean ± 95% CI with the
+paper's numbers beside), ``summary.json`` and figures, and prints the wall time.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``sage study``."""
+
+    @app.command("study")
+    def study(
+        name: Annotated[str, typer.Argument(help="Registered study name.")],
+        budget: Annotated[str, typer.Option(help="smoke | small | full (environment steps per method).")] = "small",
+        out: Annotated[Path | None, typer.Option(help="Results folder (default: results/NAME-BUDGET).")] = None,
+        address: Annotated[str | None, typer.Option(help="Join this Ray cluster instead of running locally.")] = None,
+        cpus: Annotated[int | None, typer.Option(min=1, help="Local cores for trials (default: all).")] = None,
+        max_concurrent: Annotated[int | None, typer.Option(min=1, help="Most trials at once.")] = None,
+    ) -> None:
+        """Run a paper study: every method, five seeds, equal budgets; results with 95% intervals."""
+        from studies.budgets import BUDGET_NAMES
+        from studies.registry import get_study, run_study
+
+        try:
+            get_study(name)
+            if budget not in BUDGET_NAMES:
+                raise ValueError(f"unknown budget {budget!r}; choose one of {', '.join(BUDGET_NAMES)}")
+        except ValueError as error:
+            typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
+            raise typer.Exit(code=2) from None
+        run_study(name, budget, out or Path("results") / f"{name}-{budget}", address, cpus, max_concurrent)

@@ -1,0 +1,142 @@
+"""The study registry: ``sage study NAME`` runs a registered study end to end.
+
+A study is one :class:`StudyDef` entry: its methods, the picklable trial function that trains one method on
+one seed within the budget and evaluates it (returning result rows), how rows are keyed, which metrics go in
+the table and figures. :func:`run_study` sweeps every (method, seed) on Ray (:mod:`studies.sweep`), then
+writes the results folder (:mod:`studies.results`) and returns its table. New studies (pedestrian, UGV) plug
+in with one :func:`register_study` call.
+
+A trial returns a flat ``{metric: value}`` dict, or, for tables with more than one row per method (highway's
+split x condition), metrics named ``"<row part>/<row part>/<metric>"`` that :func:`run_study` unpacks into the
+other key columns (``keys`` besides ``method``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from studies.budgets import Budget, budget
+from studies.results import write_results
+from studies.sweep import TrialFn, run_sweep
+
+
+@dataclass(frozen=True)
+class StudyDef:
+    """One study as ``sage study NAME`` runs it."""
+
+    name: str
+    methods: tuple[str, ...]
+    """Learner names trained and compared, each on every seed with the same environment-step budget."""
+    trial: TrialFn
+    """``trial(config) -> metrics``; config holds ``method``, ``seed``, ``train_steps``, ``eval_episodes``."""
+    metrics: tuple[str, ...]
+    """Metrics shown in the table (mean ± 95% CI over seeds)."""
+    keys: tuple[str, ...] = ("method",)
+    """Table row key, in the paper's order (highway: ``("split", "method", "condition")``); the columns other
+    than ``method`` are unpacked from prefixed metric names."""
+
+    @property
+    def row_keys(self) -> tuple[str, ...]:
+        return tuple(k for k in self.keys if k != "method")
+
+    plot: tuple[str, ...] = ()
+    """Metrics drawn as figures."""
+    notes: tuple[str, ...] = ()
+    """Stated under the table: the terminal-violation rule, the experts used, what a budget leaves out."""
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    """Fixed settings passed to every trial."""
+
+
+_STUDIES: dict[str, StudyDef] = {}
+
+
+def register_study(study: StudyDef) -> None:
+    """Add a study; a second study under the same name is an error (unregister it first)."""
+    if study.name in _STUDIES:
+        raise ValueError(f"study {study.name!r} is already registered")
+    _STUDIES[study.name] = study
+
+
+def unregister_study(name: str) -> None:
+    _STUDIES.pop(name, None)
+
+
+def study_names() -> list[str]:
+    return sorted(_STUDIES)
+
+
+def get_study(name: str) -> StudyDef:
+    try:
+        return _STUDIES[name]
+    except KeyError:
+        known = ", ".join(study_names()) or "none registered"
+        raise ValueError(f"unknown study {name!r}; known studies: {known}") from None
+
+
+def _unpack(row: Mapping[str, Any], row_keys: Sequence[str], metrics: Sequence[str]) -> list[dict[str, Any]]:
+    """One sweep row -> table rows, splitting ``a/b/metric`` names into the ``row_keys`` columns."""
+    if not row_keys:
+        return [dict(row)]
+    rows: dict[tuple[str, ...], dict[str, Any]] = {}
+    for name, value in row.items():
+        parts = name.split("/")
+        if len(parts) != len(row_keys) + 1 or parts[-1] not in metrics:
+            continue
+        key = tuple(parts[:-1])
+        rows.setdefault(key, {"method": row["method"], "seed": row["seed"], **dict(zip(row_keys, key, strict=True))})
+        rows[key][parts[-1]] = value
+    return list(rows.values())
+
+
+def run_study(
+    name: str,
+    budget_name: str,
+    out: Path,
+    address: str | None = None,
+    cpus: int | None = None,
+    max_concurrent: int | None = None,
+    log: Callable[[str], None] = print,
+) -> Path:
+    """Train and evaluate every method of study ``name`` on every seed, write ``out``; returns the table path.
+
+    The Ray experiment state lives in ``out/sweep``: rerunning the same command resumes it.
+    """
+    study = get_study(name)
+    spent: Budget = budget(budget_name)
+    seeds = list(range(spent.seeds))
+    settings = {
+        **dict(study.settings),
+        "train_steps": spent.train_steps,
+        "eval_episodes": spent.eval_episodes,
+    }
+    start = time.perf_counter()
+    rows = run_sweep(
+        study.trial,
+        study.methods,
+        seeds,
+        out / "sweep",
+        name,
+        settings=settings,
+        address=address,
+        cpus=cpus,
+        max_concurrent=max_concurrent,
+    )
+    wall_s = time.perf_counter() - start
+    table_rows = [r for row in rows for r in _unpack(row, study.row_keys, study.metrics)]
+    table = write_results(
+        out,
+        name,
+        table_rows,
+        keys=study.keys,
+        metrics=study.metrics,
+        budget=spent,
+        wall_s=wall_s,
+        plot=study.plot,
+        notes=study.notes,
+    )
+    log(f"study {name}: {len(rows)} trials, wall time {wall_s / 60:.1f} min; table {table}")
+    return table

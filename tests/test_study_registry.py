@@ -1,0 +1,61 @@
+"""The study registry and ``sage study``: a registered study runs on Ray and writes its results folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner
+
+from studies.registry import StudyDef, get_study, register_study, run_study, unregister_study
+
+
+def split_trial(config: dict[str, Any]) -> dict[str, float]:
+    """Two table rows per trial (split a and b); the collision rate grows with the seed, larger for 'b'."""
+    steps = float(config["train_steps"])
+    return {"a/collision_rate": 0.1 * config["seed"], "b/collision_rate": 1.0 + config["seed"], "a/steps": steps}
+
+
+@pytest.fixture
+def toy_study():
+    study = StudyDef(
+        "toy-split", ("sage",), split_trial, metrics=("collision_rate",), keys=("split", "method"),
+        notes=("toy",),
+    )  # fmt: skip
+    register_study(study)
+    yield study
+    unregister_study(study.name)
+
+
+def test_registry_refuses_duplicates_and_unknown_names(toy_study: StudyDef) -> None:
+    assert get_study("toy-split") is toy_study
+    with pytest.raises(ValueError, match="already registered"):
+        register_study(toy_study)
+    with pytest.raises(ValueError, match=r"unknown study 'nope'.*toy-split"):
+        get_study("nope")
+
+
+def test_cli_refuses_unknown_study_and_budget(toy_study: StudyDef) -> None:
+    from app.cli import app
+
+    result = CliRunner().invoke(app, ["study", "nope"])
+    assert result.exit_code == 2 and "unknown study" in result.output
+    result = CliRunner().invoke(app, ["study", "toy-split", "--budget", "huge"])
+    assert result.exit_code == 2 and "smoke, small, full" in result.output
+
+
+def test_study_runs_every_seed_and_writes_rows_per_split(toy_study: StudyDef, tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    import ray
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)
+    finally:
+        ray.shutdown()
+    text = table.read_text()
+    # smoke budget: two seeds (0, 1); split a: 0.0, 0.1 -> mean 0.05; split b: 1, 2 -> mean 1.5
+    assert "| a | sage | 2 | 0.050 ± 0.635 | — |" in text
+    assert "| b | sage | 2 | 1.500 ± 6.353 | — |" in text
+    assert (tmp_path / "seeds.csv").read_text().count("\n") == 5  # header + 2 seeds x 2 splits
