@@ -86,7 +86,7 @@ class StripChart {
     }
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     ctx.clearRect(0, 0, cssW, cssH);
-    const pad = { left: 44, right: 12, top: 26, bottom: 20 };
+    const pad = { left: 50, right: 12, top: 26, bottom: 22 };
     const w = cssW - pad.left - pad.right;
     const h = cssH - pad.top - pad.bottom;
     const n = this.x.length;
@@ -122,11 +122,11 @@ class StripChart {
     const sy = (v) => pad.top + (1 - (v - lo) / (hi - lo)) * h;
 
     // grid and y ticks
-    ctx.font = "11px ui-monospace, SFMono-Regular, Menlo, Consolas, monospace";
+    ctx.font = "13px ui-monospace, SFMono-Regular, Menlo, Consolas, monospace";
     ctx.fillStyle = "#7d8b9c";
     ctx.strokeStyle = "rgba(148,163,184,0.10)";
     ctx.lineWidth = 1;
-    const ticks = niceTicks(lo, hi, Math.max(2, Math.min(5, Math.floor(h / 26))));
+    const ticks = niceTicks(lo, hi, Math.max(2, Math.min(5, Math.floor(h / 32))));
     ctx.textAlign = "right";
     ctx.textBaseline = "middle";
     for (const t of ticks) {
@@ -141,6 +141,8 @@ class StripChart {
       if (t < x0 || t > x1) continue;
       ctx.fillText(String(Math.round(t)), sx(t), pad.top + h + 5);
     }
+    ctx.textAlign = "right"; // the x axis counts loop steps; say so where the y labels end
+    ctx.fillText("step", pad.left - 6, pad.top + h + 5);
 
     // shaded takeover intervals, coloured by who acted
     const bandColors = options.bandColors || {};
@@ -230,7 +232,7 @@ class StripChart {
       ctx.fillText(options.title, lx, 12);
       lx += ctx.measureText(options.title).width + 16;
     }
-    ctx.font = "11px ui-monospace, SFMono-Regular, Menlo, Consolas, monospace";
+    ctx.font = "13px ui-monospace, SFMono-Regular, Menlo, Consolas, monospace";
     const at = this.cursor !== null ? this.x.indexOf(this.cursor) : n - 1;
     for (const s of options.series) {
       const v = at >= 0 ? this.values[s.key][at] : null;
