@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from core.sage.config import AgentConfig
+from core.sage.config import AgentConfig, note_method
 from core.sage.learner import BaseLearner
 
 Preset = Callable[..., AgentConfig]
@@ -50,6 +50,7 @@ def register_learner(name: str, cls: type[BaseLearner], preset: Preset, replace:
     if name in _REGISTRY and not replace:
         raise ValueError(f"learner {name!r} is already registered (pass replace=True to override it)")
     _REGISTRY[name] = LearnerEntry(name, cls, preset)
+    note_method(name)
 
 
 def unregister_learner(name: str) -> None:
@@ -58,6 +59,7 @@ def unregister_learner(name: str) -> None:
     if name not in _REGISTRY:
         raise KeyError(f"no learner {name!r}; registered: {', '.join(_REGISTRY)}")
     del _REGISTRY[name]
+    note_method(name, known=False)
 
 
 def learner_names() -> tuple[str, ...]:

@@ -102,7 +102,9 @@ def register(app: typer.Typer) -> None:
             str | None,
             typer.Option(help="Scenario(s): ugv 1-4, highway train|test, sumo c1|c2; a comma list alternates."),
         ] = None,
-        method: Annotated[str, typer.Option(help="sage | sac | td3 | hg-dagger | fni-rl")] = "sage",
+        method: Annotated[
+            str, typer.Option(help="A registered learner (core.learners): sage | sac | td3 | hg-dagger | fni-rl | ...")
+        ] = "sage",
         episodes: Annotated[int | None, typer.Option(help="Training episodes (default 100).")] = None,
         seed: Annotated[int, typer.Option(help="Seed of torch, numpy and the episodes.")] = 0,
         init: Annotated[
@@ -144,8 +146,9 @@ def register(app: typer.Typer) -> None:
         import torch
 
         from core.agents import load_checkpoint
+        from core.learners import preset
         from core.report import format_table
-        from core.sage.config import apply_overrides, for_method, from_dict
+        from core.sage.config import apply_overrides, from_dict
         from core.train import RunConfig, Trainer
         from studies.training import prepare_training
 
@@ -153,7 +156,7 @@ def register(app: typer.Typer) -> None:
         try:
             # a warm start keeps the hyperparameters of the run it starts from; the method sets the switches
             base = from_dict(load_checkpoint(init)["agent_config"]) if init else None
-            agent_cfg = apply_overrides(for_method(method, base=base), list(set_ or []))
+            agent_cfg = apply_overrides(preset(method, base=base), list(set_ or []))
         except (ValueError, FileNotFoundError) as exc:
             _fail(str(exc))
         try:

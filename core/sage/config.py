@@ -17,6 +17,21 @@ from typing import Any, Literal
 
 Method = Literal["sage", "sac", "td3", "hg-dagger", "fni-rl"]
 METHODS: tuple[str, ...] = typing.get_args(Method)
+_REGISTERED_METHODS: list[str] = list(METHODS)
+"""Every method name a configuration may carry: the built-ins plus those :mod:`core.learners` registers."""
+
+
+def known_methods() -> tuple[str, ...]:
+    """The method names :func:`validate` accepts (built-ins first, then registered ones)."""
+    return tuple(_REGISTERED_METHODS)
+
+
+def note_method(name: str, known: bool = True) -> None:
+    """Called by :func:`core.learners.register_learner` / ``unregister_learner`` (config knows no learner)."""
+    if known and name not in _REGISTERED_METHODS:
+        _REGISTERED_METHODS.append(name)
+    elif not known and name in _REGISTERED_METHODS and name not in METHODS:
+        _REGISTERED_METHODS.remove(name)
 
 
 @dataclass
@@ -276,8 +291,8 @@ def for_method(method: str, base: AgentConfig | None = None, **overrides: Any) -
 
 def validate(cfg: AgentConfig) -> None:
     """Refuse inconsistent settings with an error that names the field."""
-    if cfg.method not in METHODS:
-        raise ValueError(f"method: unknown {cfg.method!r}; choose one of {', '.join(METHODS)}")
+    if cfg.method not in _REGISTERED_METHODS:
+        raise ValueError(f"method: unknown {cfg.method!r}; choose one of {', '.join(_REGISTERED_METHODS)}")
     needs_model = [name for name in ("fear_regularisation", "takeover", "virtual_rollouts") if getattr(cfg, name)]
     if needs_model and not cfg.world_model:
         raise ValueError(f"{', '.join(needs_model)} need world_model=true")

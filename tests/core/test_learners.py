@@ -7,7 +7,7 @@ import pytest
 
 from core import learners
 from core.sage import make_learner as make_from_config
-from core.sage.config import AgentConfig, for_method
+from core.sage.config import AgentConfig, for_method, validate
 from core.sage.hg_dagger import HGDAgger
 from core.sage.learner import BaseLearner
 from core.sage.sac import SAC
@@ -40,12 +40,17 @@ def test_a_registered_toy_method_is_built_listed_and_removed() -> None:
     try:
         assert "toy" in learners.learner_names()
         learner = learners.make_learner("toy", learners.preset("toy", hidden=8, layers=1), 3, 1)
+        cfg = for_method("sac")
+        cfg.method = "toy"
+        validate(cfg)  # a configuration may name a registered method
         assert isinstance(learner, ToyLearner)
         with pytest.raises(ValueError, match="already registered"):
             learners.register_learner("toy", ToyLearner, preset=for_method)
     finally:
         learners.unregister_learner("toy")
     assert "toy" not in learners.learner_names()
+    with pytest.raises(ValueError, match="method: unknown 'toy'"):
+        validate(cfg)
 
 
 def test_bad_registrations_and_unknown_names_are_clear_errors() -> None:
