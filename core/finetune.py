@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import os
 import re
@@ -334,6 +335,35 @@ class RoundResult:
         }
 
 
+_log = logging.getLogger(__name__)
+
+#: The parts that make fine-tuning the paper's fear-regularised SAGE (AgentConfig switch -> words).
+SAGE_PARTS: dict[str, str] = {
+    "fear_regularisation": "fear regularisation",
+    "violation_penalty": "the c* violation penalty",
+    "virtual_rollouts": "virtual rollouts",
+    "imitation": "imitation of takeovers",
+}
+
+
+def missing_sage_parts(cfg: AgentConfig) -> list[str]:
+    """The parts of fear-regularised SAGE that ``cfg`` switches off, in words (empty: all of them run)."""
+    return [words for name, words in SAGE_PARTS.items() if not getattr(cfg, name)]
+
+
+def describe_method(cfg: AgentConfig) -> str:
+    """What a fine-tuning round on ``cfg`` runs, in words, naming every SAGE part it leaves out.
+
+    Fine-tuning continues the checkpoint's own configuration, so a policy trained as plain SAC is fine-tuned
+    as plain SAC; this line says so (the worker shows it and every published version records it) instead of
+    letting it pass silently as SAGE.
+    """
+    missing = missing_sage_parts(cfg)
+    if not missing:
+        return f"{cfg.method}: fear-regularised SAGE (the paper's fine-tuning)"
+    return f"{cfg.method}: NOT the paper's fear-regularised SAGE, without {', '.join(missing)}"
+
+
 class Finetuner:
     """Fine-tunes one base version on one session's data. See the module docstring for what a round does.
 
@@ -363,6 +393,10 @@ class Finetuner:
             apply_overrides(agent_cfg, list(self.cfg.overrides))
         except ValueError as exc:
             raise FinetuneError(f"fine-tuning overrides: {exc}") from None
+        self.method = describe_method(agent_cfg)
+        """What the rounds run (the checkpoint's configuration with the overrides), in words."""
+        if missing_sage_parts(agent_cfg):
+            _log.warning("fine-tuning %s runs %s", start.path, self.method)
         torch.manual_seed(self.cfg.seed)
         low = np.asarray(self.meta.action_low, np.float32)
         high = np.asarray(self.meta.action_high, np.float32)
@@ -472,6 +506,7 @@ class Finetuner:
             "losses": result.losses,
             "seconds": round(time.time() - started, 3),
             "config": dataclasses.asdict(cfg),
+            "method": self.method,
         }
         result.version = self.versions.publish(learner, self._meta(ingested, result.updates), metrics)
         self.base = result.version  # the next round continues this line

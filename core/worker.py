@@ -158,7 +158,14 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
                 held.append(command)
             continue
         waiting_said = False
-        emit({"kind": "phase", "phase": "starting a round", "base": finetuner.base.number})
+        emit(
+            {
+                "kind": "phase",
+                "phase": f"starting a round ({finetuner.method})",
+                "base": finetuner.base.number,
+                "method": finetuner.method,
+            }
+        )
         result = finetuner.round(progress=lambda e: emit({"kind": "progress", **e}), should_stop=interrupted)
         emit({"kind": "round", **result.as_dict(), "base": finetuner.base.number})
         if result.version is not None:

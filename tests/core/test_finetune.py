@@ -289,3 +289,17 @@ def _broken(tmp: Path) -> Path:
     path = tmp / "broken.pt"
     path.write_bytes(b"not a checkpoint")
     return path
+
+
+def test_fine_tuning_says_what_it_runs(setup, caplog: pytest.LogCaptureFixture) -> None:
+    """A SAGE checkpoint fine-tunes as fear-regularised SAGE; switching fear regularisation off is named aloud."""
+    versions, store, session = setup
+    sage = Finetuner(versions, store, session, fast())
+    assert sage.method == "sage: fear-regularised SAGE (the paper's fine-tuning)"
+    with caplog.at_level("WARNING", logger="core.finetune"):
+        plain = Finetuner(versions, store, session, fast(overrides=("fear_regularisation=false",)))
+    assert "NOT the paper's fear-regularised SAGE, without fear regularisation" in plain.method
+    assert plain.method in caplog.text
+    published = plain.round().version
+    assert published is not None
+    assert published.metrics["method"] == plain.method
