@@ -154,29 +154,35 @@ class ReplayBuffer:
             "violation": self.violation[:n],
         }
 
+    def _chronology(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stored rows in insertion order, and whether each leads into the next one (same episode: it did not
+        terminate and its next state is the next row's state)."""
+        n = self.size
+        order = np.arange(n) if n < self.capacity else (np.arange(n) + self.pos) % n
+        continues = np.zeros(n, bool)
+        if n > 1:
+            prev, cur = order[:-1], order[1:]
+            same = np.all(np.abs(self.next_obs[prev] - self.obs[cur]) <= 1e-6, axis=1)
+            continues[:-1] = (self.terminated[prev] < 0.5) & same
+        return order, continues
+
     def violation_soon(self, steps: int) -> np.ndarray:
         """Per stored row (in the order of :meth:`arrays`): 1 when a violation happens at this transition or
-        within the next ``steps - 1`` transitions of the same episode, else 0.
-
-        Episodes are followed through the ring in insertion order: a row continues into the next one when it
-        did not terminate and its next state is the next row's state."""
+        within the next ``steps - 1`` transitions of the same episode, else 0."""
         n = self.size
         if n == 0:
             return np.zeros(0, np.float32)
-        order = np.arange(n) if n < self.capacity else (np.arange(n) + self.pos) % n
+        order, continues = self._chronology()
         violated = self.violation[order] > 0.5
-        continues = np.zeros(n, bool)
-        if n > 1:
-            same = np.all(np.abs(self.next_obs[order[:-1]] - self.obs[order[1:]]) <= 1e-6, axis=1)
-            continues[:-1] = (self.terminated[order[:-1]] < 0.5) & same
-        distance = np.full(n, np.iinfo(np.int64).max // 2, np.int64)
-        for i in range(n - 1, -1, -1):
-            if violated[i]:
-                distance[i] = 0
-            elif continues[i]:
-                distance[i] = distance[i + 1] + 1
+        episode = np.concatenate([[0], np.cumsum(~continues[:-1])])  # a new episode after each break
+        index = np.arange(n)
+        # the first violation at or after each row (n when none), then: same episode and close enough
+        following = np.minimum.accumulate(np.where(violated, index, n)[::-1])[::-1]
+        hit = following < n
+        near = hit & (following - index < max(int(steps), 1))
+        near[hit] &= episode[following[hit]] == episode[hit]
         soon = np.zeros(n, np.float32)
-        soon[order] = (distance < max(int(steps), 1)).astype(np.float32)
+        soon[order] = near.astype(np.float32)
         return soon
 
     def previous_deltas(self) -> np.ndarray:
@@ -186,9 +192,9 @@ class ReplayBuffer:
         out = np.zeros((n, self.obs_dim), np.float32)
         if n < 2:
             return out
-        order = np.arange(n) if n < self.capacity else (np.arange(n) + self.pos) % n
+        order, continues = self._chronology()
         prev, cur = order[:-1], order[1:]
-        linked = (self.terminated[prev] < 0.5) & np.all(np.abs(self.next_obs[prev] - self.obs[cur]) <= 1e-6, axis=1)
+        linked = continues[:-1]
         out[cur[linked]] = self.obs[cur[linked]] - self.obs[prev[linked]]
         return out
 

@@ -232,6 +232,12 @@ class ServiceState:
     error: str | None = None
 
 
+def _promoted(summary: dict[str, Any]) -> bool:
+    """A version summary's verdict: may it drive? (:func:`core.promotion.is_promoted` on the summary's copy)."""
+    verdict = summary.get("promotion") or {}
+    return bool(verdict.get("promoted")) and not verdict.get("rolled_back")
+
+
 class FinetuneService:
     """Runs and supervises the worker process; decides which version the loop should run next.
 
@@ -424,10 +430,13 @@ class FinetuneService:
             following = self.pinned is None
             in_control = self.in_control
         if following:
+            # the summaries already hold each verdict: no second read of every promotion.json
             promoted = [
-                v.number
-                for v in versions
-                if v.promoted and v.number not in self._offered and (in_control is None or v.number > in_control)
+                row["number"]
+                for row in summaries
+                if _promoted(row)
+                and row["number"] not in self._offered
+                and (in_control is None or row["number"] > in_control)
             ]
             if promoted:
                 self._offered.add(promoted[-1])
