@@ -70,8 +70,8 @@ class RunConfig:
     """Simulator short name (``ugv``, ``highway``, ``sumo``): recorded in the checkpoints."""
     scenarios: list[str]
     """Scenarios trained on, round-robin, one episode each in turn (passed through to the simulator)."""
-    episodes: int
-    """Training episodes in total (demonstrations not counted)."""
+    episodes: int | None
+    """Training episodes in total (demonstrations not counted); None: ``train_steps`` alone bounds the run."""
     seed: int = 0
     """Seeds torch, numpy and the episodes (episode i of scenario j uses seed + j·10^7 + i)."""
     init: str | None = None
@@ -90,6 +90,9 @@ class RunConfig:
     expert: str | None = None
     """Run folder or checkpoint whose deterministic policy is the expert (takeovers and demonstrations);
     None: the simulator's scripted expert."""
+    train_steps: int | None = None
+    """Environment steps in total, demonstrations included: the studies' budget, the same for every method
+    (an episode that would pass it is cut there). None: ``episodes`` alone bounds the run."""
 
 
 @dataclass
@@ -146,8 +149,12 @@ class Trainer:
         progress: bool = True,
         before_episode: Sequence[EpisodeHook] = (),
     ) -> None:
-        if run.episodes < 0 or run.demo_episodes < 0:
+        if (run.episodes is not None and run.episodes < 0) or run.demo_episodes < 0:
             raise ValueError("episodes and demo_episodes must be >= 0")
+        if run.train_steps is not None and run.train_steps < 1:
+            raise ValueError(f"train_steps must be >= 1, got {run.train_steps}")
+        if run.episodes is None and run.train_steps is None:
+            raise ValueError("bound the run: give episodes, train_steps or both")
         if not run.scenarios:
             raise ValueError("at least one scenario is needed")
         self.run, self.agent_cfg, self.out, self.progress = run, agent, out, progress
@@ -166,6 +173,8 @@ class Trainer:
             self.init_parts = self._warm_start(run.init)
         self.rows: list[dict[str, Any]] = []
         self.episodes_done = 0
+        self.steps_done = 0
+        """Environment steps taken so far, demonstrations included (what ``train_steps`` bounds)."""
 
     def _warm_start(self, path: str) -> list[str]:
         payload = load_checkpoint(path)
@@ -216,6 +225,7 @@ class Trainer:
                 "init": self.run.init or "",
                 "demo_episodes": self.run.demo_episodes,
                 "expert": self.run.expert or "",
+                "steps_done": self.steps_done,
             },
         )
 
@@ -255,8 +265,12 @@ class Trainer:
             runner.step_listeners.append(store)
         scenarios = list(self.envs)
         for i in range(self.run.demo_episodes):
+            cap = self._episode_cap()
+            if cap == 0:
+                break
             j = i % len(runners)
-            summary = runners[j].run_episode(self.run.max_episode_steps)
+            summary = runners[j].run_episode(cap)
+            self.steps_done += summary.steps
             if ends:
                 ends[-1] = True  # an episode cut by max_episode_steps ends here too
             rows.append(_tag(summary.as_row(), scenario=scenarios[j], phase="demo"))
@@ -291,6 +305,19 @@ class Trainer:
         name = f"episode_{self.episodes_done:05d}.pt"
         return save_checkpoint(self.out / CHECKPOINT_DIR / name, self.learner, self.meta(), dtype)
 
+    def _episode_cap(self) -> int | None:
+        """Steps the next episode may take: the simulator's limit, cut at what is left of ``train_steps``."""
+        cap = self.run.max_episode_steps
+        if self.run.train_steps is not None:
+            left = max(0, self.run.train_steps - self.steps_done)
+            cap = left if cap is None else min(cap, left)
+        return cap
+
+    def _more_episodes(self) -> bool:
+        if self.run.episodes is not None and self.episodes_done >= self.run.episodes:
+            return False
+        return self._episode_cap() != 0
+
     # -- the run -----------------------------------------------------------------------------------------
     def train(self) -> TrainResult:
         from tqdm import tqdm
@@ -309,35 +336,39 @@ class Trainer:
             runner = Runner(self.envs[s], self.learner, gate, expert, seed=self.run.seed + j * SCENARIO_SEED_STRIDE)
             runner.step_listeners.append(self.learner.observe)
             runners.append(runner)
+        by_steps = self.run.train_steps is not None
         bar = tqdm(
-            total=self.run.episodes,
+            total=self.run.train_steps if by_steps else self.run.episodes,
+            initial=self.steps_done if by_steps else 0,
             desc=f"{self.agent_cfg.method} {self.run.sim} {','.join(scenarios)}",
-            unit="ep",
+            unit="step" if by_steps else "ep",
             disable=not self.progress,
             leave=False,
         )
         try:
-            for i in range(self.run.episodes):
+            while self._more_episodes():
+                i = self.episodes_done
                 j = i % len(runners)
                 for hook in self.before_episode:
                     hook(i, runners[j])
-                summary = runners[j].run_episode(self.run.max_episode_steps)
+                summary = runners[j].run_episode(self._episode_cap())
                 self.episodes_done += 1
+                self.steps_done += summary.steps
                 row = self._row(summary, scenarios[j], started)
                 self.rows.append(row)
                 if metrics_file is not None:
                     metrics_file.write(json.dumps(row, default=_json_default) + "\n")
                     metrics_file.flush()
-                bar.update(1)
+                bar.update(summary.steps if by_steps else 1)
                 bar.set_postfix_str(progress_text(self.rows))
                 every = self.run.checkpoint_every
-                if every and self.episodes_done % every == 0 and self.episodes_done < self.run.episodes:
+                if every and self.episodes_done % every == 0 and self._more_episodes():
                     self.checkpoint()
         finally:
             bar.close()
             if metrics_file is not None:
                 metrics_file.close()
-        if self.run.episodes > 0 and self.run.checkpoint_every:
+        if self.episodes_done > 0 and self.run.checkpoint_every:
             self.checkpoint()
         self.checkpoint(final=True)
         self.write_config()
@@ -352,6 +383,7 @@ class Trainer:
             scenario=scenario,
             phase="train",
             env_steps=learner.env_steps,
+            steps_done=self.steps_done,
             updates=learner.updates,
             wall_time=round(time.time() - started, 2),
             **stats,

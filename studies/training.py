@@ -1,4 +1,10 @@
-"""The paper's driving studies as protocols around the one training loop, and their figures and tables.
+"""The composition root of a training run: :class:`TrainSpec` and :func:`run_training`.
+
+``sage train`` is a thin adapter over them (its flags are the spec's fields, :mod:`app.cli.train`), and a
+study sweep builds specs and calls :func:`run_training` in each Ray trial, with no shell in between. Every
+default of a training run is written once, here.
+
+The paper's driving studies are protocols around the one training loop:
 
 - :mod:`studies.envs`: what a ``--scenario`` string means to each simulator.
 - :mod:`studies.highway`: CAT-style closed-loop adversarial training (an episode hook) and the paper's
@@ -6,13 +12,14 @@
 - :mod:`studies.route_shift`: the SUMO route-shift protocol (an episode hook) and its run folders (issue 7).
 - :mod:`studies.route_shift_figures`: the route-shift figure panels (matplotlib).
 
-:func:`prepare_training` turns the ``sage train`` options into what :class:`core.train.Trainer` takes: the env
+:func:`prepare_training` turns a spec's protocol options into what :class:`core.train.Trainer` takes: the env
 factory, the scenarios, the episode count and the episode hooks; :meth:`TrainingSetup.finish` writes the
 study's outputs (``study.json``, figures) into the run folder.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,8 +27,11 @@ from typing import Any
 
 import gymnasium as gym
 
-from core.train import EpisodeHook
+from core.train import EpisodeHook, RunConfig, TrainResult
 from studies.envs import default_scenario, env_factory
+from studies.spec import TrainSpec
+
+__all__ = ["TrainOutcome", "TrainSpec", "TrainingSetup", "prepare_training", "run_training"]
 
 PROTOCOLS = ("none", "route-shift")
 DEFAULT_EPISODES = 100
@@ -33,7 +43,7 @@ DEFAULT_ADVERSARIAL_RATIO = 0.5
 class TrainingSetup:
     scenarios: list[str]
     make_env: Callable[[str], gym.Env[Any, Any]]
-    episodes: int
+    episodes: int | None
     hooks: list[EpisodeHook] = field(default_factory=list)
     study: dict[str, Any] | None = None
     """Written to ``study.json`` in the run folder (protocol, phase lengths, experts)."""
@@ -59,6 +69,75 @@ class TrainingSetup:
         return [phase_table([run]), *(f"figure: {path}" for path in paths)]
 
 
+@dataclass
+class TrainOutcome:
+    """What :func:`run_training` returns: the trainer's result, the run folder and the study's report lines."""
+
+    result: TrainResult
+    out: Path
+    setup: TrainingSetup
+    lines: list[str] = field(default_factory=list)
+    """What the protocol has to say after training (a phase table, figure paths)."""
+
+
+def default_out(spec: TrainSpec, setup: TrainingSetup) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{spec.sim}-{setup.name or '_'.join(setup.scenarios)}-{spec.method}-s{spec.seed}-{stamp}"
+
+
+def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
+    """Train as ``spec`` says and write its run folder; a ValueError names the option that does not fit.
+
+    The learner's configuration is the method's preset (on a warm start: the hyperparameters of the run it
+    starts from) with ``spec.overrides`` applied.
+    """
+    from core.agents import load_checkpoint
+    from core.learners import preset
+    from core.sage.config import apply_overrides, from_dict
+    from core.train import Trainer
+
+    base = from_dict(load_checkpoint(spec.init)["agent_config"]) if spec.init else None
+    agent_cfg = apply_overrides(preset(spec.method, base=base), list(spec.overrides))
+    setup = prepare_training(
+        spec.sim,
+        scenario=spec.scenario,
+        protocol=spec.protocol,
+        episodes=spec.episodes,
+        seed=spec.seed,
+        method=spec.method,
+        expert=spec.expert,
+        expert_c2=spec.expert_c2,
+        c1=spec.c1,
+        c2=spec.c2,
+        adversarial_ratio=spec.adversarial_ratio,
+        bounded_by_steps=spec.train_steps is not None,
+    )
+    out = Path(spec.out) if spec.out else default_out(spec, setup)
+    if (out / "checkpoint.pt").exists():
+        raise ValueError(f"{out} already holds a finished run; choose another out folder")
+    run_cfg = RunConfig(
+        sim=spec.sim,
+        scenarios=setup.scenarios,
+        episodes=setup.episodes,
+        seed=spec.seed,
+        init=spec.init,
+        demo_episodes=spec.demo_episodes,
+        demo_noise=spec.demo_noise,
+        checkpoint_every=spec.checkpoint_every,
+        checkpoint_dtype=spec.checkpoint_dtype,
+        max_episode_steps=spec.max_episode_steps,
+        expert=spec.expert,
+        train_steps=spec.train_steps,
+    )
+    trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)
+    try:
+        setup.start(out)
+        result = trainer.train()
+    finally:
+        trainer.close()
+    return TrainOutcome(result, out, setup, setup.finish(out))
+
+
 def prepare_training(
     sim: str,
     *,
@@ -72,8 +151,12 @@ def prepare_training(
     c1: int | None = None,
     c2: int | None = None,
     adversarial_ratio: float | None = None,
+    bounded_by_steps: bool = False,
 ) -> TrainingSetup:
-    """What ``sage train`` runs for these options; a ValueError naming the option that does not fit."""
+    """What a :class:`TrainSpec` runs for these options; a ValueError naming the option that does not fit.
+
+    ``bounded_by_steps``: the run has an environment-step budget, so no episode count means "until the
+    budget is spent" rather than the default count."""
     protocol = protocol or "none"
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
@@ -110,4 +193,6 @@ def prepare_training(
         ratio = DEFAULT_ADVERSARIAL_RATIO if adversarial_ratio is None else adversarial_ratio
         hooks.append(ClosedLoopAdversary(ratio, seed))
         study = {"protocol": "closed-loop-adversarial", "adversarial_ratio": ratio, "predictor": "policy"}
-    return TrainingSetup(scenarios, make_env, DEFAULT_EPISODES if episodes is None else episodes, hooks, study)
+    if episodes is None and not bounded_by_steps:
+        episodes = DEFAULT_EPISODES
+    return TrainingSetup(scenarios, make_env, episodes, hooks, study)

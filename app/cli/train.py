@@ -7,6 +7,8 @@
     sage eval runs/hw --sim highway --split test --mode normal,adversarial --episodes 50 --seeds 0,1,2,3,4
     sage train --sim sumo --protocol route-shift --method sage --c1 40 --c2 20   # + figures in the run folder
 
+``sage train``'s options are the fields of :class:`studies.training.TrainSpec` (the composition root: each
+default and help text is written there once, and a study sweep builds the same spec without a shell).
 ``--sim`` is any simulator of :data:`sims.SIMULATORS`; ``--scenario`` names its variant (a comma list
 trains on several in turn; :mod:`studies.envs`: UGV 1-4, highway train/test, SUMO c1/c2). The study
 protocols (highway closed-loop adversaries, SUMO route shift) live in :mod:`studies`. In ``sage train``,
@@ -19,12 +21,15 @@ metric columns, then return and cost.
 from __future__ import annotations
 
 import contextlib
+import inspect
 import json
-import time
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+
+from app.cli.spec_command import spec_command
+from studies.spec import TrainSpec
 
 BASE_COLUMNS_AFTER = ("return", "cost")
 SplitOption = Annotated[str, typer.Option("--split", help="highway: logged split(s), train and/or test (comma list).")]
@@ -95,127 +100,38 @@ def _fail(message: str) -> None:
 def register(app: typer.Typer) -> None:
     """Add ``train``, ``eval`` and ``compare``."""
 
-    @app.command()
-    def train(
-        sim: Annotated[str, typer.Option(help="Simulator: ugv, highway, sumo.")] = "ugv",
-        scenario: Annotated[
-            str | None,
-            typer.Option(help="Scenario(s): ugv 1-4, highway train|test, sumo c1|c2; a comma list alternates."),
-        ] = None,
-        method: Annotated[
-            str, typer.Option(help="A registered learner (core.learners): sage | sac | td3 | hg-dagger | fni-rl | ...")
-        ] = "sage",
-        episodes: Annotated[int | None, typer.Option(help="Training episodes (default 100).")] = None,
-        seed: Annotated[int, typer.Option(help="Seed of torch, numpy and the episodes.")] = 0,
-        init: Annotated[
-            str | None,
-            typer.Option(help="Warm-start from this run folder or checkpoint (and take its hyperparameters)."),
-        ] = None,
-        out: Annotated[
-            Path | None, typer.Option(help="Run folder (default runs/<sim>-<scenario>-<method>-s<seed>-<time>).")
-        ] = None,
-        demo_episodes: Annotated[int, typer.Option(help="Expert episodes recorded and cloned before training.")] = 0,
-        demo_noise: Annotated[float, typer.Option(help="Std of noise on demonstrated expert actions.")] = 0.0,
-        checkpoint_every: Annotated[
-            int, typer.Option(help="Episodes between checkpoint versions (0: final only).")
-        ] = 25,
-        checkpoint_dtype: Annotated[
-            str, typer.Option(help="float32, or float16 for small committed policies.")
-        ] = "float32",
-        max_episode_steps: Annotated[int | None, typer.Option(help="Cut episodes at this many steps.")] = None,
-        set_: Annotated[
-            list[str] | None, typer.Option("--set", help="Learner config override key=value (repeatable).")
-        ] = None,
-        quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
-        expert: Annotated[
-            str | None, typer.Option(help="Run folder or checkpoint whose policy is the expert (default: scripted).")
-        ] = None,
-        protocol: Annotated[
-            str | None, typer.Option(help="Study protocol: route-shift (sumo: C1 on route 1, then C2).")
-        ] = None,
-        c1: Annotated[int | None, typer.Option("--c1", help="route-shift: episodes of phase C1 (default 40).")] = None,
-        c2: Annotated[int | None, typer.Option("--c2", help="route-shift: episodes of phase C2 (default 20).")] = None,
-        expert_c2: Annotated[
-            str | None, typer.Option(help="route-shift: the expert run of phase C2 (default: the C1 expert).")
-        ] = None,
-        adversarial_ratio: Annotated[
-            float | None, typer.Option(help="highway: share of adversarial training episodes (default 0.5).")
-        ] = None,
-    ) -> None:
+    def train(spec: TrainSpec, quiet: bool = False) -> None:
         """Train a learner on a simulator with the one step loop; write a run folder."""
         import torch
 
-        from core.agents import load_checkpoint
-        from core.learners import preset
         from core.report import format_table
-        from core.sage.config import apply_overrides, from_dict
-        from core.train import RunConfig, Trainer
-        from studies.training import prepare_training
+        from studies.training import run_training
 
         torch.set_num_threads(1)
         try:
-            # a warm start keeps the hyperparameters of the run it starts from; the method sets the switches
-            base = from_dict(load_checkpoint(init)["agent_config"]) if init else None
-            agent_cfg = apply_overrides(preset(method, base=base), list(set_ or []))
-        except (ValueError, FileNotFoundError) as exc:
-            _fail(str(exc))
-        try:
-            setup = prepare_training(
-                sim,
-                scenario=scenario,
-                protocol=protocol,
-                episodes=episodes,
-                seed=seed,
-                method=method,
-                expert=expert,
-                expert_c2=expert_c2,
-                c1=c1,
-                c2=c2,
-                adversarial_ratio=adversarial_ratio,
-            )
-        except (ValueError, FileNotFoundError) as exc:
-            _fail(str(exc))
-        scenarios = setup.scenarios
-        if out is None:
-            stamp = time.strftime("%Y%m%d-%H%M%S")
-            out = Path("runs") / f"{sim}-{setup.name or '_'.join(scenarios)}-{method}-s{seed}-{stamp}"
-        if (out / "checkpoint.pt").exists():
-            _fail(f"{out} already holds a finished run; choose another --out")
-        run_cfg = RunConfig(
-            sim=sim,
-            scenarios=scenarios,
-            episodes=setup.episodes,
-            seed=seed,
-            init=init,
-            demo_episodes=demo_episodes,
-            demo_noise=demo_noise,
-            checkpoint_every=checkpoint_every,
-            checkpoint_dtype=checkpoint_dtype,
-            max_episode_steps=max_episode_steps,
-            expert=expert,
-        )
-        try:
-            trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, not quiet, setup.hooks)
-            setup.start(out)
-            try:
-                result = trainer.train()
-            finally:
-                trainer.close()
-            study_lines = setup.finish(out)
+            outcome = run_training(spec, progress=not quiet)
         except (ValueError, FileNotFoundError, TypeError) as exc:
             _fail(str(exc))
-        rows = result.rows
+        result, rows = outcome.result, outcome.result.rows
         tail = rows[-max(1, len(rows) // 4) :] if rows else []
         typer.echo(
-            f"trained {method} on {sim} {','.join(scenarios)}: {len(rows)} episodes, "
+            f"trained {spec.method} on {spec.sim} {','.join(outcome.setup.scenarios)}: {len(rows)} episodes, "
             f"{result.learner.env_steps} steps, {result.learner.updates} updates in {result.seconds:.0f} s"
         )
         if tail:
             named = {f"last {len(tail)} episodes": tail}
-            typer.echo(format_table(named, table_columns(sim, tail, gated=True)))
-        for line in study_lines:
+            typer.echo(format_table(named, table_columns(spec.sim, tail, gated=True)))
+        for line in outcome.lines:
             typer.echo(line)
-        typer.echo(f"run folder: {out}")
+        typer.echo(f"run folder: {outcome.out}")
+
+    quiet = inspect.Parameter(
+        "quiet",
+        inspect.Parameter.KEYWORD_ONLY,
+        default=False,
+        annotation=Annotated[bool, typer.Option(help="No progress bar.")],
+    )
+    app.command("train")(spec_command(TrainSpec, train, [quiet]))
 
     @app.command("eval")
     def eval_(

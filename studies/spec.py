@@ -1,0 +1,64 @@
+"""The spec of one training run, as plain data (no torch, no simulator: ``sage --help`` stays quick).
+
+:func:`studies.training.run_training` runs it; ``sage train``'s flags are its fields.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass
+class TrainSpec:
+    """One training run: simulator, scenarios, learner, budget, demonstrations, protocol, run folder.
+
+    Plain data (picklable): a sweep ships it to a worker process. ``sage train``'s flags are these fields.
+    """
+
+    sim: str = "ugv"
+    """Simulator: a name of sims.SIMULATORS (ugv, highway, sumo, pedestrian, ...)."""
+    scenario: str | None = None
+    """Scenario(s) by the simulator's names (ugv 1-4, highway train|test, sumo c1|c2, ...); a comma list
+    trains on each in turn. None: the simulator's default."""
+    method: str = "sage"
+    """A learner registered in core.learners (sage, sac, td3, hg-dagger, fni-rl, ...)."""
+    episodes: int | None = None
+    """Training episodes (demonstrations not counted). None: 100, or unbounded when train_steps is given."""
+    train_steps: int | None = None
+    """Environment steps in total, demonstrations included: a budget that is the same for every method (the
+    studies count budgets this way). None: episodes alone bound the run."""
+    seed: int = 0
+    """Seed of torch, numpy and the episodes."""
+    init: str | None = None
+    """Warm-start from this run folder or checkpoint (and take its hyperparameters)."""
+    out: str | None = None
+    """Run folder. None: runs/<sim>-<scenario>-<method>-s<seed>-<time>."""
+    demo_episodes: int = 0
+    """Expert episodes recorded and cloned before training."""
+    demo_noise: float = 0.0
+    """Std of Gaussian noise on the demonstrated expert actions."""
+    checkpoint_every: int = 25
+    """Episodes between checkpoint versions (0: the final checkpoint only)."""
+    checkpoint_dtype: str = "float32"
+    """float32, or float16 for small committed policies."""
+    max_episode_steps: int | None = None
+    """Cut episodes at this many steps (None: the simulator's own time limit)."""
+    overrides: list[str] = field(default_factory=list, metadata={"flag": "--set"})
+    """Learner config overrides key=value, e.g. gate.tau_max=0.7 (fields: core.sage.config)."""
+    expert: str | None = None
+    """Run folder or checkpoint whose policy is the expert (default: the simulator's scripted expert)."""
+    protocol: str | None = None
+    """Study protocol: route-shift (sumo: C1 on route 1, then C2)."""
+    c1: int | None = field(default=None, metadata={"flag": "--c1"})
+    """route-shift: episodes of phase C1 (default 40)."""
+    c2: int | None = field(default=None, metadata={"flag": "--c2"})
+    """route-shift: episodes of phase C2 (default 20)."""
+    expert_c2: str | None = None
+    """route-shift: the expert run of phase C2 (default: the C1 expert)."""
+    adversarial_ratio: float | None = None
+    """highway: share of adversarial training episodes (default 0.5)."""
+
+    def replace(self, **changes: Any) -> TrainSpec:
+        return dataclasses.replace(self, **changes)

@@ -1,0 +1,119 @@
+"""The composition root: one picklable TrainSpec, run_training(spec), and `sage train` built from the spec."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pickle
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from core.field_docs import field_docs
+from core.train import RunConfig, Trainer
+from studies.spec import TrainSpec
+from studies.training import run_training
+from tests.core.sage import envs
+from tests.core.test_train import small
+
+SMALL = [
+    "hidden=32",
+    "batch_size=32",
+    "learning_starts=40",
+    "wm_min_samples=60",
+    "wm_fit_every=100",
+    "world_model_config.hidden=16",
+    "world_model_config.max_updates_per_fit=50",
+]
+
+
+@pytest.fixture
+def point_sim(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sims
+
+    monkeypatch.setitem(sims.SIMULATORS, "point", "tests.core.sage.envs")
+
+
+def test_every_spec_field_is_a_documented_train_flag_with_the_spec_default() -> None:
+    from app.cli import app
+
+    docs = field_docs(TrainSpec)
+    fields = dataclasses.fields(TrainSpec)
+    assert {f.name for f in fields} == set(docs), "each field carries its docstring"
+    command = typer_command(app, "train")
+    options = {p.name: p for p in command.params}
+    for f in fields:
+        assert f.name in options, f"--{f.name} missing"
+        param = options[f.name]
+        flag = f.metadata.get("flag", "--" + f.name.replace("_", "-"))
+        assert flag in param.opts
+        assert param.help == docs[f.name]
+        if f.default is not dataclasses.MISSING:
+            assert param.default == f.default
+    assert set(options) - {f.name for f in fields} <= {"quiet", "help"}
+
+
+def typer_command(app, name: str):
+    import typer.main
+
+    group = typer.main.get_command(app)
+    return group.commands[name]  # type: ignore[attr-defined]
+
+
+def test_a_spec_is_plain_data_that_survives_pickling() -> None:
+    spec = TrainSpec(sim="ugv", scenario="3", method="sac", train_steps=500, overrides=["gamma=0.9"])
+    assert pickle.loads(pickle.dumps(spec)) == spec
+    assert spec.replace(seed=4).seed == 4 and spec.seed == 0
+
+
+def test_run_training_spends_exactly_the_step_budget_demonstrations_included(point_sim, tmp_path: Path) -> None:
+    spec = TrainSpec(
+        sim="point",
+        scenario="static",
+        method="sac",
+        train_steps=130,
+        demo_episodes=1,
+        seed=1,
+        checkpoint_every=0,
+        overrides=SMALL,
+        out=str(tmp_path / "run"),
+    )
+    outcome = run_training(spec)
+    rows = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    demo = sum(r["steps"] for r in rows if r["phase"] == "demo")
+    trained = sum(r["steps"] for r in rows if r["phase"] == "train")
+    assert demo > 0 and trained > 0
+    assert demo + trained == 130
+    assert rows[-1]["steps_done"] == 130
+    assert (outcome.out / "checkpoint.pt").exists()
+    config = json.loads((outcome.out / "config.json").read_text())
+    assert config["run"]["train_steps"] == 130 and config["meta"]["extra"]["steps_done"] == 130
+
+
+def test_the_episode_count_and_the_step_budget_both_bound_a_run() -> None:
+    run = RunConfig(sim="point", scenarios=["static"], episodes=2, train_steps=10_000, checkpoint_every=0)
+    trainer = Trainer(run, small("sac"), envs.make, None, progress=False)
+    result = trainer.train()
+    assert len(result.rows) == 2 and trainer.steps_done < 10_000
+    with pytest.raises(ValueError, match="bound the run"):
+        Trainer(RunConfig(sim="point", scenarios=["static"], episodes=None), small("sac"), envs.make)
+    with pytest.raises(ValueError, match="train_steps"):
+        Trainer(RunConfig(sim="point", scenarios=["static"], episodes=1, train_steps=0), small("sac"), envs.make)
+
+
+def test_sage_train_runs_the_spec_it_is_given(point_sim, tmp_path: Path) -> None:
+    from app.cli import app
+
+    out = tmp_path / "cli"
+    args = ["train", "--sim", "point", "--scenario", "static", "--method", "sac", "--train-steps", "50"]
+    args += ["--checkpoint-every", "0", "--quiet", "--out", str(out)]
+    for item in SMALL:
+        args += ["--set", item]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    config = json.loads((out / "config.json").read_text())
+    assert config["run"]["train_steps"] == 50 and config["meta"]["extra"]["steps_done"] == 50
+    assert config["agent"]["hidden"] == 32
+    again = CliRunner().invoke(app, args)
+    assert again.exit_code == 2 and "already holds a finished run" in again.output
