@@ -23,6 +23,7 @@ import contextlib
 import os
 import time
 from collections.abc import Callable
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -100,20 +101,23 @@ def sage_rate(spec: ScenarioSpec, steps: int, expert: bool, repeats: int = 3) ->
 
 
 def evaluate_table(episodes: int) -> None:
-    from studies.highway_evaluate import evaluate, paper_table
+    from studies.highway import interaction_table, paper_table
+    from studies.highway_evaluate import evaluate
 
     class LaneKeeper:
         def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
             return np.array([np.clip(3.0 * obs[6] - 2.0 * obs[1], -1.0, 1.0), 0.0], np.float32)
 
-    results = {}
+    results: dict[str, dict[tuple[str, str], list[dict[str, Any]]]] = {}
     for name, policy in (("expert", "expert"), ("lane keeper", LaneKeeper())):
         for mode in ("normal", "adversarial"):
             start = time.perf_counter()
-            results[f"{name} / test / {mode}"] = evaluate(policy, "test", mode, episodes=episodes)  # type: ignore[arg-type]
+            rows = evaluate(policy, "test", mode, episodes=episodes)  # type: ignore[arg-type]
+            results.setdefault(name, {})[("test", mode)] = rows
             print(f"  evaluated {name} / {mode}: {episodes} episodes in {time.perf_counter() - start:.0f} s")
-    print(paper_table(results, interaction=True))
-    rows = results["expert / test / adversarial"]
+    print(paper_table(results))
+    print(interaction_table(results))
+    rows = results["expert"][("test", "adversarial")]
     reference = evaluate("expert", "test", "adversarial", episodes=episodes, predictor="reference")
     print(
         f"expert, adversaries aimed at itself: {sum(r['collision'] for r in rows):.0f}/{len(rows)} collisions; "

@@ -1,29 +1,22 @@
 """The paper's Waymo evaluation on the highway pool: one episode per scenario of a split, in a mode.
 
 ``evaluate(policy, split="test", mode="adversarial")`` runs the policy through ``core.loop.Runner``
-(so exactly the loop every other face uses) and returns one row per episode; ``paper_table`` formats
-rows as the paper's table (success rate, collision rate, speed mean ± std, acceleration mean ± std).
-The mean ± std of speed and acceleration are over episodes of the per-episode means.
+(so exactly the loop every other face uses) and returns one row per episode; :func:`studies.highway.paper_table`
+formats them as the paper's table (one table code for the CLI, the study, the tests and the bench).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable
 from typing import Any, Literal
 
 import gymnasium as gym
 
 from core.experts import ExpertPolicy
 from core.loop import Expert, Gate, Policy, Runner
-from core.report import format_table
 from sims.highway.config import HighwayConfig
 from sims.highway.env import EgoPredictor, HighwayEnv, Mode
 from sims.highway.scenarios import Split, scenario_ids
-
-PAPER_COLUMNS = ("success", "collision", "speed_mean", "acc_mean")
-"""S.R., C.R., Speed (m/s), Acc. (m/s²) of the paper's table."""
-INTERACTION_COLUMNS = ("off_road", "timeout", "min_ttc", "mean_gap")
-"""What makes the adversarial set harder: smaller gaps to the leader, lower time to collision."""
 
 PolicyLike = Policy | Callable[[gym.Env[Any, Any]], Policy] | Literal["expert"]
 Predictor = Literal["policy", "reference"] | EgoPredictor
@@ -49,7 +42,8 @@ def evaluate(
     predict the ego (CAT): ``"policy"`` the evaluated policy itself (the paper's closed loop),
     ``"reference"`` the log's IDM reference driver, or any ``EgoPredictor``. ``gate`` and ``expert``
     are passed to the Runner (for evaluating with takeovers); by default the policy drives alone.
-    Rows are ``EpisodeSummary.as_row()`` plus ``split`` and ``mode``; feed them to ``paper_table``.
+    Rows are ``EpisodeSummary.as_row()`` plus ``split`` and ``mode``; group them by (split, mode) for
+    :func:`studies.highway.paper_table`.
     """
     env = gym.make("sage/Highway-v0", split=split, mode=mode, config=config)
     inner = env.unwrapped
@@ -84,9 +78,3 @@ def evaluate(
     finally:
         env.close()
     return rows
-
-
-def paper_table(results: Mapping[str, Sequence[Mapping[str, Any]]], interaction: bool = False) -> str:
-    """The paper's table for named row sets, e.g. {"SAC / test / adversarial": rows, ...}."""
-    columns = PAPER_COLUMNS + (INTERACTION_COLUMNS if interaction else ())
-    return format_table(results, columns)

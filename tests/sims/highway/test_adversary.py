@@ -11,7 +11,8 @@ from sims.highway.config import DEFAULT
 from sims.highway.env import predict_ego_path
 from sims.highway.scenarios import load_log
 from sims.highway.traffic import Paths
-from studies.highway_evaluate import PAPER_COLUMNS, evaluate, paper_table
+from studies.highway import PAPER_COLUMNS, interaction_table, paper_table
+from studies.highway_evaluate import evaluate
 from tests.sims.highway.conftest import FEW_TEST_IDS, LaneKeeper
 
 
@@ -77,5 +78,7 @@ def test_adversarial_set_is_harder_for_the_same_simple_policy() -> None:
     assert _mean(adversarial, "mean_gap") < _mean(normal, "mean_gap")
     assert _mean(adversarial, "min_ttc") < _mean(normal, "min_ttc") - 2.0
     assert _mean(adversarial, "collision") >= _mean(normal, "collision") + 0.25
-    table = paper_table({"keeper / normal": normal, "keeper / adversarial": adversarial}, interaction=True)
-    assert all(col in table for col in PAPER_COLUMNS) and "keeper / adversarial" in table
+    results = {"keeper": {("test", "normal"): normal, ("test", "adversarial"): adversarial}}
+    table = paper_table(results)
+    assert all(f"adversarial {title}" in table for _, title in PAPER_COLUMNS) and "keeper" in table
+    assert "min_ttc" in interaction_table(results)
