@@ -86,7 +86,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command("expert")
     def expert(
-        sim: Annotated[str, typer.Option("--sim", help="Simulator: ugv, highway or sumo.")] = "ugv",
+        sim: Annotated[str, typer.Option("--sim", help="Simulator (a name in sims.SIMULATORS).")] = "ugv",
         scenario: Annotated[
             str | None, typer.Option("--scenario", help="Scenario number or file (default: the simulator's own).")
         ] = None,

@@ -156,8 +156,9 @@ def register(app: typer.Typer) -> None:
         (adversaries aimed at the evaluated policy), pooled over --seeds, with the
         paper's columns: success and collision rates, speed and acceleration."""
         seed_list = _ints(seeds) if seeds else [seed]
-        if _run_sim([run], sim) == "highway":
-            typer.echo(_highway_table([run], episodes, split, mode, seed_list, save, quiet))
+        table = _protocol_table(_run_sim([run], sim), [run], episodes, split, mode, seed_list, save, quiet)
+        if table is not None:
+            typer.echo(table)
             return
         typer.echo(_evaluate_and_format([run], episodes, scenario, seed_list, gate, expert, save, quiet))
 
@@ -175,8 +176,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Evaluate several runs on the same episodes and print them side by side."""
         seed_list = _ints(seeds) if seeds else [seed]
-        if _run_sim(runs, None) == "highway":
-            typer.echo(_highway_table(runs, episodes, split, mode, seed_list, save, quiet))
+        table = _protocol_table(_run_sim(runs, None), runs, episodes, split, mode, seed_list, save, quiet)
+        if table is not None:
+            typer.echo(table)
             return
         typer.echo(_evaluate_and_format(runs, episodes, scenario, seed_list, False, False, save, quiet))
 
@@ -207,34 +209,25 @@ def _write_rows(save: Path, rows: list[dict[str, Any]]) -> None:
             f.write(json.dumps(row, default=str) + "\n")
 
 
-def _highway_table(
-    runs: list[Path], episodes: int, split: str, mode: str, seeds: list[int], save: Path | None, quiet: bool
-) -> str:
+def _protocol_table(
+    sim: str, runs: list[Path], episodes: int, split: str, mode: str, seeds: list[int], save: Path | None, quiet: bool
+) -> str | None:
+    """The simulator's own evaluation protocol (:mod:`studies.evaluation`), or None where it has none."""
     import torch
-    from tqdm import tqdm
 
-    from core.agents import load_agent
-    from studies import highway
+    from studies.evaluation import protocol_for
 
+    protocol = protocol_for(sim)
+    if protocol is None:
+        return None
     torch.set_num_threads(1)
     try:
-        sets, modes = highway.parse_sets(split), highway.parse_modes(mode)
-    except ValueError as exc:
+        text, rows = protocol([str(r) for r in runs], episodes, split, mode, seeds, not quiet)
+    except (ValueError, FileNotFoundError) as exc:
         _fail(str(exc))
-    results: dict[str, dict[tuple[str, str], list[dict[str, Any]]]] = {}
-    all_rows: list[dict[str, Any]] = []
-    total = len(runs) * len(sets) * len(modes) * len(seeds) * episodes
-    with tqdm(total=total, desc="eval highway", unit="ep", disable=quiet, leave=False) as bar:
-        for run in runs:
-            agent = load_agent(run)
-            runs_rows = highway.evaluate_policy(
-                agent.policy, sets, modes, episodes, seeds, on_episode=lambda _row: bar.update(1)
-            )
-            results[_label(run)] = runs_rows
-            all_rows += [dict(r, run=str(run)) for rows in runs_rows.values() for r in rows]
     if save is not None:
-        _write_rows(save, all_rows)
-    return highway.paper_table(results) + "\n\n" + highway.interaction_table(results)
+        _write_rows(save, rows)
+    return text
 
 
 def _evaluate_and_format(
