@@ -54,8 +54,8 @@ EnvFactory = Callable[[str], gym.Env[Any, Any]]
 """Builds the env of one scenario (the CLI passes ``lambda s: sims.make(sim, scenario=s)``)."""
 EpisodeHook = Callable[[int, Runner], None]
 """Called before each training episode with its 0-based index and the Runner about to run it: a protocol
-changes the env's next scenario there (``set_scenario``, the mode of the next reset), points the env at the
-current policy (``runner.policy``) or swaps the expert (``runner.set_expert``)."""
+changes the env's next scenario there (``runner.set_next_reset_options``: gymnasium reset options), points the
+env at the current policy (``runner.policy``) or swaps the expert (``runner.set_expert``)."""
 
 DEMO_SEED_OFFSET = 500_000
 EVAL_SEED_OFFSET = 1_000_000

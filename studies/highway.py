@@ -57,7 +57,7 @@ class ClosedLoopAdversary:
         if not callable(setter):
             raise TypeError(f"{type(inner).__name__} has no set_ego_predictor(): closed-loop adversaries need highway")
         mode = "adversarial" if self.rng.random() < self.adversarial_ratio else "normal"
-        inner.mode = mode  # the mode of the env's next reset
+        runner.set_next_reset_options({"mode": mode})
         setter(runner.policy)  # CAT: the resampling rolls the policy as it is now
         self.modes.append(mode)
 

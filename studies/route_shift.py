@@ -47,13 +47,11 @@ class RouteShift:
         return self.c1 + self.c2
 
     def __call__(self, episode: int, runner: Runner) -> None:
-        from studies.route_shift_schedule import apply_scenario
-
         if episode >= len(self.schedule):
             raise ValueError(f"episode {episode} is past the route-shift schedule of {len(self.schedule)} episodes")
         entry = self.schedule[episode]
         kwargs = entry.env_kwargs()
-        apply_scenario(runner.env, kwargs)
+        runner.set_next_reset_options(kwargs)  # gymnasium reset(options=...): the env checks the names
         if episode == self.c1 and self.expert_c2 is not None and runner.expert is not None:
             runner.set_expert(self.expert_c2)  # only methods with takeovers have an expert to swap
         self.applied.append({"episode": episode, "phase": entry.phase, **kwargs})

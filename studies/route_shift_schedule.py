@@ -1,9 +1,9 @@
 """The paper's route-shift study as data: the phase schedule and the per-episode curves it is judged by.
 
 Phase C1 drives route 1 until the policy is stable; phase C2 switches to route 2 and adds special vehicles.
-The training CLI builds one env, and before each episode applies that episode's scenario with
-:func:`apply_scenario` (it takes effect at the env's next reset, so the ``core.loop.Runner`` needs no change);
-every ``EpisodeSummary.metrics`` then carries ``success``, ``collision``, ``red_light``, ``timeout``,
+The training CLI builds one env, and before each episode passes that episode's scenario as gymnasium reset
+options (``Runner.set_next_reset_options``: ``route``, ``special_vehicles``); every ``EpisodeSummary.metrics``
+then carries ``success``, ``collision``, ``red_light``, ``timeout``,
 ``route_progress``, ``speed_mean``, ``route`` and ``special_vehicles``.
 """
 
@@ -13,7 +13,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
 PAPER_C1_EPISODES = 1000
@@ -55,15 +54,6 @@ def route_shift_schedule(c1_episodes: int = DEFAULT_C1, c2_episodes: int = DEFAU
 def route_shift_phases(c1_episodes: int = DEFAULT_C1, c2_episodes: int = DEFAULT_C2) -> list[dict[str, Any]]:
     """The env kwargs (``route``, ``special_vehicles``) of every episode of the study, in order."""
     return [episode.env_kwargs() for episode in route_shift_schedule(c1_episodes, c2_episodes)]
-
-
-def apply_scenario(env: gym.Env[Any, Any], kwargs: Mapping[str, Any]) -> None:
-    """Make ``env`` (in-process or process-backed, wrapped or not) drive ``kwargs``' scenario from its next reset."""
-    inner = env.unwrapped
-    setter = getattr(inner, "set_scenario", None)
-    if not callable(setter):
-        raise TypeError(f"{type(inner).__name__} has no set_scenario(); it is not a SUMO env")
-    setter(route=kwargs.get("route"), special_vehicles=kwargs.get("special_vehicles"))
 
 
 def rolling_rates(

@@ -62,7 +62,8 @@ def test_the_mode_mix_follows_the_ratio_and_the_seed() -> None:
             hook = ClosedLoopAdversary(ratio, seed=1)
             for episode in range(6):
                 hook(episode, runner)
-            assert set(hook.modes) == expected and env.unwrapped.mode in expected
+            runner.reset()  # the mode reaches the env as a reset option
+            assert set(hook.modes) == expected and env.unwrapped.current_mode in expected
         draws = [ClosedLoopAdversary(0.5, seed=3) for _ in range(2)]
         for hook in draws:
             for episode in range(40):

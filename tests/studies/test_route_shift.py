@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -12,21 +11,15 @@ from studies.route_shift import RouteShift, phase_rows
 from studies.training import prepare_training
 
 
-class FakeSumo:
-    """Records set_scenario calls like SumoEnv (applied at the next reset)."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[Any, Any]] = []
-        self.unwrapped = self
-
-    def set_scenario(self, route: int | None = None, special_vehicles: bool | None = None) -> None:
-        self.calls.append((route, special_vehicles))
-
-
 class FakeRunner:
+    """Records the reset options of each next episode, as core.loop.Runner would pass them to the env."""
+
     def __init__(self, expert: object | None) -> None:
-        self.env = FakeSumo()
+        self.calls: list[tuple[Any, Any]] = []
         self.expert = expert
+
+    def set_next_reset_options(self, options: dict[str, Any]) -> None:
+        self.calls.append((options["route"], options["special_vehicles"]))
 
     def set_expert(self, expert: object | None) -> None:
         self.expert = expert
@@ -40,7 +33,7 @@ def test_each_episode_gets_its_phase_and_the_c2_expert_takes_over_at_the_switch(
     for episode in range(shift.episodes):
         shift(episode, runner)  # type: ignore[arg-type]
         experts.append(runner.expert)
-    assert runner.env.calls == [(1, False)] * 3 + [(2, True)] * 2
+    assert runner.calls == [(1, False)] * 3 + [(2, True)] * 2
     assert experts == [c1_expert] * 3 + [c2_expert] * 2
     assert [a["phase"] for a in shift.applied] == ["C1", "C1", "C1", "C2", "C2"]
     with pytest.raises(ValueError, match="past the route-shift schedule"):
@@ -53,12 +46,6 @@ def test_a_method_without_takeovers_keeps_no_expert() -> None:
     shift(0, runner)  # type: ignore[arg-type]
     shift(1, runner)  # type: ignore[arg-type]
     assert runner.expert is None
-
-
-def test_the_hook_refuses_an_env_that_is_not_sumo() -> None:
-    runner = SimpleNamespace(env=SimpleNamespace(unwrapped=object()), expert=None)
-    with pytest.raises(TypeError, match="not a SUMO env"):
-        RouteShift(1, 1)(0, runner)  # type: ignore[arg-type]
 
 
 def test_prepare_training_checks_the_protocol_options() -> None:

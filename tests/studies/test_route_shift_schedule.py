@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import math
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
-from studies.route_shift_schedule import apply_scenario, rolling_rates, route_shift_phases, route_shift_schedule
+from studies.route_shift_schedule import rolling_rates, route_shift_phases, route_shift_schedule
 
 
 def test_schedule_is_c1_on_route_1_then_c2_on_route_2_with_special_vehicles() -> None:
@@ -34,10 +33,3 @@ def test_rolling_rates_average_the_trailing_window_and_skip_missing_episodes() -
     # windows: [1] [1,0] [0,-] [-,1] [1,1]
     np.testing.assert_allclose(rates, [1.0, 0.5, 0.0, 1.0, 1.0])
     assert math.isnan(rolling_rates([{}], keys=("collision",), window=3)["collision"][0])
-
-
-def test_apply_scenario_refuses_an_env_that_is_not_sumo() -> None:
-    env = gym.make("CartPole-v1")
-    with pytest.raises(TypeError, match="not a SUMO env"):
-        apply_scenario(env, {"route": 2})
-    env.close()

@@ -18,7 +18,6 @@ from core.loop import Runner, StepRecord
 from sims.sumo import SumoEnv, SumoError
 from sims.sumo.env import EGO, OBS_SIZE, libsumo
 from sims.sumo.scene import SPECIAL_LABELS
-from studies.route_shift_schedule import apply_scenario
 
 MakeEnv = Callable[..., SumoEnv]
 
@@ -218,7 +217,7 @@ def test_set_scenario_switches_route_at_the_next_reset(make_env: MakeEnv) -> Non
     env = make_env(route=1)
     _, info = env.reset(seed=0)
     assert (info["route"], info["phase"]) == (1, "C1")
-    apply_scenario(env, {"route": 2, "special_vehicles": True})
+    env.unwrapped.set_scenario(route=2, special_vehicles=True)
     assert env.config.route == 1  # the running episode is not changed
     _, info = env.reset(seed=0)
     assert (info["route"], info["phase"]) == (2, "C2")
