@@ -96,6 +96,9 @@ class ExpertConfig:
     """A speed cap is taken only if driving on along the path at it stays clear of movers this long (s)."""
     stop_horizon: float = 10.0
     """Failing that, the robot moves at most one step, to where standing still stays clear this long (s)."""
+    evade_time: float = 1.0
+    """Where no speed along the path keeps clear of a mover (a takeover in its way), the expert leaves the path
+    on the arc that keeps clear longest, held for this long (s) before it stops and replans."""
     mover_margin: float = 0.12
     """Extra gap kept to movers beyond the touching distance of the two bounding circles (m)."""
 

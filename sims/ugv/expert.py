@@ -12,7 +12,8 @@ Privileged: it reads the static layout and the movers' scripted future poses fro
    is predicted for ``go_horizon`` seconds; the cap is taken if the robot keeps clear of every mover
    (bounding circles plus a margin) the whole time. If no cap is, it moves at most one step, to where
    standing still stays clear for ``stop_horizon`` seconds (it stops abruptly, as the paper's expert
-   does); failing even that, it takes the cap that delays contact longest.
+   does). Failing even that (a takeover that finds the robot in a mover's way), it leaves the path on the
+   arc that keeps clear of the movers longest, then replans.
 """
 
 from __future__ import annotations
@@ -251,10 +252,13 @@ class ExpertView(Protocol):
 class UGVExpert:
     """The expert of one env; call :meth:`act` at any step (takeovers may start mid-episode)."""
 
-    def __init__(self, env: ExpertView, yield_to_movers: bool = True) -> None:
+    def __init__(self, env: ExpertView, yield_to_movers: bool = True, evade: bool = True) -> None:
         self.env = env
         self.yield_to_movers = yield_to_movers
         """False gives the naive goal seeker: the same planner and tracker, blind to movers."""
+        self.evade = evade
+        """Leave the path when no speed along it keeps clear of a mover (False: delay contact along the path,
+        the behaviour before evasion existed; kept for the comparison in the tests)."""
         self.reset()
 
     def reset(self) -> None:
@@ -327,7 +331,10 @@ class UGVExpert:
         v = v_track
         yielding = False
         if self.yield_to_movers and env.layout is not None and env.layout.movers and path is not None:
-            cap = self._speed_cap(path, index, v_track)
+            cap, safe = self._speed_cap(path, index, v_track)
+            if not safe and self.evade:
+                # handed over (or caught) where no speed along the path keeps clear: leave the path
+                return self._normalised(*self._evade(x, y, yaw))
             if cap < v:
                 w = w * (cap / v) if v > 0 else w
                 v = cap
@@ -426,8 +433,9 @@ class UGVExpert:
         i = int(np.argmin(d))
         return lo + i, float(d[i])
 
-    def _speed_cap(self, path: Path, index: int, v_track: float) -> float:
-        """The fastest speed cap whose committed motion keeps clear of every mover (see module doc)."""
+    def _speed_cap(self, path: Path, index: int, v_track: float) -> tuple[float, bool]:
+        """The fastest speed cap whose committed motion keeps clear of every mover (see module doc), and
+        whether any cap along the path keeps clear at all (False: the caller evades off the path)."""
         env = self.env
         world = env.world
         assert world is not None and env.layout is not None
@@ -452,7 +460,7 @@ class UGVExpert:
         gap = np.hypot(px[:, None, :] - go[None, :, :, 0], py[:, None, :] - go[None, :, :, 1]) - reach[None]
         clear = (gap >= 0).all(axis=(1, 2))
         if clear.any():
-            return float(caps[int(np.argmax(clear))])
+            return float(caps[int(np.argmax(clear))]), True
         # no committed motion is safe: move one step at most, to where standing still is safe
         one_step = path.s[index] + caps * dt  # (C,)
         sx = np.interp(one_step, path.s, path.xy[:, 0])
@@ -462,8 +470,48 @@ class UGVExpert:
         )
         stop_safe = (gap_stop >= 0).all(axis=(1, 2))
         if stop_safe.any():
-            return float(caps[int(np.argmax(stop_safe))])
-        # nothing is safe: delay contact as long as possible
+            return float(caps[int(np.argmax(stop_safe))]), True
+        # nothing along the path is safe: delay contact as long as possible (if evading cannot do better)
         contact = (gap < 0).any(axis=1)  # (C, T)
         first_contact = np.where(contact.any(axis=1), contact.argmax(axis=1), n_go)
-        return float(caps[int(np.argmax(first_contact))])
+        return float(caps[int(np.argmax(first_contact))]), False
+
+    def _evade(self, x: float, y: float, yaw: float) -> tuple[float, float]:
+        """The arc (v, w), held for ``evade_time`` and then stopped, that keeps clear of the movers longest
+        (ties: the widest gap), without touching a static obstacle. Used where no speed along the planned path
+        keeps clear, e.g. after a takeover in a mover's way: there is no reverse gear, so the way out is sideways
+        or forwards, off the path; the path is replanned once clear."""
+        env, grid = self.env, self._grid
+        world = env.world
+        assert world is not None and env.layout is not None and grid is not None
+        cfg = env.config
+        robot, ex, dt = cfg.robot, cfg.expert, cfg.dt
+        n = max(1, round(ex.stop_horizon / dt))
+        n_move = max(1, round(ex.evade_time / dt))
+        k = world.k
+        world.ensure_table(k + n)
+        future = world.mover_poses[:, k + 1 : k + n + 1, 0:2]  # (M, T, 2)
+        radii = np.array([m.bounding_radius for m in env.layout.movers])
+        reach = (radii + robot.circumradius + ex.mover_margin)[:, None]  # (M, 1)
+        t = np.minimum(np.arange(1, n + 1), n_move) * dt  # moving for evade_time, then standing
+        touching = math.hypot(robot.length / 6, robot.width / 2)  # the footprint circles' radius
+        best, best_key = (0.0, 0.0), (-1, -math.inf)
+        for v in (robot.v_max, 0.5 * robot.v_max, 0.0):
+            for turn in (-1.0, -0.5, 0.0, 0.5, 1.0):
+                w = turn * robot.w_max
+                heading = yaw + w * t
+                if abs(w) > 1e-9:
+                    px = x + v / w * (np.sin(heading) - math.sin(yaw))
+                    py = y - v / w * (np.cos(heading) - math.cos(yaw))
+                else:
+                    px, py = x + v * t * math.cos(yaw), y + v * t * math.sin(yaw)
+                if v > 0 and self._footprint_clearance(grid, px[:n_move], py[:n_move], heading[:n_move]) < touching:
+                    continue  # drives into a wall
+                gap = np.hypot(px[None] - future[:, :, 0], py[None] - future[:, :, 1]) - reach  # (M, T)
+                hit = (gap < 0).any(axis=0)
+                first = int(hit.argmax()) if hit.any() else n
+                key = (first, float(gap.min()))
+                if key > best_key:
+                    best, best_key = (v, w), key
+        self._path = None  # replan from wherever the evasion leads
+        return best

@@ -43,3 +43,36 @@ def test_expert_takes_over_mid_episode() -> None:
     """After a random start (as when the gate hands over), the expert still finishes the episode."""
     outcomes = run(3, range(6), random_steps=15)
     assert outcomes.count("success") >= 5, outcomes
+
+
+def late_handover(scenario: int, seeds: range, evade: bool, distance: float = 1.3) -> list[str]:
+    """A goal seeker blind to movers drives until a mover is within ``distance`` of the robot, then the expert
+    takes over for the rest of the episode: a takeover that comes late, in the mover's way."""
+    env = sims.make("ugv", scenario=scenario)
+    unwrapped = env.unwrapped
+    seeker = UGVExpert(unwrapped, yield_to_movers=False)
+    expert = UGVExpert(unwrapped, evade=evade)
+    outcomes = []
+    for seed in seeds:
+        env.reset(seed=seed)
+        handed_over = False
+        for _ in range(10_000):
+            world = unwrapped.world
+            x, y, _ = world.pose
+            near = np.hypot(*(world.mover_poses[:, world.k, 0:2] - (x, y)).T).min() < distance
+            handed_over = handed_over or bool(near)
+            _, _, terminated, truncated, info = env.step(expert.act() if handed_over else seeker.act())
+            if terminated or truncated:
+                break
+        outcomes.append("success" if info["success"] else "collision" if info["collision"] else "timeout")
+    return outcomes
+
+
+@pytest.mark.parametrize("scenario", [3, 4])
+def test_a_late_takeover_in_a_movers_way_evades_it(scenario: int) -> None:
+    """Handed over in a mover's way, the expert leaves its path; keeping to the path collides more often."""
+    seeds = range(12)
+    evading = late_handover(scenario, seeds, evade=True)
+    keeping = late_handover(scenario, seeds, evade=False)
+    assert evading.count("collision") < keeping.count("collision"), (evading, keeping)
+    assert evading.count("collision") <= len(seeds) // 2, evading
