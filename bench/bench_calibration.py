@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 import sims
-from studies.calibrate import calibrate_run, write_figures
+from studies.calibrate import calibrate_run, gate_with_expert, write_figures
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = [
@@ -84,9 +84,38 @@ def main() -> None:
         "",
         "Figures: `<policy>-<scenario>/reliability.png` and `operating_curve.png`; numbers: `report.json`.",
     ]
+    text += gate_table(args.episodes)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     print(f"wrote {args.out / 'README.md'}")
+
+
+def gate_table(episodes: int) -> list[str]:
+    """Gate + scripted expert at the gate's own threshold on every scenario of each default's simulator
+    (issue #11's target: a violation in at most 1 of 20 episodes, at a takeover rate of at most 35%)."""
+    lines = [
+        "",
+        f"## Gate + scripted expert at the gate's own threshold ({episodes} episodes per scenario)",
+        "",
+        "| policy | scenario | episodes with a violation | takeover rate | time |",
+        "|---|---|---|---|---|",
+    ]
+    for policy in sorted({case[0] for case in CASES}):
+        sim = next(case[1] for case in CASES if case[0] == policy)
+        folder = ROOT / "policies" / policy
+        if not (folder / "checkpoint.pt").is_file():
+            continue
+        d = sims.descriptor(sim)
+        for spec in d.scenarios:
+            started = time.perf_counter()
+            point = gate_with_expert(folder, lambda d=d, name=spec.name: d.make(name), episodes)
+            bad = round(point["violation_rate"] * episodes)
+            lines.append(
+                f"| {policy} | {sim} {spec.name} | {bad}/{episodes} | {point['takeover_rate']:.0%} "
+                f"| {time.perf_counter() - started:.0f} s |"
+            )
+            print(lines[-1], flush=True)
+    return lines
 
 
 if __name__ == "__main__":

@@ -302,6 +302,15 @@ def _run_gated(
     return {"takeover_rate": takeovers / max(steps, 1), "violation_rate": bad / episodes}
 
 
+def gate_with_expert(
+    run: str | Path, make_env: Callable[[], gym.Env[Any, Any]], episodes: int, max_steps: int | None = None
+) -> dict[str, float]:
+    """The product as it runs: the policy with its own SAGE gate (its τ, unscaled) and the scripted expert.
+    Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds."""
+    agent = load_agent(run)
+    return _run_gated(agent, make_env, agent.make_gate(), episodes, max_steps)
+
+
 def operating_curve(
     run: str | Path,
     make_env: Callable[[], gym.Env[Any, Any]],
