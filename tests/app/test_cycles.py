@@ -92,13 +92,12 @@ def test_cycle_rows_weigh_takeovers_by_steps() -> None:
     assert second["version"] == 1 and second["takeover_rate"] == pytest.approx(0.1)
 
 
-def test_deployment_and_fine_tuning_cycles_learn_the_danger_and_stop_colliding(policy: Path, tmp_path: Path) -> None:
+def test_deployment_and_fine_tuning_cycles_stay_safe_and_ask_less(policy: Path, tmp_path: Path) -> None:
     """The paper's field test 3 in small: the same two crossings deployed four times, fine-tuned in between
-    (about 40 s on an idle core). The deployed policy never met a moving obstacle and its world model never saw
-    one: in the first cycle its fear stays low and a crossing vehicle hits it. Fine-tuning on that session
-    teaches the violation classifier what a crossing looks like: the gate then asks for help before the
-    crossing, and the cycles end without collisions. (With the earlier Gaussian cost head and UGV-tuned τ the
-    gate fired on ~40% of ordinary steps from the start, and the story was "takeovers fall"; see issue #11.)"""
+    (about 40 s on an idle core). The deployed policy never met a moving obstacle, but its world model's fear
+    carries over to one: the gate hands the crossing to the expert, and fine-tuning on those takeovers teaches
+    the policy the crossing, so the last cycle drives it safely while asking for help less often than the first.
+    (Before issue #11's refit, fear rose too late and the first cycle collided; the story was "collisions stop".)"""
     cfg = CyclesConfig(
         sim="ugv",
         scenario="3",
@@ -110,7 +109,7 @@ def test_deployment_and_fine_tuning_cycles_learn_the_danger_and_stop_colliding(p
     result = run_cycles(cfg, tmp_path / "cycles", env_factory("ugv"))
     table = json.dumps(result.cycles, indent=1)
     first, last = result.cycles[0], result.cycles[-1]
-    assert first["collision"] > 0, table  # the first encounter is dangerous
-    assert last["collision"] < first["collision"] and last["success"] > first["success"], table
-    assert all(row["takeover_rate"] > 0 for row in result.cycles[1:]), table  # the gate asks on the crossing
+    assert all(row["takeover_rate"] > 0 for row in result.cycles), table  # the gate asks on the crossing
+    assert last["collision"] == 0 and last["success"] == 1, table
+    assert last["takeover_rate"] < first["takeover_rate"], table  # the policy learned what it was taught
     assert [row["version"] for row in result.cycles] == [0, 1, 2, 3]
