@@ -1,18 +1,18 @@
 """The live loop: the one :meth:`core.loop.Runner.step` at wall-clock rate in a background thread.
 
-Everything that changes the loop (pause, single step, speed, simulator / scenario / policy / expert mode,
-replay) arrives as a command and is applied in the loop's own thread between two steps, so the runner is
-never touched by two threads. Each step is recorded by the session writer, streamed to every page (one
-JSON text built here, off the asyncio loop) and its scene handed to the viser drawing thread.
+Its parts, one job each:
 
-When the operator starts holding the takeover key the loop steps at once and re-phases its clock, so
-a takeover does not wait up to a whole control period; the control rate itself never changes.
+- :mod:`app.clock`: when the next step is due (dt / speed, no bursts, re-phased when a takeover starts);
+- :mod:`app.commands`: what may change the loop (pause, one step, speed, simulator / scenario / policy /
+  expert mode, version), typed, dispatched by class, applied in the loop's own thread between two steps so
+  the runner is never touched by two threads;
+- :mod:`app.counters`: the session's counters, read from the runner's own tallies;
+- :mod:`app.versions`: which fine-tuned version drives (a worker process learns from the session while the
+  loop runs; a new version takes over only at an episode boundary).
 
-Continual adaptation: when the policy is a trained agent (a checkpoint) and the session is recorded, a
-fine-tuning worker process (:class:`core.worker.FinetuneService`) learns from the session while the loop
-runs and publishes numbered versions (``<runs>/<session id>/versions/vNNNN``, v0000 = the policy deployed).
-The loop takes a new version only at an episode boundary: ``Runner.set_policy_at_boundary`` with a new gate
-bound to the new policy. The operator can pin a version, follow the newest, or roll back (``version``).
+Replay is not the loop's business: each page replays on its own (:mod:`app.replay`) while the loop runs on.
+Each step is recorded by the session writer, streamed to every page (one JSON text built here, off the
+asyncio loop) and its scene handed to the viser drawing thread.
 """
 
 from __future__ import annotations
@@ -34,16 +34,20 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from app import commands as c
+from app.clock import RateClock
+from app.commands import CommandError, CommandRegistry
+from app.counters import SessionCounters
 from app.input_map import mapping_for
 from app.messages import ExpertMode
 from app.operator import OperatorConsole, PersonExpert
 from app.policies import LoadedPolicy
-from core.finetune import FinetuneConfig, FinetuneError, VersionStore
+from app.versions import FinetuneSettings, VersionFollower, labelled_loader
 from core.loop import EpisodeSummary, NoGate, Runner, StepRecord
-from core.promotion import PromotionConfig, evaluate_version
 from core.protocol import simulator
 from core.sessions import SessionStore, SessionWriter
-from core.worker import FinetuneService, WorkerSpec
+
+__all__ = ["CommandError", "FinetuneSettings", "LiveConfig", "LiveLoop", "PolicyLoader", "World", "dumps", "json_safe"]
 
 log = logging.getLogger(__name__)
 
@@ -90,16 +94,16 @@ def control_period(sim: str, env: gym.Env[Any, Any]) -> float:
         return float(value) if isinstance(value, int | float) and value > 0 else 0.1
 
 
-def _clean(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
     """JSON-safe: NaN/inf become None, numpy scalars become Python numbers."""
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
+        return [json_safe(v) for v in value]
     return value
 
 
@@ -110,65 +114,6 @@ def dumps(message: dict[str, Any]) -> str:
 def _is_agent(config: LiveConfig, loaded: LoadedPolicy) -> bool:
     """A trained agent loaded from a checkpoint (the scripted expert and test stand-ins are not fine-tuned)."""
     return bool(loaded.meta.get("method")) and Path(config.policy).exists()
-
-
-class CommandError(RuntimeError):
-    """A command the loop refused (unknown simulator, policy that does not load, ...)."""
-
-
-@dataclass(frozen=True)
-class FinetuneSettings:
-    """Background fine-tuning of a trained policy on the session it drives (see the module docstring)."""
-
-    runs: Path
-    """Fine-tuning runs go to ``<runs>/<session id>/versions/``."""
-    config: FinetuneConfig = field(default_factory=FinetuneConfig)
-    backoff: tuple[float, float] = (1.0, 30.0)
-    """First and longest wait (s) before restarting a worker that died."""
-    promotion: PromotionConfig = field(default_factory=PromotionConfig)
-    """How a new version is evaluated before it may drive, and watched live once it does."""
-
-
-@dataclass
-class Counters:
-    episodes: int = 0
-    steps: int = 0
-    takeover_steps: int = 0
-    person_steps: int = 0
-    fallback_steps: int = 0
-    takeover_events: int = 0
-    collisions: int = 0
-    violations: int = 0
-    episode_steps: int = 0
-    episode_takeovers: int = 0
-    episode_return: float = 0.0
-    episode_cost: float = 0.0
-    _prev_takeover: bool = False
-    _prev_violation: bool = False
-
-    def add(self, record: StepRecord) -> None:
-        if record.t == 0:
-            self.episode_steps, self.episode_takeovers = 0, 0
-            self.episode_return, self.episode_cost = 0.0, 0.0
-            self._prev_takeover = self._prev_violation = False
-        self.steps += 1
-        self.episode_steps += 1
-        self.episode_return += record.reward
-        self.episode_cost += record.cost
-        if record.takeover:
-            self.takeover_steps += 1
-            self.episode_takeovers += 1
-            self.takeover_events += int(not self._prev_takeover)
-        self.person_steps += int(record.actor == "person")
-        self.fallback_steps += int(record.actor == "fallback")
-        self.violations += int(record.violation and not self._prev_violation)
-        self._prev_takeover, self._prev_violation = record.takeover, record.violation
-
-    def as_dict(self) -> dict[str, Any]:
-        out = {k: v for k, v in asdict(self).items() if not k.startswith("_")}
-        out["takeover_rate"] = self.takeover_steps / self.steps if self.steps else 0.0
-        out["episode_takeover_rate"] = self.episode_takeovers / self.episode_steps if self.episode_steps else 0.0
-        return out
 
 
 @dataclass
@@ -182,10 +127,9 @@ class World:
     loaded: LoadedPolicy
     writer: SessionWriter | None
     dt: float
-    counters: Counters = field(default_factory=Counters)
-    finetune: FinetuneService | None = None
-    version: int | None = None
-    """The policy version in control (None when nothing is fine-tuned)."""
+    counters: SessionCounters = field(default_factory=SessionCounters)
+    versions: VersionFollower | None = None
+    """The fine-tuned versions of the policy (None when nothing is fine-tuned)."""
     episode_log: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=EPISODE_LOG))
     """Per finished episode: the version that drove it and its takeover rate (the page's adaptation chart)."""
     base_label: str = ""
@@ -194,22 +138,19 @@ class World:
     def session_id(self) -> str | None:
         return self.writer.session_id if self.writer else None
 
-
-@dataclass
-class Replay:
-    session: str
-    episode: int
-    static: dict[str, Any] | None
-    scenes: list[dict[str, Any] | None]
-    series: dict[str, list[Any]]
-    t: int = 0
-
     @property
-    def length(self) -> int:
-        return len(self.scenes)
+    def version(self) -> int | None:
+        """The policy version in control (None when nothing is fine-tuned)."""
+        return self.versions.version if self.versions is not None else None
+
+    def counts(self) -> dict[str, Any]:
+        """The session's counters, with the running episode's tallies from the runner."""
+        return self.counters.as_dict(self.runner.progress(), running=self.runner.obs is not None)
 
 
 class LiveLoop:
+    commands = CommandRegistry()
+
     def __init__(
         self,
         config: LiveConfig,
@@ -234,7 +175,6 @@ class LiveLoop:
         self.clock = clock
         self.paused = start_paused
         self.speed = config.speed
-        self.replay: Replay | None = None
         self.history: deque[str] = deque(maxlen=HISTORY)
         self.trail: deque[tuple[float, float]] = deque(maxlen=600)
         self.scene: dict[str, Any] | None = None
@@ -243,9 +183,7 @@ class LiveLoop:
         """Wall-clock instants of recent steps (for the achieved rate)."""
         self.step_costs: deque[float] = deque(maxlen=200)
         """Seconds spent inside each recent step (policy, gate, env, listeners)."""
-        self._commands: queue.SimpleQueue[tuple[str, dict[str, Any], concurrent.futures.Future[Any]]] = (
-            queue.SimpleQueue()
-        )
+        self._commands: queue.SimpleQueue[tuple[object, concurrent.futures.Future[Any]]] = queue.SimpleQueue()
         self._wake = threading.Event()
         self._onset = False
         self._stop = False
@@ -263,16 +201,17 @@ class LiveLoop:
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
-        if self.world.finetune is not None:
-            self.world.finetune.stop()
+        if self.world.versions is not None:
+            self.world.versions.stop()
         if self.world.writer is not None:
             self.world.writer.close()
         self.world.env.close()
 
-    def submit(self, op: str, **args: Any) -> concurrent.futures.Future[Any]:
-        """Queue a command for the loop thread; the future holds its result or its :class:`CommandError`."""
+    def submit(self, command: c.Command) -> concurrent.futures.Future[Any]:
+        """Queue a command (:mod:`app.commands`) for the loop thread; the future holds its result or its
+        :class:`CommandError`."""
         future: concurrent.futures.Future[Any] = concurrent.futures.Future()
-        self._commands.put((op, args, future))
+        self._commands.put((command, future))
         self._wake.set()
         return future
 
@@ -285,7 +224,7 @@ class LiveLoop:
         times = list(self.step_times)
         rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 2 and times[-1] > times[0] else 0.0
         costs = list(self.step_costs)
-        return _clean(
+        return json_safe(
             {
                 "type": "state",
                 "config": asdict(world.config) | {"speed": self.speed},
@@ -303,15 +242,7 @@ class LiveLoop:
                 "finetune": self._finetune_state(world),
                 "action_dim": int(np.prod(world.env.action_space.shape or (1,))),
                 "operator": self.console.connected,
-                "counters": world.counters.as_dict(),
-                "replay": None
-                if self.replay is None
-                else {
-                    "session": self.replay.session,
-                    "episode": self.replay.episode,
-                    "t": self.replay.t,
-                    "length": self.replay.length,
-                },
+                "counters": world.counts(),
                 "error": self.last_error,
                 "store_error": world.writer.error if world.writer else None,
             }
@@ -319,7 +250,7 @@ class LiveLoop:
 
     def welcome(self, client_id: int, options: dict[str, Any]) -> str:
         """The first message a page gets: who it is, the state, the options and the recent history."""
-        head = dumps({"type": "welcome", "client": client_id, "state": self.state(), "options": _clean(options)})
+        head = dumps({"type": "welcome", "client": client_id, "state": self.state(), "options": json_safe(options)})
         return head[:-1] + ',"history":[' + ",".join(list(self.history)) + "]}"
 
     # -- building ------------------------------------------------------------------------------------
@@ -354,8 +285,7 @@ class LiveLoop:
         )
         if writer is not None and self.finetune is not None and self.store is not None and _is_agent(config, loaded):
             try:
-                world.finetune = self._start_finetune(world)
-                world.version = 0
+                world.versions = self._start_versions(world)
             except Exception as exc:  # the loop drives on without fine-tuning, and says why
                 log.exception("fine-tuning could not start")
                 self.last_error = f"fine-tuning is off: {exc}"
@@ -375,8 +305,8 @@ class LiveLoop:
                 f"cannot switch to {config.sim} / scenario {config.scenario} / {config.policy}: {exc}"
             ) from exc
         old, self.world = self.world, world
-        if old.finetune is not None:  # the old session's worker ends in the background (it may take a second)
-            threading.Thread(target=old.finetune.stop, name="finetune-stop", daemon=True).start()
+        if old.versions is not None:
+            old.versions.stop(background=True)
         if old.writer is not None:
             old.writer.close()
         old.env.close()
@@ -396,7 +326,7 @@ class LiveLoop:
 
     def _on_step(self, record: StepRecord) -> None:
         world = self.world
-        world.counters.add(record)
+        world.counters.on_step(record)
         message = record.to_message()
         message["type"] = "step"
         message["session"] = world.session_id
@@ -404,7 +334,7 @@ class LiveLoop:
         message["request_person"] = bool(record.gate_fired and world.expert.mode == "person")
         operator = self.console.snapshot()
         message["operator_held"] = operator.held and operator.answering
-        message["counters"] = {**world.counters.as_dict(), **world.expert.handover_stats()}
+        message["counters"] = {**world.counts(), **world.expert.handover_stats()}
         person_input = world.expert.last_input if record.actor == "person" else None
         if person_input is not None:
             message["input_seq"] = person_input.seq
@@ -421,18 +351,15 @@ class LiveLoop:
                 message["labels"] = scene["labels"]
             if self.scene_view is not None:
                 self.scene_view.show(scene)
-        text = dumps(_clean(message))
+        text = dumps(json_safe(message))
         self.history.append(text)
         self.publish(text)
 
     def _on_episode(self, summary: EpisodeSummary) -> None:
         world = self.world
-        world.counters.episodes += 1
-        collision = summary.metrics.get("collision", summary.metrics.get("collisions", 0))
-        collided = bool(collision) and not (isinstance(collision, float) and math.isnan(collision))
-        world.counters.collisions += int(collided)
-        if world.finetune is not None and world.version is not None:
-            reason = world.finetune.record_episode(world.version, collided, summary.takeover_rate)
+        collided = world.counters.on_episode(summary, world.runner.progress())
+        if world.versions is not None:
+            reason = world.versions.episode_ended(collided, summary.takeover_rate)
             if reason is not None:
                 self.last_error = f"rolled back automatically: {reason}"
         world.episode_log.append(
@@ -446,7 +373,7 @@ class LiveLoop:
             }
         )
         row = {"type": "episode", "session": world.session_id, "version": world.version, **summary.as_row()}
-        self.publish(dumps(_clean(row)))
+        self.publish(dumps(json_safe(row)))
         if summary.error:
             self.last_error = f"episode {summary.episode}: {summary.error}"
 
@@ -456,33 +383,35 @@ class LiveLoop:
         self._wake.set()
 
     def _run(self) -> None:
-        next_at = self.clock()
+        clock = RateClock(self.clock())
         while not self._stop:
             self._drain_commands()
             if self._stop:
                 break
-            if self.paused or self.replay is not None:
+            if self.paused:
                 self._wake.wait(0.1)
                 self._wake.clear()
-                next_at = self.clock()
+                clock.restart(self.clock())
                 continue
-            now = self.clock()
             onset = self._onset
-            if now < next_at and not onset:
-                self._wake.wait(next_at - now)
+            wait = clock.wait(self.clock(), onset)
+            if wait > 0:
+                self._wake.wait(wait)
                 self._wake.clear()
                 continue
             self._onset = False
             self._step_once()
-            period = self.world.dt / self.speed
-            after = self.clock()
-            # keep the rate without bursts: never catch up more than one missed period; a takeover re-phases
-            next_at = after + period if onset else max(next_at + period, after - period)
+            clock.stepped(self.clock(), self.world.dt / self.speed, onset)
 
     def _step_once(self) -> None:
         started = time.perf_counter()
-        if self.world.finetune is not None and self.world.runner.obs is None:
-            self._take_version(self.world)  # between episodes: the only moment a new version may take over
+        world = self.world
+        if world.versions is not None and world.runner.obs is None:
+            # between episodes: the only moment a new version may take over
+            loaded = world.versions.take_at_boundary(world.runner)
+            if loaded is not None:
+                world.loaded = loaded
+                self.publish(dumps(self.state()))
         try:
             self.world.runner.step()
         except Exception as exc:  # a policy or gate bug: report it, keep the loop alive, start over
@@ -495,183 +424,99 @@ class LiveLoop:
     def _drain_commands(self) -> None:
         while True:
             try:
-                op, args, future = self._commands.get_nowait()
+                command, future = self._commands.get_nowait()
             except queue.Empty:
                 return
             if not future.set_running_or_notify_cancel():
                 continue
             try:
-                result = self._apply(op, args)
+                result = self.commands.dispatch(self, command)
             except CommandError as exc:
                 future.set_exception(exc)
             except Exception as exc:
-                log.exception("command %s failed", op)
-                future.set_exception(CommandError(f"{op} failed: {type(exc).__name__}: {exc}"))
+                name = type(command).__name__
+                log.exception("command %s failed", name)
+                future.set_exception(CommandError(f"{name} failed: {type(exc).__name__}: {exc}"))
             else:
                 future.set_result(result)
             self.publish(dumps(self.state()))
 
-    # -- commands (loop thread) ------------------------------------------------------------------------
-    def _apply(self, op: str, args: dict[str, Any]) -> Any:
+    # -- commands (loop thread), one handler per command class ------------------------------------------
+    @commands.handles(c.Pause)
+    def _pause(self, command: c.Pause) -> None:
+        self.paused = True
+
+    @commands.handles(c.Resume)
+    def _resume(self, command: c.Resume) -> None:
+        self.paused = False
+
+    @commands.handles(c.StepOnce)
+    def _step_command(self, command: c.StepOnce) -> None:
+        self.paused = True
+        self._step_once()
+
+    @commands.handles(c.NewEpisode)
+    def _new_episode(self, command: c.NewEpisode) -> None:
+        self.world.runner.end_episode()  # recorded with its summary; the next step starts a new episode
+
+    @commands.handles(c.SetSpeed)
+    def _speed(self, command: c.SetSpeed) -> None:
+        self.speed = float(command.value)
+
+    @commands.handles(c.Stop)
+    def _stop_command(self, command: c.Stop) -> None:
+        self._stop = True
+
+    @commands.handles(c.Configure)
+    def _configure(self, command: c.Configure) -> dict[str, Any]:
         world = self.world
-        if op == "pause":
-            self.paused = True
-        elif op == "resume":
-            self.paused = False
-        elif op == "step":
-            if self.replay is not None:
-                raise CommandError("leave the replay before stepping the live loop")
-            self.paused = True
-            self._step_once()
-        elif op == "new_episode":
-            world.runner.end_episode()  # recorded with its summary; the next step starts a new episode
-        elif op == "speed":
-            self.speed = float(args["value"])
-        elif op == "configure":
-            changes = {k: v for k, v in args.items() if v is not None}
-            if "sim" in changes and changes["sim"] != world.config.sim:
-                changes.setdefault("scenario", args.get("scenario"))
-                if "policy" not in changes:
-                    changes["policy"] = args.get("default_policy") or "scripted"
-            changes.pop("default_policy", None)
-            config = replace(world.config, **changes)
-            if config == world.config:
-                return asdict(config)
-            if {k for k in changes if getattr(world.config, k) != changes[k]} == {"expert_mode"}:
-                world.expert.mode = config.expert_mode  # no rebuild: the same episode goes on
-                world.config = config
-            else:
-                self._replace_world(config)
-            return asdict(self.world.config)
-        elif op == "version":
-            return self._version_command(str(args["action"]), args.get("number"))
-        elif op == "replay_open":
-            return self._open_replay(str(args["session"]), int(args["episode"]))
-        elif op == "replay_seek":
-            return self._seek(int(args["t"]))
-        elif op == "replay_close":
-            self._close_replay()
-        elif op == "stop":
-            self._stop = True
+        changes = {
+            k: v
+            for k, v in (
+                ("sim", command.sim),
+                ("scenario", command.scenario),
+                ("policy", command.policy),
+                ("expert_mode", command.expert_mode),
+            )
+            if v is not None
+        }
+        if "sim" in changes and changes["sim"] != world.config.sim:
+            changes.setdefault("scenario", command.scenario)
+            if "policy" not in changes:
+                changes["policy"] = command.default_policy or "scripted"
+        config = replace(world.config, **changes)
+        if config == world.config:
+            return asdict(config)
+        if {k for k in changes if getattr(world.config, k) != changes[k]} == {"expert_mode"}:
+            world.expert.mode = config.expert_mode  # no rebuild: the same episode goes on
+            world.config = config
         else:
-            raise CommandError(f"unknown command {op!r}")
-        return None
+            self._replace_world(config)
+        return asdict(self.world.config)
+
+    @commands.handles(c.ChooseVersion)
+    def _choose_version(self, command: c.ChooseVersion) -> dict[str, Any]:
+        versions = self.world.versions
+        if versions is None:
+            raise CommandError("no fine-tuning here: it runs for a trained policy on a recorded session")
+        return versions.choose(command.action, command.number)
 
     # -- fine-tuning ---------------------------------------------------------------------------------------
-    def _start_finetune(self, world: World) -> FinetuneService:
+    def _start_versions(self, world: World) -> VersionFollower:
         settings, store, writer = self.finetune, self.store, world.writer
         assert settings is not None and store is not None and writer is not None
-        versions = VersionStore(settings.runs / writer.session_id / "versions")
-        versions.ensure_initial(world.config.policy)
-        # every new version is evaluated headless (scripted expert, fixed seeds) beside the one in control before
-        # it may drive: the worker builds the session's env itself, so the factory must cross the spawn boundary
-        make_env = functools.partial(self.env_factory, world.config.sim, world.config.scenario)
-        evaluator = functools.partial(evaluate_version, make_env=make_env)
-        spec = WorkerSpec(
-            versions.root,
-            store.root,
-            writer.session_id,
-            settings.config,
-            evaluator=evaluator,
-            promotion=settings.promotion,
-        )
-        env, base_label = world.env, world.loaded.label
-
-        def load(path: Path) -> LoadedPolicy:  # runs on the service's thread, never the loop's
-            loaded = self.policy_loader(str(path), env)
-            return replace(loaded, label=f"{base_label} · {path.name}")
 
         def changed() -> None:
-            if self.world is world:
-                self.publish(dumps(_clean({"type": "finetune", **self._finetune_state(world)})))
+            if self.world is world and world.versions is not None:
+                self.publish(dumps(json_safe({"type": "finetune", **self._finetune_state(world)})))
 
-        return FinetuneService(spec, load, backoff=settings.backoff, on_change=changed).start()
+        make_env = functools.partial(self.env_factory, world.config.sim, world.config.scenario)
+        load = labelled_loader(self.policy_loader, world.env, world.loaded.label)
+        return VersionFollower.start(
+            settings, store.root, writer.session_id, world.config.policy, make_env, load, changed
+        )
 
     def _finetune_state(self, world: World) -> dict[str, Any] | None:
-        if world.finetune is None:
+        if world.versions is None:
             return None
-        return {**world.finetune.status(), "episodes": list(world.episode_log)}
-
-    def _take_version(self, world: World) -> None:
-        assert world.finetune is not None
-        pending = world.finetune.take_pending()
-        if pending is None:
-            return
-        number, loaded = pending
-        # the runner swaps the policy when it resets for the next episode; the gate must watch that policy
-        world.runner.set_policy_at_boundary(loaded.policy, loaded.gate)
-        world.loaded = loaded
-        world.version = number
-        world.finetune.mark_deployed(number)
-        self.publish(dumps(self.state()))
-
-    def _version_command(self, action: str, number: int | None) -> dict[str, Any]:
-        service = self.world.finetune
-        if service is None:
-            raise CommandError("no fine-tuning here: it runs for a trained policy on a recorded session")
-        try:
-            if action == "pin":
-                service.pin(int(number))  # type: ignore[arg-type]
-            elif action == "rollback":
-                service.rollback(int(number))  # type: ignore[arg-type]
-            elif action == "follow":
-                service.follow()
-            else:
-                raise CommandError(f"unknown version action {action!r}")
-        except FinetuneError as exc:
-            raise CommandError(str(exc)) from None
-        status = service.status()
-        return {"pinned": status["pinned"], "pending": status["pending"], "in_control": status["in_control"]}
-
-    def _open_replay(self, session: str, episode: int) -> dict[str, Any]:
-        if self.store is None:
-            raise CommandError("this server records no sessions, so there is nothing to replay")
-        if self.world.writer is not None and self.world.writer.session_id == session:
-            self.world.writer.flush()
-        try:
-            static, scenes = self.store.scenes(session, episode)
-            arrays = self.store.steps(session, episode)
-        except LookupError as exc:
-            raise CommandError(str(exc)) from None
-        if not scenes:
-            raise CommandError(f"episode {episode} of {session} has no steps")
-        series = {
-            "t": arrays["t"].tolist(),
-            "fear": arrays["fear"].tolist(),
-            "threshold": arrays["threshold"].tolist(),
-            "curiosity": arrays["curiosity"].tolist(),
-            "takeover": arrays["takeover"].tolist(),
-            "actor": arrays["actor"].tolist(),
-            "reward": arrays["reward"].tolist(),
-            "cost": arrays["cost"].tolist(),
-            "violation": arrays["violation"].tolist(),
-            "action": arrays["action"].tolist(),
-            "a_rl": arrays["a_rl"].tolist(),
-        }
-        self.replay = Replay(session, episode, static, scenes, series)
-        self.publish(dumps(_clean({"type": "replay", "session": session, "episode": episode, "series": series})))
-        self._seek(0)
-        return {"session": session, "episode": episode, "length": len(scenes)}
-
-    def _seek(self, t: int) -> dict[str, Any]:
-        replay = self.replay
-        if replay is None:
-            raise CommandError("no replay is open")
-        t = max(0, min(t, replay.length - 1))
-        replay.t = t
-        scene = replay.scenes[t]
-        if self.scene_view is not None and scene is not None:
-            trail = [(s["ego"]["x"], s["ego"]["y"]) for s in replay.scenes[: t + 1] if s and s.get("ego")]
-            self.scene_view.show(scene, static=replay.static, trail=False)
-            self.scene_view.reset_trail(trail)
-        labels = (scene or {}).get("labels")
-        self.publish(dumps(_clean({"type": "replay_frame", "t": t, "length": replay.length, "labels": labels})))
-        return {"t": t}
-
-    def _close_replay(self) -> None:
-        self.replay = None
-        if self.scene_view is not None:
-            self.scene_view.reset_trail(list(self.trail))
-            if self.scene is not None:
-                self.scene_view.show(self.scene, trail=False)
-        self.publish(dumps({"type": "replay_closed"}))
+        return world.versions.status(list(world.episode_log))

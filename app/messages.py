@@ -4,8 +4,9 @@ Every message is a JSON object with a ``type`` field; pydantic picks the model f
 union) and rejects unknown types, unknown fields, non-finite numbers and out-of-range values. A message
 that fails validation gets an ``error`` reply naming the problem and never reaches the loop.
 
-Messages that act on the loop (``input``, ``presence``, ``control``, ``configure``, ``version``, ``replay``...) carry
-the control ``token`` the server issued to the one operator; viewers have none and are refused.
+Messages that act on the loop (``input``, ``presence``, ``control``, ``configure``, ``version``...) carry the control
+``token`` the server issued to the one operator; viewers have none and are refused. Replay messages change only
+the sending page's view, so any page may send them.
 """
 
 from __future__ import annotations
@@ -107,18 +108,24 @@ class VersionControl(_Operator):
         return self
 
 
-class ReplayOpen(_Operator):
+class _Viewer(_Message):
+    """Any page may send it: it changes only that page's view. A token is accepted and not needed."""
+
+    token: str | None = Field(default=None, min_length=8, max_length=128)
+
+
+class ReplayOpen(_Viewer):
     type: Literal["replay_open"]
     session: str = Field(min_length=1, max_length=128)
     episode: int = Field(ge=0)
 
 
-class ReplaySeek(_Operator):
+class ReplaySeek(_Viewer):
     type: Literal["replay_seek"]
     t: int = Field(ge=0)
 
 
-class ReplayClose(_Operator):
+class ReplayClose(_Viewer):
     type: Literal["replay_close"]
 
 

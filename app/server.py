@@ -22,7 +22,7 @@ import dataclasses
 import io
 import json
 import logging
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,12 +33,14 @@ from fastapi import FastAPI, HTTPException, Query, WebSocket
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
+from app import commands as c
 from app import messages as m
 from app.hub import Client, Hub
-from app.live import CommandError, FinetuneSettings, LiveConfig, LiveLoop, PolicyLoader, dumps
+from app.live import CommandError, FinetuneSettings, LiveConfig, LiveLoop, PolicyLoader, dumps, json_safe
 from app.operator import ControlDesk, OperatorConsole
 from app.origin import OriginGuard, allowed_hosts
 from app.policies import SCRIPTED, default_policy, discover, load_policy
+from app.replay import ReplayError, ReplaySession, open_replay
 from app.viser_proxy import ViserProxy
 from core.finetune import FinetuneConfig
 from core.promotion import PromotionConfig
@@ -130,6 +132,8 @@ class Dashboard:
         self._catalogue: dict[str, dict[str, Any]] | None = None
         self.store = SessionStore(settings.sessions) if settings.sessions is not None else None
         self.hub = Hub()
+        self.replays: dict[int, ReplaySession] = {}
+        """Each page's open replay, by client id."""
         self.console = OperatorConsole()
         self.desk = ControlDesk()
         # viser prints its own address box even when not verbose; the page is what users open, not viser
@@ -208,63 +212,87 @@ def _error(text: str, **extra: Any) -> str:
     return dumps({"type": "error", "error": text, **extra})
 
 
+Handler = Callable[["Dashboard", Client, Any], Awaitable[str | None]]
+_HANDLERS: dict[type, Handler] = {}
+
+
+def handles(*kinds: type) -> Callable[[Handler], Handler]:
+    """Register the handler of one or more message classes (as viser registers its message handlers)."""
+
+    def register(function: Handler) -> Handler:
+        for kind in kinds:
+            if kind in _HANDLERS:
+                raise ValueError(f"{kind.__name__} already has a handler")
+            _HANDLERS[kind] = function
+        return function
+
+    return register
+
+
+OPEN_TO_ANY_PAGE: tuple[type, ...] = (m.Ping, m.Claim, m.ReplayOpen, m.ReplaySeek, m.ReplayClose)
+"""Messages any page may send; every other message needs the operator's control token."""
+
+
 async def _handle(dash: Dashboard, client: Client, raw: str | bytes) -> str | None:
-    """One message from a page: validate, authorise, act. Returns the reply text, if any."""
+    """One message from a page: validate, authorise, dispatch by class. Returns the reply text, if any."""
     try:
         msg = m.parse_message(raw)
     except m.MessageError as exc:
         return _error(str(exc))
-    if isinstance(msg, m.Ping):
-        return dumps({"type": "pong", "ts": msg.ts})
-    if isinstance(msg, m.Claim):
-        token = dash.desk.claim(client)
-        if token is None:
-            return _error("control is held by another operator; this page is a viewer", op="claim")
-        dash.console.connect()
-        dash.hub.publish(dumps(dash.live.state()))
-        return dumps({"type": "control", "granted": True, "token": token})
-    if not dash.desk.check(client, msg.token):
+    if not isinstance(msg, OPEN_TO_ANY_PAGE) and not dash.desk.check(client, msg.token):
         return _error(f"{msg.type!r} refused: only the operator holding the control token may do this", op=msg.type)
-    if isinstance(msg, m.Input):
-        dash.console.accept_input(
-            seq=msg.seq, ts=msg.ts, held=msg.held, throttle=msg.throttle, steer=msg.steer, source=msg.source
-        )
-        return None
-    if isinstance(msg, m.Presence):
-        dash.console.set_presence(msg.focused, msg.visible)
-        return None
-    if isinstance(msg, m.Release):
-        dash.desk.release(client)
-        dash.console.disconnect()
-        dash.hub.publish(dumps(dash.live.state()))
-        return dumps({"type": "control", "granted": False})
-    if isinstance(msg, m.Control):
-        future = dash.live.submit(msg.op)
-    elif isinstance(msg, m.Speed):
-        future = dash.live.submit("speed", value=msg.value)
-    elif isinstance(msg, m.Configure):
-        args = msg.model_dump(exclude={"type", "token"})
-        if msg.sim is not None:
-            catalogue = await asyncio.to_thread(dash.catalogue)
-            if msg.sim not in catalogue or not catalogue[msg.sim]["available"]:
-                return _error(f"simulator {msg.sim!r} is not available here", op="configure")
-            args["default_policy"] = default_policy(dash.settings.policy_roots, msg.sim)
-            if msg.scenario is None:
-                entry = catalogue[msg.sim]
-                args["scenario"] = entry.get("default_scenario") or (
-                    entry["scenarios"][0]["id"] if entry["scenarios"] else None
-                )
-        future = dash.live.submit("configure", **args)
-    elif isinstance(msg, m.VersionControl):
-        future = dash.live.submit("version", action=msg.op, number=msg.version)
-    elif isinstance(msg, m.ReplayOpen):
-        future = dash.live.submit("replay_open", session=msg.session, episode=msg.episode)
-    elif isinstance(msg, m.ReplaySeek):
-        future = dash.live.submit("replay_seek", t=msg.t)
-    elif isinstance(msg, m.ReplayClose):
-        future = dash.live.submit("replay_close")
-    else:  # pragma: no cover - the union is exhaustive
+    handler = _HANDLERS.get(type(msg))
+    if handler is None:  # pragma: no cover - every message class has a handler (tested)
         return _error(f"unhandled message {msg.type!r}")
+    return await handler(dash, client, msg)
+
+
+@handles(m.Ping)
+async def _ping(dash: Dashboard, client: Client, msg: m.Ping) -> str:
+    return dumps({"type": "pong", "ts": msg.ts})
+
+
+@handles(m.Claim)
+async def _claim(dash: Dashboard, client: Client, msg: m.Claim) -> str:
+    token = dash.desk.claim(client)
+    if token is None:
+        return _error("control is held by another operator; this page is a viewer", op="claim")
+    dash.console.connect()
+    dash.hub.publish(dumps(dash.live.state()))
+    return dumps({"type": "control", "granted": True, "token": token})
+
+
+@handles(m.Release)
+async def _release(dash: Dashboard, client: Client, msg: m.Release) -> str:
+    dash.desk.release(client)
+    dash.console.disconnect()
+    dash.hub.publish(dumps(dash.live.state()))
+    return dumps({"type": "control", "granted": False})
+
+
+@handles(m.Input)
+async def _input(dash: Dashboard, client: Client, msg: m.Input) -> None:
+    dash.console.accept_input(
+        seq=msg.seq, ts=msg.ts, held=msg.held, throttle=msg.throttle, steer=msg.steer, source=msg.source
+    )
+
+
+@handles(m.Presence)
+async def _presence(dash: Dashboard, client: Client, msg: m.Presence) -> None:
+    dash.console.set_presence(msg.focused, msg.visible)
+
+
+CONTROL_OPS: dict[str, type[c.Command]] = {
+    "pause": c.Pause,
+    "resume": c.Resume,
+    "step": c.StepOnce,
+    "new_episode": c.NewEpisode,
+}
+
+
+async def _command(dash: Dashboard, msg: m.ClientMessage, command: c.Command) -> str:
+    """Apply a loop command and answer with its result (or the reason it was refused)."""
+    future = dash.live.submit(command)
     try:
         result = await asyncio.wait_for(asyncio.wrap_future(future), COMMAND_TIMEOUT)
     except CommandError as exc:
@@ -272,6 +300,62 @@ async def _handle(dash: Dashboard, client: Client, raw: str | bytes) -> str | No
     except TimeoutError:
         return _error(f"{msg.type} timed out after {COMMAND_TIMEOUT:.0f} s", op=msg.type)
     return dumps({"type": "ack", "op": getattr(msg, "op", msg.type), "result": result})
+
+
+@handles(m.Control)
+async def _control(dash: Dashboard, client: Client, msg: m.Control) -> str:
+    return await _command(dash, msg, CONTROL_OPS[msg.op]())
+
+
+@handles(m.Speed)
+async def _speed(dash: Dashboard, client: Client, msg: m.Speed) -> str:
+    return await _command(dash, msg, c.SetSpeed(msg.value))
+
+
+@handles(m.VersionControl)
+async def _version(dash: Dashboard, client: Client, msg: m.VersionControl) -> str:
+    return await _command(dash, msg, c.ChooseVersion(msg.op, msg.version))
+
+
+@handles(m.Configure)
+async def _configure(dash: Dashboard, client: Client, msg: m.Configure) -> str:
+    scenario, default = msg.scenario, None
+    if msg.sim is not None:
+        catalogue = await asyncio.to_thread(dash.catalogue)
+        if msg.sim not in catalogue or not catalogue[msg.sim]["available"]:
+            return _error(f"simulator {msg.sim!r} is not available here", op="configure")
+        default = default_policy(dash.settings.policy_roots, msg.sim)
+        if scenario is None:
+            entry = catalogue[msg.sim]
+            scenario = entry.get("default_scenario") or (entry["scenarios"][0]["id"] if entry["scenarios"] else None)
+    command = c.Configure(msg.sim, scenario, msg.policy, msg.expert_mode, default)
+    return await _command(dash, msg, command)
+
+
+# -- replay: per page, the live loop runs on ---------------------------------------------------------------
+@handles(m.ReplayOpen)
+async def _replay_open(dash: Dashboard, client: Client, msg: m.ReplayOpen) -> str:
+    try:
+        replay = await asyncio.to_thread(open_replay, dash.store, msg.session, msg.episode, dash.live.world.writer)
+    except ReplayError as exc:
+        return _error(str(exc), op=msg.type)
+    dash.replays[client.id] = replay
+    client.offer(dumps(json_safe(replay.opened())))
+    return dumps(json_safe(replay.seek(0)))
+
+
+@handles(m.ReplaySeek)
+async def _replay_seek(dash: Dashboard, client: Client, msg: m.ReplaySeek) -> str:
+    replay = dash.replays.get(client.id)
+    if replay is None:
+        return _error("no replay is open on this page", op=msg.type)
+    return dumps(json_safe(replay.seek(msg.t)))
+
+
+@handles(m.ReplayClose)
+async def _replay_close(dash: Dashboard, client: Client, msg: m.ReplayClose) -> str:
+    dash.replays.pop(client.id, None)
+    return dumps({"type": "replay_closed"})
 
 
 def create_app(settings: ServerSettings | None = None) -> FastAPI:
@@ -399,6 +483,7 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
                     await client.queue.put(reply)
         finally:
             dash.hub.remove(client)
+            dash.replays.pop(client.id, None)
             sender.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await sender

@@ -33,6 +33,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from app.commands import SetSpeed  # noqa: E402
 from app.live import FinetuneSettings, LiveConfig, LiveLoop  # noqa: E402
 from app.operator import OperatorConsole  # noqa: E402
 from app.policies import load_policy  # noqa: E402
@@ -58,7 +59,7 @@ def build(policy: str, sessions: Path, finetune: FinetuneSettings | None, speed:
 
 
 def measure(loop: LiveLoop, seconds: float, speed: float) -> dict[str, float]:
-    loop.submit("speed", value=speed).result(10)
+    loop.submit(SetSpeed(speed)).result(10)
     loop.step_costs.clear()
     loop.step_times.clear()
     time.sleep(seconds)
@@ -90,10 +91,10 @@ def line(name: str, r: dict[str, float]) -> str:
 
 def wait_for_training(loop: LiveLoop, timeout: float) -> dict[str, Any]:
     """Run the loop fast until the worker is inside a round (it needs one finished episode first)."""
-    loop.submit("speed", value=20.0).result(10)
+    loop.submit(SetSpeed(20.0)).result(10)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        status = loop.world.finetune.status() if loop.world.finetune else {}
+        status = loop.world.versions.service.status() if loop.world.versions else {}
         if status.get("phase") == "training":
             return status
         time.sleep(0.2)
@@ -123,7 +124,7 @@ def main() -> None:
             results[name] = measure(loop, args.seconds, speed=1.0)
             results[name + ", free"] = measure(loop, args.seconds / 2, speed=50.0)
             if finetune is not None:
-                status = loop.world.finetune.status()
+                status = loop.world.versions.service.status()
                 assert status["phase"] == "training" and status["alive"], status
                 done = status["progress"].get("update")
                 print(f"  (worker still training: its round stood at update {done})")

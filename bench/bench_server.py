@@ -38,6 +38,7 @@ import websockets
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from app.commands import Configure, SetSpeed  # noqa: E402
 from app.server import ServerSettings, create_app  # noqa: E402
 
 
@@ -82,11 +83,11 @@ async def measure_rates(port: int, app: Any, seconds: float) -> dict[str, Any]:
     for r in ready:
         await r.wait()
     live = app.state.dash.live
-    steps0, received0 = live.world.counters.steps, [len(c) for c in counts]
+    steps0, received0 = live.world.counts()["steps"], [len(c) for c in counts]
     t0 = time.monotonic()
     await asyncio.sleep(seconds)
     elapsed = time.monotonic() - t0
-    steps = live.world.counters.steps - steps0
+    steps = live.world.counts()["steps"] - steps0
     received = [len(c) - r for c, r in zip(counts, received0, strict=True)]
     stop.set()
     await asyncio.gather(*tasks)
@@ -184,7 +185,7 @@ async def measure_hostile(port: int, app: Any, count: int) -> dict[str, float]:
     internal = answered = 0
     async with websockets.connect(f"ws://127.0.0.1:{port}/ws", max_size=None) as ws:
         await ws.recv()  # the welcome
-        steps0, t0 = live.world.counters.steps, time.monotonic()
+        steps0, t0 = live.world.counts()["steps"], time.monotonic()
         for raw in hostile_messages(random.Random(0), count):
             await ws.send(raw)
         while answered < count and time.monotonic() - t0 < 60:
@@ -197,7 +198,7 @@ async def measure_hostile(port: int, app: Any, count: int) -> dict[str, float]:
                 internal += int("internal" in str(msg.get("error", "")))
         await asyncio.sleep(max(0.0, 3.0 - (time.monotonic() - t0)))
         elapsed = time.monotonic() - t0
-        loop = (live.world.counters.steps - steps0) / elapsed
+        loop = (live.world.counts()["steps"] - steps0) / elapsed
     return {"internal": internal, "answered": answered, "loop": loop, "target": live.speed / live.world.dt}
 
 
@@ -219,7 +220,7 @@ def main() -> None:
         period_ms = live.world.dt * 1000
         print(f"bench_server: UGV scenario 3, policy {live.world.loaded.label}, control period {period_ms:.0f} ms")
         for speed in (1.0, 20.0):
-            live.submit("speed", value=speed).result(timeout=10)
+            live.submit(SetSpeed(speed)).result(timeout=10)
             r = asyncio.run(measure_rates(port, app, args.seconds))
             print(
                 f"  speed {speed:>4.0f}x: loop {r['loop']:6.1f} steps/s (target {r['target']:.0f}, "
@@ -228,14 +229,14 @@ def main() -> None:
                 + f" msg/s (ratio {min(r['stream']) / r['loop']:.2f} of the loop); live step p50 "
                 f"{r['step_ms_p50']:.2f} ms, p95 {r['step_ms_p95']:.2f} ms"
             )
-        live.submit("speed", value=1.0).result(timeout=10)
+        live.submit(SetSpeed(1.0)).result(timeout=10)
         quiet = asyncio.run(measure_rates(port, app, 3.0))
         h = asyncio.run(measure_hostile(port, app, 1000))
         print(
             f"  1,000 hostile messages: {h['answered']} validation errors, {h['internal']} internal errors "
             f"(target 0); loop {h['loop']:.1f} steps/s beside {quiet['loop']:.1f} quiet (target {h['target']:.0f})"
         )
-        live.submit("configure", expert_mode="person").result(timeout=10)
+        live.submit(Configure(expert_mode="person")).result(timeout=10)
         lat = asyncio.run(measure_latency(port, args.samples))
         for name, label, target in (
             ("onset", "key press (takeover onset) -> applied action", "target p95 <= 50 ms"),

@@ -144,6 +144,20 @@ class StepRecord:
         }
 
 
+@dataclass(frozen=True)
+class EpisodeProgress:
+    """The running episode's tallies so far (what :class:`EpisodeSummary` will say when it ends)."""
+
+    episode: int
+    steps: int
+    ret: float
+    cost: float
+    takeovers: int
+    takeover_events: int
+    violations: int
+    """Violation onsets (a violation lasting several steps counts once)."""
+
+
 @dataclass
 class EpisodeSummary:
     episode: int
@@ -255,8 +269,31 @@ class Runner:
         self.gate.reset()
         if self.expert is not None:
             self.expert.reset()
-        self._acc = {"ret": 0.0, "cost": 0.0, "takeovers": 0, "events": 0, "fear": [], "curiosity": [], "prev": False}
+        self._acc = {
+            "ret": 0.0,
+            "cost": 0.0,
+            "takeovers": 0,
+            "events": 0,
+            "violations": 0,
+            "fear": [],
+            "curiosity": [],
+            "prev": False,
+            "prev_violation": False,
+        }
         return self.obs
+
+    def progress(self) -> EpisodeProgress:
+        """Tallies of the current (or the just-ended) episode; zeros before the first step."""
+        acc = self._acc
+        return EpisodeProgress(
+            self.episode,
+            self.t,
+            float(acc.get("ret", 0.0)),
+            float(acc.get("cost", 0.0)),
+            int(acc.get("takeovers", 0)),
+            int(acc.get("events", 0)),
+            int(acc.get("violations", 0)),
+        )
 
     def step(self) -> StepRecord | None:
         """One step of the loop. Returns None when the step failed (the episode was ended with the error)."""
@@ -319,6 +356,8 @@ class Runner:
         acc["takeovers"] += int(takeover)
         acc["events"] += int(takeover and not acc["prev"])
         acc["prev"] = takeover
+        acc["violations"] += int(record.violation and not acc["prev_violation"])
+        acc["prev_violation"] = record.violation
         if math.isfinite(record.fear):
             acc["fear"].append(record.fear)
         if math.isfinite(curiosity):

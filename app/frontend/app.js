@@ -131,7 +131,7 @@ const handlers = {
   ack(msg) { S.acks += 1; },
   finetune(msg) { applyFinetune(msg); },
   replay(msg) { enterReplay(msg); },
-  replay_frame(msg) { showReplayFrame(msg.t, msg.length, msg.labels); },
+  replay_frame(msg) { showReplayFrame(msg.t, msg.length, msg.labels, msg.scene); },
   replay_closed() { exitReplay(); },
   pong() {},
 };
@@ -177,6 +177,14 @@ function onStep(msg) {
     curiosity: msg.curiosity, takeover: msg.takeover, actor: msg.actor, boundary,
   });
   if (!S.replay) renderStep(msg);
+  else if (S.role === "operator" && msg.operator_held) {
+    // the operator is driving the live run: never leave them looking at the past
+    send({ type: "replay_close" }); exitReplay(); renderStep(msg);
+    toast("You are driving: back to the live view.");
+  } else if (S.role === "operator" && msg.request_person && !S.replayAsked) {
+    S.replayAsked = true; // once per replay: the scripted fallback drives until the operator comes back
+    toast("The gate asks for you on the live run: press Back to live.");
+  }
   renderCounters(msg.counters);
 }
 
@@ -324,7 +332,7 @@ function renderControls() {
   if (document.activeElement !== $("speed")) $("speed").value = st.speed;
   $("speed-text").textContent = `${Number(st.speed).toFixed(2).replace(/0$/, "")}×`;
   const viewer = S.role !== "operator";
-  for (const id of ["sel-sim", "sel-scenario", "sel-policy", "btn-pause", "btn-step", "btn-new", "speed", "btn-replay"]) $(id).disabled = viewer;
+  for (const id of ["sel-sim", "sel-scenario", "sel-policy", "btn-pause", "btn-step", "btn-new", "speed"]) $(id).disabled = viewer;
   for (const button of $("seg-expert").querySelectorAll("button")) button.disabled = viewer;
 }
 
@@ -392,21 +400,26 @@ $("btn-replay").onclick = (e) => {
   const session = $("sel-session").value;
   const episode = Number($("sel-episode").value);
   if (!session || !Number.isFinite(episode)) { toast("Pick a recorded session and episode first."); return; }
-  sendOperator({ type: "replay_open", session, episode });
+  send({ type: "replay_open", session, episode }); // any page may replay: it changes only this page's view
 };
+const replayView = new ReplayView($("replay-view"));
+S.replayView = replayView;
 
 function enterReplay(msg) {
   const series = msg.series;
-  S.replay = { session: msg.session, episode: msg.episode, series, length: series.t.length };
+  S.replay = { session: msg.session, episode: msg.episode, series, length: series.t.length, trail: msg.trail || [] };
+  replayView.setStatic(msg.static);
+  $("replay-view").hidden = false;
   const actors = series.t.map((_, i) => (series.takeover[i] ? series.actor[i] : null));
   for (const chart of [fearChart, curiosityChart]) { chart.window = null; chart.setAll(series.t, series, actors); }
   $("replay-bar").hidden = false;
   $("replay-scrub").max = String(series.t.length - 1);
   renderMode();
 }
-function showReplayFrame(t, length, labels) {
+function showReplayFrame(t, length, labels, scene) {
   if (!S.replay) return;
   S.replayT = t;
+  replayView.draw(scene, S.replay.trail.slice(0, t + 1).filter(Boolean));
   const s = S.replay.series;
   fearChart.setCursor(s.t[t]); curiosityChart.setCursor(s.t[t]);
   if (document.activeElement !== $("replay-scrub")) $("replay-scrub").value = String(t);
@@ -421,6 +434,8 @@ function showReplayFrame(t, length, labels) {
 }
 function exitReplay() {
   S.replay = null;
+  S.replayAsked = false;
+  $("replay-view").hidden = true;
   stopReplayPlayback();
   $("replay-bar").hidden = true;
   $("banner").hidden = true;
@@ -433,13 +448,13 @@ let seekPending = null;
 function seek(t) {
   seekPending = t;
   if (seekTimer) return;
-  sendOperator({ type: "replay_seek", t });
+  send({ type: "replay_seek", t });
   seekPending = null;
   seekTimer = setTimeout(() => { seekTimer = null; if (seekPending !== null) seek(seekPending); }, 60);
 }
 $("replay-scrub").oninput = (e) => seek(Number(e.target.value));
 $("replay-scrub").onchange = (e) => e.target.blur();
-$("replay-exit").onclick = (e) => { sendOperator({ type: "replay_close" }); e.target.blur(); };
+$("replay-exit").onclick = (e) => { send({ type: "replay_close" }); e.target.blur(); };
 let playTimer = null;
 function stopReplayPlayback() { clearInterval(playTimer); playTimer = null; $("replay-play").textContent = "▶"; }
 $("replay-play").onclick = (e) => {

@@ -14,9 +14,11 @@ import pytest
 import torch
 
 from app import messages as m
+from app.commands import NewEpisode, StepOnce
 from app.live import LiveConfig, LiveLoop
 from app.operator import OperatorConsole
 from app.policies import LoadedPolicy, load_policy
+from app.versions import VersionFollower
 from core.agents import AgentMeta, save_checkpoint
 from core.finetune import FinetuneConfig
 from core.loop import GateDecision, NoGate
@@ -114,12 +116,12 @@ def test_the_live_loop_takes_a_new_version_only_at_an_episode_boundary() -> None
     )
     gate = MarkerGate()
     service = OneVersion(LoadedPolicy(Constant(0.9), gate, "v1", {}))
-    loop.world.finetune, loop.world.version = service, 0  # type: ignore[assignment]
+    loop.world.versions = VersionFollower(service)  # type: ignore[arg-type]
     loop.start()
     try:
 
         def step() -> dict[str, Any]:
-            loop.submit("step").result(10)
+            loop.submit(StepOnce()).result(10)
             return [s for s in sent if s["type"] == "step"][-1]
 
         for _ in range(3):
@@ -129,7 +131,7 @@ def test_the_live_loop_takes_a_new_version_only_at_an_episode_boundary() -> None
             record = step()
             assert record["episode"] == 0 and record["a_rl"][0] == pytest.approx(0.1) and record["version"] == 0
         assert service.deployed == [0] and loop.state()["version"] == 0
-        loop.submit("new_episode").result(10)  # the operator ends the episode: a boundary
+        loop.submit(NewEpisode()).result(10)  # the operator ends the episode: a boundary
         record = step()
         assert record["episode"] == 1 and record["t"] == 0 and record["version"] == 1
         assert record["a_rl"][0] == pytest.approx(0.9) and record["fear"] == pytest.approx(0.123)
@@ -246,7 +248,7 @@ def test_a_trained_policy_is_fine_tuned_live_and_the_operator_pins_and_rolls_bac
             assert update["pid"] and isinstance(update["versions"], list)
     finally:
         stop_server(live, thread)
-    assert not live.dash.live.world.finetune.status()["alive"]
+    assert not live.dash.live.world.versions.service.status()["alive"]
 
 
 @pytest.mark.browser
