@@ -157,7 +157,8 @@ class LoadedAgent:
     """The checkpoint file that was loaded."""
     meta: AgentMeta
     config: AgentConfig
-    actor: Actor
+    learner: BaseLearner
+    """The run's learner, built for acting only (its networks loaded, frozen)."""
     world_model: EnsembleWorldModel | None
     policy: LearnerPolicy
     """``policy.act(obs, deterministic)`` (:class:`core.loop.Policy`); the training-time stochastic policy when
@@ -167,6 +168,11 @@ class LoadedAgent:
     @property
     def has_world_model(self) -> bool:
         return self.world_model is not None and bool(self.world_model.fitted)
+
+    @property
+    def actor(self) -> Actor:
+        """The continuous actor of an actor-based run (a value-based run has none: AttributeError)."""
+        return self.learner.actor  # type: ignore[attr-defined,no-any-return]
 
     def gate_config(self, **overrides: Any) -> GateConfig:
         """The run's gate settings with ``overrides`` (GateConfig field names; unknown names are an error)."""
@@ -194,7 +200,10 @@ class LoadedAgent:
                 f"run {source.path} (method {source.meta.method}) has no trained world model, so no SAGE gate; "
                 "use core.loop.NoGate, or make_gate(world_model_from=<a run with one>)"
             )
-        gate = SageGate(source.world_model, self.actor, self.gate_config(**overrides))
+        learner = self.learner
+        gate = SageGate(
+            source.world_model, learner.gate_policy(), self.gate_config(**overrides), encode=learner.gate_encoder()
+        )
         if source is self and self.gate_state:
             gate.load_state(self.gate_state)
         return gate
@@ -212,19 +221,21 @@ def load_agent(path: str | Path) -> LoadedAgent:
         loaded = learner.load_state_dict(parts, strict=False)
     except RuntimeError as exc:
         raise ValueError(f"{payload['file']}: actor weights do not match its config: {exc}") from None
-    if "actor" not in loaded:
-        raise ValueError(f"{payload['file']}: the checkpoint holds no actor (it has {', '.join(sorted(state))})")
-    actor = learner.actor.requires_grad_(False).eval()
+    acting = learner.acting_module
+    if acting not in loaded:
+        raise ValueError(f"{payload['file']}: the checkpoint holds no {acting} (it has {', '.join(sorted(state))})")
+    for name in learner.declared_state().modules:
+        getattr(learner, name).requires_grad_(False).eval()
     world_model = None
     if "world_model" in state:
-        world_model = EnsembleWorldModel(meta.obs_dim, meta.act_dim, config.world_model_config)
+        world_model = learner.new_world_model()
         try:
             world_model.load_state_dict(state["world_model"])
         except RuntimeError as exc:
             raise ValueError(f"{payload['file']}: world model weights do not match its config: {exc}") from None
         world_model.requires_grad_(False).eval()
     gate_state = {k: float(v) for k, v in state.get("gate", {}).items() if math.isfinite(float(v))}
-    return LoadedAgent(Path(payload["file"]), meta, config, actor, world_model, LearnerPolicy(learner), gate_state)
+    return LoadedAgent(Path(payload["file"]), meta, config, learner, world_model, LearnerPolicy(learner), gate_state)
 
 
 class LearnerPolicy:

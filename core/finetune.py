@@ -291,17 +291,18 @@ def ingest(learner: BaseLearner, store: SessionStore, session_id: str, episodes:
                 continue
             a_expert = arrays["a_expert"][i]
             takeover = bool(arrays["takeover"][i]) and bool(np.isfinite(a_expert).all())
+            encode = learner.encode_action  # a discrete learner's buffer holds one-hot actions
             learner.buffer.add(
                 arrays["obs"][i],
-                arrays["action"][i],
+                encode(arrays["action"][i]),
                 float(arrays["reward"][i]),
                 arrays["next_obs"][i],
                 bool(arrays["terminated"][i] or arrays["violation"][i]),
                 cost=float(arrays["cost"][i]),
                 violation=bool(arrays["violation"][i]),
                 takeover=takeover,
-                a_rl=arrays["a_rl"][i],
-                a_expert=a_expert if takeover else None,
+                a_rl=encode(arrays["a_rl"][i]),
+                a_expert=encode(a_expert) if takeover else None,
             )
             out.steps += 1
             out.takeovers += int(takeover)

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from core.sage.config import AgentConfig, note_method
+from core.sage.config import AgentConfig, note_method, set_field, validate
 from core.sage.learner import BaseLearner
 
 Preset = Callable[..., AgentConfig]
@@ -104,6 +104,7 @@ def _builtins() -> None:
         return
     _BUILTINS_DONE = True
     from core.sage.config import for_method
+    from core.sage.d3qn import D3QN
     from core.sage.hg_dagger import HGDAgger
     from core.sage.sac import SAC
     from core.sage.td3 import TD3
@@ -111,6 +112,25 @@ def _builtins() -> None:
     classes: dict[str, type[BaseLearner]] = {"sage": SAC, "sac": SAC, "fni-rl": SAC, "td3": TD3, "hg-dagger": HGDAgger}
     for method, cls in classes.items():
         _REGISTRY[method] = LearnerEntry(method, cls, _method_preset(method, for_method))
+    # discrete actions: the same switches as SAGE-SAC and plain SAC, on a dueling double-Q network
+    for method, switches in (("d3qn", "sac"), ("sage-d3qn", "sage")):
+        _REGISTRY[method] = LearnerEntry(method, D3QN, _switched_preset(method, switches, for_method))
+        note_method(method)
+
+
+def _switched_preset(method: str, switches_of: str, for_method: Callable[..., AgentConfig]) -> Preset:
+    """A preset with the switches of built-in method ``switches_of``, named ``method``."""
+
+    def build(base: AgentConfig | None = None, **overrides: Any) -> AgentConfig:
+        cfg = for_method(switches_of, base)
+        cfg.method = method
+        for key, value in overrides.items():
+            set_field(cfg, key, value)
+        validate(cfg)
+        return cfg
+
+    build.__doc__ = f"The switches of {switches_of!r}, for method {method!r}."
+    return build
 
 
 def _method_preset(method: str, for_method: Callable[..., AgentConfig]) -> Preset:

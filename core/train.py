@@ -167,6 +167,8 @@ class Trainer:
             if _dims(env)[:2] != (self.obs_dim, self.act_dim):
                 raise ValueError(f"scenario {s} has other observation/action sizes than {run.scenarios[0]}")
         self.learner = make_learner(agent, self.obs_dim, self.act_dim, self.low, self.high, run.seed)
+        if run.demo_noise > 0 and self.learner.encodes_actions:
+            raise ValueError("--demo-noise perturbs continuous actions; this learner's actions are discrete")
         self.expert = self._make_expert(run.expert)
         self.init_parts: list[str] = []
         if run.init:
@@ -258,7 +260,7 @@ class Trainer:
         ends: list[bool] = []  # per stored row: the last of its episode
 
         def store(record: StepRecord) -> None:
-            self.learner.buffer.add_record(record)
+            self.learner.store(record)
             ends.append(record.done)
 
         for runner in runners:

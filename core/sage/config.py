@@ -110,6 +110,20 @@ class GateConfig:
 
 
 @dataclass
+class DiscreteConfig:
+    """Value-based learners on discrete actions (D3QN, SAGE-D3QN: :mod:`core.sage.d3qn`)."""
+
+    epsilon_start: float = 1.0
+    """ε of ε-greedy exploration at the first learning step (after the warm-up)."""
+    epsilon_end: float = 0.05
+    """ε after ``epsilon_decay_steps`` (held from then on)."""
+    epsilon_decay_steps: int = 5000
+    """Environment steps over which ε falls linearly (a warm-started Q-network starts at ``epsilon_end``)."""
+    margin: float = 0.8
+    """ℓ of the large-margin imitation loss: how far the expert's action must lead the others' Q values."""
+
+
+@dataclass
 class AgentConfig:
     """Everything a learner needs. Switches select the method; see :func:`for_method` for the presets."""
 
@@ -237,6 +251,8 @@ class AgentConfig:
     """The world model's architecture and training."""
     gate: GateConfig = field(default_factory=GateConfig)
     """Fear, curiosity, threshold and hold."""
+    discrete: DiscreteConfig = field(default_factory=DiscreteConfig)
+    """Exploration and imitation of the value-based discrete-action learners."""
 
 
 SWITCHES: tuple[str, ...] = (

@@ -1,8 +1,9 @@
 """D3QN pieces for discrete actions (the paper's long-tail study): a dueling Q-network, double-Q targets with
 SAGE's fear regularisation, and the discrete form of value-weighted imitation.
 
-Not yet a learner: these are the network and the one-step losses that a ``D3QN`` / ``SAGE-D3QN`` learner on
-:class:`core.sage.learner.BaseLearner` will use (issue #12); they are tested on their own.
+The learner :class:`D3QN` (registered as ``d3qn`` and ``sage-d3qn``, :mod:`core.learners`) is built on
+:class:`core.sage.learner.BaseLearner` with a Q-network in place of an actor: the same buffers, world model, gate,
+checkpoints and guarded update as the continuous learners.
 
 Discrete imitation. The paper's actor loss adds ω(s) · ||π(s) - a_E||² on takeover samples, with
 ω = exp((Q(s, a_E) - Q(s, a_RL)) / T) clipped. A Q-network has no actor; its greedy policy is argmax_a Q(s, a),
@@ -17,8 +18,19 @@ on a violation (cost flag) the reward is replaced by -c* (:func:`core.sage.sac.p
 
 from __future__ import annotations
 
+import copy
+import math
+from typing import Any
+
+import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
+
+from core.sage.fear import fear
+from core.sage.learner import BaseLearner, DeclaredState
+from core.sage.networks import soft_update
+from core.sage.sac import advantage_weights, penalty_c_star
 
 
 class DuelingQNetwork(nn.Module):
@@ -83,3 +95,176 @@ def weighted_margin_loss(
     penalty.scatter_(-1, expert_action.long().view(-1, 1), 0.0)
     loss = (q + penalty).max(-1).values - q.gather(-1, expert_action.long().view(-1, 1)).squeeze(-1)
     return (loss if weights is None else weights * loss).mean()
+
+
+# -- the learner ---------------------------------------------------------------------------------------------
+class D3QN(BaseLearner):
+    """D3QN (double Q-learning with a dueling network) and, with SAGE's switches on, SAGE-D3QN.
+
+    The method's switches are those of SAGE-SAC (:func:`core.sage.config.for_method`): ``d3qn`` has them all off;
+    ``sage-d3qn`` trains the world model on one-hot actions, hands takeovers to the expert through the gate (fear
+    over the horizon under the greedy policy, the curiosity threshold), regularises the targets with fear and
+    -c* on violations, and imitates takeover actions with the ω-weighted margin loss (module docstring).
+    Actions: the environment's ``Discrete(n)`` indices (``start`` .. ``start + n - 1``); the buffers and the
+    world model hold their one-hot encoding.
+    """
+
+    acting_module = "q"
+    encodes_actions = True
+    uses_random_warmup = True
+
+    def build_networks(self) -> None:
+        self.first_action = round(float(self.action_low[0]))
+        self.n_actions = round(float(self.action_high[0])) - self.first_action + 1
+        if self.act_dim != 1 or self.n_actions < 2:
+            raise ValueError(
+                f"{self.cfg.method} needs a Discrete action space (one index); got {self.act_dim} action values "
+                f"with {self.n_actions} choices"
+            )
+        cfg = self.cfg
+        self.q = DuelingQNetwork(self.obs_dim, self.n_actions, cfg.hidden, cfg.layers)
+        self.q_target = copy.deepcopy(self.q).requires_grad_(False)
+        self.q_optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.critic_lr)
+        self.lam = float(cfg.lambda_init)
+
+    # -- actions ---------------------------------------------------------------------------------------
+    @property
+    def model_action_dim(self) -> int:
+        return self.n_actions
+
+    def encode_action(self, action: Any) -> np.ndarray:
+        value = np.asarray(action, dtype=np.float32).reshape(-1)
+        if value.size == self.n_actions:  # already one-hot (a stored row)
+            return value
+        index = round(float(value[0])) - self.first_action
+        if not 0 <= index < self.n_actions:
+            raise ValueError(
+                f"action {value[0]} is outside {self.first_action}..{self.first_action + self.n_actions - 1}"
+            )
+        one_hot = np.zeros(self.n_actions, np.float32)
+        one_hot[index] = 1.0
+        return one_hot
+
+    def _index(self, index: int) -> np.ndarray:
+        return np.array([self.first_action + int(index)], dtype=np.int64)
+
+    def random_action(self) -> np.ndarray:
+        return self._index(self.rng.integers(self.n_actions))
+
+    def epsilon(self) -> float:
+        d = self.cfg.discrete
+        if self.warm:
+            return d.epsilon_end
+        progress = min(1.0, max(0, self.buffer.total - self.cfg.learning_starts) / max(1, d.epsilon_decay_steps))
+        return d.epsilon_start + progress * (d.epsilon_end - d.epsilon_start)
+
+    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        if not deterministic and self.rng.random() < self.epsilon():
+            return self.random_action()
+        with torch.inference_mode():
+            q = self.q(torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1))
+        return self._index(int(q.argmax(-1)))
+
+    def rollout_policy(self, obs: Tensor) -> Tensor:
+        return self.q.greedy_one_hot(obs)
+
+    # -- learning --------------------------------------------------------------------------------------
+    def fear_active(self) -> bool:
+        return self.cfg.fear_regularisation and self.world_model_ready()
+
+    def c_star(self) -> float:
+        bounds = self.cfg.reward_bounds or self.buffer.reward_bounds() or (0.0, 0.0)
+        low, high = bounds
+        lam = self.lam if self.fear_active() else 0.0
+        paper = penalty_c_star(low, high, self.cfg.gamma, self.cfg.safety_horizon, lam)
+        return max(paper, self.cfg.c_star_floor, abs(low), abs(high), self.buffer.reward_magnitude())
+
+    def _fear(self, obs: Tensor) -> Tensor:
+        """F(s, greedy a) through the frozen world model."""
+        assert self.world_model is not None
+        with torch.no_grad():
+            return fear(
+                self.world_model.folded(),
+                self.rollout_policy,
+                obs,
+                self.rollout_policy(obs),
+                self.cfg.gate,
+                horizon=self.cfg.learner_fear_horizon,
+            ).fear
+
+    def update(self) -> dict[str, float]:
+        cfg = self.cfg
+        batch = self.buffer.sample(cfg.batch_size, self.rng)
+        actions = batch.action.argmax(-1, keepdim=True)
+        fear_next = self._fear(batch.next_obs) if self.fear_active() else None
+        y = double_q_target(
+            self.q,
+            self.q_target,
+            batch.reward,
+            batch.next_obs,
+            batch.terminated,
+            cfg.gamma,
+            fear_next=fear_next,
+            lam=self.lam,
+            violation=batch.violation if cfg.violation_penalty else None,
+            c_star=self.c_star() if cfg.violation_penalty else 0.0,
+        )
+        q_all = self.q(batch.obs)
+        q = q_all.gather(-1, actions).squeeze(-1)
+        loss = F.smooth_l1_loss(q, y)
+        stats: dict[str, float] = {"q_loss": loss.item(), "q_mean": q.mean().item(), "epsilon": self.epsilon()}
+        imitation = self.buffer.sample_takeovers(cfg.bc_batch_size, self.rng) if cfg.imitation else None
+        if imitation is not None:
+            q_scale = q_all.detach().abs().mean().clamp_min(1.0)
+            q_imitation = self.q(imitation.obs)
+            expert = imitation.a_expert.argmax(-1)
+            with torch.no_grad():
+                q_expert = q_imitation.gather(-1, expert.view(-1, 1)).squeeze(-1)
+                q_agent = q_imitation.gather(-1, imitation.a_rl.argmax(-1).view(-1, 1)).squeeze(-1)
+                omega = advantage_weights(q_expert, q_agent, q_scale, cfg.advantage_temperature, cfg.advantage_clip)
+            margin = weighted_margin_loss(q_imitation, expert, omega, cfg.discrete.margin)
+            loss = loss + cfg.bc_weight * margin
+            stats.update(bc_loss=margin.item(), omega_mean=omega.mean().item())
+        self.q_optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(self.q.parameters(), cfg.max_grad_norm)
+        self.q_optimizer.step()
+        soft_update(self.q_target, self.q, cfg.polyak)
+        if self.fear_active():
+            fear_real = float(self._fear(batch.obs).mean())
+            self.lam = min(max(self.lam + cfg.lambda_lr * (fear_real - cfg.fear_budget), 0.0), cfg.lambda_max)
+            stats.update(fear_real=fear_real, lam=self.lam)
+        return stats
+
+    def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
+        """The margin loss alone on intervention samples: the expert's action becomes the greedy one."""
+        optimizer = torch.optim.Adam(self.q.parameters(), lr=lr)
+        loss = torch.tensor(math.nan)
+        for _ in range(steps):
+            batch = self.buffer.sample_takeovers(self.cfg.batch_size, self.rng)
+            if batch is None:
+                break
+            loss = weighted_margin_loss(self.q(batch.obs), batch.a_expert.argmax(-1), None, self.cfg.discrete.margin)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+        self.q_target.load_state_dict(self.q.state_dict())
+        return float(loss.detach())
+
+    def declared_state(self) -> DeclaredState:
+        return DeclaredState(modules=("q", "q_target"), optimizers=("q_optimizer",), scalars=("lam",))
+
+    def state_dict(self) -> dict[str, Any]:
+        state = super().state_dict()
+        state["lam"] = torch.tensor(self.lam)
+        return state
+
+    def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
+        loaded = super().load_state_dict(state, strict)
+        if "lam" in state:
+            self.lam = float(torch.as_tensor(state["lam"]))
+            loaded.append("lam")
+        if "q" in loaded and "q_target" not in state:
+            self.q_target.load_state_dict(self.q.state_dict())
+        return loaded

@@ -13,7 +13,9 @@ core (bench/bench_gate.py): inference mode, cached folded weights, every member 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -44,10 +46,17 @@ class SageGate:
     """Fear vs curiosity-modulated threshold, with a k-step hold. Cheap enough to run at every step."""
 
     def __init__(
-        self, world_model: EnsembleWorldModel, policy: Actor | PolicyFn, cfg: GateConfig | None = None
+        self,
+        world_model: EnsembleWorldModel,
+        policy: Actor | PolicyFn,
+        cfg: GateConfig | None = None,
+        encode: Callable[[Any], np.ndarray] | None = None,
     ) -> None:
         """``policy``: the learner's :class:`Actor` (fast preallocated path, always its current weights) or
-        any deterministic torch policy function (generic path, e.g. a discrete learner's one-hot greedy)."""
+        any deterministic torch policy function (generic path, e.g. a discrete learner's one-hot greedy).
+        ``encode``: turns the loop's actions into the world model's (a discrete action index into its one-hot);
+        None when they are the same."""
+        self.encode = encode
         self.world_model = world_model
         self.actor = policy if isinstance(policy, Actor) else None
         self.policy: PolicyFn = policy.deterministic if isinstance(policy, Actor) else policy
@@ -61,6 +70,11 @@ class SageGate:
         self.detail = GateDetail(threshold=self.threshold.threshold)
         self._previous_obs: np.ndarray | None = None
         """The last observation the gate saw in this episode: the world model's motion input is obs - it."""
+
+    def _encoded(self, action: Any) -> np.ndarray:
+        if self.encode is not None:
+            return np.asarray(self.encode(action), dtype=np.float32)
+        return np.asarray(action, dtype=np.float32)
 
     def kernel(self) -> GateKernel | None:
         if self.actor is None:
@@ -114,7 +128,7 @@ class SageGate:
         self._refresh_reference()
         with torch.inference_mode():
             o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
-            a = torch.from_numpy(np.asarray(a_rl, dtype=np.float32)).view(1, -1)
+            a = torch.from_numpy(self._encoded(a_rl)).view(1, -1)
             kernel = self.kernel()
             motion = self._motion(obs)
             if kernel is not None:
@@ -139,7 +153,7 @@ class SageGate:
         self._refresh_reference()
         with torch.inference_mode():
             o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
-            a = torch.from_numpy(np.asarray(action, dtype=np.float32)).view(1, -1)
+            a = torch.from_numpy(self._encoded(action)).view(1, -1)
             s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
             motion = self._motion(obs)

@@ -19,10 +19,10 @@ import numpy as np
 import torch
 
 from core.sage.config import AgentConfig
-from core.sage.learner import BaseLearner, DeclaredState
+from core.sage.learner import ActorLearner, DeclaredState
 
 
-class HGDAgger(BaseLearner):
+class HGDAgger(ActorLearner):
     uses_random_warmup = False
 
     def __init__(

@@ -1,5 +1,13 @@
-"""What every learner shares: the actor, the real and virtual buffers, the world model and its schedule,
-the SAGE gate built on them, the update schedule, demonstrations and checkpoints.
+"""What every learner shares: the real and virtual buffers, the world model and its schedule, the SAGE gate
+built on them, the update schedule, the guarded update, demonstrations and checkpoints.
+
+:class:`BaseLearner` builds no network: what a method trains is its own (declared in
+:meth:`BaseLearner.declared_state`, which checkpoints and the guarded update read), and it says how it acts
+(:meth:`~BaseLearner.policy_action`), which deterministic policy world-model rollouts follow
+(:meth:`~BaseLearner.rollout_policy`) and how the environment's actions are written for its buffer and world
+model (:meth:`~BaseLearner.encode_action`: identity for continuous actions, one-hot for discrete ones).
+:class:`ActorLearner` adds the continuous actor that SAC, TD3 and HG-DAgger share; a value-based discrete learner
+(:mod:`core.sage.d3qn_learner`) subclasses the base directly.
 
 Virtual buffer. The paper stores the fear rollouts' imagined transitions in D_virtual. Here the learner
 rolls the same model, the same m steps under the same (current, deterministic) policy, from a batch of real
@@ -19,6 +27,7 @@ and hand the gate a one-hot greedy policy function (see :data:`core.sage.fear.Po
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -30,7 +39,7 @@ from torch import Tensor
 from core.loop import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.config import AgentConfig, GateConfig
-from core.sage.fear import calibrate, rollout, sample_member_transitions
+from core.sage.fear import PolicyFn, calibrate, rollout, sample_member_transitions
 from core.sage.gate import SageGate
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel, FitReport
@@ -90,6 +99,8 @@ class BaseLearner:
 
     uses_random_warmup = True
     """Act uniformly at random until ``learning_starts`` transitions (unless warm-started)."""
+    acting_module = "actor"
+    """The declared module a checkpoint must hold for the learner to act (the actor, a Q-network, ...)."""
 
     def __init__(
         self,
@@ -106,12 +117,13 @@ class BaseLearner:
         low = torch.as_tensor(-np.ones(act_dim) if action_low is None else action_low, dtype=torch.float32)
         high = torch.as_tensor(np.ones(act_dim) if action_high is None else action_high, dtype=torch.float32)
         self.action_low, self.action_high = low, high
-        self.actor = Actor(obs_dim, act_dim, cfg.hidden, cfg.layers, low, high)
-        self.buffer = ReplayBuffer(obs_dim, act_dim, cfg.buffer_size)
-        self.world_model = EnsembleWorldModel(obs_dim, act_dim, cfg.world_model_config) if cfg.world_model else None
-        self.virtual = VirtualBuffer(obs_dim, act_dim, cfg.virtual_size) if cfg.virtual_rollouts else None
+        self.build_networks()
+        width = self.model_action_dim
+        self.buffer = ReplayBuffer(obs_dim, width, cfg.buffer_size)
+        self.world_model = self.new_world_model() if cfg.world_model else None
+        self.virtual = VirtualBuffer(obs_dim, width, cfg.virtual_size) if cfg.virtual_rollouts else None
         self.warm = False
-        """True once the actor holds knowledge (loaded or pretrained): no random warm-up actions."""
+        """True once the policy holds knowledge (loaded or pretrained): no random warm-up actions."""
         self.env_steps = 0
         self.updates = 0
         self._update_credit = 0.0
@@ -121,30 +133,72 @@ class BaseLearner:
         self.info: dict[str, float] = {}
         """Latest training statistics (losses, λ, α, ...), for progress bars and metrics rows."""
         self._gates: list[SageGate] = []
-        self._policy: ActorPolicy | None = None
+
+    # -- what a method provides --------------------------------------------------------------------
+    def build_networks(self) -> None:
+        """Build what the method trains (called once by the base constructor, before the buffers)."""
+
+    @property
+    def model_action_dim(self) -> int:
+        """Width of an action as the buffers and the world model hold it (see :meth:`encode_action`)."""
+        return self.act_dim
+
+    def encode_action(self, action: Any) -> np.ndarray:
+        """An environment action as the buffers and the world model hold it (continuous: as it is)."""
+        return np.asarray(action, dtype=np.float32).reshape(self.model_action_dim)
+
+    def new_world_model(self) -> EnsembleWorldModel:
+        """A fresh world model for this learner's observations and encoded actions."""
+        return EnsembleWorldModel(self.obs_dim, self.model_action_dim, self.cfg.world_model_config)
+
+    def random_action(self) -> np.ndarray:
+        """A uniformly random action (the warm-up before ``learning_starts``)."""
+        return self.rng.uniform(self.action_low.numpy(), self.action_high.numpy()).astype(np.float32)
+
+    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        """The method's action for the environment (sampled while training, or its deterministic one)."""
+        raise NotImplementedError
+
+    def rollout_policy(self, obs: Tensor) -> Tensor:
+        """The deterministic torch policy that world-model rollouts (fear, virtual buffer) follow, in the
+        encoded action space."""
+        raise NotImplementedError
+
+    def gate_policy(self) -> Actor | PolicyFn:
+        """What the SAGE gate rolls out: an :class:`Actor` (its fast path) or a torch policy function."""
+        return self.rollout_policy
+
+    def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
+        """Fit the policy to the expert's actions on intervention samples; returns the last loss."""
+        raise NotImplementedError
 
     # -- acting ----------------------------------------------------------------------------------
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
         if not deterministic and self.in_random_warmup():
-            return self.rng.uniform(self.action_low.numpy(), self.action_high.numpy()).astype(np.float32)
+            return self.random_action()
         return self.policy_action(obs, deterministic)
 
     def in_random_warmup(self) -> bool:
         return self.uses_random_warmup and not self.warm and self.buffer.total < self.cfg.learning_starts
 
-    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
-        if self._policy is None:
-            self._policy = ActorPolicy(self.actor)
-        return self._policy.act(obs, deterministic)
-
-    def rollout_policy(self, obs: Tensor) -> Tensor:
-        """The deterministic torch policy that world-model rollouts (fear, virtual buffer) follow."""
-        return self.actor.deterministic(obs)
-
     # -- the loop's listener -----------------------------------------------------------------------
+    def store(self, record: StepRecord) -> None:
+        """Add one step of the loop to the real buffer, its actions encoded (:meth:`encode_action`)."""
+        if self.model_action_dim != self.act_dim or self.encodes_actions:
+            record = dataclasses.replace(
+                record,
+                action=self.encode_action(record.action),
+                a_rl=self.encode_action(record.a_rl),
+                a_expert=None if record.a_expert is None else self.encode_action(record.a_expert),
+            )
+        self.buffer.add_record(record)
+
+    encodes_actions = False
+    """Whether :meth:`encode_action` changes actions (a discrete learner's one-hot), so :meth:`store` must."""
+
     def observe(self, record: StepRecord) -> None:
         """Store the step, refit the world model / roll it out when due, and run the updates due."""
-        self.buffer.add_record(record)
+        self.store(record)
         self.env_steps += 1
         self.maybe_fit_world_model()
         self.maybe_virtual_rollout()
@@ -286,10 +340,10 @@ class BaseLearner:
 
     # -- gate --------------------------------------------------------------------------------------
     def make_gate(self, cfg: GateConfig | None = None) -> SageGate:
-        """A SAGE gate on this learner's world model and (live) actor."""
+        """A SAGE gate on this learner's world model and (live) policy."""
         if self.world_model is None:
             raise ValueError(f"method {self.cfg.method!r} trains no world model, so it has no SAGE gate")
-        gate = SageGate(self.world_model, self.actor, cfg or self.cfg.gate)
+        gate = SageGate(self.world_model, self.gate_policy(), cfg or self.cfg.gate, encode=self.gate_encoder())
         self._gates.append(gate)
         return gate
 
@@ -308,24 +362,15 @@ class BaseLearner:
         self.info.update(stats)
         return stats
 
-    def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
-        """Plain regression of the deterministic action onto the expert's (intervention samples)."""
-        optimizer = torch.optim.Adam(self.actor.parameters(), lr=lr)
-        loss = torch.tensor(math.nan)
-        for _ in range(steps):
-            batch = self.buffer.sample_takeovers(self.cfg.batch_size, self.rng)
-            if batch is None:
-                break
-            loss = (self.actor.deterministic(batch.obs) - batch.a_expert).pow(2).sum(-1).mean()
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-        return float(loss.detach())
+    def gate_encoder(self) -> Any:
+        """How the gate turns the loop's actions into the world model's (None: they are already)."""
+        return self.encode_action if self.encodes_actions else None
 
     # -- checkpoints -------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        """Plain state dicts and tensors only (loadable with ``torch.load(weights_only=True)``)."""
-        state: dict[str, Any] = {"actor": self.actor.state_dict()}
+        """Plain state dicts and tensors only (loadable with ``torch.load(weights_only=True)``): the modules the
+        method declares, the world model, the gate's running state and the optimisers."""
+        state: dict[str, Any] = {name: module.state_dict() for name, module in self._modules_for_state().items()}
         if self.world_model is not None:
             state["world_model"] = self.world_model.state_dict()
         if self._gates:
@@ -348,7 +393,7 @@ class BaseLearner:
             elif strict:
                 raise KeyError(f"checkpoint has no {name!r} (it has {', '.join(sorted(state))})")
         loaded.extend(self._load_optimizers(state.get("optimizers", {}), strict))
-        if "actor" in loaded:
+        if self.acting_module in loaded:
             self.warm = True
         if self.world_model is not None and "world_model" in loaded:
             self._steps_at_last_fit = None  # refit on this run's data once there is enough of it
@@ -375,10 +420,46 @@ class BaseLearner:
         return loaded
 
     def _modules_for_state(self) -> dict[str, torch.nn.Module]:
-        modules: dict[str, torch.nn.Module] = {"actor": self.actor}
+        """Every declared module and the world model, by name (what checkpoints hold)."""
+        modules: dict[str, torch.nn.Module] = {name: getattr(self, name) for name in self.declared_state().modules}
         if self.world_model is not None:
             modules["world_model"] = self.world_model
         return modules
+
+
+class ActorLearner(BaseLearner):
+    """A learner with a continuous, tanh-squashed actor (SAC, TD3, HG-DAgger share it)."""
+
+    def build_networks(self) -> None:
+        self.actor = Actor(
+            self.obs_dim, self.act_dim, self.cfg.hidden, self.cfg.layers, self.action_low, self.action_high
+        )
+        self._policy: ActorPolicy | None = None
+
+    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        if self._policy is None:
+            self._policy = ActorPolicy(self.actor)
+        return self._policy.act(obs, deterministic)
+
+    def rollout_policy(self, obs: Tensor) -> Tensor:
+        return self.actor.deterministic(obs)
+
+    def gate_policy(self) -> Actor | PolicyFn:
+        return self.actor  # the gate's preallocated fast path, always the current weights
+
+    def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
+        """Plain regression of the deterministic action onto the expert's (intervention samples)."""
+        optimizer = torch.optim.Adam(self.actor.parameters(), lr=lr)
+        loss = torch.tensor(math.nan)
+        for _ in range(steps):
+            batch = self.buffer.sample_takeovers(self.cfg.batch_size, self.rng)
+            if batch is None:
+                break
+            loss = (self.actor.deterministic(batch.obs) - batch.a_expert).pow(2).sum(-1).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+        return float(loss.detach())
 
 
 def _same_shapes(module: torch.nn.Module, state: dict[str, Any]) -> bool:

@@ -45,7 +45,7 @@ from torch import Tensor
 from core.replay import Batch
 from core.sage.config import AgentConfig
 from core.sage.fear import fear
-from core.sage.learner import BaseLearner, DeclaredState
+from core.sage.learner import ActorLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, soft_update
 
 
@@ -85,7 +85,7 @@ def advantage_weights(
     return torch.exp(((q_expert - q_agent) / scale).clamp(-clip, clip))
 
 
-class SAC(BaseLearner):
+class SAC(ActorLearner):
     """Soft actor-critic with SAGE's switches (see :func:`core.sage.config.for_method`)."""
 
     def __init__(
@@ -272,13 +272,8 @@ class SAC(BaseLearner):
 
     # -- checkpoints -----------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        state = super().state_dict()
-        state.update(
-            critic=self.critic.state_dict(),
-            critic_target=self.critic_target.state_dict(),
-            log_alpha=self.log_alpha.detach().clone(),
-            lam=torch.tensor(self.lam),
-        )
+        state = super().state_dict()  # the declared modules (actor, critics), world model, optimisers
+        state.update(log_alpha=self.log_alpha.detach().clone(), lam=torch.tensor(self.lam))
         return state
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
@@ -303,8 +298,3 @@ class SAC(BaseLearner):
             tensors=("log_alpha",),
             scalars=("lam",),
         )
-
-    def _modules_for_state(self) -> dict[str, torch.nn.Module]:
-        modules = super()._modules_for_state()
-        modules.update(critic=self.critic, critic_target=self.critic_target)
-        return modules

@@ -16,11 +16,11 @@ import torch
 import torch.nn.functional as F
 
 from core.sage.config import AgentConfig
-from core.sage.learner import BaseLearner, DeclaredState
+from core.sage.learner import ActorLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, soft_update
 
 
-class TD3(BaseLearner):
+class TD3(ActorLearner):
     def __init__(
         self,
         cfg: AgentConfig,
@@ -84,15 +84,6 @@ class TD3(BaseLearner):
         self.actor_target.load_state_dict(self.actor.state_dict())
         return stats
 
-    def state_dict(self) -> dict[str, Any]:
-        state = super().state_dict()
-        state.update(
-            critic=self.critic.state_dict(),
-            critic_target=self.critic_target.state_dict(),
-            actor_target=self.actor_target.state_dict(),
-        )
-        return state
-
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
         loaded = super().load_state_dict(state, strict)
         if "actor" in loaded and "actor_target" not in loaded:
@@ -107,8 +98,3 @@ class TD3(BaseLearner):
             modules=("actor", "critic", "critic_target", "actor_target"),
             optimizers=("actor_optimizer", "critic_optimizer"),
         )
-
-    def _modules_for_state(self) -> dict[str, torch.nn.Module]:
-        modules = super()._modules_for_state()
-        modules.update(critic=self.critic, critic_target=self.critic_target, actor_target=self.actor_target)
-        return modules
