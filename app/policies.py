@@ -19,7 +19,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from core.experts import ExpertPolicy
 from core.loop import Gate, NoGate, Policy
 
 log = logging.getLogger(__name__)
@@ -78,7 +77,7 @@ def _looks_like_agent(folder: Path) -> bool:
 
 def discover(roots: Iterable[Path], sim: str | None = None) -> list[PolicyChoice]:
     """Every agent folder and checkpoint under ``roots``, filtered to ``sim`` when their metadata names one;
-    the scripted expert last."""
+    the registered planners (the scripted expert first of them) last."""
     choices: list[PolicyChoice] = []
     for root in roots:
         if not root.is_dir():
@@ -93,7 +92,10 @@ def discover(roots: Iterable[Path], sim: str | None = None) -> list[PolicyChoice
             choices.append(PolicyChoice(str(folder), name, agent_sim))
             for version in sorted((folder / "checkpoints").glob("*.pt")):
                 choices.append(PolicyChoice(str(version), f"{name} @ {version.stem}", agent_sim))
-    choices.append(PolicyChoice(SCRIPTED, "scripted expert (no gate)", None))
+    from core.planners import planners
+
+    # planners that are not learners (the scripted expert, a local planner...), last
+    choices += [PolicyChoice(entry.name, f"{entry.title}", None) for entry in planners(sim)]
     return choices
 
 
@@ -121,8 +123,10 @@ class LoadedPolicy:
 
 def load_policy(choice: str, env: gym.Env[Any, Any], gate_overrides: dict[str, Any] | None = None) -> LoadedPolicy:
     """Build the policy and its gate. Raises a clear error when the agent cannot be loaded."""
-    if choice == SCRIPTED:
-        return LoadedPolicy(ExpertPolicy(env), NoGate(), "scripted expert (no gate)", {})
+    from core.planners import is_planner, make_planner, planner_entry
+
+    if is_planner(choice):  # a planner (core.planners): it drives, there is no gate
+        return LoadedPolicy(make_planner(choice, env), NoGate(), planner_entry(choice).title, {})
     path = Path(choice)
     if not path.exists():
         raise FileNotFoundError(f"no policy at {choice!r}")

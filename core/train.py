@@ -45,6 +45,7 @@ from core.agents import (
 )
 from core.experts import PolicyExpert, ScriptedExpert
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
+from core.planners import PlannerExpert, PlannerFactory, is_planner
 from core.sage import make_learner
 from core.sage.config import AgentConfig, to_dict
 from core.sage.gate import AlwaysGate
@@ -88,8 +89,8 @@ class RunConfig:
     max_episode_steps: int | None = None
     """Cut episodes at this many steps (None: the simulator's own time limit)."""
     expert: str | None = None
-    """Run folder or checkpoint whose deterministic policy is the expert (takeovers and demonstrations);
-    None: the simulator's scripted expert."""
+    """Run folder or checkpoint whose deterministic policy is the expert (takeovers and demonstrations), or a
+    planner's name (:mod:`core.planners`: ``scripted``, ...); None: the simulator's scripted expert."""
     train_steps: int | None = None
     """Environment steps in total, demonstrations included: the studies' budget, the same for every method
     (an episode that would pass it is cut there). None: ``episodes`` alone bounds the run."""
@@ -192,8 +193,10 @@ class Trainer:
             raise ValueError(f"--init {path}: network sizes differ from this run's config: {exc}") from None
 
     def _make_expert(self, source: str | None) -> Expert:
-        if source is None:
+        if source is None or source == "scripted":
             return ScriptedExpert()
+        if is_planner(source):  # a planner that is not a learner (core.planners), built per env
+            return PlannerExpert(source, self.run.sim)
         expert = load_agent(source)
         if (expert.meta.obs_dim, expert.meta.act_dim) != (self.obs_dim, self.act_dim):
             raise ValueError(
@@ -439,7 +442,7 @@ def train(
 
 # -- evaluation ----------------------------------------------------------------------------------------
 def evaluate(
-    policy: Policy,
+    policy: Policy | PlannerFactory,
     make_env: EnvFactory,
     scenarios: Sequence[str],
     episodes: int,
@@ -449,7 +452,8 @@ def evaluate(
     progress: bool = True,
     max_episode_steps: int | None = None,
 ) -> dict[str, list[dict[str, Any]]]:
-    """Run ``policy`` deterministically for ``episodes`` per scenario; rows per scenario.
+    """Run ``policy`` deterministically for ``episodes`` per scenario; rows per scenario. ``policy`` may also be a
+    factory ``env -> Policy`` (a planner, :mod:`core.planners`), built for each scenario's env.
 
     By default no gate and no expert (the learned policy alone, as the paper evaluates). ``gate_factory``
     adds a gate (fear and curiosity are then recorded) and ``expert=True`` lets it hand over to the
@@ -467,7 +471,7 @@ def evaluate(
                 gate = gate_factory() if gate_factory is not None else None
                 runner = Runner(
                     env,
-                    policy,
+                    policy if hasattr(policy, "act") else policy(env),  # type: ignore[operator]
                     gate,
                     ScriptedExpert() if expert else None,
                     seed=seed + EVAL_SEED_OFFSET + j * SCENARIO_SEED_STRIDE,

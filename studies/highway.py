@@ -179,11 +179,13 @@ def runs_table(
 ) -> tuple[str, list[dict[str, Any]]]:
     """``sage eval`` / ``compare`` on highway: the paper's table and the interaction table for run folders, and
     every episode row (tagged with its run). ``split`` and ``mode`` are comma lists; a bad one is a ValueError."""
+    import functools
     from pathlib import Path
 
     from tqdm import tqdm
 
     from core.agents import load_agent
+    from core.planners import is_planner, make_planner
 
     sets, modes = parse_sets(split), parse_modes(mode)
     results: dict[str, dict[tuple[str, str], list[dict[str, Any]]]] = {}
@@ -191,10 +193,14 @@ def runs_table(
     total = len(runs) * len(sets) * len(modes) * len(seeds) * episodes
     with tqdm(total=total, desc="eval highway", unit="ep", disable=not progress, leave=False) as bar:
         for run in runs:
-            agent = load_agent(run)
-            path = Path(run)
-            label = path.name if path.is_dir() else f"{path.parent.name}/{path.stem}"
-            by_set = evaluate_policy(agent.policy, sets, modes, episodes, seeds, on_episode=lambda _row: bar.update(1))
+            if is_planner(str(run)):
+                policy: Any = functools.partial(make_planner, str(run), sim="highway")
+                label = str(run)
+            else:
+                policy = load_agent(run).policy
+                path = Path(run)
+                label = path.name if path.is_dir() else f"{path.parent.name}/{path.stem}"
+            by_set = evaluate_policy(policy, sets, modes, episodes, seeds, on_episode=lambda _row: bar.update(1))
             results[label] = by_set
             all_rows += [dict(r, run=str(run)) for rows in by_set.values() for r in rows]
     return paper_table(results) + "\n\n" + interaction_table(results), all_rows

@@ -48,7 +48,8 @@ class TrainSpec:
     overrides: list[str] = field(default_factory=list, metadata={"flag": "--set"})
     """Learner config overrides key=value, e.g. gate.tau_max=0.7 (fields: core.sage.config)."""
     expert: str | None = None
-    """Run folder or checkpoint whose policy is the expert (default: the simulator's scripted expert)."""
+    """Run folder or checkpoint whose policy is the expert, or a planner's name (core.planners: scripted, ...);
+    default: the simulator's scripted expert."""
     protocol: str | None = None
     """Study protocol: route-shift (sumo: C1 on route 1, then C2)."""
     c1: int | None = field(default=None, metadata={"flag": "--c1"})

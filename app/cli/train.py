@@ -135,7 +135,9 @@ def register(app: typer.Typer) -> None:
 
     @app.command("eval")
     def eval_(
-        run: Annotated[Path, typer.Argument(help="Run folder or checkpoint file.")],
+        run: Annotated[
+            Path, typer.Argument(help="Run folder or checkpoint file, or a planner's name (core.planners), with --sim.")
+        ],
         episodes: Annotated[int, typer.Option(help="Episodes per scenario.")] = 20,
         scenario: Annotated[str | None, typer.Option(help="Scenario(s); default: the run's own.")] = None,
         seed: Annotated[int, typer.Option(help="Evaluation seed.")] = 0,
@@ -156,15 +158,18 @@ def register(app: typer.Typer) -> None:
         (adversaries aimed at the evaluated policy), pooled over --seeds, with the
         paper's columns: success and collision rates, speed and acceleration."""
         seed_list = _ints(seeds) if seeds else [seed]
-        table = _protocol_table(_run_sim([run], sim), [run], episodes, split, mode, seed_list, save, quiet)
+        run_sim = _run_sim([run], sim)
+        table = _protocol_table(run_sim, [run], episodes, split, mode, seed_list, save, quiet)
         if table is not None:
             typer.echo(table)
             return
-        typer.echo(_evaluate_and_format([run], episodes, scenario, seed_list, gate, expert, save, quiet))
+        typer.echo(_evaluate_and_format(run_sim, [run], episodes, scenario, seed_list, gate, expert, save, quiet))
 
     @app.command()
     def compare(
-        runs: Annotated[list[Path], typer.Argument(help="Run folders or checkpoints.")],
+        runs: Annotated[
+            list[Path], typer.Argument(help="Run folders or checkpoints, or planner names (core.planners).")
+        ],
         episodes: Annotated[int, typer.Option(help="Episodes per run and scenario.")] = 20,
         scenario: Annotated[str | None, typer.Option(help="Scenario(s); default: each run's own.")] = None,
         seed: Annotated[int, typer.Option(help="Evaluation seed (the same episodes for every run).")] = 0,
@@ -173,14 +178,16 @@ def register(app: typer.Typer) -> None:
         split: SplitOption = "test",
         mode: ModeOption = "normal,adversarial",
         seeds: SeedsOption = None,
+        sim: Annotated[str | None, typer.Option(help="Simulator (needed when only planners are compared).")] = None,
     ) -> None:
         """Evaluate several runs on the same episodes and print them side by side."""
         seed_list = _ints(seeds) if seeds else [seed]
-        table = _protocol_table(_run_sim(runs, None), runs, episodes, split, mode, seed_list, save, quiet)
+        run_sim = _run_sim(runs, sim)
+        table = _protocol_table(run_sim, runs, episodes, split, mode, seed_list, save, quiet)
         if table is not None:
             typer.echo(table)
             return
-        typer.echo(_evaluate_and_format(runs, episodes, scenario, seed_list, False, False, save, quiet))
+        typer.echo(_evaluate_and_format(run_sim, runs, episodes, scenario, seed_list, False, False, save, quiet))
 
 
 def _label(run: Path) -> str:
@@ -188,18 +195,24 @@ def _label(run: Path) -> str:
 
 
 def _run_sim(runs: list[Path], sim: str | None) -> str:
-    """The simulator the runs were trained on (all the same, and ``sim`` when given)."""
+    """The simulator the runs were trained on (all the same, and ``sim`` when given). A planner's name
+    (:mod:`core.planners`) stands for a policy too; it drives the ``--sim`` it is given."""
     from core.agents import load_checkpoint, meta_of
+    from core.planners import is_planner
 
     seen = []
     for run in runs:
+        if is_planner(str(run)):
+            continue
         try:
             seen.append(meta_of(load_checkpoint(run)).sim)
         except (FileNotFoundError, ValueError) as exc:
             _fail(str(exc))
     if sim is not None and any(s != sim for s in seen):
         _fail(f"--sim {sim}: the run was trained on {', '.join(sorted(set(seen)))}")
-    return seen[0]
+    if not seen and sim is None:
+        _fail(f"{runs[0]} is a planner: say which simulator it drives with --sim")
+    return sim if sim is not None else seen[0]
 
 
 def _write_rows(save: Path, rows: list[dict[str, Any]]) -> None:
@@ -231,6 +244,7 @@ def _protocol_table(
 
 
 def _evaluate_and_format(
+    sim_given: str,
     runs: list[Path],
     episodes: int,
     scenario: str | None,
@@ -240,9 +254,13 @@ def _evaluate_and_format(
     save: Path | None,
     quiet: bool,
 ) -> str:
+    import functools
+
     import torch
 
+    import sims
     from core.agents import load_agent
+    from core.planners import is_planner, make_planner
     from core.report import format_table
     from core.train import evaluate
 
@@ -253,21 +271,36 @@ def _evaluate_and_format(
     sims_seen: list[str] = []
     all_rows: list[dict[str, Any]] = []
     for run in runs:
-        try:
-            agent = load_agent(run)
-        except (FileNotFoundError, ValueError) as exc:
-            _fail(str(exc))
-        sim = agent.meta.sim
+        if is_planner(str(run)):  # a planner that is not a learner: no checkpoint, no gate
+            if gate:
+                _fail(f"{run} is a planner: it has no world model, so no SAGE gate (drop --gate)")
+            sim = sim_given
+            try:
+                default = sims.descriptor(sim).default_scenario
+            except ValueError as exc:
+                _fail(str(exc))
+            scenarios = _scenarios(scenario) if scenario else [default]
+            policy: Any = functools.partial(make_planner, str(run), sim=sim)
+            gate_factory = None
+        else:
+            try:
+                agent = load_agent(run)
+            except (FileNotFoundError, ValueError) as exc:
+                _fail(str(exc))
+            sim = agent.meta.sim
+            scenarios = _scenarios(scenario) if scenario else list(agent.meta.scenarios)
+            if gate and not agent.has_world_model:
+                _fail(f"{run} has no world model: no SAGE gate to run (drop --gate)")
+            policy, gate_factory = agent.policy, (agent.make_gate if gate else None)
         sims_seen.append(sim)
-        scenarios = _scenarios(scenario) if scenario else list(agent.meta.scenarios)
-        if gate and not agent.has_world_model:
-            _fail(f"{run} has no world model: no SAGE gate to run (drop --gate)")
-        gate_factory = agent.make_gate if gate else None
         results: dict[str, list[dict[str, Any]]] = {}
         for seed in seeds:
-            by_scenario = evaluate(
-                agent.policy, _make_env_factory(sim), scenarios, episodes, seed, gate_factory, expert, not quiet
-            )
+            try:
+                by_scenario = evaluate(
+                    policy, _make_env_factory(sim), scenarios, episodes, seed, gate_factory, expert, not quiet
+                )
+            except ValueError as exc:
+                _fail(str(exc))
             for s, rows in by_scenario.items():
                 results.setdefault(s, []).extend(dict(r, seed=seed) for r in rows)
         label = _label(run)
