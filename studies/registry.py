@@ -48,14 +48,36 @@ class StudyDef:
     notes: tuple[str, ...] = ()
     """Stated under the table: the terminal-violation rule, the experts used, what a budget leaves out."""
     settings: Mapping[str, Any] = field(default_factory=dict)
-    """Fixed settings passed to every trial."""
+    """Fixed settings passed to every trial (besides the budget and ``runs_dir``, where trials keep their run
+    folders: ``<results folder>/runs``)."""
+    figures: Callable[[Path, dict[str, Any]], list[Path]] | None = None
+    """``figures(results folder, settings) -> paths``: the study's own figures from its trials' run folders,
+    drawn after the table."""
 
 
 _STUDIES: dict[str, StudyDef] = {}
 
 
+BUILTIN_STUDIES = ("studies.pedestrian",)
+"""Modules whose ``STUDY`` is registered on first use (lazily: a study imports its simulator)."""
+_BUILTINS_DONE = False
+
+
+def _builtins() -> None:
+    global _BUILTINS_DONE
+    if _BUILTINS_DONE:
+        return
+    _BUILTINS_DONE = True
+    import importlib
+
+    for module in BUILTIN_STUDIES:
+        study = importlib.import_module(module).STUDY
+        _STUDIES.setdefault(study.name, study)
+
+
 def register_study(study: StudyDef) -> None:
     """Add a study; a second study under the same name is an error (unregister it first)."""
+    _builtins()
     if study.name in _STUDIES:
         raise ValueError(f"study {study.name!r} is already registered")
     _STUDIES[study.name] = study
@@ -66,10 +88,12 @@ def unregister_study(name: str) -> None:
 
 
 def study_names() -> list[str]:
+    _builtins()
     return sorted(_STUDIES)
 
 
 def get_study(name: str) -> StudyDef:
+    _builtins()
     try:
         return _STUDIES[name]
     except KeyError:
@@ -112,6 +136,7 @@ def run_study(
         **dict(study.settings),
         "train_steps": spent.train_steps,
         "eval_episodes": spent.eval_episodes,
+        "runs_dir": str((out / "runs").resolve()),
     }
     start = time.perf_counter()
     rows = run_sweep(
@@ -138,5 +163,8 @@ def run_study(
         plot=study.plot,
         notes=study.notes,
     )
+    if study.figures is not None:
+        for path in study.figures(out, settings):
+            log(f"figure: {path}")
     log(f"study {name}: {len(rows)} trials, wall time {wall_s / 60:.1f} min; table {table}")
     return table
