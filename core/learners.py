@@ -104,7 +104,7 @@ def _builtins() -> None:
         return
     _BUILTINS_DONE = True
     from core.sage.config import for_method
-    from core.sage.d3qn import D3QN
+    from core.sage.d3qn import D3QN, DiscreteHGDAgger
     from core.sage.hg_dagger import HGDAgger
     from core.sage.sac import SAC
     from core.sage.td3 import TD3
@@ -113,8 +113,13 @@ def _builtins() -> None:
     for method, cls in classes.items():
         _REGISTRY[method] = LearnerEntry(method, cls, _method_preset(method, for_method))
     # discrete actions: the same switches as SAGE-SAC and plain SAC, on a dueling double-Q network
-    for method, switches in (("d3qn", "sac"), ("sage-d3qn", "sage")):
-        _REGISTRY[method] = LearnerEntry(method, D3QN, _switched_preset(method, switches, for_method))
+    discrete: tuple[tuple[str, type[BaseLearner], str], ...] = (
+        ("d3qn", D3QN, "sac"),
+        ("sage-d3qn", D3QN, "sage"),
+        ("hg-dagger-discrete", DiscreteHGDAgger, "hg-dagger"),
+    )
+    for method, cls, switches in discrete:
+        _REGISTRY[method] = LearnerEntry(method, cls, _switched_preset(method, switches, for_method))
         note_method(method)
 
 

@@ -268,3 +268,44 @@ class D3QN(BaseLearner):
         if "q" in loaded and "q_target" not in state:
             self.q_target.load_state_dict(self.q.state_dict())
         return loaded
+
+
+class DiscreteHGDAgger(D3QN):
+    """HG-DAgger on discrete actions: the dueling network's outputs as a classifier's logits, trained by
+    cross-entropy on the aggregated expert labels (takeovers and demonstrations); it never explores and has no
+    critic target (see :mod:`core.sage.hg_dagger` for the takeover rule, the same SAGE gate). The paper's
+    long-tail expert is trained this way from a human's demonstrations and corrections; here from the scripted
+    driver's."""
+
+    uses_random_warmup = False
+
+    def build_networks(self) -> None:
+        super().build_networks()
+        self.q_optimizer = torch.optim.Adam(self.q.parameters(), lr=self.cfg.dagger_lr)
+
+    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        return super().policy_action(obs, deterministic=True)
+
+    def update_threshold(self) -> int:
+        return 1  # learn from the first expert label on
+
+    def update(self) -> dict[str, float]:
+        batch = self.buffer.sample_takeovers(self.cfg.batch_size, self.rng)
+        if batch is None:
+            return {}
+        loss = F.cross_entropy(self.q(batch.obs), batch.a_expert.argmax(-1))
+        self.q_optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(self.q.parameters(), self.cfg.max_grad_norm)
+        self.q_optimizer.step()
+        return {"bc_loss": loss.item(), "aggregate_size": float(self.buffer.takeover_count())}
+
+    def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
+        loss = torch.tensor(math.nan)
+        for _ in range(steps):
+            stats = self.update()
+            if not stats:
+                break
+            loss = torch.tensor(stats["bc_loss"])
+        return float(loss)
