@@ -26,6 +26,9 @@ def register(app: typer.Typer) -> None:
         address: Annotated[str | None, typer.Option(help="Join this Ray cluster instead of running locally.")] = None,
         cpus: Annotated[int | None, typer.Option(min=1, help="Local cores for trials (default: all).")] = None,
         max_concurrent: Annotated[int | None, typer.Option(min=1, help="Most trials at once.")] = None,
+        readme: Annotated[
+            Path | None, typer.Option(help="Also write the table into this README's section for the study.")
+        ] = None,
     ) -> None:
         """Run a paper study: every method, five seeds, equal budgets; results with 95% intervals."""
         from studies.budgets import BUDGET_NAMES
@@ -38,4 +41,10 @@ def register(app: typer.Typer) -> None:
         except ValueError as error:
             typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
-        run_study(name, budget, out or Path("results") / f"{name}-{budget}", address, cpus, max_concurrent)
+        results = out or Path("results") / f"{name}-{budget}"
+        run_study(name, budget, results, address, cpus, max_concurrent)
+        if readme is not None:
+            from studies.readme import update_readme
+
+            update_readme(readme, name, results)
+            typer.echo(f"README section '{name}' written from {results} into {readme}")

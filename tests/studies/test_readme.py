@@ -1,0 +1,28 @@
+"""README results sections come from the results folders, replaced in place on every run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from studies.readme import HEADING, update_readme
+
+
+def test_a_study_section_is_added_once_and_replaced_in_place(tmp_path: Path) -> None:
+    readme = tmp_path / "README.md"
+    readme.write_text("# Project\n\nintro\n")
+    results = tmp_path / "results" / "toy-small"
+    results.mkdir(parents=True)
+    (results / "table.md").write_text("# toy, budget small, commit abc123\n\n| method | x |\n|---|---|\n| sage | 1 |\n")
+    (results / "x.png").write_bytes(b"png")
+    update_readme(readme, "toy", results)
+    first = readme.read_text()
+    assert first.count(HEADING) == 1 and "commit abc123" in first and "[x.png](results/toy-small/x.png)" in first
+    (results / "table.md").write_text("# toy, budget small, commit def456\n\n| method | x |\n|---|---|\n| sage | 2 |\n")
+    update_readme(readme, "toy", results)
+    second = readme.read_text()
+    assert second.count("<!-- results:toy -->") == 1 and "def456" in second and "abc123" not in second
+    assert second.startswith("# Project\n\nintro\n")
+    with pytest.raises(FileNotFoundError, match="sage study other"):
+        update_readme(readme, "other", tmp_path / "nothing")
