@@ -201,6 +201,8 @@ class LiveLoop:
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
+        if not self.running:  # the loop thread is gone: the running episode is ours to end, with its reason
+            self.world.runner.end_episode(reason="server stopped")
         if self.world.versions is not None:
             self.world.versions.stop()
         if self.world.writer is not None:
@@ -243,6 +245,7 @@ class LiveLoop:
                 "action_dim": int(np.prod(world.env.action_space.shape or (1,))),
                 "operator": self.console.connected,
                 "counters": world.counts(),
+                "view": getattr(self.scene_view, "view", None),
                 "error": self.last_error,
                 "store_error": world.writer.error if world.writer else None,
             }
@@ -304,6 +307,8 @@ class LiveLoop:
             raise CommandError(
                 f"cannot switch to {config.sim} / scenario {config.scenario} / {config.policy}: {exc}"
             ) from exc
+        # the running episode ends here, recorded as interrupted (it would otherwise stay "running" forever)
+        self.world.runner.end_episode(reason=f"switched to {config.sim} / {config.scenario} / {config.policy}")
         old, self.world = self.world, world
         if old.versions is not None:
             old.versions.stop(background=True)
@@ -372,7 +377,13 @@ class LiveLoop:
                 "success": bool(summary.metrics.get("success", False)),
             }
         )
-        row = {"type": "episode", "session": world.session_id, "version": world.version, **summary.as_row()}
+        row = {
+            "type": "episode",
+            "session": world.session_id,
+            "version": world.version,
+            "reason": summary.reason,
+            **summary.as_row(),
+        }
         self.publish(dumps(json_safe(row)))
         if summary.error:
             self.last_error = f"episode {summary.episode}: {summary.error}"
@@ -417,7 +428,7 @@ class LiveLoop:
         except Exception as exc:  # a policy or gate bug: report it, keep the loop alive, start over
             self.last_error = f"step failed: {type(exc).__name__}: {exc}"
             log.exception("live step failed")
-            self.world.runner.end_episode(error=f"{type(exc).__name__}: {exc}")
+            self.world.runner.end_episode(error=f"{type(exc).__name__}: {exc}", reason="error")
         self.step_costs.append(time.perf_counter() - started)
         self.step_times.append(time.monotonic())
 
@@ -457,7 +468,7 @@ class LiveLoop:
 
     @commands.handles(c.NewEpisode)
     def _new_episode(self, command: c.NewEpisode) -> None:
-        self.world.runner.end_episode()  # recorded with its summary; the next step starts a new episode
+        self.world.runner.end_episode(reason="new episode (operator)")  # the next step starts a new episode
 
     @commands.handles(c.SetSpeed)
     def _speed(self, command: c.SetSpeed) -> None:

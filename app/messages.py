@@ -108,6 +108,13 @@ class VersionControl(_Operator):
         return self
 
 
+class View(_Operator):
+    """The 3D view: follow the ego, or show the whole area (one shared scene, so the operator chooses)."""
+
+    type: Literal["view"]
+    mode: Literal["follow", "overview"]
+
+
 class _Viewer(_Message):
     """Any page may send it: it changes only that page's view. A token is accepted and not needed."""
 
@@ -143,6 +150,7 @@ ClientMessage = Annotated[
     | Speed
     | Configure
     | VersionControl
+    | View
     | ReplayOpen
     | ReplaySeek
     | ReplayClose

@@ -26,6 +26,10 @@ log = logging.getLogger(__name__)
 
 GROUND_Z = 0.0
 TRAIL_POINTS = 600
+FOLLOW_LENGTHS = 14.0
+"""The follow view frames a square this many ego lengths wide around the ego (a car: ~60 m; the UGV: ~8 m)."""
+FOLLOW_MIN = 4.0
+"""... and at least this wide (m)."""
 RAY_FREE = (38, 110, 130)
 RAY_HIT = (214, 84, 104)
 TRAIL_COLOR = (255, 200, 60)
@@ -180,6 +184,10 @@ class SceneDrawer:
         """World point shown at the scene's origin: the centre of the simulator's bounds. Simulators whose
         bounds are a window around the ego (highway, SUMO) move it every frame, so the world slides under
         a still camera and every viewer keeps the view they orbited to."""
+        self.view = "follow"
+        """``follow``: the camera frames a window of ``FOLLOW_LENGTHS`` ego lengths around the ego and the world
+        slides under it; ``overview``: the simulator's whole bounds (the operator toggles it with V)."""
+        self._framed: tuple[str, float] | None = None
         self._origin_frame = server.scene.add_frame(root, show_axes=False)
         self._ground: Any = None
         self._cell = 1.0
@@ -194,8 +202,11 @@ class SceneDrawer:
                 self._draw_static(source.get("static") or [], source.get("bounds") or scene.get("bounds"))
                 self.static_key = key
                 self._trail_points = []
-            elif scene.get("bounds") and len(scene["bounds"]) == 4:
+                self._framed = None
+            elif self.view == "overview" and scene.get("bounds") and len(scene["bounds"]) == 4:
                 self._follow([float(b) for b in scene["bounds"]])
+            if scene.get("ego"):
+                self._frame_view(scene["ego"])
             self._draw_movers(scene.get("movers") or [])
             ego = scene.get("ego")
             if ego:
@@ -277,10 +288,42 @@ class SceneDrawer:
             )
         self._frame_camera()
 
-    def _frame_camera(self, aspect: float = 2.0) -> None:
-        """Look at the whole map from above and slightly behind, framed for a wide view."""
-        x0, y0, x1, y1 = self.bounds
-        self._move_origin((x0 + x1) / 2, (y0 + y1) / 2, move_ground=False)
+    def set_view(self, view: str) -> None:
+        """``follow`` or ``overview`` (see :attr:`view`); the camera is reframed at the next frame."""
+        if view not in ("follow", "overview"):
+            raise ValueError(f"unknown view {view!r}; choose follow or overview")
+        self.view = view
+        self._framed = None
+
+    def follow_window(self, ego: dict[str, Any]) -> list[float]:
+        """The square around the ego that the follow view frames: FOLLOW_LENGTHS ego lengths (at least
+        FOLLOW_MIN m), never wider than the simulator's bounds."""
+        size = max(FOLLOW_LENGTHS * float(ego.get("length", 1.0)), FOLLOW_MIN)
+        size = min(size, max(self.bounds[2] - self.bounds[0], self.bounds[3] - self.bounds[1]))
+        x, y = float(ego["x"]), float(ego["y"])
+        return [x - size / 2, y - size / 2, x + size / 2, y + size / 2]
+
+    def _frame_view(self, ego: dict[str, Any]) -> None:
+        """Follow: keep the ego at the origin (the world slides) and frame its window once per view and size."""
+        if self.view == "overview":
+            if self._framed != ("overview", 0.0):
+                self._frame_camera()
+                self._framed = ("overview", 0.0)
+            return
+        window = self.follow_window(ego)
+        self._follow(window)
+        size = round(window[2] - window[0], 3)
+        if self._framed != ("follow", size):
+            self._frame_camera(bounds=window, move_origin=False)
+            self._framed = ("follow", size)
+
+    def _frame_camera(
+        self, aspect: float = 2.0, bounds: Sequence[float] | None = None, move_origin: bool = True
+    ) -> None:
+        """Look at ``bounds`` (default: the whole map) from above and slightly behind, framed for a wide view."""
+        x0, y0, x1, y1 = self.bounds if bounds is None else bounds
+        if move_origin:
+            self._move_origin((x0 + x1) / 2, (y0 + y1) / 2, move_ground=False)
         half_height = max(y1 - y0, 1.0) / 2 * 1.3
         half_width = max(x1 - x0, 1.0) / 2 * 1.3
         distance = max(half_height, half_width / aspect) / math.tan(math.radians(75.0 / 2))
@@ -538,6 +581,16 @@ class SceneView:
     def reset_trail(self, points: Sequence[tuple[float, float]] = ()) -> None:
         with self._lock:
             self._reset_trail = list(points)
+        self._wake.set()
+
+    @property
+    def view(self) -> str:
+        return self.drawer.view
+
+    def set_view(self, view: str) -> None:
+        """``follow`` the ego or show the ``overview`` (a ValueError for anything else)."""
+        with self._lock:
+            self.drawer.set_view(view)
         self._wake.set()
 
     def close(self) -> None:

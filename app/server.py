@@ -332,6 +332,13 @@ async def _configure(dash: Dashboard, client: Client, msg: m.Configure) -> str:
     return await _command(dash, msg, command)
 
 
+@handles(m.View)
+async def _view(dash: Dashboard, client: Client, msg: m.View) -> str:
+    dash.scene_view.set_view(msg.mode)
+    dash.hub.publish(dumps(dash.live.state()))
+    return dumps({"type": "ack", "op": "view", "result": {"view": msg.mode}})
+
+
 # -- replay: per page, the live loop runs on ---------------------------------------------------------------
 @handles(m.ReplayOpen)
 async def _replay_open(dash: Dashboard, client: Client, msg: m.ReplayOpen) -> str:

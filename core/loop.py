@@ -174,6 +174,9 @@ class EpisodeSummary:
     """The simulator's own episode metrics (success, collision, speed, ...)."""
     error: str | None = None
     """Set when the episode ended because the simulator raised."""
+    reason: str = "ended"
+    """Why it ended: ``terminated`` / ``truncated`` by the simulator, ``error``, or what the caller said
+    (``step limit``, ``new episode``, ``simulator switched``, ``server stopped``...)."""
 
     @property
     def takeover_rate(self) -> float:
@@ -325,7 +328,7 @@ class Runner:
                 a_expert = action
             curiosity = float(self.gate.observe(obs, action, next_obs))
         except Exception as exc:
-            self.end_episode(error=f"{type(exc).__name__}: {exc}")
+            self.end_episode(error=f"{type(exc).__name__}: {exc}", reason="error")
             log.warning("step failed in episode %d: %s", self.episode, traceback.format_exc())
             return None
         record = StepRecord(
@@ -367,7 +370,7 @@ class Runner:
         for listener in self.step_listeners:
             listener(record)
         if record.done:
-            self.end_episode()
+            self.end_episode(reason="terminated" if record.terminated else "truncated")
         return record
 
     def run_episode(self, max_steps: int | None = None) -> EpisodeSummary:
@@ -381,12 +384,12 @@ class Runner:
                 self.step()
                 steps += 1
                 if max_steps is not None and steps >= max_steps and not summaries:
-                    self.end_episode()
+                    self.end_episode(reason="step limit")
         finally:
             self.episode_listeners.remove(summaries.append)
         return summaries[0]
 
-    def end_episode(self, error: str | None = None) -> None:
+    def end_episode(self, error: str | None = None, reason: str | None = None) -> None:
         """End the current episode now (an operator's "new episode", a step budget, a simulator error):
         episode listeners get its summary and the next ``step()`` starts a new episode. No-op between
         episodes."""
@@ -409,6 +412,7 @@ class Runner:
             mean_curiosity=float(np.mean(acc["curiosity"])) if acc.get("curiosity") else math.nan,
             metrics=metrics,
             error=error,
+            reason=reason or ("error" if error else "ended"),
         )
         self.obs = None  # the next step() starts a new episode
         for listener in self.episode_listeners:

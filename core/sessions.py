@@ -61,7 +61,8 @@ CREATE TABLE IF NOT EXISTS episodes (
     mean_curiosity REAL,
     metrics TEXT,
     error TEXT,
-    static_scene TEXT
+    static_scene TEXT,
+    end_reason TEXT
 );
 CREATE TABLE IF NOT EXISTS steps (
     episode INTEGER NOT NULL,
@@ -277,6 +278,8 @@ class SessionStore:
                     "mean_curiosity": row["mean_curiosity"],
                     "metrics": json.loads(row["metrics"]) if row["metrics"] else {},
                     "error": row["error"],
+                    # sessions recorded before the column existed have no reason
+                    "end_reason": row["end_reason"] if "end_reason" in row.keys() else None,  # noqa: SIM118 (Row: values)
                 }
             )
         return out
@@ -511,6 +514,7 @@ class SessionWriter:
                     _finite_or_none(summary.mean_curiosity),
                     json.dumps({k: _jsonable(v) for k, v in summary.metrics.items()}),
                     summary.error,
+                    summary.reason,
                     summary.episode,
                 ),
                 summary.episode,
@@ -605,7 +609,7 @@ class SessionWriter:
                         known_episodes.add(ep)
                     conn.execute(
                         "UPDATE episodes SET ended=?, steps=?, ret=?, cost=?, takeovers=?, takeover_events=?, "
-                        "mean_fear=?, mean_curiosity=?, metrics=?, error=? WHERE episode=?",
+                        "mean_fear=?, mean_curiosity=?, metrics=?, error=?, end_reason=? WHERE episode=?",
                         payload,
                     )
 

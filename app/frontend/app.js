@@ -105,7 +105,9 @@ const handlers = {
   state(msg) { applyState(msg); },
   step(msg) { onStep(msg); },
   episode(msg) {
-    const outcome = msg.collision ? "collision" : msg.success ? "success" : msg.error ? "error" : "done";
+    const natural = ["terminated", "truncated", "ended"].includes(msg.reason);
+    const outcome = msg.collision ? "collision" : msg.success ? "success" : msg.error ? "error"
+      : natural || !msg.reason ? "done" : `ended: ${msg.reason}`;
     // a collision is an alert the operator must see, not a routine notice
     toast(`Episode ${msg.episode} ${outcome}: ${msg.steps} steps, takeover ${pct(msg.takeover_rate)}`,
       msg.collision ? "alert" : msg.error ? "error" : "info");
@@ -368,6 +370,11 @@ async function refreshSessions() {
     await refreshEpisodes();
   } catch (err) { /* the next refresh will tell */ }
 }
+// an episode that ended for another reason than the simulator's own end says why (a switch, a stop...)
+function endNote(e) {
+  const natural = !e.end_reason || ["terminated", "truncated", "ended"].includes(e.end_reason);
+  return natural ? "" : ` · ended: ${e.end_reason}`;
+}
 async function refreshEpisodes() {
   const sid = $("sel-session").value;
   if (!sid) return;
@@ -378,7 +385,7 @@ async function refreshEpisodes() {
   const keep = select.value;
   fillSelect(select, episodes.map((e) => ({
     value: String(e.episode),
-    label: `ep ${e.episode} · ${e.steps} steps · ${pct(e.takeover_rate)} takeover${e.metrics && e.metrics.collision ? " · collision" : ""}${e.finished ? "" : " · running"}`,
+    label: `ep ${e.episode} · ${e.steps} steps · ${pct(e.takeover_rate)} takeover${e.metrics && e.metrics.collision ? " · collision" : ""}${e.finished ? endNote(e) : " · running"}`,
   })), keep);
   if (!select.value && episodes.length) select.value = String(episodes[episodes.length - 1].episode);
   updateDownloads();
@@ -592,7 +599,7 @@ const DRIVE = {
   KeyW: ["throttle", 1], ArrowUp: ["throttle", 1], KeyS: ["throttle", -1], ArrowDown: ["throttle", -1],
   KeyA: ["steer", 1], ArrowLeft: ["steer", 1], KeyD: ["steer", -1], ArrowRight: ["steer", -1],
 };
-const OURS = new Set(["Space", "KeyT", "Escape", ...Object.keys(DRIVE)]);
+const OURS = new Set(["Space", "KeyT", "KeyV", "Escape", ...Object.keys(DRIVE)]);
 
 // Taking over must work wherever the focus is: these keys are always the operator's (the page has no
 // text fields); pickers and sliders give the focus back as soon as they change.
@@ -604,11 +611,17 @@ function onKey(event, down) {
   event.stopImmediatePropagation(); // viser's camera keys never see these
   if (down && event.repeat) return;
   if (S.role !== "operator") { if (down && event.code === "Space") toast("This page is watching: take control first."); return; }
+  if (event.code === "KeyV") { if (down) toggleView(); return; }
   if (event.code === "KeyT") { if (down) sticky = !sticky; }
   else if (event.code === "Escape") { if (down) sticky = false; }
   else if (down) keys.add(event.code);
   else keys.delete(event.code);
   tick(true);
+}
+// the 3D view follows the ego (default) or shows the whole area; one shared scene, so the operator's key
+function toggleView() {
+  const next = S.state && S.state.view === "overview" ? "follow" : "overview";
+  sendOperator({ type: "view", mode: next });
 }
 function attachKeys(target) {
   if (!target || target.__sageKeys) return;

@@ -87,3 +87,60 @@ def test_the_clock_keeps_the_rate_without_bursts_and_rephases_on_a_takeover() ->
     assert clock.next_at == pytest.approx(1.9)  # catches up one period at most: no burst of missed steps
     clock.stepped(2.0, 0.1, onset=False)
     assert clock.next_at == pytest.approx(2.0)
+
+
+def test_interrupted_episodes_are_recorded_as_ended_with_their_reason(tmp_path: Any) -> None:
+    from core.sessions import SessionStore
+
+    def loader(choice: str, env: Any) -> LoadedPolicy:
+        return LoadedPolicy(Constant(0.5), NoGate(), choice, {})
+
+    store = SessionStore(tmp_path)
+    sent: list[dict[str, Any]] = []
+    loop = LiveLoop(
+        LiveConfig(sim="toy", policy="first", expert_mode="scripted"),
+        env_factory=toy_env_factory,
+        policy_loader=loader,
+        console=OperatorConsole(),
+        publish=lambda text: sent.append(json.loads(text)),
+        store=store,
+        start_paused=True,
+    )
+    loop.start()
+    try:
+        first = loop.state()["session"]
+        for _ in range(3):
+            loop.submit(c.StepOnce()).result(10)
+        loop.submit(c.NewEpisode()).result(10)
+        loop.submit(c.StepOnce()).result(10)
+        loop.submit(c.Configure(policy="second")).result(10)  # a switch in the middle of episode 1
+        second = loop.state()["session"]
+        loop.submit(c.StepOnce()).result(10)
+    finally:
+        loop.stop()
+    episodes = store.episodes(first)
+    assert [e["end_reason"] for e in episodes] == ["new episode (operator)", "switched to toy / None / second"]
+    assert all(e["finished"] for e in episodes)
+    assert [e["end_reason"] for e in store.episodes(second)] == ["server stopped"]
+    assert [m["reason"] for m in sent if m["type"] == "episode"][:2] == [e["end_reason"] for e in episodes]
+
+
+def test_the_threshold_streamed_is_the_one_the_gate_compared_fear_with() -> None:
+    """The page draws record.threshold as τ: with a one-step hold, the gate fired exactly where fear > τ."""
+    from pathlib import Path
+
+    import sims
+    from core.agents import load_agent
+    from core.loop import Runner
+
+    agent = load_agent(Path(__file__).resolve().parents[2] / "policies" / "ugv-default")
+    env = sims.make("ugv", scenario="3")
+    records: list[Any] = []
+    runner = Runner(env, agent.policy, agent.make_gate(hold_steps=1), None, seed=0, deterministic=True)
+    runner.step_listeners.append(records.append)
+    runner.run_episode(max_steps=150)
+    env.close()
+    scored = [r for r in records if r.fear == r.fear]
+    assert scored and any(r.gate_fired for r in scored) and not all(r.gate_fired for r in scored)
+    assert all(r.gate_fired == (r.fear > r.threshold) for r in scored)
+    assert len({round(r.threshold, 6) for r in scored}) > 1  # τ moves with curiosity (smoothed), and is what counts

@@ -102,6 +102,7 @@ def test_static_geometry_is_drawn_once_per_key_and_the_trail_restarts(server) ->
 
 def test_a_window_around_the_ego_slides_the_world_not_the_camera(server) -> None:
     drawer = SceneDrawer(server)
+    drawer.set_view("overview")
     scene = scene_with_movers(3)
     scene["bounds"] = [0.0, -20.0, 120.0, 20.0]
     drawer.draw(scene)
@@ -111,3 +112,29 @@ def test_a_window_around_the_ego_slides_the_world_not_the_camera(server) -> None
     assert drawer.origin == (90.0, 0.0)
     assert tuple(drawer._origin_frame.position) == (-90.0, -0.0, 0.0)
     assert tuple(server.initial_camera.position) == camera
+
+
+def test_the_follow_view_keeps_the_ego_centred_and_close_and_the_overview_is_one_switch_away(server) -> None:
+    import math
+
+    drawer = SceneDrawer(server)
+    assert drawer.view == "follow"
+    scene = scene_with_movers(2)
+    scene["bounds"] = [0.0, -110.0, 220.0, 110.0]  # a SUMO-like window much larger than the ego
+    length = float(scene["ego"].get("length", 1.0))
+    drawer.draw(scene)
+    ego = (float(scene["ego"]["x"]), float(scene["ego"]["y"]))
+    assert drawer.origin == pytest.approx(ego)  # the ego is at the centre of the view
+    close = math.dist(server.initial_camera.position, (0, 0, 0))
+    moved = {**scene, "ego": {**scene["ego"], "x": ego[0] + 3.0}}
+    drawer.draw(moved)
+    assert drawer.origin == pytest.approx((ego[0] + 3.0, ego[1]))  # the world slides, the camera stays
+    assert math.dist(server.initial_camera.position, (0, 0, 0)) == pytest.approx(close)
+    drawer.set_view("overview")
+    drawer.draw(moved)
+    far = math.dist(server.initial_camera.position, (0, 0, 0))
+    assert far > 3 * close and drawer.follow_window(scene["ego"])[2] - drawer.follow_window(scene["ego"])[0] == (
+        pytest.approx(max(14.0 * length, 4.0))
+    )
+    with pytest.raises(ValueError, match="follow or overview"):
+        drawer.set_view("sideways")

@@ -262,3 +262,17 @@ def test_a_default_policy_that_does_not_load_falls_back_to_the_scripted_expert(t
         assert state["config"]["policy"] == "scripted" and "does not load" in state["error"]
     finally:
         stop_server(live, thread)
+
+
+def test_the_operator_switches_the_shared_view_and_a_viewer_cannot(fast_server) -> None:
+    assert fast_server.state()["view"] == "follow"
+    with ws(fast_server) as operator, ws(fast_server) as viewer:
+        token = claim(operator)
+        viewer.send(json.dumps({"type": "view", "mode": "overview", "token": "not-the-token"}))
+        assert "only the operator" in until(viewer, lambda m: m["type"] == "error")["error"]
+        operator.send(json.dumps({"type": "view", "mode": "overview", "token": token}))
+        assert until(operator, lambda m: m["type"] == "ack" and m["op"] == "view")["result"] == {"view": "overview"}
+        assert until(viewer, lambda m: m["type"] == "state" and m["view"] == "overview")
+        assert fast_server.dash.scene_view.drawer.view == "overview"
+        operator.send(json.dumps({"type": "view", "mode": "sideways", "token": token}))
+        assert until(operator, lambda m: m["type"] == "error")["error"]
