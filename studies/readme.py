@@ -24,7 +24,9 @@ def section(name: str, results: Path, readme: Path) -> str:
     except ValueError:
         link = results.resolve()
     figures = sorted(p.name for p in results.glob("*.png"))
-    lines = [table.read_text().strip(), "", f"Results folder: [`{link}`]({link}) (per-seed rows in `seeds.csv`)."]
+    # the table's own headings sit under the study's heading in the README
+    body = "\n".join("####" + line[1:] if line.startswith("# ") else line for line in table.read_text().splitlines())
+    lines = [body.strip(), "", f"Results folder: [`{link}`]({link}) (per-seed rows in `seeds.csv`)."]
     if figures:
         lines.append("Figures: " + ", ".join(f"[{f}]({link}/{f})" for f in figures) + ".")
     return "\n".join(lines)
