@@ -42,6 +42,8 @@ class ReplaySession:
     static: dict[str, Any] | None
     scenes: list[dict[str, Any] | None]
     series: dict[str, list[Any]]
+    events: list[dict[str, Any]]
+    """The episode's timeline (:meth:`core.sessions.SessionStore.events`)."""
     t: int = 0
 
     @property
@@ -60,6 +62,7 @@ class ReplaySession:
             "series": self.series,
             "static": self.static,
             "trail": trail,
+            "events": self.events,
         }
 
     def seek(self, t: int) -> dict[str, Any]:
@@ -87,9 +90,10 @@ def open_replay(
     try:
         static, scenes = store.scenes(session, episode)
         arrays = store.steps(session, episode)
+        events = store.events(session, episode)
     except (LookupError, SessionError) as exc:
         raise ReplayError(str(exc)) from None
     if not scenes:
         raise ReplayError(f"episode {episode} of {session} has no steps")
     series = {key: arrays[key].tolist() for key in SERIES}
-    return ReplaySession(session, episode, static, scenes, series)
+    return ReplaySession(session, episode, static, scenes, series, events)

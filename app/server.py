@@ -7,6 +7,7 @@ Routes
   ``/api/state``                loop state; ``/api/options`` simulators, scenarios, policies, expert modes
   ``/api/sessions``             recorded sessions; ``/api/sessions/{id}/episodes`` their episodes
   ``/api/sessions/{id}/segments[?episode=N]``  takeover segments (first/last step, who acted)
+  ``/api/sessions/{id}/events?episode=N``       the episode's timeline (gate, takeovers, violations, end)
   ``/api/sessions/{id}/export.{csv|parquet}[?episode=N]``  download steps
 
 viser runs in this process on its own loopback port (``port=0``); the live loop runs the one
@@ -429,6 +430,18 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
     async def segments(session_id: str, episode: int | None = Query(default=None, ge=0)) -> JSONResponse:
         try:
             rows = await asyncio.to_thread(store().segments, session_id, episode)
+        except SessionError as exc:
+            raise HTTPException(404, str(exc)) from None
+        return JSONResponse(rows)
+
+    @app.get("/api/sessions/{session_id}/events")
+    async def events(session_id: str, episode: int = Query(ge=0)) -> JSONResponse:
+        dash = dash_of(app)
+        writer = dash.live.world.writer
+        if writer is not None and writer.session_id == session_id:
+            await asyncio.to_thread(writer.flush)
+        try:
+            rows = await asyncio.to_thread(store().events, session_id, episode)
         except SessionError as exc:
             raise HTTPException(404, str(exc)) from None
         return JSONResponse(rows)

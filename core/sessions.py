@@ -322,6 +322,40 @@ class SessionStore:
             out.append({"episode": ep, "segment": seg, "t_start": t0, "t_end": t1, "steps": n, "actors": counts})
         return out
 
+    def events(self, session_id: str, episode: int) -> list[dict[str, Any]]:
+        """The episode's timeline: gate firings, takeover starts and ends (who acted), violations, a collision,
+        and the end with its reason; each ``{"t", "kind", ...}`` in step order."""
+        with self._read(session_id) as conn:
+            head = conn.execute("SELECT * FROM episodes WHERE episode = ?", (episode,)).fetchone()
+            if head is None:
+                raise SessionError(f"session {session_id!r} has no episode {episode}")
+            rows = conn.execute(
+                "SELECT t, actor, takeover, gate_fired, violation FROM steps WHERE episode = ? ORDER BY t", (episode,)
+            ).fetchall()
+        events: list[dict[str, Any]] = []
+        prev_gate = prev_violation = False
+        prev_takeover: str | None = None
+        for row in rows:
+            t, actor = int(row["t"]), str(row["actor"])
+            if row["gate_fired"] and not prev_gate:
+                events.append({"t": t, "kind": "gate"})
+            taking = actor if row["takeover"] else None
+            if prev_takeover is not None and taking != prev_takeover:
+                events.append({"t": t, "kind": "takeover_end", "actor": prev_takeover})
+            if taking is not None and taking != prev_takeover:
+                events.append({"t": t, "kind": "takeover_start", "actor": taking})
+            if row["violation"] and not prev_violation:
+                events.append({"t": t, "kind": "violation"})
+            prev_gate, prev_violation, prev_takeover = bool(row["gate_fired"]), bool(row["violation"]), taking
+        if rows and head["ended"] is not None:
+            last = int(rows[-1]["t"])
+            metrics = json.loads(head["metrics"]) if head["metrics"] else {}
+            if metrics.get("collision"):
+                events.append({"t": last, "kind": "collision"})
+            reason = head["end_reason"] if "end_reason" in head.keys() else None  # noqa: SIM118 (Row: values)
+            events.append({"t": last, "kind": "end", "reason": reason or "ended"})
+        return events
+
     def scenes(self, session_id: str, episode: int) -> tuple[dict[str, Any] | None, list[dict[str, Any] | None]]:
         """(static scene of the episode, per-step scene snapshot or None) for replay."""
         with self._read(session_id) as conn:

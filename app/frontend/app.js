@@ -411,12 +411,16 @@ $("btn-replay").onclick = (e) => {
 };
 const replayView = new ReplayView($("replay-view"));
 S.replayView = replayView;
+const timeline = new Timeline($("timeline"), (t) => seek(t));
+S.timeline = timeline;
 
 function enterReplay(msg) {
   const series = msg.series;
   S.replay = { session: msg.session, episode: msg.episode, series, length: series.t.length, trail: msg.trail || [] };
   replayView.setStatic(msg.static);
   $("replay-view").hidden = false;
+  $("timeline").hidden = false;
+  timeline.set(series, msg.events);
   const actors = series.t.map((_, i) => (series.takeover[i] ? series.actor[i] : null));
   for (const chart of [fearChart, curiosityChart]) { chart.window = null; chart.setAll(series.t, series, actors); }
   $("replay-bar").hidden = false;
@@ -428,7 +432,7 @@ function showReplayFrame(t, length, labels, scene) {
   S.replayT = t;
   replayView.draw(scene, S.replay.trail.slice(0, t + 1).filter(Boolean));
   const s = S.replay.series;
-  fearChart.setCursor(s.t[t]); curiosityChart.setCursor(s.t[t]);
+  fearChart.setCursor(s.t[t]); curiosityChart.setCursor(s.t[t]); timeline.setCursor(t);
   if (document.activeElement !== $("replay-scrub")) $("replay-scrub").value = String(t);
   $("replay-pos").textContent = `${t} / ${length - 1}`;
   renderStep({
@@ -443,6 +447,7 @@ function exitReplay() {
   S.replay = null;
   S.replayAsked = false;
   $("replay-view").hidden = true;
+  $("timeline").hidden = true;
   stopReplayPlayback();
   $("replay-bar").hidden = true;
   $("banner").hidden = true;

@@ -342,10 +342,18 @@ def test_a_viewer_replays_on_its_own_page_while_the_live_run_goes_on(browser: An
         page.wait_for_function("sage.replayT === 120 && sage.charts.fear.cursor === 120", timeout=WAIT_MS)
         assert page.evaluate("sage.replayView.frames") > drawn
         assert page.evaluate("document.getElementById('hud-t').textContent") == "120"
+        # the timeline holds the store's events; clicking one seeks the replay there
+        events = live.dash.store.events(live.state()["session"], 0)
+        hits = page.evaluate("sage.timeline.hits")
+        assert [(h["t"], h["kind"]) for h in hits] == [(e["t"], e["kind"]) for e in events] and events
+        target = next((h for h in hits if h["kind"] != "end" and h["t"] != 120), hits[-1])
+        box = page.locator("#timeline").bounding_box()
+        page.mouse.click(box["x"] + target["x"], box["y"] + box["height"] / 2)
+        page.wait_for_function(f"sage.replayT === {target['t']}", timeout=WAIT_MS)
         steps, seen = page.evaluate("sage.steps"), operator.evaluate("sage.steps")
         page.wait_for_function(f"sage.steps > {steps + 5}", timeout=WAIT_MS)  # the live run goes on meanwhile
         operator.wait_for_function(f"sage.steps > {seen + 5} && !sage.replay", timeout=WAIT_MS)  # for everyone
-        assert page.evaluate("sage.replayT") == 120  # ... and the replay stays where the viewer put it
+        assert page.evaluate("sage.replayT") == target["t"]  # ... and the replay stays where the viewer put it
         page.click("#replay-exit")
         page.wait_for_function("!sage.replay && document.getElementById('replay-bar').hidden", timeout=WAIT_MS)
         assert not page.locator("#replay-view").is_visible()

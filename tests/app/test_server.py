@@ -276,3 +276,14 @@ def test_the_operator_switches_the_shared_view_and_a_viewer_cannot(fast_server) 
         assert fast_server.dash.scene_view.drawer.view == "overview"
         operator.send(json.dumps({"type": "view", "mode": "sideways", "token": token}))
         assert until(operator, lambda m: m["type"] == "error")["error"]
+
+
+def test_rest_gives_an_episodes_timeline_and_refuses_a_missing_one(fast_server) -> None:
+    deadline = time.monotonic() + 30
+    while fast_server.state()["counters"]["episodes"] < 1 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    sid = fast_server.state()["session"]
+    status, body = get(fast_server, f"/api/sessions/{sid}/events?episode=0")
+    events = json.loads(body)
+    assert status == 200 and events == fast_server.dash.store.events(sid, 0) and events[-1]["kind"] == "end"
+    assert get(fast_server, f"/api/sessions/{sid}/events?episode=999")[0] == 404

@@ -209,3 +209,24 @@ def test_takeover_segments_and_takeover_only_steps_for_fine_tuning(tmp_path) -> 
     assert segments[0]["actors"] == {"expert": 2} and store.segments(sid, episode=1)[0]["episode"] == 1
     only = store.steps(sid, takeover_only=True)
     assert len(only["t"]) == 6 and only["takeover"].all() and not np.isnan(only["a_expert"]).any()
+
+
+def test_the_timeline_matches_the_takeovers_and_violations_in_the_store(tmp_path) -> None:
+    store = SessionStore(tmp_path)
+    sid, records = run_session(store, episodes=1)
+    events = store.events(sid, 0)
+    kinds = [(e["t"], e["kind"]) for e in events]
+    # the gate fired at steps 1, 2 and 5: two takeover segments (1-2 and 5), each opened by a gate firing
+    assert [(t, k) for t, k in kinds if k in ("gate", "takeover_start", "takeover_end")] == [
+        (1, "gate"), (1, "takeover_start"), (3, "takeover_end"), (5, "gate"), (5, "takeover_start"),
+        (6, "takeover_end"),
+    ]  # fmt: skip
+    segments = store.segments(sid, 0)
+    starts = [e for e in events if e["kind"] == "takeover_start"]
+    assert [e["t"] for e in starts] == [s["t_start"] for s in segments]
+    assert all(e["actor"] == "expert" for e in starts)
+    onsets = [r.t for i, r in enumerate(records) if r.violation and (i == 0 or not records[i - 1].violation)]
+    assert [e["t"] for e in events if e["kind"] == "violation"] == onsets and onsets
+    assert events[-1] == {"t": 7, "kind": "end", "reason": "truncated"}
+    with pytest.raises(SessionError, match="no episode 3"):
+        store.events(sid, 3)
