@@ -175,6 +175,8 @@ class LiveLoop:
         self.clock = clock
         self.paused = start_paused
         self.speed = config.speed
+        self.imagined_horizon = True
+        """Stream (and record) the gate's imagined horizon with each step (bench_server measures its cost)."""
         self.history: deque[str] = deque(maxlen=HISTORY)
         self.trail: deque[tuple[float, float]] = deque(maxlen=600)
         self.scene: dict[str, Any] | None = None
@@ -292,6 +294,7 @@ class LiveLoop:
             except Exception as exc:  # the loop drives on without fine-tuning, and says why
                 log.exception("fine-tuning could not start")
                 self.last_error = f"fine-tuning is off: {exc}"
+        runner.step_listeners.append(self._note_horizon)  # before the writer: the session stores it too
         runner.step_listeners.append(lambda r: expert.note_executed(r.action, r.actor, r.takeover))
         runner.step_listeners.append(self._capture_scene)
         if writer is not None:
@@ -322,6 +325,12 @@ class LiveLoop:
             self.scene_view.reset_trail()
 
     # -- listeners (loop thread) -----------------------------------------------------------------------
+    def _note_horizon(self, record: StepRecord) -> None:
+        """The gate's imagined horizon of this step (per member, per step ahead) into the record's info."""
+        horizon = getattr(self.world.runner.gate, "last_horizon", None)
+        if self.imagined_horizon and callable(horizon) and record.fear == record.fear:  # fear computed this step
+            record.info["horizon"] = horizon()
+
     def _capture_scene(self, record: StepRecord) -> None:
         try:
             self.scene = simulator(self.world.env).scene()
@@ -346,6 +355,8 @@ class LiveLoop:
             message["input_ts"] = person_input.ts
             message["input_source"] = person_input.source
         message["applied_ms"] = record.wall_time * 1000.0
+        if record.info.get("horizon") is not None:
+            message["horizon"] = record.info["horizon"]
         scene = self.scene
         if scene is not None:
             ego = scene.get("ego") or {}

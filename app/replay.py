@@ -96,4 +96,5 @@ def open_replay(
     if not scenes:
         raise ReplayError(f"episode {episode} of {session} has no steps")
     series = {key: arrays[key].tolist() for key in SERIES}
+    series["horizon"] = store.horizons(session, episode)
     return ReplaySession(session, episode, static, scenes, series, events)

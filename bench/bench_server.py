@@ -6,6 +6,8 @@ free loopback port, connects three viewer websockets and one operator websocket,
 * loop rate (steps/s achieved vs the wall-clock target) and the cost of one live step, at 1x and at the
   highest speed multiplier (to show the headroom),
 * stream rate: step messages per second received by each viewer,
+* the imagined horizon (the gate's per-member rollout streamed and recorded with each step) against none, side
+  by side at 20x: loop rate and live step cost (it must not lower the loop rate),
 * hostile messages: 1,000 malformed, oversized, deeply nested, mistyped or cross-typed messages from one
   connection, while the loop runs at 1x: internal errors (target 0) and the loop rate beside a quiet run,
 * key press to applied action (page timestamp of the input -> wall time of the env step that used it):
@@ -229,6 +231,18 @@ def main() -> None:
                 + f" msg/s (ratio {min(r['stream']) / r['loop']:.2f} of the loop); live step p50 "
                 f"{r['step_ms_p50']:.2f} ms, p95 {r['step_ms_p95']:.2f} ms"
             )
+        # the imagined horizon (streamed and recorded with every step) against none, side by side, at 20x
+        rates = {}
+        for on in (False, True, False, True):
+            live.imagined_horizon = on
+            rates.setdefault(on, []).append(asyncio.run(measure_rates(port, app, args.seconds / 2)))
+        with_h, without = (max(r["loop"] for r in rates[k]) for k in (True, False))
+        p50_on, p50_off = (min(r["step_ms_p50"] for r in rates[k]) for k in (True, False))
+        print(
+            f"  imagined horizon at 20x: loop {with_h:.1f} steps/s with it, {without:.1f} without (ratio "
+            f"{with_h / without:.2f}); live step p50 {p50_on:.2f} ms vs {p50_off:.2f} ms"
+        )
+        live.imagined_horizon = True
         live.submit(SetSpeed(1.0)).result(timeout=10)
         quiet = asyncio.run(measure_rates(port, app, 3.0))
         h = asyncio.run(measure_hostile(port, app, 1000))

@@ -86,6 +86,7 @@ CREATE TABLE IF NOT EXISTS steps (
     obs BLOB NOT NULL,
     next_obs BLOB NOT NULL,
     scene BLOB,
+    horizon TEXT,
     PRIMARY KEY (episode, t)
 );
 CREATE INDEX IF NOT EXISTS steps_by_segment ON steps (episode, segment);
@@ -322,6 +323,17 @@ class SessionStore:
             out.append({"episode": ep, "segment": seg, "t_start": t0, "t_end": t1, "steps": n, "actors": counts})
         return out
 
+    def horizons(self, session_id: str, episode: int) -> list[dict[str, Any] | None]:
+        """Per step, the gate's imagined horizon as the live page saw it (None where there was none, and for
+        sessions recorded before it was stored)."""
+        with self._read(session_id) as conn:
+            try:
+                rows = conn.execute("SELECT horizon FROM steps WHERE episode = ? ORDER BY t", (episode,)).fetchall()
+            except sqlite3.OperationalError:  # an older session: no horizon column
+                count = conn.execute("SELECT COUNT(*) FROM steps WHERE episode = ?", (episode,)).fetchone()[0]
+                return [None] * int(count)
+        return [json.loads(r["horizon"]) if r["horizon"] else None for r in rows]
+
     def events(self, session_id: str, episode: int) -> list[dict[str, Any]]:
         """The episode's timeline: gate firings, takeover starts and ends (who acted), violations, a collision,
         and the end with its reason; each ``{"t", "kind", ...}`` in step order."""
@@ -529,7 +541,9 @@ class SessionWriter:
             _blob(record.next_obs),
             scene_json,
         )
-        self._queue.put(("step", row, static_json))
+        horizon = record.info.get("horizon") if isinstance(record.info, dict) else None
+        horizon_json = json.dumps(horizon, separators=(",", ":")) if horizon is not None else None
+        self._queue.put(("step", row, (static_json, horizon_json)))
 
     def on_episode(self, summary: EpisodeSummary) -> None:
         if self._closed:
@@ -623,16 +637,19 @@ class SessionWriter:
             for kind, payload, extra in items:
                 if kind == "step":
                     ep = payload[0]
+                    static_json, horizon_json = extra
                     if ep not in known_episodes:
                         conn.execute(
                             "INSERT OR IGNORE INTO episodes (episode, started) VALUES (?, ?)", (ep, payload[2])
                         )
                         known_episodes.add(ep)
-                    if extra is not None:
-                        conn.execute("UPDATE episodes SET static_scene = ? WHERE episode = ?", (extra, ep))
+                    if static_json is not None:
+                        conn.execute("UPDATE episodes SET static_scene = ? WHERE episode = ?", (static_json, ep))
                     scene = payload[-1]
-                    row = (*payload[:-1], zlib.compress(scene.encode(), 3) if scene is not None else None)
-                    conn.execute(f"INSERT OR REPLACE INTO steps ({STEP_COLUMNS}) VALUES ({placeholders})", row)
+                    row = (*payload[:-1], zlib.compress(scene.encode(), 3) if scene is not None else None, horizon_json)
+                    conn.execute(
+                        f"INSERT OR REPLACE INTO steps ({STEP_COLUMNS}, horizon) VALUES ({placeholders}, ?)", row
+                    )
                     self.rows_written += 1
                 else:
                     ep = extra

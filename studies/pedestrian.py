@@ -24,14 +24,16 @@ The paper reports these as curves only, so there are no paper numbers beside the
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from studies.pedestrian_figures import read_rows, write_figures
 from studies.registry import StudyDef
+
+__all__ = ["METHODS", "METRICS", "STUDY", "figures", "read_rows", "trial"]
 
 METHODS = ("d3qn", "sage-d3qn")
 TRAIN_SCENARIO = "crossing"
@@ -52,12 +54,6 @@ METRICS = (
 
 def run_folder(config: dict[str, Any]) -> Path:
     return Path(config["runs_dir"]) / f"{config['method']}-s{int(config['seed'])}"
-
-
-def read_rows(out: Path) -> list[dict[str, Any]]:
-    """The training episodes of a run folder (demonstrations excluded)."""
-    lines = (out / "metrics.jsonl").read_text().splitlines()
-    return [row for row in map(json.loads, lines) if row.get("phase") == "train"]
 
 
 def trial(config: dict[str, Any]) -> dict[str, float]:
@@ -110,8 +106,6 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     """The paper's panels (b)-(d) from the run folders under ``out/runs``."""
-    from studies.pedestrian_figures import write_figures
-
     return write_figures(Path(settings["runs_dir"]), out, METHODS, str(settings.get("scenario", TRAIN_SCENARIO)))
 
 

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -22,6 +23,12 @@ SNAPSHOT_SEED = 4_242_424
 COLORS = {"d3qn": "#f97316", "sage-d3qn": "#2dd4bf"}
 
 
+def read_rows(out: Path) -> list[dict[str, Any]]:
+    """The training episodes of a run folder (demonstrations excluded)."""
+    lines = (out / "metrics.jsonl").read_text().splitlines()
+    return [row for row in map(json.loads, lines) if row.get("phase") == "train"]
+
+
 def _runs(runs_dir: Path, method: str) -> list[Path]:
     return sorted(p for p in runs_dir.glob(f"{method}-s*") if (p / "checkpoint.pt").is_file())
 
@@ -29,7 +36,6 @@ def _runs(runs_dir: Path, method: str) -> list[Path]:
 def curves(runs_dir: Path, method: str, key: str, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(episode, mean, 95% half-width) over seeds of the trailing moving average of ``key``, up to the episode
     count every seed reached (budgets are in steps, so seeds differ in episodes)."""
-    from studies.pedestrian import read_rows
     from studies.stats import mean_ci
 
     series = []
@@ -105,8 +111,6 @@ def write_figures(runs_dir: Path, out: Path, methods: Sequence[str], scenario: s
     lengths = [len(_runs(runs_dir, m)) for m in methods]
     if not any(lengths):
         return []
-    from studies.pedestrian import read_rows
-
     episodes = min(len(read_rows(r)) for m in methods for r in _runs(runs_dir, m))
     window = max(1, episodes // 15)
     paths = []

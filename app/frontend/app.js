@@ -44,6 +44,8 @@ const curiosityChart = new StripChart($("chart-curiosity"), {
 fearChart.window = WINDOW;
 curiosityChart.window = WINDOW;
 S.charts = { fear: fearChart, curiosity: curiosityChart };
+const horizonChart = new HorizonChart($("horizon")); // the imagined horizon, in the scene's HUD
+S.horizonChart = horizonChart;
 
 function pushLive(point) {
   S.live.push(point);
@@ -222,6 +224,7 @@ function renderStep(msg) {
   chip.textContent = { agent: "AGENT", person: "PERSON", fallback: "FALLBACK", expert: "SCRIPTED EXPERT" }[msg.actor] || msg.actor;
   setPair("bar-arl", msg.a_rl, "var(--agent)");
   setPair("bar-act", msg.action, `var(--${msg.actor === "agent" ? "agent" : msg.actor})`);
+  horizonChart.draw(msg.horizon);
 
   const banner = $("banner");
   const wrap = $("scene-wrap");
@@ -412,6 +415,7 @@ $("btn-replay").onclick = (e) => {
 const replayView = new ReplayView($("replay-view"));
 S.replayView = replayView;
 const timeline = new Timeline($("timeline"), (t) => seek(t));
+
 S.timeline = timeline;
 
 function enterReplay(msg) {
@@ -437,6 +441,7 @@ function showReplayFrame(t, length, labels, scene) {
   $("replay-pos").textContent = `${t} / ${length - 1}`;
   renderStep({
     episode: S.replay.episode, t: s.t[t], actor: s.actor[t], takeover: s.takeover[t], a_rl: s.a_rl[t], action: s.action[t],
+    horizon: s.horizon ? s.horizon[t] : null,
     request_person: false, labels,
     counters: { episode_return: s.reward.slice(0, t + 1).reduce((a, b) => a + (b || 0), 0) },
   });

@@ -349,6 +349,11 @@ class GateKernel:
             sg = float((sigma[:, 0] * self.weights).sum())
         return self.cfg.beta * c + (1.0 - self.cfg.beta) * sg, c, sg
 
+    def last_member_costs(self) -> np.ndarray:
+        """(m, N): each member's predicted violation probability at each step of the last rollout (read-only;
+        what the dashboard's imagined-horizon chart draws)."""
+        return torch.sigmoid(self.step_cost[..., 0]).numpy().copy()
+
     def curiosity(
         self,
         obs: Tensor,

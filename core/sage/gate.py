@@ -22,7 +22,7 @@ import torch
 
 from core.loop import GateDecision
 from core.sage.config import GateConfig
-from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, fear
+from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, fear_of, rollout
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel
 
@@ -69,6 +69,8 @@ class SageGate:
         self.hold_remaining = 0
         self.detail = GateDetail(threshold=self.threshold.threshold)
         self._previous_obs: np.ndarray | None = None
+        self._horizon_source: Any = None
+        """The last decision's rollout costs (the kernel's buffers, or an (m, N) array): :meth:`last_horizon`."""
         """The last observation the gate saw in this episode: the world model's motion input is obs - it."""
 
     def _encoded(self, action: Any) -> np.ndarray:
@@ -134,9 +136,13 @@ class SageGate:
             if kernel is not None:
                 value, cost, sigma = kernel(o, a, motion)
                 self._last = (obs, a_rl, self.world_model.version)
+                self._horizon_source = kernel
             else:
-                terms = fear(self.world_model.folded(), self.policy, o, a, self.cfg, motion=motion)
+                folded = self.world_model.folded()
+                ro = rollout(folded, self.policy, o, a, self.cfg.horizon, motion)
+                terms = fear_of(folded, ro, self.cfg)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
+                self._horizon_source = ro.cost[..., 0].numpy().copy()
         if value > threshold:
             self.hold_remaining = self.cfg.hold_steps
         fired = self.hold_remaining > 0
@@ -146,6 +152,20 @@ class SageGate:
         d.fear, d.cost, d.sigma, d.threshold = value, cost, sigma, threshold
         d.hold_remaining = self.hold_remaining
         return GateDecision(value, threshold, fired)
+
+    def last_horizon(self) -> dict[str, list[Any]] | None:
+        """The last decision's imagined horizon, read-only: ``cost`` (m lists of N members' predicted violation
+        probabilities, one list per step ahead), ``mean`` and ``spread`` (the members' mean and standard deviation
+        per step). None before the model is fitted. Costs nothing unless called (the rollout is the gate's own)."""
+        source = getattr(self, "_horizon_source", None)
+        if source is None:
+            return None
+        costs = source.last_member_costs() if isinstance(source, GateKernel) else source
+        return {
+            "cost": np.round(costs, 4).tolist(),
+            "mean": np.round(costs.mean(1), 4).tolist(),
+            "spread": np.round(costs.std(1), 4).tolist(),
+        }
 
     def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
         if not self._ready():

@@ -144,3 +144,36 @@ def test_the_threshold_streamed_is_the_one_the_gate_compared_fear_with() -> None
     assert scored and any(r.gate_fired for r in scored) and not all(r.gate_fired for r in scored)
     assert all(r.gate_fired == (r.fear > r.threshold) for r in scored)
     assert len({round(r.threshold, 6) for r in scored}) > 1  # τ moves with curiosity (smoothed), and is what counts
+
+
+def test_the_imagined_horizon_is_streamed_with_each_step_and_replayed_from_the_store(tmp_path: Any) -> None:
+    from pathlib import Path
+
+    from app.policies import load_policy
+    from app.replay import open_replay
+    from app.server import make_env
+    from core.sessions import SessionStore
+
+    policy = str(Path(__file__).resolve().parents[2] / "policies" / "ugv-default")
+    store = SessionStore(tmp_path)
+    sent: list[dict[str, Any]] = []
+    loop = LiveLoop(
+        LiveConfig(sim="ugv", scenario="3", policy=policy, expert_mode="scripted"),
+        env_factory=make_env,
+        policy_loader=load_policy,
+        console=OperatorConsole(),
+        publish=lambda text: sent.append(json.loads(text)),
+        store=store,
+        start_paused=True,
+    )
+    loop.start()
+    try:
+        for _ in range(6):
+            loop.submit(c.StepOnce()).result(10)
+        session = loop.state()["session"]
+    finally:
+        loop.stop()
+    steps = [m for m in sent if m["type"] == "step"]
+    assert all(len(m["horizon"]["cost"]) == 5 and len(m["horizon"]["mean"]) == 5 for m in steps)
+    replay = open_replay(store, session, 0)
+    assert replay.series["horizon"] == [m["horizon"] for m in steps]

@@ -133,6 +133,8 @@ def test_d3qn_learns_the_corridor_and_sage_d3qn_gates_on_one_hot_actions(corrido
     gate = agent.make_gate()
     decision = gate.decide(np.array([0.0, 1.0], np.float32), np.array([2]))
     assert np.isfinite(decision.fear) and np.isfinite(gate.observe(np.zeros(2), np.array([1]), np.zeros(2)))
+    horizon = gate.last_horizon()  # the generic (policy-function) path keeps its rollout too
+    assert horizon is not None and len(horizon["cost"]) == gate.cfg.horizon and len(horizon["cost"][0]) == 5
     assert outcome.result.demo_rows and outcome.result.learner.buffer.takeover_count() > 0
 
 
