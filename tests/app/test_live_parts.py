@@ -177,3 +177,35 @@ def test_the_imagined_horizon_is_streamed_with_each_step_and_replayed_from_the_s
     assert all(len(m["horizon"]["cost"]) == 5 and len(m["horizon"]["mean"]) == 5 for m in steps)
     replay = open_replay(store, session, 0)
     assert replay.series["horizon"] == [m["horizon"] for m in steps]
+
+
+def test_the_pedestrian_default_policy_is_served_live_with_its_gate() -> None:
+    """The dashboard's picker finds policies/pedestrian-default; it drives the discrete-action simulator live
+    with a working gate (fear and the imagined horizon on one-hot actions)."""
+    from pathlib import Path
+
+    from app.policies import default_policy, load_policy
+    from app.server import make_env
+
+    root = Path(__file__).resolve().parents[2]
+    policy = default_policy([root / "policies"], "pedestrian")
+    assert policy.endswith("pedestrian-default")
+    sent: list[dict[str, Any]] = []
+    loop = LiveLoop(
+        LiveConfig(sim="pedestrian", scenario="crossing", policy=policy, expert_mode="scripted"),
+        env_factory=make_env,
+        policy_loader=load_policy,
+        console=OperatorConsole(),
+        publish=lambda text: sent.append(json.loads(text)),
+        start_paused=True,
+    )
+    loop.start()
+    try:
+        for _ in range(5):
+            loop.submit(c.StepOnce()).result(10)
+        assert loop.state()["has_gate"]
+    finally:
+        loop.stop()
+    steps = [m for m in sent if m["type"] == "step"]
+    assert len(steps) == 5 and all(m["fear"] is not None and len(m["horizon"]["cost"]) == 5 for m in steps)
+    assert all(isinstance(m["action"][0], float) and m["action"][0] in range(9) for m in steps)
