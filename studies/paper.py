@@ -56,10 +56,84 @@ HIGHWAY: dict[tuple[str, str, str], dict[str, PaperCell]] = {
 }
 """Paper Table ``tab:test_results``: ``(split, method, condition) -> metric -> value``."""
 
-PAPER_TABLES: dict[str, dict[tuple[str, ...], dict[str, PaperCell]]] = {"highway": dict(HIGHWAY)}
+UGV_METRICS = ("success_rate_pct", "avg_speed", "travel_distance", "path_curvature", "lateral_acc")
+"""Columns of the UGV field-test table (success rate %, m/s, m, 1/m, m/s²)."""
+
+# Paper Table ``tab:all_scenarios_results`` (four real indoor scenarios, 20 trials each): scenario -> method ->
+# (successes of 20, speed, speed sd, distance, distance sd, curvature, curvature sd, lateral acc, lateral acc sd).
+# The paper's "Proposed" row is SAGE-RL.
+_UGV_ROWS: dict[str, dict[str, tuple[float, ...]]] = {
+    "1": {
+        "TEB": (20, 0.39, 0.02, 8.62, 0.19, 0.489, 0.03, 0.370, 0.01),
+        "SAC": (13, 0.40, 0.04, 7.62, 1.46, 0.560, 0.15, 0.443, 0.10),
+        "TD3": (12, 0.41, 0.03, 7.49, 1.48, 0.493, 0.08, 0.438, 0.09),
+        "HG-DAgger": (20, 0.46, 0.05, 7.93, 0.20, 0.487, 0.09, 0.407, 0.04),
+        "Diffusion-BC": (14, 0.40, 0.04, 7.21, 1.44, 0.503, 0.04, 0.405, 0.03),
+        "Diffusion-QL": (16, 0.42, 0.04, 7.34, 0.81, 0.485, 0.08, 0.393, 0.06),
+        "Multi-Hug RL": (20, 0.42, 0.03, 8.07, 0.22, 0.505, 0.08, 0.396, 0.04),
+        "SAGE-RL": (20, 0.44, 0.04, 7.65, 0.13, 0.472, 0.09, 0.352, 0.04),
+    },
+    "2": {
+        "TEB": (20, 0.29, 0.02, 7.52, 0.14, 0.741, 0.04, 0.409, 0.02),
+        "SAC": (12, 0.41, 0.04, 5.16, 1.16, 0.608, 0.17, 0.551, 0.13),
+        "TD3": (8, 0.40, 0.08, 4.92, 1.25, 0.558, 0.11, 0.479, 0.08),
+        "HG-DAgger": (17, 0.38, 0.05, 6.09, 1.03, 0.662, 0.07, 0.493, 0.04),
+        "Diffusion-BC": (4, 0.33, 0.06, 4.22, 1.84, 0.442, 0.08, 0.428, 0.03),
+        "Diffusion-QL": (10, 0.32, 0.04, 4.97, 1.26, 0.562, 0.09, 0.524, 0.06),
+        "Multi-Hug RL": (16, 0.36, 0.04, 5.66, 0.64, 0.696, 0.08, 0.592, 0.04),
+        "SAGE-RL": (20, 0.35, 0.03, 5.77, 0.14, 0.642, 0.10, 0.508, 0.06),
+    },
+    "3": {
+        "TEB": (8, 0.28, 0.02, 5.01, 1.47, 0.663, 0.17, 0.369, 0.03),
+        "SAC": (11, 0.46, 0.04, 5.31, 0.67, 0.664, 0.11, 0.440, 0.06),
+        "TD3": (11, 0.45, 0.04, 5.03, 1.30, 0.606, 0.08, 0.391, 0.05),
+        "HG-DAgger": (16, 0.40, 0.05, 5.80, 0.67, 0.653, 0.13, 0.380, 0.03),
+        "Diffusion-BC": (8, 0.34, 0.05, 5.41, 0.89, 0.588, 0.14, 0.367, 0.04),
+        "Diffusion-QL": (10, 0.37, 0.03, 5.60, 1.34, 0.633, 0.13, 0.357, 0.04),
+        "Multi-Hug RL": (15, 0.44, 0.04, 6.15, 1.34, 0.587, 0.05, 0.380, 0.04),
+        "SAGE-RL": (20, 0.43, 0.02, 6.21, 0.09, 0.535, 0.04, 0.356, 0.02),
+    },
+    "4": {
+        "TEB": (10, 0.33, 0.03, 5.72, 1.50, 0.625, 0.22, 0.394, 0.05),
+        "SAC": (11, 0.49, 0.06, 5.02, 0.71, 0.632, 0.14, 0.482, 0.06),
+        "TD3": (9, 0.51, 0.03, 5.06, 0.42, 0.619, 0.08, 0.451, 0.09),
+        "HG-DAgger": (17, 0.35, 0.02, 5.58, 0.55, 0.741, 0.13, 0.348, 0.04),
+        "Diffusion-BC": (7, 0.36, 0.04, 5.41, 1.01, 0.677, 0.12, 0.352, 0.07),
+        "Diffusion-QL": (12, 0.34, 0.04, 5.25, 1.14, 0.669, 0.11, 0.354, 0.05),
+        "Multi-Hug RL": (16, 0.38, 0.03, 6.02, 0.77, 0.622, 0.11, 0.421, 0.04),
+        "SAGE-RL": (20, 0.46, 0.03, 6.14, 0.12, 0.615, 0.11, 0.367, 0.06),
+    },
+}
+
+
+def _ugv_cells(row: tuple[float, ...]) -> dict[str, PaperCell]:
+    wins, speed, speed_sd, dist, dist_sd, curv, curv_sd, lat, lat_sd = row
+    return {
+        "success_rate_pct": PaperCell(100.0 * wins / 20.0),
+        "avg_speed": PaperCell(speed, speed_sd),
+        "travel_distance": PaperCell(dist, dist_sd),
+        "path_curvature": PaperCell(curv, curv_sd),
+        "lateral_acc": PaperCell(lat, lat_sd),
+    }
+
+
+UGV: dict[tuple[str, str], dict[str, PaperCell]] = {
+    (scenario, method): _ugv_cells(row) for scenario, rows in _UGV_ROWS.items() for method, row in rows.items()
+}
+"""Paper Table ``tab:all_scenarios_results``: ``(scenario, method) -> metric -> value``."""
+
+PAPER_TABLES: dict[str, dict[tuple[str, ...], dict[str, PaperCell]]] = {"highway": dict(HIGHWAY), "ugv": dict(UGV)}
 """Each study's paper numbers by row key; a study without a numeric table in the paper has no entry."""
 
-METHOD_ALIASES = {"sage": "SAGE-RL", "sac": "SAC", "td3": "TD3", "fni": "FNI-RL", "fni-rl": "FNI-RL"}
+METHOD_ALIASES = {
+    "sage": "SAGE-RL",
+    "sac": "SAC",
+    "td3": "TD3",
+    "fni": "FNI-RL",
+    "fni-rl": "FNI-RL",
+    "hg-dagger": "HG-DAgger",
+    "teb": "TEB",
+}
 """Our learner names -> the paper's method names."""
 
 

@@ -58,7 +58,7 @@ class StudyDef:
 _STUDIES: dict[str, StudyDef] = {}
 
 
-BUILTIN_STUDIES = ("studies.pedestrian",)
+BUILTIN_STUDIES = ("studies.pedestrian", "studies.ugv")
 """Modules whose ``STUDY`` is registered on first use (lazily: a study imports its simulator)."""
 _BUILTINS_DONE = False
 
