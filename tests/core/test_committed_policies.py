@@ -1,0 +1,31 @@
+"""The committed policies are ready to be warm-started: a run that starts from one learns."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from core.agents import load_checkpoint
+
+POLICIES = sorted((Path(__file__).resolve().parents[2] / "policies").glob("*/checkpoint.pt"))
+
+
+@pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
+def test_a_committed_policy_carries_a_learning_schedule(checkpoint: Path) -> None:
+    """A warm start takes the hyperparameters of the run it starts from: a policy whose configuration says
+    ``updates_per_step=0`` (e.g. left over from a world-model-only refit) would make every adaptation from it a
+    silent no-op."""
+    config = load_checkpoint(checkpoint)["agent_config"]
+    assert config["updates_per_step"] > 0
+    assert config["world_model"] is True
+
+
+def test_adapting_from_the_default_ugv_policy_updates_it(tmp_path: Path) -> None:
+    from studies.spec import TrainSpec
+    from studies.training import run_training
+
+    init = str(POLICIES[[p.parent.name for p in POLICIES].index("ugv-default")].parent)
+    spec = TrainSpec(sim="ugv", scenario="3", method="sac", train_steps=300, init=init, checkpoint_every=0,
+                     overrides=["batch_size=32"], out=str(tmp_path / "adapt"))  # fmt: skip
+    assert run_training(spec).result.learner.updates > 200
