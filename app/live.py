@@ -297,6 +297,8 @@ class LiveLoop:
         runner.step_listeners.append(self._note_horizon)  # before the writer: the session stores it too
         runner.step_listeners.append(lambda r: expert.note_executed(r.action, r.actor, r.takeover))
         runner.step_listeners.append(self._capture_scene)
+        # the version that drove the episode goes into its recorded metrics (the timeline marks version changes)
+        runner.episode_listeners.append(self._note_version)
         if writer is not None:
             writer.attach(runner)
         runner.step_listeners.append(self._on_step)
@@ -325,6 +327,10 @@ class LiveLoop:
             self.scene_view.reset_trail()
 
     # -- listeners (loop thread) -----------------------------------------------------------------------
+    def _note_version(self, summary: EpisodeSummary) -> None:
+        if self.world.versions is not None and self.world.version is not None:
+            summary.metrics["policy_version"] = float(self.world.version)
+
     def _note_horizon(self, record: StepRecord) -> None:
         """The gate's imagined horizon of this step (per member, per step ahead) into the record's info."""
         horizon = getattr(self.world.runner.gate, "last_horizon", None)

@@ -345,6 +345,15 @@ class SessionStore:
                 "SELECT t, actor, takeover, gate_fired, violation FROM steps WHERE episode = ? ORDER BY t", (episode,)
             ).fetchall()
         events: list[dict[str, Any]] = []
+        version = _policy_version(head["metrics"])
+        if version is not None:  # fine-tuned versions change only between episodes: mark the episode's first step
+            with self._read(session_id) as conn:
+                before = conn.execute(
+                    "SELECT metrics FROM episodes WHERE episode < ? ORDER BY episode DESC LIMIT 1", (episode,)
+                ).fetchone()
+            previous = _policy_version(before["metrics"]) if before is not None else None
+            if previous != version:
+                events.append({"t": 0, "kind": "version", "version": version})
         prev_gate = prev_violation = False
         prev_takeover: str | None = None
         for row in rows:
@@ -663,6 +672,12 @@ class SessionWriter:
                         "mean_fear=?, mean_curiosity=?, metrics=?, error=?, end_reason=? WHERE episode=?",
                         payload,
                     )
+
+
+def _policy_version(metrics: str | None) -> int | None:
+    """The fine-tuned version that drove an episode (recorded in its metrics by the live loop), if any."""
+    value = json.loads(metrics).get("policy_version") if metrics else None
+    return None if value is None else int(value)
 
 
 def _jsonable(v: Any) -> Any:

@@ -1,6 +1,6 @@
 // The replay's session timeline (Foxglove/Rerun-style): a state lane (who drove each step: agent, person,
 // fallback, scripted expert) and event markers from the session store (gate firing, takeover start and end,
-// violation, collision, the episode's end and why). Clicking seeks the replay to the nearest event, or to the
+// violation, collision, the episode's end and why, and the fine-tuned version when it changed). Clicking seeks the replay to the nearest event, or to the
 // step under the pointer.
 "use strict";
 
@@ -58,6 +58,9 @@ class Timeline {
       } else if (e.kind === "violation" || e.kind === "collision") {
         ctx.moveTo(x - 4, 12); ctx.lineTo(x + 4, 20); ctx.moveTo(x + 4, 12); ctx.lineTo(x - 4, 20); ctx.stroke();
       } else if (e.kind === "end") { ctx.fillRect(x - 1, 2, 2, laneTop - 2); }
+      else if (e.kind === "version") {
+        ctx.fillStyle = "#2dd4bf"; ctx.font = "13px system-ui"; ctx.fillText(`v${e.version}`, x + 2, laneTop - 3);
+      }
       this.hits.push({ x, t: e.t, kind: e.kind });
     }
     if (this.cursor !== null) {

@@ -230,3 +230,18 @@ def test_the_timeline_matches_the_takeovers_and_violations_in_the_store(tmp_path
     assert events[-1] == {"t": 7, "kind": "end", "reason": "truncated"}
     with pytest.raises(SessionError, match="no episode 3"):
         store.events(sid, 3)
+
+
+def test_the_timeline_marks_a_new_policy_version_at_the_episode_it_took_over(tmp_path) -> None:
+    store = SessionStore(tmp_path)
+    env = PlaneEnv()
+    runner = Runner(env, Still(), FiresAt(set()), ScriptedExpert())
+    versions = iter([0, 0, 1])
+    runner.episode_listeners.append(lambda s: s.metrics.update(policy_version=float(next(versions))))
+    writer = store.create("plane", scenario=1, scene_source=lambda: env.scene(), commit_interval=0.05)
+    writer.attach(runner)
+    for _ in range(3):
+        runner.run_episode()
+    writer.close()
+    marks = [[e for e in store.events(writer.session_id, ep) if e["kind"] == "version"] for ep in range(3)]
+    assert marks == [[{"t": 0, "kind": "version", "version": 0}], [], [{"t": 0, "kind": "version", "version": 1}]]
