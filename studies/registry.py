@@ -13,6 +13,7 @@ other key columns (``keys`` besides ``method``).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -48,7 +49,8 @@ class StudyDef:
     notes: tuple[str, ...] = ()
     """Stated under the table: the terminal-violation rule, the experts used, what a budget leaves out."""
     settings: Mapping[str, Any] = field(default_factory=dict)
-    """Fixed settings passed to every trial (besides the budget and ``runs_dir``, where trials keep their run
+    """Fixed settings passed to every trial (``min_eval_episodes`` raises the budget's evaluation episodes for this
+    study; besides the budget and ``runs_dir``, where trials keep their run
     folders: ``<results folder>/runs``)."""
     figures: Callable[[Path, dict[str, Any]], list[Path]] | None = None
     """``figures(results folder, settings) -> paths``: the study's own figures from its trials' run folders,
@@ -132,6 +134,10 @@ def run_study(
     study = get_study(name)
     spent: Budget = budget(budget_name)
     seeds = list(range(spent.seeds))
+    # a study may evaluate more episodes than the budget's default (the UGV table's 20 trials per scenario)
+    spent = dataclasses.replace(
+        spent, eval_episodes=max(spent.eval_episodes, int(study.settings.get("min_eval_episodes", 0)))
+    )
     settings = {
         **dict(study.settings),
         "train_steps": spent.train_steps,

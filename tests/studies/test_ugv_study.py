@@ -18,7 +18,7 @@ def test_the_ugv_study_is_registered_with_the_papers_rows_beside() -> None:
 
 
 def test_a_trial_adapts_from_the_warm_start_and_reports_every_scenario(tmp_path: Path) -> None:
-    config = {"method": "sac", "seed": 1, "train_steps": 60, "eval_episodes": 1, "trials": 1,
+    config = {"method": "sac", "seed": 1, "train_steps": 60, "eval_episodes": 1, "min_eval_episodes": 1,
               "scenarios": ["1", "3"], "runs_dir": str(tmp_path)}  # fmt: skip
     result = trial(config)
     assert (tmp_path / "sac-s1" / "checkpoint.pt").is_file()
