@@ -158,6 +158,12 @@ def run_study(
     )
     wall_s = time.perf_counter() - start
     table_rows = [r for row in rows for r in _unpack(row, study.row_keys, study.metrics)]
+    trial_s = sum(float(row.get("trial_seconds", 0.0)) for row in rows)
+    timing = (
+        f"The trials ran {trial_s / 60:.1f} min in total ({len(rows)} trials, at most "
+        f"{max_concurrent or 'one per core'} at once); the wall time above is this command's, which resumes "
+        "finished trials from the sweep folder instead of running them again."
+    )
     table = write_results(
         out,
         name,
@@ -167,7 +173,7 @@ def run_study(
         budget=spent,
         wall_s=wall_s,
         plot=study.plot,
-        notes=study.notes,
+        notes=(*study.notes, timing),
     )
     if study.figures is not None:
         for path in study.figures(out, settings):

@@ -96,7 +96,8 @@ def run_sweep(
 ) -> list[dict[str, Any]]:
     """Run ``trial`` for every (method, seed), resuming ``storage/name`` if it exists; one row per trial.
 
-    Each row holds ``method``, ``seed`` and the trial's metrics, sorted by method then seed. ``settings``
+    Each row holds ``method``, ``seed``, ``trial_seconds`` (the trial's own run time, also for trials restored from
+    an earlier run) and the trial's metrics, sorted by method then seed. ``settings``
     are passed to every trial unchanged (budget, study options). ``max_concurrent`` caps simultaneous
     trials (default: as many as the cores allow). Raises :class:`SweepError` naming the failed trials after
     all others have finished.
@@ -137,7 +138,8 @@ def run_sweep(
             failed.append(f"{config.get('method')} seed {config.get('seed')}: {result.error!r}")
             continue
         metrics = {k: v for k, v in (result.metrics or {}).items() if k in _metric_keys(result)}
-        rows.append({"method": config["method"], "seed": config["seed"], **metrics})
+        seconds = float((result.metrics or {}).get("time_total_s") or 0.0)
+        rows.append({"method": config["method"], "seed": config["seed"], "trial_seconds": seconds, **metrics})
     if failed:
         raise SweepError(f"{len(failed)} of {total} trials failed (rerun to resume): " + "; ".join(failed))
     return sorted(rows, key=lambda r: (list(methods).index(r["method"]), r["seed"]))
