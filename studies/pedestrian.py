@@ -9,9 +9,11 @@ parked truck, hidden from the lidar until late; ``sims.pedestrian``), for the sa
   under the greedy policy, the curiosity threshold and the gate handing control to the expert, fear-regularised
   targets with -c* on collisions, and ω-weighted margin imitation of takeover actions.
 
-The expert is the simulator's scripted cautious driver (it is allowed to see the pedestrian and never collides).
-The paper's expert was trained by HG-DAgger from human demonstrations; the scripted one is this study's stated
-stand-in. Every collision is terminal for every method (the simulator ends the episode).
+The expert, as in the paper, is trained by HG-DAgger (``hg-dagger-discrete``): from the scripted cautious driver's
+demonstrations and corrections (the paper's: a human's), once per results folder and cached in
+``<results>/experts/hg-dagger`` (:func:`prepare`); every SAGE-D3QN trial takes over through it. ``expert =
+"scripted"`` in the settings uses the scripted driver itself instead (it sees the pedestrian and never collides).
+Every collision is terminal for every method (the simulator ends the episode).
 
 Evaluation: the learned policy alone (greedy, no gate, no expert) on ``eval_episodes`` crossing episodes with
 seeds disjoint from training. The table reports, per method, mean ± 95% interval over seeds: the collision rate
@@ -78,6 +80,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             train_steps=int(config["train_steps"]),
             checkpoint_every=int(config.get("checkpoint_every", CHECKPOINT_EVERY)),
             overrides=list(config.get("overrides", [])),
+            expert=config.get("expert_run") if str(config["method"]).startswith("sage") else None,
             out=str(out),
         )
         run_training(spec)
@@ -104,6 +107,37 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     return result
 
 
+EXPERT_DEMOS = 20
+EXPERT_EPISODES = 60
+
+
+def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
+    """The study's expert: with ``expert = "hg-dagger"`` (the default), an HG-DAgger policy trained from the
+    scripted driver on the study's scenario, cached in ``out/experts/hg-dagger`` (reused when it is there)."""
+    if settings.get("expert", "hg-dagger") != "hg-dagger":
+        return {"expert_run": None}
+    from studies.spec import TrainSpec
+    from studies.training import run_training
+
+    folder = (out / "experts" / "hg-dagger").resolve()
+    if not (folder / "checkpoint.pt").is_file():
+        import shutil
+
+        shutil.rmtree(folder, ignore_errors=True)
+        spec = TrainSpec(
+            sim="pedestrian",
+            scenario=str(settings.get("scenario", TRAIN_SCENARIO)),
+            method="hg-dagger-discrete",
+            episodes=EXPERT_EPISODES,
+            demo_episodes=EXPERT_DEMOS,
+            seed=0,
+            checkpoint_every=0,
+            out=str(folder),
+        )
+        run_training(spec)
+    return {"expert_run": str(folder)}
+
+
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     """The paper's panels (b)-(d) from the run folders under ``out/runs``."""
     return write_figures(Path(settings["runs_dir"]), out, METHODS, str(settings.get("scenario", TRAIN_SCENARIO)))
@@ -118,11 +152,13 @@ STUDY = StudyDef(
     notes=(
         f"Both methods learn from scratch on the {TRAIN_SCENARIO} scenario with the same budget in environment "
         "steps (expert-driven steps count); every collision ends the episode for every method.",
-        "SAGE-D3QN's expert is the simulator's scripted cautious driver (it sees the pedestrian), the stated "
-        "stand-in for the paper's HG-DAgger expert; D3QN has no expert.",
+        "SAGE-D3QN's expert, as in the paper, is trained by HG-DAgger (from the scripted cautious driver's "
+        f"labels: {EXPERT_DEMOS} demonstrations, {EXPERT_EPISODES} episodes), once per results folder and cached in "
+        "experts/hg-dagger; D3QN has no expert.",
         "Evaluation: the learned policy alone, greedy, on crossing episodes with seeds disjoint from training.",
         "The paper reports this study as curves (Fig. carla_1), so no paper numbers stand beside the table.",
     ),
-    settings={"scenario": TRAIN_SCENARIO, "checkpoint_every": CHECKPOINT_EVERY},
+    settings={"scenario": TRAIN_SCENARIO, "checkpoint_every": CHECKPOINT_EVERY, "expert": "hg-dagger"},
+    prepare=prepare,
     figures=figures,
 )

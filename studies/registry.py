@@ -52,6 +52,9 @@ class StudyDef:
     """Fixed settings passed to every trial (``min_eval_episodes`` raises the budget's evaluation episodes for this
     study; besides the budget and ``runs_dir``, where trials keep their run
     folders: ``<results folder>/runs``)."""
+    prepare: Callable[[Path, dict[str, Any]], dict[str, Any]] | None = None
+    """``prepare(results folder, settings) -> more settings``, run once before the sweep: e.g. train (or find in
+    its cache, ``<results folder>/experts``) the expert the trials use."""
     figures: Callable[[Path, dict[str, Any]], list[Path]] | None = None
     """``figures(results folder, settings) -> paths``: the study's own figures from its trials' run folders,
     drawn after the table."""
@@ -145,6 +148,8 @@ def run_study(
         "runs_dir": str((out / "runs").resolve()),
     }
     start = time.perf_counter()
+    if study.prepare is not None:
+        settings.update(study.prepare(out, settings))
     rows = run_sweep(
         study.trial,
         study.methods,

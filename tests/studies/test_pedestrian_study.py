@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import pytest
@@ -43,3 +44,12 @@ def test_the_smoke_study_writes_seeds_table_and_figures(tmp_path: Path) -> None:
     text = table.read_text()
     assert "train_collision_rate" in text and "sage-d3qn" in text
     assert (tmp_path / "reward.png").stat().st_size > 0 and (tmp_path / "safety_over_training.png").is_file()
+    # the paper's kind of expert: trained by HG-DAgger once, cached, and used by SAGE-D3QN's takeovers only
+    expert = (tmp_path / "experts" / "hg-dagger").resolve()
+    assert (expert / "checkpoint.pt").is_file()
+    runs = {
+        json.loads((tmp_path / "runs" / name / "config.json").read_text())["run"]["expert"]
+        for name in ("sage-d3qn-s0", "sage-d3qn-s1")
+    }
+    assert runs == {str(expert)}
+    assert json.loads((tmp_path / "runs" / "d3qn-s0" / "config.json").read_text())["run"]["expert"] is None
