@@ -129,6 +129,7 @@ def run_study(
     cpus: int | None = None,
     max_concurrent: int | None = None,
     log: Callable[[str], None] = print,
+    overrides: Mapping[str, Any] | None = None,
 ) -> Path:
     """Train and evaluate every method of study ``name`` on every seed, write ``out``; returns the table path.
 
@@ -143,6 +144,7 @@ def run_study(
     )
     settings = {
         **dict(study.settings),
+        **dict(overrides or {}),
         "train_steps": spent.train_steps,
         "eval_episodes": spent.eval_episodes,
         "runs_dir": str((out / "runs").resolve()),
@@ -164,6 +166,7 @@ def run_study(
     wall_s = time.perf_counter() - start
     table_rows = [r for row in rows for r in _unpack(row, study.row_keys, study.metrics)]
     trial_s = sum(float(row.get("trial_seconds", 0.0)) for row in rows)
+    changed = [f"{k}={v}" for k, v in (overrides or {}).items()]
     timing = (
         f"The trials ran {trial_s / 60:.1f} min in total ({len(rows)} trials, at most "
         f"{max_concurrent or 'one per core'} at once); the wall time above is this command's, which resumes "
@@ -178,7 +181,11 @@ def run_study(
         budget=spent,
         wall_s=wall_s,
         plot=study.plot,
-        notes=(*study.notes, timing),
+        notes=(
+            *study.notes,
+            *([f"Settings changed from the study's defaults: {', '.join(changed)}."] if changed else []),
+            timing,
+        ),
     )
     if study.figures is not None:
         for path in study.figures(out, settings):

@@ -43,6 +43,8 @@ def test_cli_refuses_unknown_study_and_budget(toy_study: StudyDef) -> None:
     assert result.exit_code == 2 and "unknown study" in result.output
     result = CliRunner().invoke(app, ["study", "toy-split", "--budget", "huge"])
     assert result.exit_code == 2 and "smoke, small, full" in result.output
+    result = CliRunner().invoke(app, ["study", "toy-split", "--set", "nope=1"])
+    assert result.exit_code == 2 and "--set 'nope=1'" in result.output
 
 
 def test_study_runs_every_seed_and_writes_rows_per_split(toy_study: StudyDef, tmp_path: Path) -> None:

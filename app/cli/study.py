@@ -29,20 +29,30 @@ def register(app: typer.Typer) -> None:
         readme: Annotated[
             Path | None, typer.Option(help="Also write the table into this README's section for the study.")
         ] = None,
+        set_: Annotated[
+            list[str] | None,
+            typer.Option("--set", help="A study setting key=value (e.g. expert=hg-dagger for pedestrian); repeatable."),
+        ] = None,
     ) -> None:
         """Run a paper study: every method, five seeds, equal budgets; results with 95% intervals."""
         from studies.budgets import BUDGET_NAMES
         from studies.registry import get_study, run_study
 
         try:
-            get_study(name)
+            known = get_study(name).settings
             if budget not in BUDGET_NAMES:
                 raise ValueError(f"unknown budget {budget!r}; choose one of {', '.join(BUDGET_NAMES)}")
+            overrides: dict[str, str] = {}
+            for pair in set_ or []:
+                key, sep, value = pair.partition("=")
+                if not sep or key.strip() not in known:
+                    raise ValueError(f"--set {pair!r}: give key=value with a setting of {name}: {', '.join(known)}")
+                overrides[key.strip()] = value.strip()
         except ValueError as error:
             typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
         results = out or Path("results") / f"{name}-{budget}"
-        run_study(name, budget, results, address, cpus, max_concurrent)
+        run_study(name, budget, results, address, cpus, max_concurrent, overrides=overrides)
         if readme is not None:
             from studies.readme import update_readme
 

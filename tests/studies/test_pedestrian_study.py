@@ -34,7 +34,7 @@ def test_the_smoke_study_writes_seeds_table_and_figures(tmp_path: Path) -> None:
 
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        table = run_study("pedestrian", "smoke", tmp_path, log=lambda _: None)
+        table = run_study("pedestrian", "smoke", tmp_path, log=lambda _: None, overrides={"expert": "hg-dagger"})
     finally:
         ray.shutdown()
     with (tmp_path / "seeds.csv").open() as f:
@@ -42,7 +42,7 @@ def test_the_smoke_study_writes_seeds_table_and_figures(tmp_path: Path) -> None:
     assert sorted((r["method"], r["seed"]) for r in rows) == [("d3qn", "0"), ("d3qn", "1"), ("sage-d3qn", "0"),
                                                               ("sage-d3qn", "1")]  # fmt: skip
     text = table.read_text()
-    assert "train_collision_rate" in text and "sage-d3qn" in text
+    assert "train_collision_rate" in text and "sage-d3qn" in text and "expert=hg-dagger" in text
     assert (tmp_path / "reward.png").stat().st_size > 0 and (tmp_path / "safety_over_training.png").is_file()
     # the paper's kind of expert: trained by HG-DAgger once, cached, and used by SAGE-D3QN's takeovers only
     expert = (tmp_path / "experts" / "hg-dagger").resolve()
