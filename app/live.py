@@ -436,9 +436,10 @@ class LiveLoop:
         world = self.world
         if world.versions is not None and world.runner.obs is None:
             # between episodes: the only moment a new version may take over
-            loaded = world.versions.take_at_boundary(world.runner)
-            if loaded is not None:
+            def adopt(loaded: LoadedPolicy) -> None:
                 world.loaded = loaded
+
+            if world.versions.take_at_boundary(world.runner, adopt) is not None:
                 self.publish(dumps(self.state()))
         try:
             self.world.runner.step()

@@ -80,14 +80,17 @@ class VersionFollower:
         else:
             self.service.stop()
 
-    def take_at_boundary(self, runner: Runner) -> LoadedPolicy | None:
-        """Between episodes: hand the runner a newly promoted or chosen version, if there is one."""
+    def take_at_boundary(self, runner: Runner, adopt: Callable[[LoadedPolicy], None]) -> LoadedPolicy | None:
+        """Between episodes: hand the runner a newly promoted or chosen version, if there is one. ``adopt`` is
+        called with it before the version number changes, so that a reader of (version, policy label) from
+        another thread never sees the new number with the old policy."""
         pending = self.service.take_pending()
         if pending is None:
             return None
         number, loaded = pending
         # the runner swaps the policy when it resets for the next episode; the gate must watch that policy
         runner.set_policy_at_boundary(loaded.policy, loaded.gate)
+        adopt(loaded)
         self.version = number
         self.service.mark_deployed(number)
         return loaded
