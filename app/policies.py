@@ -92,6 +92,7 @@ def discover(roots: Iterable[Path], sim: str | None = None) -> list[PolicyChoice
             choices.append(PolicyChoice(str(folder), name, agent_sim))
             for version in sorted((folder / "checkpoints").glob("*.pt")):
                 choices.append(PolicyChoice(str(version), f"{name} @ {version.stem}", agent_sim))
+    import sims  # noqa: F401 (registers the simulators' planners)
     from core.planners import planners
 
     # planners that are not learners (the scripted expert, a local planner...), last
@@ -123,6 +124,7 @@ class LoadedPolicy:
 
 def load_policy(choice: str, env: gym.Env[Any, Any], gate_overrides: dict[str, Any] | None = None) -> LoadedPolicy:
     """Build the policy and its gate. Raises a clear error when the agent cannot be loaded."""
+    import sims  # noqa: F401 (registers the simulators' planners)
     from core.planners import is_planner, make_planner, planner_entry
 
     if is_planner(choice):  # a planner (core.planners): it drives, there is no gate

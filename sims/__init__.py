@@ -27,7 +27,33 @@ SIMULATORS: dict[str, str] = {
 }
 """Short name -> the package that exports its ``DESCRIPTOR`` (and registers its env on import)."""
 
+PLANNERS: dict[str, tuple[str, str, tuple[str, ...]]] = {
+    "teb": ("sims.ugv.teb:TebPlanner", "TEB local planner (sensing only)", ("ugv",)),
+}
+"""Planners the simulators bring (:mod:`core.planners`): name -> (``module:factory``, title, simulators). Registered
+when ``sims`` is imported; the module is imported only when one is built."""
+
 _EXTRA: dict[str, SimDescriptor] = {}
+
+
+def _lazy_factory(target: str) -> Any:
+    def build(env: gym.Env[Any, Any]) -> Any:
+        module, _, attr = target.partition(":")
+        return getattr(importlib.import_module(module), attr)(env)
+
+    build.__name__ = target
+    return build
+
+
+def _register_planners() -> None:
+    from core.planners import is_planner, register_planner
+
+    for name, (target, title, drives) in PLANNERS.items():
+        if not is_planner(name):
+            register_planner(name, _lazy_factory(target), title=title, sims=drives)
+
+
+_register_planners()
 
 
 class UnknownSimulatorError(ValueError):

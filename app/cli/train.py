@@ -191,12 +191,15 @@ def register(app: typer.Typer) -> None:
 
 
 def _label(run: Path) -> str:
-    return run.name if run.is_dir() else f"{run.parent.name}/{run.stem}"
+    if run.is_dir() or not run.parent.name:  # a run folder, or a planner's name
+        return run.name
+    return f"{run.parent.name}/{run.stem}"
 
 
 def _run_sim(runs: list[Path], sim: str | None) -> str:
     """The simulator the runs were trained on (all the same, and ``sim`` when given). A planner's name
     (:mod:`core.planners`) stands for a policy too; it drives the ``--sim`` it is given."""
+    import sims  # noqa: F401 (registers the simulators' planners)
     from core.agents import load_checkpoint, meta_of
     from core.planners import is_planner
 

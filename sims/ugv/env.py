@@ -16,6 +16,7 @@ The episode terminates on collision or at the goal and truncates at the scenario
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +55,23 @@ COLORS = {
     "ego": "#2b7de0",
     "goal": "#2bb673",
 }
+
+
+@dataclass(frozen=True)
+class Sensing:
+    """What the robot senses at one step (see :meth:`UGVEnv.sensing`)."""
+
+    pose: tuple[float, float, float]
+    """Odometry: x, y (m) and heading (rad) in the map frame."""
+    velocity: tuple[float, float]
+    """The command being executed: linear speed (m/s) and yaw rate (rad/s)."""
+    goal: tuple[float, float, float]
+    """The mission goal: x, y and radius (m)."""
+    ray_angles: np.ndarray
+    """Angle of each lidar ray relative to the heading (rad)."""
+    ranges: np.ndarray
+    """Range of each ray (m); ``max_range`` where it hit nothing."""
+    max_range: float
 
 
 def wrap_angle(angle: float) -> float:
@@ -239,6 +257,22 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         raise ScenarioError(
             f"scenario {scenario.name!r}: no free start pose and goal found in {MAX_PLACEMENT_TRIES * 10} draws; "
             "check that the start and goal regions are not covered by obstacles"
+        )
+
+    # -- what the robot senses (for planners that may not read the layout) ---------------------------
+    def sensing(self) -> Sensing:
+        """The robot's own sensing now: odometry pose, the command it is executing, the mission goal and the
+        full-resolution lidar scan. Nothing of the layout or the movers' scripts: what a local planner
+        (:mod:`sims.ugv.teb`) may use."""
+        if self.world is None:
+            raise RuntimeError("call reset() before sensing()")
+        return Sensing(
+            pose=self._pose,
+            velocity=(self._prev_v, self._prev_w),
+            goal=self._goal,
+            ray_angles=self._ray_angles,
+            ranges=(1.0 / self._inverse.astype(np.float64)),
+            max_range=self.config.lidar.max_range,
         )
 
     # -- the simulator protocol ------------------------------------------------------------------

@@ -36,6 +36,7 @@ def test_runs_and_their_versions_are_offered_for_their_simulator(tmp_path: Path)
         "runs/ugv-sage @ episode_00050",
         "runs/ugv-sage @ episode_00100",
         "scripted expert (no gate)",
+        "TEB local planner (sensing only)",  # the simulator's own planner (sims.PLANNERS)
     ]
     assert next(c.label for c in discover([runs], "highway")) == "runs/highway-sac"
 

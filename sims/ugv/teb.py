@@ -1,0 +1,573 @@
+"""A Timed-Elastic-Band local planner for the UGV (Rösmann et al. 2017, the paper's TEB baseline).
+
+It drives on what the robot senses (:meth:`sims.ugv.env.UGVEnv.sensing`): its odometry pose and velocity, the
+mission goal and the lidar scan. It never reads the layout or the movers' scripts.
+
+1. **Costmap.** Each scan marks the cell a ray ends in as occupied and clears the cells it passes through (ray
+   tracing, as a ROS costmap's obstacle layer does), so a mover's old cells empty again once it has gone. The
+   grid covers start and goal with a margin; cells never seen count as free.
+2. **Global path.** Dijkstra (``scipy.sparse.csgraph``) from the goal over the 8-connected cells of the costmap,
+   cells near obstacles costing more and cells inside the inflation blocked, then a descent from the robot and
+   string pulling (the same path tools as the scripted expert, on the sensed map instead of the layout).
+   Replanned every ``replan_every`` seconds, and at once when the path ahead runs into a newly seen obstacle.
+3. **Timed elastic band.** Poses (x, y, θ) from the robot to the point ``lookahead`` metres along the path, and
+   the time interval ΔT between each pair, optimised as one sparse nonlinear least-squares problem by
+   ``scipy.optimize.least_squares`` (trust-region reflective, numerical Jacobian over its sparsity pattern, ΔT
+   bounded). Penalties, each a residual as in TEB's hyper-graph: non-holonomic kinematics (both headings of a
+   segment make equal angles with it), forward driving, speed and yaw-rate limits, acceleration limits (from the
+   current velocity on), clearance to the nearest sensed obstacle points (a hard-ish minimum and a soft
+   inflation), and total time. Obstacle points are associated with each pose by a k-d tree, re-associated
+   between a few outer iterations, as TEB does.
+4. **Command.** The first segment's speed and yaw rate (clipped to the robot's limits). When even the optimised
+   band leaves the robot's next poses too close to an obstacle, it stops and plans again next step.
+
+Costs per control step, measured by ``bench/bench_baselines.py``: a few to a few tens of milliseconds, inside the
+10 Hz budget.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import ndimage, optimize, sparse
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+from sims.ugv.expert import Grid, extract_path
+
+FAR = 1e3
+"""Where an unused obstacle slot sits (m): far enough that its penalties are zero."""
+
+
+@dataclass(frozen=True)
+class TebConfig:
+    """Every setting of the TEB planner (defaults: the robot of :class:`sims.ugv.config.RobotConfig`)."""
+
+    poses: int = 10
+    """Most poses in the band, the robot's own included."""
+    spacing: float = 0.3
+    """Distance between the band's poses when it is initialised along the path (m)."""
+    lookahead: float = 2.5
+    """The band ends this far along the global path (or at the goal when it is nearer) (m)."""
+    min_obstacle_dist: float = 0.42
+    """Clearance kept from the robot's centre to any obstacle point (m): the footprint's circumradius (0.32 m)
+    plus a margin."""
+    inflation_dist: float = 0.75
+    """Below this clearance (m) a soft penalty pushes the band away from obstacles."""
+    obstacles_per_pose: int = 4
+    """Nearest obstacle points associated with each pose."""
+    weight_obstacle: float = 60.0
+    weight_inflation: float = 3.0
+    weight_kinematics: float = 300.0
+    weight_forward: float = 300.0
+    weight_velocity: float = 30.0
+    weight_acceleration: float = 3.0
+    weight_time: float = 1.0
+    acc_limit_v: float = 0.6
+    """Linear acceleration limit (m/s²)."""
+    acc_limit_w: float = 2.0
+    """Angular acceleration limit (rad/s²)."""
+    cruise_fraction: float = 0.8
+    """The band's initial time intervals assume this fraction of the top speed."""
+    outer_iterations: int = 2
+    """Obstacle re-associations per control step."""
+    max_evaluations: int = 25
+    """Residual evaluations per least-squares solve (beyond the Jacobian's)."""
+    grid_resolution: float = 0.1
+    """Costmap cell size (m)."""
+    map_margin: float = 4.0
+    """The costmap covers start and goal with this margin (m)."""
+    planner_inflation: float = 0.3
+    """Cells closer than this to an obstacle are not traversable for the global path (m)."""
+    preferred_clearance: float = 0.8
+    """Clearance below which a cell costs extra for the global path (m)."""
+    clearance_weight: float = 3.0
+    replan_every: float = 1.0
+    """Seconds between global replans (sooner when the path is blocked)."""
+    cluster_gap: float = 0.25
+    """Neighbouring scan points farther apart than this belong to different obstacles (m)."""
+    mover_size: float = 1.0
+    """Clusters larger than this (walls, rows of crates) are never tracked as movers (m)."""
+    track_gate: float = 0.4
+    """A cluster continues the previous scan's nearest track within this distance (m)."""
+    velocity_smoothing: float = 0.4
+    """Weight of the newest displacement in a track's velocity."""
+    mover_speed: float = 0.15
+    """Tracks slower than this are static (m/s)."""
+
+
+@dataclass
+class Band:
+    """A timed elastic band: poses (n, 3) and the time intervals (n - 1,) between them."""
+
+    poses: np.ndarray
+    dts: np.ndarray
+
+
+class Costmap:
+    """Occupancy from lidar scans (marking and ray-trace clearing) on a fixed grid, in the map frame."""
+
+    def __init__(self, x0: float, y0: float, nx: int, ny: int, res: float) -> None:
+        self.x0, self.y0, self.res = x0, y0, res
+        self.occupied = np.zeros((ny, nx), bool)
+        self.version = 0
+        """Scans folded in so far."""
+
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell indices (iy, ix) of points (P, 2) and whether each lies on the grid."""
+        ny, nx = self.occupied.shape
+        ix = np.floor((xy[:, 0] - self.x0) / self.res).astype(int)
+        iy = np.floor((xy[:, 1] - self.y0) / self.res).astype(int)
+        inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        return iy, ix, inside
+
+    def add_scan(
+        self, x: float, y: float, yaw: float, angles: np.ndarray, ranges: np.ndarray, max_range: float
+    ) -> None:
+        res = self.res
+        directions = np.column_stack([np.cos(yaw + angles), np.sin(yaw + angles)])
+        # clear along each ray up to one cell short of its end
+        steps = np.arange(0.0, max_range, 0.5 * res)
+        along = steps[None, :] < (ranges[:, None] - res)
+        points = np.array([x, y]) + directions[:, None, :] * steps[None, :, None]
+        free = points[along]
+        iy, ix, inside = self.cells(free)
+        self.occupied[iy[inside], ix[inside]] = False
+        hit = ranges < max_range - 1e-6
+        ends = np.array([x, y]) + directions[hit] * ranges[hit, None]
+        iy, ix, inside = self.cells(ends)
+        self.occupied[iy[inside], ix[inside]] = True
+        self.version += 1
+
+    def points(self) -> np.ndarray:
+        """Centres of the occupied cells (P, 2)."""
+        iy, ix = np.nonzero(self.occupied)
+        return np.column_stack([self.x0 + (ix + 0.5) * self.res, self.y0 + (iy + 0.5) * self.res])
+
+    def grid(self, goal: tuple[float, float, float], robot_half_width: float, cfg: TebConfig) -> Grid:
+        """The navigation function to the goal over this costmap (:class:`sims.ugv.expert.Grid`)."""
+        res = self.res
+        ny, nx = self.occupied.shape
+        clearance = ndimage.distance_transform_edt(~self.occupied) * res - 0.5 * res
+        clearance = np.maximum(clearance, 0.0) if self.occupied.any() else np.full((ny, nx), 1e3)
+        shortfall = np.clip((cfg.preferred_clearance - clearance) / cfg.preferred_clearance, 0.0, 1.0)
+        cell_cost = 1.0 + cfg.clearance_weight * shortfall
+        xs = self.x0 + (np.arange(nx) + 0.5) * res
+        ys = self.y0 + (np.arange(ny) + 0.5) * res
+        gx, gy = np.meshgrid(xs, ys)
+        goal_dist = np.hypot(gx - goal[0], gy - goal[1])
+        targets = (goal_dist <= max(goal[2], res)) & (clearance >= robot_half_width)
+        if not targets.any():
+            targets = goal_dist <= goal_dist.min() + 1e-9
+        blocked = (clearance < cfg.planner_inflation) & ~targets
+        cost_to_go = _dijkstra(cell_cost, blocked, targets, goal_dist, res)
+        return Grid(self.x0, self.y0, res, clearance, cost_to_go)
+
+
+def _dijkstra(
+    cell_cost: np.ndarray, blocked: np.ndarray, targets: np.ndarray, goal_dist: np.ndarray, res: float
+) -> np.ndarray:
+    """Cost to the nearest target over the 8-connected free cells (inf where unreachable or blocked)."""
+    ny, nx = cell_cost.shape
+    n = ny * nx
+    index = np.arange(n).reshape(ny, nx)
+    free = ~blocked
+    rows, cols, weights = [], [], []
+    for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        ys0, ys1 = (0, ny - dy)
+        xs0, xs1 = (max(0, -dx), nx - max(0, dx))
+        a = index[ys0:ys1, xs0:xs1]
+        b = index[ys0 + dy : ys1 + dy, xs0 + dx : xs1 + dx]
+        ok = free[ys0:ys1, xs0:xs1] & free[ys0 + dy : ys1 + dy, xs0 + dx : xs1 + dx]
+        step = res * (math.sqrt(2.0) if dx and dy else 1.0)
+        w = step * 0.5 * (cell_cost[ys0:ys1, xs0:xs1] + cell_cost[ys0 + dy : ys1 + dy, xs0 + dx : xs1 + dx])
+        rows.append(a[ok])
+        cols.append(b[ok])
+        weights.append(w[ok])
+    # a virtual source (node n) reaches every target cell at its distance to the goal centre
+    target_idx = index[targets]
+    rows.append(np.full(len(target_idx), n))
+    cols.append(target_idx)
+    weights.append(goal_dist[targets] + 1e-6)
+    graph = sparse.csr_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n + 1, n + 1)
+    )
+    dist = csgraph.dijkstra(graph, directed=False, indices=n)
+    return dist[:n].reshape(ny, nx)
+
+
+class MoverTracker:
+    """Moving obstacles from consecutive scans: the scan's hit points are split into clusters (neighbouring rays
+    whose ends lie close together), small clusters are matched to the previous scan's by nearest centroid, and
+    their velocity is the smoothed displacement of the centroid. What TEB's dynamic-obstacle mode takes as input
+    (ROS gets it from costmap_converter); a static obstacle whose visible face changes may look slowly moving,
+    which only ever adds predicted obstacles, never removes sensed ones."""
+
+    def __init__(self, cfg: TebConfig, dt: float) -> None:
+        self.cfg, self.dt = cfg, dt
+        self._tracks: list[dict[str, Any]] = []
+
+    def reset(self) -> None:
+        self._tracks = []
+
+    def update(self, x: float, y: float, yaw: float, angles: np.ndarray, ranges: np.ndarray, max_range: float) -> None:
+        cfg = self.cfg
+        order = np.argsort(angles)
+        hit = ranges[order] < max_range - 1e-6
+        theta = yaw + angles[order][hit]
+        points = np.column_stack([x + ranges[order][hit] * np.cos(theta), y + ranges[order][hit] * np.sin(theta)])
+        clusters: list[np.ndarray] = []
+        if len(points):
+            breaks = np.flatnonzero(np.hypot(*np.diff(points, axis=0).T) > cfg.cluster_gap) + 1
+            clusters = [c for c in np.split(points, breaks) if np.ptp(c, axis=0).max(initial=0.0) <= cfg.mover_size]
+        tracks = []
+        for cluster in clusters:
+            centre = cluster.mean(axis=0)
+            previous = min(self._tracks, key=lambda t: float(np.hypot(*(t["centre"] - centre))), default=None)
+            velocity, age = np.zeros(2), 1
+            if previous is not None and float(np.hypot(*(previous["centre"] - centre))) <= cfg.track_gate:
+                measured = (centre - previous["centre"]) / self.dt
+                velocity = (1 - cfg.velocity_smoothing) * previous["velocity"] + cfg.velocity_smoothing * measured
+                age = previous["age"] + 1
+            tracks.append({"centre": centre, "points": cluster, "velocity": velocity, "age": age})
+        self._tracks = tracks
+
+    def movers(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(points, velocity) of the clusters that move (tracked long enough, fast enough)."""
+        cfg = self.cfg
+        out = []
+        for track in self._tracks:
+            if track["age"] >= 3 and float(np.hypot(*track["velocity"])) >= cfg.mover_speed:
+                points = track["points"]
+                step = max(1, len(points) // 4)
+                out.append((points[::step], track["velocity"]))
+        return out
+
+
+class TebOptimizer:
+    """The band's least-squares problem for one obstacle association (see the module docstring).
+
+    Variables: the x, y of the free poses 1..n-2, the headings of poses 1..n-1 (the last pose's position is the
+    band's target, its heading free) and u_j = log ΔT_j (so that every interval stays positive without bounds).
+    Residuals and their analytic Jacobian are written out term by term; MINPACK's Levenberg-Marquardt
+    (``least_squares(method="lm")``) solves the small dense problem."""
+
+    def __init__(self, cfg: TebConfig, v_max: float, w_max: float) -> None:
+        self.cfg, self.v_max, self.w_max = cfg, v_max, w_max
+
+    @staticmethod
+    def pack(band: Band) -> np.ndarray:
+        inner = band.poses[1:-1]
+        return np.concatenate([inner[:, :2].ravel(), band.poses[1:, 2], np.log(band.dts)])
+
+    @staticmethod
+    def unpack(z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int) -> Band:
+        k = n - 2
+        poses = np.empty((n, 3))
+        poses[0] = start
+        poses[1:-1, :2] = z[: 2 * k].reshape(k, 2)
+        poses[-1, :2] = end_xy
+        poses[1:, 2] = z[2 * k : 2 * k + n - 1]
+        return Band(poses, np.exp(z[2 * k + n - 1 :]))
+
+    def _terms(
+        self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
+    ) -> dict[str, Any]:
+        band = self.unpack(z, start, end_xy, n)
+        xy, th, dts = band.poses[:, :2], band.poses[:, 2], band.dts
+        d = xy[1:] - xy[:-1]
+        c, s = np.cos(th), np.sin(th)
+        progress = c[:-1] * d[:, 0] + s[:-1] * d[:, 1]
+        turn = (th[1:] - th[:-1] + math.pi) % (2 * math.pi) - math.pi
+        v, w = progress / dts, turn / dts
+        spans = 0.5 * (np.concatenate([dts[:1], dts[:-1]]) + dts)
+        acc_v = np.diff(np.concatenate([[v0], v])) / spans
+        acc_w = np.diff(np.concatenate([[w0], w])) / spans
+        offsets = xy[1:, None, :] - obstacles  # (n - 1, m, 2)
+        gaps = np.maximum(np.linalg.norm(offsets, axis=2), 1e-9)
+        return {
+            "xy": xy, "th": th, "dts": dts, "d": d, "c": c, "s": s, "progress": progress, "turn": turn,
+            "v": v, "w": w, "spans": spans, "acc_v": acc_v, "acc_w": acc_w, "offsets": offsets, "gaps": gaps,
+        }  # fmt: skip
+
+    def residuals(
+        self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
+    ) -> np.ndarray:
+        cfg, t = self.cfg, self._terms(z, start, end_xy, n, v0, w0, obstacles)
+        c, s, d = t["c"], t["s"], t["d"]
+        relu = np.maximum
+        return np.concatenate(
+            [
+                math.sqrt(cfg.weight_kinematics) * ((c[:-1] + c[1:]) * d[:, 1] - (s[:-1] + s[1:]) * d[:, 0]),
+                math.sqrt(cfg.weight_forward) * relu(0.0, -t["progress"]),
+                math.sqrt(cfg.weight_velocity) * relu(0.0, t["v"] - self.v_max),
+                math.sqrt(cfg.weight_velocity) * relu(0.0, np.abs(t["w"]) - self.w_max),
+                math.sqrt(cfg.weight_acceleration) * relu(0.0, np.abs(t["acc_v"]) - cfg.acc_limit_v),
+                math.sqrt(cfg.weight_acceleration) * relu(0.0, np.abs(t["acc_w"]) - cfg.acc_limit_w),
+                math.sqrt(cfg.weight_time) * t["dts"],
+                math.sqrt(cfg.weight_obstacle) * relu(0.0, cfg.min_obstacle_dist - t["gaps"]).ravel(),
+                math.sqrt(cfg.weight_inflation) * relu(0.0, cfg.inflation_dist - t["gaps"]).ravel(),
+            ]
+        )
+
+    def jacobian(
+        self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
+    ) -> np.ndarray:
+        """d residuals / d z, written out (checked against finite differences in the tests)."""
+        cfg, t = self.cfg, self._terms(z, start, end_xy, n, v0, w0, obstacles)
+        c, s, d, dts = t["c"], t["s"], t["d"], t["dts"]
+        segments, m = n - 1, obstacles.shape[1]
+        # full variables: x_i, y_i, th_i for every pose (3 n), then log dt_j (n - 1); free ones picked at the end
+        full = np.zeros((7 * segments + 2 * segments * m, 3 * n + segments))
+        j = np.arange(segments)
+        X, Y, T = 3 * j, 3 * j + 1, 3 * j + 2  # columns of pose j; pose j + 1 is + 3
+        U = 3 * n + j  # log dt_j
+        row = 0
+
+        # non-holonomic kinematics
+        k = math.sqrt(cfg.weight_kinematics)
+        r = row + j
+        full[r, X], full[r, X + 3] = k * (s[:-1] + s[1:]), -k * (s[:-1] + s[1:])
+        full[r, Y], full[r, Y + 3] = -k * (c[:-1] + c[1:]), k * (c[:-1] + c[1:])
+        full[r, T] = k * (-s[:-1] * d[:, 1] - c[:-1] * d[:, 0])
+        full[r, T + 3] = k * (-s[1:] * d[:, 1] - c[1:] * d[:, 0])
+        row += segments
+
+        # d progress_j: wrt x_j, x_j+1, y_j, y_j+1, th_j
+        dp = np.stack([-c[:-1], c[:-1], -s[:-1], s[:-1], -s[:-1] * d[:, 0] + c[:-1] * d[:, 1]], axis=1)
+        p_cols = np.stack([X, X + 3, Y, Y + 3, T], axis=1)
+
+        def put(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> None:
+            np.add.at(full, (np.repeat(rows, cols.shape[1]), cols.ravel()), values.ravel())
+
+        # forward driving
+        active = (t["progress"] < 0).astype(float)
+        put(row + j, p_cols, -math.sqrt(cfg.weight_forward) * active[:, None] * dp)
+        row += segments
+
+        # speed limit: v = p / dt, d v / d log dt = -v
+        sv = math.sqrt(cfg.weight_velocity)
+        active = (t["v"] > self.v_max).astype(float)
+        put(row + j, p_cols, sv * active[:, None] * dp / dts[:, None])
+        full[row + j, U] = -sv * active * t["v"]
+        row += segments
+
+        # yaw-rate limit: w = turn / dt
+        sign_w = np.sign(t["w"])
+        active = (np.abs(t["w"]) > self.w_max).astype(float)
+        full[row + j, T + 3] = sv * active * sign_w / dts
+        full[row + j, T] = -sv * active * sign_w / dts
+        full[row + j, U] = -sv * active * np.abs(t["w"])
+        row += segments
+
+        # accelerations: a_j = (q_j - q_{j-1}) / span_j, span_j = (dt_{j-1} + dt_j) / 2 (dt_{-1} = dt_0)
+        sa = math.sqrt(cfg.weight_acceleration)
+        for name, limit, q in (("acc_v", cfg.acc_limit_v, "v"), ("acc_w", cfg.acc_limit_w, "w")):
+            acc, qv, spans = t[name], t[q], t["spans"]
+            gain = sa * (np.abs(acc) > limit) * np.sign(acc) / spans  # d r / d (q_j - q_{j-1}) * span
+            if q == "v":
+                dq = dp / dts[:, None]  # d v_j / d (p_cols)
+                put(row + j, p_cols, gain[:, None] * dq)
+                put(row + j[1:], p_cols[:-1], -gain[1:, None] * dq[:-1])
+            else:
+                full[row + j, T + 3] += gain / dts
+                full[row + j, T] -= gain / dts
+                full[row + j[1:], T[:-1] + 3] -= gain[1:] / dts[:-1]
+                full[row + j[1:], T[:-1]] += gain[1:] / dts[:-1]
+            # through dt_j: d q_j / d log dt_j = -q_j; d span_j / d log dt_j = dt_j / 2 (both halves for j = 0)
+            dspan_own = np.where(j == 0, dts, 0.5 * dts)
+            full[row + j, U] += gain * (-qv) - gain * acc * dspan_own
+            # through dt_{j-1}: q_{j-1} and span_j
+            full[row + j[1:], U[:-1]] += gain[1:] * qv[:-1] - gain[1:] * acc[1:] * 0.5 * dts[:-1]
+            row += segments
+
+        # time
+        full[row + j, U] = math.sqrt(cfg.weight_time) * dts
+        row += segments
+
+        # obstacle clearance and inflation, on poses 1..n-1
+        unit = t["offsets"] / t["gaps"][..., None]  # (n - 1, m, 2)
+        pose_x = 3 * (j + 1)
+        for weight, dist in ((cfg.weight_obstacle, cfg.min_obstacle_dist), (cfg.weight_inflation, cfg.inflation_dist)):
+            active = (t["gaps"] < dist).astype(float)
+            rows = row + np.arange(segments * m).reshape(segments, m)
+            full[rows, np.repeat(pose_x[:, None], m, axis=1)] = -math.sqrt(weight) * active * unit[..., 0]
+            full[rows, np.repeat(pose_x[:, None] + 1, m, axis=1)] = -math.sqrt(weight) * active * unit[..., 1]
+            row += segments * m
+
+        inner = np.arange(1, n - 1)
+        free = np.concatenate(
+            [np.stack([3 * inner, 3 * inner + 1], axis=1).ravel(), 3 * np.arange(1, n) + 2, 3 * n + j]
+        )
+        return full[:, free]
+
+    def solve(self, band: Band, v0: float, w0: float, obstacles: np.ndarray) -> tuple[Band, float]:
+        """Optimise the band for fixed obstacle associations (n - 1, m, 2); returns it and its cost."""
+        n = len(band.poses)
+        start, end_xy = band.poses[0].copy(), band.poses[-1, :2].copy()
+        result = optimize.least_squares(
+            self.residuals,
+            self.pack(band),
+            jac=self.jacobian,
+            method="lm",
+            max_nfev=self.cfg.max_evaluations,
+            args=(start, end_xy, n, v0, w0, obstacles),
+        )
+        return self.unpack(result.x, start, end_xy, n), float(result.cost)
+
+
+class TebPlanner:
+    """The TEB planner as a :class:`core.loop.Policy` for one UGV env (``make_planner("teb", env)``)."""
+
+    def __init__(self, env: Any, config: TebConfig | None = None) -> None:
+        self.env = env
+        self.cfg = config or TebConfig()
+        sim = env.unwrapped
+        robot = sim.config.robot
+        self.v_max, self.w_max = robot.v_max, robot.w_max
+        self.half_width = robot.width / 2
+        self.dt = sim.config.dt
+        self.optimizer = TebOptimizer(self.cfg, self.v_max, self.w_max)
+        self.tracker = MoverTracker(self.cfg, self.dt)
+        self._episode = None
+        self.costmap: Costmap | None = None
+        self.grid: Grid | None = None
+        self.path: np.ndarray | None = None
+        self.band: Band | None = None
+        self._last_plan = -math.inf
+        self._t = 0.0
+        self.stats: dict[str, float] = {}
+
+    # -- episode ---------------------------------------------------------------------------------
+    def _new_episode(self, sensing: Any) -> None:
+        cfg = self.cfg
+        x, y, _ = sensing.pose
+        gx, gy, _ = sensing.goal
+        x0, y0 = min(x, gx) - cfg.map_margin, min(y, gy) - cfg.map_margin
+        x1, y1 = max(x, gx) + cfg.map_margin, max(y, gy) + cfg.map_margin
+        res = cfg.grid_resolution
+        self.costmap = Costmap(x0, y0, math.ceil((x1 - x0) / res), math.ceil((y1 - y0) / res), res)
+        self.grid = self.path = self.band = None
+        self.tracker.reset()
+        self._last_plan = -math.inf
+        self._t = 0.0
+
+    # -- acting ----------------------------------------------------------------------------------
+    def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        sim = self.env.unwrapped
+        sensing = sim.sensing()
+        if self._episode != sim.episode or self.costmap is None:
+            self._episode = sim.episode
+            self._new_episode(sensing)
+        assert self.costmap is not None
+        x, y, yaw = sensing.pose
+        self.costmap.add_scan(x, y, yaw, sensing.ray_angles, sensing.ranges, sensing.max_range)
+        self.tracker.update(x, y, yaw, sensing.ray_angles, sensing.ranges, sensing.max_range)
+        self._t += self.dt
+        if self.path is None or self._t - self._last_plan >= self.cfg.replan_every or self._path_blocked(x, y):
+            self._plan(sensing)
+        v, w = self._command(sensing)
+        return np.array([2.0 * v / self.v_max - 1.0, w / self.w_max], np.float32)
+
+    def _plan(self, sensing: Any) -> None:
+        assert self.costmap is not None
+        self.grid = self.costmap.grid(sensing.goal, self.half_width, self.cfg)
+        x, y, _ = sensing.pose
+        gx, gy, _ = sensing.goal
+        path = extract_path(self.grid, (x, y), (gx, gy), self.cfg.planner_inflation)
+        self.path = None if path is None else path.xy
+        self._last_plan = self._t
+
+    def _path_blocked(self, x: float, y: float) -> bool:
+        """Whether the path's next few metres now pass inside the inflation of a sensed obstacle."""
+        if self.path is None or self.costmap is None:
+            return True
+        ahead = self._path_ahead(x, y, 3.0)
+        iy, ix, inside = self.costmap.cells(ahead)
+        if not inside.any():
+            return False
+        near = ndimage.binary_dilation(
+            self.costmap.occupied, iterations=max(1, int(self.cfg.planner_inflation / self.costmap.res))
+        )
+        return bool(near[iy[inside], ix[inside]][3:].any())
+
+    def _path_ahead(self, x: float, y: float, length: float) -> np.ndarray:
+        assert self.path is not None
+        i = int(np.argmin(np.hypot(self.path[:, 0] - x, self.path[:, 1] - y)))
+        seg = np.hypot(*np.diff(self.path[i:], axis=0).T)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        return self.path[i:][s <= length]
+
+    def _initial_band(self, sensing: Any) -> Band:
+        cfg = self.cfg
+        x, y, yaw = sensing.pose
+        gx, gy, _ = sensing.goal
+        if self.path is None or len(self.path) < 2:
+            route = np.array([[x, y], [gx, gy]])
+        else:
+            route = np.vstack([[x, y], self._path_ahead(x, y, cfg.lookahead + 1.0)])
+        seg = np.hypot(*np.diff(route, axis=0).T)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        length = min(cfg.lookahead, float(s[-1]))
+        n = int(np.clip(math.ceil(length / cfg.spacing) + 1, 3, cfg.poses))
+        at = np.linspace(0.0, max(length, 1e-3), n)
+        xy = np.column_stack([np.interp(at, s, route[:, 0]), np.interp(at, s, route[:, 1])])
+        heading = np.arctan2(np.diff(xy[:, 1]), np.diff(xy[:, 0]))
+        th = np.concatenate([[yaw], heading])
+        # unwrap the headings from the robot's, so the band turns the short way
+        th = yaw + np.concatenate([[0.0], np.cumsum((np.diff(th) + math.pi) % (2 * math.pi) - math.pi)])
+        step = np.hypot(*np.diff(xy, axis=0).T)
+        turns = np.abs(np.diff(th))
+        dts = np.maximum(step / (cfg.cruise_fraction * self.v_max), turns / (0.8 * self.w_max))
+        return Band(np.column_stack([xy, th]), np.maximum(dts, 0.05))
+
+    def _associate(
+        self, band: Band, tree: cKDTree | None, points: np.ndarray, movers: list[tuple[np.ndarray, np.ndarray]]
+    ) -> np.ndarray:
+        """The nearest obstacle points of each pose 1..n-1: sensed ones, and movers' points predicted (constant
+        velocity) to the time the band reaches that pose."""
+        m = self.cfg.obstacles_per_pose
+        n = len(band.poses)
+        xy = band.poses[1:, :2]
+        candidates = np.full((n - 1, m, 2), FAR)
+        if tree is not None:
+            dist, idx = tree.query(xy, k=m, distance_upper_bound=2.0 * self.cfg.inflation_dist)
+            dist, idx = np.asarray(dist).reshape(n - 1, m), np.asarray(idx).reshape(n - 1, m)
+            found = np.isfinite(dist)
+            candidates[found] = points[idx[found]]
+        if not movers:
+            return candidates
+        times = np.cumsum(band.dts)  # arrival time at poses 1..n-1
+        predicted = [cluster[None, :, :] + times[:, None, None] * velocity for cluster, velocity in movers]
+        pool = np.concatenate([candidates, *predicted], axis=1)  # (n - 1, m + P, 2)
+        nearest = np.argsort(np.linalg.norm(pool - xy[:, None, :], axis=2), axis=1)[:, :m]
+        return np.take_along_axis(pool, nearest[..., None], axis=1)
+
+    def _command(self, sensing: Any) -> tuple[float, float]:
+        assert self.costmap is not None
+        cfg = self.cfg
+        x, y, yaw = sensing.pose
+        v0, w0 = sensing.velocity
+        points = self.costmap.points()
+        near = points[np.hypot(points[:, 0] - x, points[:, 1] - y) < cfg.lookahead + 2.0 * cfg.inflation_dist]
+        tree = cKDTree(near) if len(near) else None
+        movers = self.tracker.movers()
+        band = self._initial_band(sensing)
+        for _ in range(cfg.outer_iterations):
+            band, _cost = self.optimizer.solve(band, v0, w0, self._associate(band, tree, near, movers))
+        self.band = band
+        obstacles = self._associate(band, tree, near, movers)[:2]
+        clear = float(np.linalg.norm(obstacles - band.poses[1:3, None, :2], axis=2).min())
+        if clear < 0.75 * cfg.min_obstacle_dist:
+            self.stats["stops"] = self.stats.get("stops", 0.0) + 1.0
+            return 0.0, 0.0
+        d = band.poses[1, :2] - band.poses[0, :2]
+        progress = math.cos(yaw) * d[0] + math.sin(yaw) * d[1]
+        turn = (band.poses[1, 2] - band.poses[0, 2] + math.pi) % (2 * math.pi) - math.pi
+        dt0 = float(band.dts[0])
+        v = min(max(progress / dt0, 0.0), self.v_max)
+        w = min(max(turn / dt0, -self.w_max), self.w_max)
+        return v, w
