@@ -121,6 +121,17 @@ def _builtins() -> None:
     for method, cls, switches in discrete:
         _REGISTRY[method] = LearnerEntry(method, cls, _switched_preset(method, switches, for_method))
         note_method(method)
+    # offline diffusion policies (the paper's UGV baselines)
+    from core.sage.diffusion import DiffusionPolicy, diffusion_preset
+
+    for method, q_weight in (("diffusion-bc", 0.0), ("diffusion-ql", 1.0)):
+        _REGISTRY[method] = LearnerEntry(method, DiffusionPolicy, diffusion_preset(q_weight, method))
+        note_method(method)
+    # human-guided RL: the supervisor decides the takeovers
+    from core.sage.multi_hug import MultiHug, multi_hug_preset
+
+    _REGISTRY["multi-hug"] = LearnerEntry("multi-hug", MultiHug, multi_hug_preset)
+    note_method("multi-hug")
 
 
 def _switched_preset(method: str, switches_of: str, for_method: Callable[..., AgentConfig]) -> Preset:

@@ -43,7 +43,8 @@ from core.agents import (
     meta_of,
     save_checkpoint,
 )
-from core.experts import PolicyExpert, ScriptedExpert
+from core.datasets import records
+from core.experts import CostSupervisor, PolicyExpert, ScriptedExpert
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
 from core.planners import PlannerExpert, PlannerFactory, is_planner
 from core.sage import make_learner
@@ -94,6 +95,9 @@ class RunConfig:
     train_steps: int | None = None
     """Environment steps in total, demonstrations included: the studies' budget, the same for every method
     (an episode that would pass it is cut there). None: ``episodes`` alone bounds the run."""
+    datasets: list[str] = field(default_factory=list)
+    """Offline data loaded into the buffer after the demonstrations and before pretraining (:mod:`core.datasets`:
+    recorded session files, ``minari:<id>``); not counted in ``train_steps`` (no environment step is taken)."""
 
 
 @dataclass
@@ -236,6 +240,9 @@ class Trainer:
 
     def gate_and_expert(self) -> tuple[Gate, Expert | None]:
         cfg, learner = self.agent_cfg, self.learner
+        if cfg.takeover and cfg.takeover_rule == "supervisor":
+            # the supervisor steps in on its own judgement (human-guided RL); no gate asks it
+            return NoGate(), CostSupervisor(self.expert, cfg.supervisor_cost, cfg.gate.hold_steps)
         if cfg.takeover:
             return learner.make_gate(), self.expert
         if learner.world_model is not None:
@@ -245,7 +252,7 @@ class Trainer:
     def demonstrate(self) -> list[dict[str, Any]]:
         """Expert-driven episodes into the buffer as intervention samples, then ``learner.pretrain()``."""
         rows: list[dict[str, Any]] = []
-        if self.run.demo_episodes == 0:
+        if self.run.demo_episodes == 0 and not self.run.datasets:
             return rows
         demonstrator = self.expert
         if self.run.demo_noise > 0 and demonstrator is not None:
@@ -279,6 +286,13 @@ class Trainer:
             if ends:
                 ends[-1] = True  # an episode cut by max_episode_steps ends here too
             rows.append(_tag(summary.as_row(), scenario=scenarios[j], phase="demo"))
+        for source in self.run.datasets:
+            loaded = expert_steps = 0
+            for record in records(source, self.obs_dim, self.act_dim if not self.learner.encodes_actions else None):
+                store(record)
+                loaded += 1
+                expert_steps += int(record.takeover)
+            rows.append({"phase": "dataset", "dataset": source, "steps": loaded, "expert_steps": expert_steps})
         buffer = self.learner.buffer
         returns = None
         if len(ends) <= buffer.capacity:
@@ -340,6 +354,8 @@ class Trainer:
         for j, s in enumerate(scenarios):
             runner = Runner(self.envs[s], self.learner, gate, expert, seed=self.run.seed + j * SCENARIO_SEED_STRIDE)
             runner.step_listeners.append(self.learner.observe)
+            if isinstance(expert, CostSupervisor):
+                runner.step_listeners.append(expert.observe)
             runners.append(runner)
         by_steps = self.run.train_steps is not None
         bar = tqdm(

@@ -37,6 +37,9 @@ class TrainSpec:
     """Run folder. None: runs/<sim>-<scenario>-<method>-s<seed>-<time>."""
     demo_episodes: int = 0
     """Expert episodes recorded and cloned before training."""
+    dataset: list[str] = field(default_factory=list)
+    """Offline data loaded before pretraining (repeatable): a recorded session file (sessions/<id>.sqlite) or a
+    Minari dataset (minari:<id>); steps an expert drove are its demonstrations."""
     demo_noise: float = 0.0
     """Std of Gaussian noise on the demonstrated expert actions."""
     checkpoint_every: int = 25

@@ -128,6 +128,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         max_episode_steps=spec.max_episode_steps,
         expert=spec.expert,
         train_steps=spec.train_steps,
+        datasets=list(spec.dataset),
     )
     trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)
     try:

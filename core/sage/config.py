@@ -124,6 +124,31 @@ class DiscreteConfig:
 
 
 @dataclass
+class DiffusionConfig:
+    """Conditional diffusion policies trained offline (Diffusion-BC, Diffusion-QL: :mod:`core.sage.diffusion`)."""
+
+    denoising_steps: int = 10
+    """T: noise levels of the training schedule (variance-preserving, cosine)."""
+    sampling_steps: int = 5
+    """Reverse (DDIM) steps when acting, a stride over the T levels; fewer is faster (<= denoising_steps)."""
+    hidden: int = 128
+    """Width of the denoiser's hidden layers (a small MLP for the CPU)."""
+    layers: int = 3
+    """Hidden layers of the denoiser."""
+    time_embedding: int = 16
+    """Width of the sinusoidal noise-level embedding."""
+    lr: float = 1e-3
+    """Adam learning rate of the denoiser (and of Diffusion-QL's critics). 3e-4 (Diffusion-QL's) left a bimodal
+    expert's modes blurred after the few thousand steps a CPU budget affords."""
+    offline_steps: int = 4000
+    """Gradient steps of offline training on the dataset."""
+    q_weight: float = 0.0
+    """η of Diffusion-QL's policy loss, BC loss - η Q(s, π(s)) / mean|Q|; 0 is Diffusion-BC."""
+    candidates: int = 10
+    """Diffusion-QL acts with the best of this many sampled actions by Q (1: a single sample)."""
+
+
+@dataclass
 class AgentConfig:
     """Everything a learner needs. Switches select the method; see :func:`for_method` for the presets."""
 
@@ -142,7 +167,17 @@ class AgentConfig:
     range (highway at the start) eq:penalty gives c* = 0, and a violation's target would then beat its own
     recorded penalty (the -10 off-road reward replaced by 0)."""
     takeover: bool = True
-    """The SAGE gate hands control to the expert while training (needs an expert and the world model)."""
+    """The expert takes over while training: asked by the SAGE gate (``takeover_rule="gate"``: needs the world
+    model) or of its own accord (``"supervisor"``)."""
+    takeover_rule: Literal["gate", "supervisor"] = "gate"
+    """Who decides a takeover: the agent's SAGE gate (self-aware), or the supervisor, a person watching (headless:
+    a stand-in that intervenes when the step's safety cost reaches ``supervisor_cost``) as in human-guided RL."""
+    supervisor_cost: float = 0.5
+    """The headless stand-in supervisor intervenes when a step's safety cost reaches this (or on a violation) and
+    keeps control ``gate.hold_steps`` steps."""
+    intervention_penalty: float = 0.0
+    """Intervention-based reward shaping (Multi-Hug RL): subtracted from the reward of the agent's last transition
+    before each takeover starts, the action that made the supervisor step in."""
     imitation: bool = True
     """Value-weighted imitation of the expert on intervention samples (eq:bc_loss with ω of eq:qa_weight)."""
     virtual_rollouts: bool = True
@@ -253,6 +288,8 @@ class AgentConfig:
     """Fear, curiosity, threshold and hold."""
     discrete: DiscreteConfig = field(default_factory=DiscreteConfig)
     """Exploration and imitation of the value-based discrete-action learners."""
+    diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
+    """Denoiser, schedule and offline training of the diffusion policies."""
 
 
 SWITCHES: tuple[str, ...] = (
@@ -290,6 +327,7 @@ def for_method(method: str, base: AgentConfig | None = None, **overrides: Any) -
         for name in SWITCHES:
             setattr(cfg, name, True)
         cfg.gate.use_curiosity = True
+        cfg.takeover_rule, cfg.intervention_penalty = "gate", 0.0  # Multi-Hug's own, not a base's to pass on
     if method == "fni-rl":
         cfg.takeover = cfg.imitation = False
         cfg.gate.use_curiosity = False
@@ -309,7 +347,11 @@ def validate(cfg: AgentConfig) -> None:
     """Refuse inconsistent settings with an error that names the field."""
     if cfg.method not in _REGISTERED_METHODS:
         raise ValueError(f"method: unknown {cfg.method!r}; choose one of {', '.join(_REGISTERED_METHODS)}")
-    needs_model = [name for name in ("fear_regularisation", "takeover", "virtual_rollouts") if getattr(cfg, name)]
+    needs_model = [name for name in ("fear_regularisation", "virtual_rollouts") if getattr(cfg, name)]
+    if cfg.takeover and cfg.takeover_rule == "gate":
+        needs_model.append("takeover (takeover_rule=gate)")
+    if cfg.takeover_rule not in ("gate", "supervisor"):
+        raise ValueError(f"takeover_rule must be gate or supervisor, got {cfg.takeover_rule!r}")
     if needs_model and not cfg.world_model:
         raise ValueError(f"{', '.join(needs_model)} need world_model=true")
     if not 0.0 <= cfg.gate.beta <= 1.0:
