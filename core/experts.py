@@ -10,7 +10,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from core.loop import Actor, Policy
+from core.loop import Actor, Expert, Policy, StepRecord
 from core.protocol import simulator
 
 
@@ -51,3 +51,33 @@ class ExpertPolicy:
 
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
         return np.asarray(simulator(self.env).expert_action())
+
+
+class CostSupervisor:
+    """A supervisor who steps in on their own judgement (human-guided RL), headless: ``expert`` takes over for
+    ``hold_steps`` steps whenever a step's safety cost reaches ``threshold`` or a violation happens.
+
+    Attach :meth:`observe` to the runner's step listeners; :meth:`wants_control` then says whether it holds the
+    wheel for the next step. Stands in for the person, who at the dashboard takes over whenever they choose."""
+
+    def __init__(self, expert: Expert, threshold: float, hold_steps: int) -> None:
+        if hold_steps < 1:
+            raise ValueError(f"hold_steps must be >= 1, got {hold_steps}")
+        self.expert, self.threshold, self.hold_steps = expert, threshold, hold_steps
+        self._hold = 0
+
+    def reset(self) -> None:
+        self._hold = 0
+        self.expert.reset()
+
+    def observe(self, record: StepRecord) -> None:
+        if record.violation or record.cost >= self.threshold:
+            self._hold = self.hold_steps
+        elif self._hold > 0:
+            self._hold -= 1
+
+    def wants_control(self) -> bool:
+        return self._hold > 0 or self.expert.wants_control()
+
+    def act(self, env: gym.Env[Any, Any], obs: np.ndarray) -> tuple[np.ndarray, Actor]:
+        return self.expert.act(env, obs)

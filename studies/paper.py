@@ -133,6 +133,9 @@ METHOD_ALIASES = {
     "fni-rl": "FNI-RL",
     "hg-dagger": "HG-DAgger",
     "teb": "TEB",
+    "diffusion-bc": "Diffusion-BC",
+    "diffusion-ql": "Diffusion-QL",
+    "multi-hug": "Multi-Hug RL",
 }
 """Our learner names -> the paper's method names."""
 

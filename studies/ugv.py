@@ -1,20 +1,25 @@
 """The UGV field-test table (the paper's Table tab:all_scenarios_results): every method on scenarios 1-4.
 
-Protocol. Every learning method starts from the same pretraining, the committed ``policies/ugv-default`` (trained
-on the static scenarios 1-2; actor, critics and world model), and adapts for the same number of environment steps
-(the study budget) on scenarios 1-4 in turn:
+Protocol. Every method that can use it starts from the same pretraining, the committed ``policies/ugv-default``
+(trained on the static scenarios 1-2; actor, critics and world model), and adapts for the same number of
+environment steps (the study budget) on scenarios 1-4 in turn:
 
 - ``sac``, ``td3``: plain RL from the warm start, no expert;
 - ``hg-dagger``: aggregated imitation of the scripted expert's takeovers (asked by the same SAGE gate);
+- ``multi-hug``: human-guided SAC (:mod:`core.sage.multi_hug`): the supervisor steps in on its own judgement (the
+  stand-in: when the safety cost reaches 0.5), corrective imitation and intervention reward shaping;
 - ``sage``: fear-regularised SAC with the gate, the scripted expert and value-weighted imitation;
+- ``diffusion-bc``, ``diffusion-ql`` (:mod:`core.sage.diffusion`): offline learners, so the budget buys them the
+  scripted expert's demonstrations on scenarios 1-4 (the same environment steps), then offline training; a
+  denoiser cannot start from the warm start's actor;
+- ``teb``: the Timed-Elastic-Band local planner (:mod:`sims.ugv.teb`, sensing only), no training;
 - ``scripted``: the simulator's scripted expert (privileged: it reads the layout and the movers' scripts), no
-  training: a reference row, as the paper's TEB row is a classical planner's.
+  training: a reference row.
 
 Each learned policy is then evaluated alone (deterministic, no gate, no expert) on ``trials`` episodes of each
 scenario with seeds disjoint from training: success rate, average speed, travel distance, path curvature and
 lateral acceleration (the paper's columns) and the collision rate. Collisions end the episode for every method.
-The paper's TEB, Diffusion-BC, Diffusion-QL and Multi-Hug RL rows are printed beside ours where we have no such
-method yet (issue #13); its numbers are real-robot field tests, ours are the pymunk re-creation.
+The paper's numbers are real-robot field tests, ours are the pymunk re-creation.
 """
 
 from __future__ import annotations
@@ -27,7 +32,13 @@ import numpy as np
 
 from studies.registry import StudyDef
 
-METHODS = ("sac", "td3", "hg-dagger", "sage", "scripted")
+METHODS = ("sac", "td3", "hg-dagger", "multi-hug", "diffusion-bc", "diffusion-ql", "teb", "sage", "scripted")
+PLANNERS = ("teb", "scripted")
+"""Rows that are planners, not learners: evaluated as they are, on every seed's evaluation episodes."""
+OFFLINE = ("diffusion-bc", "diffusion-ql")
+"""Offline learners: the budget buys them expert demonstrations instead of interaction."""
+OFFLINE_STEPS = 4000
+"""Offline gradient steps of the diffusion policies (fewer when the budget's environment steps are fewer)."""
 SCENARIOS = ("1", "2", "3", "4")
 WARM_START = Path(__file__).resolve().parents[1] / "policies" / "ugv-default"
 TRIALS = 20
@@ -58,8 +69,8 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
 
     method, seed = str(config["method"]), int(config["seed"])
     scenarios = list(config.get("scenarios", SCENARIOS))
-    if method == "scripted":
-        policy: Any = functools.partial(make_planner, "scripted", sim="ugv")
+    if method in PLANNERS:
+        policy: Any = functools.partial(make_planner, method, sim="ugv")
     else:
         out = Path(config["runs_dir"]) / f"{method}-s{seed}"
         if not (out / "checkpoint.pt").is_file():
@@ -70,10 +81,15 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
                 method=method,
                 seed=seed,
                 train_steps=int(config["train_steps"]),
-                init=str(config.get("init", WARM_START)),
+                init=None if method in OFFLINE else str(config.get("init", WARM_START)),
                 checkpoint_every=0,
                 out=str(out),
             )
+            if method in OFFLINE:  # demonstrations until the budget is spent, then offline training only
+                offline_steps = min(OFFLINE_STEPS, int(config["train_steps"]))
+                spec = spec.replace(
+                    demo_episodes=1_000_000, episodes=0, overrides=[f"diffusion.offline_steps={offline_steps}"]
+                )
             run_training(spec)
         policy = load_agent(out).policy
     episodes = max(int(config["eval_episodes"]), int(config.get("min_eval_episodes", 0)))
@@ -99,12 +115,17 @@ STUDY = StudyDef(
     keys=("scenario", "method"),
     plot=("success_rate_pct", "collision_rate_pct"),
     notes=(
-        "Every learning method starts from policies/ugv-default (the same pretraining: static scenarios 1-2) and "
+        "Every online learner starts from policies/ugv-default (the same pretraining: static scenarios 1-2) and "
         "adapts on scenarios 1-4 in turn for the same budget in environment steps; collisions end the episode for "
-        "every method. sage and hg-dagger get the scripted expert through the SAGE gate; sac and td3 have none.",
-        "scripted: the simulator's privileged scripted expert, untrained; a reference row (the paper's TEB row is "
-        "a classical planner's). TEB, Diffusion-BC, Diffusion-QL and Multi-Hug RL are not implemented yet "
-        "(issue #13): the paper's numbers for them are not shown beside ours.",
+        "every method. sage and hg-dagger get the scripted expert through the SAGE gate; multi-hug gets it when the "
+        "stand-in supervisor steps in (safety cost >= 0.5, held 5 steps) with a 10-point intervention penalty; sac "
+        "and td3 have none.",
+        "diffusion-bc and diffusion-ql learn offline: the same budget in environment steps buys them the scripted "
+        "expert's demonstrations on scenarios 1-4, then 4000 offline gradient steps (10-level cosine schedule, "
+        "5 DDIM sampling steps); they cannot start from the warm start's actor.",
+        "teb: the Timed-Elastic-Band planner on the robot's own sensing (lidar costmap, odometry, goal), no "
+        "training. scripted: the simulator's privileged scripted expert, untrained; a reference row the paper "
+        "does not have.",
         "Evaluation: each learned policy alone, deterministic, 20 episodes per scenario (seeds disjoint from "
         "training). The paper's numbers are real-robot field tests; ours are the pymunk re-creation.",
     ),
