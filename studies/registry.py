@@ -139,12 +139,10 @@ def run_study(
     spent: Budget = budget(budget_name)
     seeds = list(range(spent.seeds))
     # a study may evaluate more episodes than the budget's default (the UGV table's 20 trials per scenario)
-    spent = dataclasses.replace(
-        spent, eval_episodes=max(spent.eval_episodes, int(study.settings.get("min_eval_episodes", 0)))
-    )
+    chosen = {**dict(study.settings), **dict(overrides or {})}
+    spent = dataclasses.replace(spent, eval_episodes=max(spent.eval_episodes, int(chosen.get("min_eval_episodes", 0))))
     settings = {
-        **dict(study.settings),
-        **dict(overrides or {}),
+        **chosen,
         "train_steps": spent.train_steps,
         "eval_episodes": spent.eval_episodes,
         "runs_dir": str((out / "runs").resolve()),

@@ -10,7 +10,7 @@ paper's numbers beside), ``summary.json`` and figures, and prints the wall time.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -42,12 +42,13 @@ def register(app: typer.Typer) -> None:
             known = get_study(name).settings
             if budget not in BUDGET_NAMES:
                 raise ValueError(f"unknown budget {budget!r}; choose one of {', '.join(BUDGET_NAMES)}")
-            overrides: dict[str, str] = {}
+            overrides: dict[str, Any] = {}
             for pair in set_ or []:
                 key, sep, value = pair.partition("=")
-                if not sep or key.strip() not in known:
+                key = key.strip()
+                if not sep or key not in known:
                     raise ValueError(f"--set {pair!r}: give key=value with a setting of {name}: {', '.join(known)}")
-                overrides[key.strip()] = value.strip()
+                overrides[key] = setting_value(known[key], value.strip(), key)
         except ValueError as error:
             typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
@@ -58,3 +59,17 @@ def register(app: typer.Typer) -> None:
 
             update_readme(readme, name, results)
             typer.echo(f"README section '{name}' written from {results} into {readme}")
+
+
+def setting_value(default: Any, text: str, key: str) -> Any:
+    """``text`` as a value of the setting's own type: a comma list for a list, a number for a number."""
+    if isinstance(default, list | tuple):
+        return [part.strip() for part in text.split(",") if part.strip()]
+    if isinstance(default, bool):
+        return text.lower() in ("1", "true", "yes", "on")
+    if isinstance(default, int | float):
+        try:
+            return type(default)(text)
+        except ValueError:
+            raise ValueError(f"--set {key}={text}: {key} is a number") from None
+    return text

@@ -181,3 +181,15 @@ def test_protocol_options_that_do_not_fit_fail_with_a_clear_message(tmp_path: Pa
     assert result.exit_code == 2 and "route-shift is the SUMO study" in result.output
     result = sage("train", "--sim", "sumo", "--c1", "5", "--out", str(tmp_path / "y"), "--quiet")
     assert result.exit_code == 2 and "belong to --protocol route-shift" in result.output
+
+
+def test_study_settings_from_the_command_line_take_the_settings_own_types() -> None:
+    from app.cli.study import setting_value
+
+    assert setting_value(["1", "2", "3", "4"], "1, 3", "scenarios") == ["1", "3"]
+    assert setting_value(20, "2", "min_eval_episodes") == 2
+    assert setting_value("scripted", "hg-dagger", "expert") == "hg-dagger"
+    import pytest
+
+    with pytest.raises(ValueError, match="is a number"):
+        setting_value(20, "many", "min_eval_episodes")
