@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from core.agents import AgentMeta, load_checkpoint, meta_of, resolve_checkpoint, save_checkpoint
+from core.loop import StepRecord
 from core.promotion import is_promoted, read_verdict
 from core.sage import make_learner
 from core.sage.config import AgentConfig, apply_overrides, from_dict
@@ -291,18 +292,30 @@ def ingest(learner: BaseLearner, store: SessionStore, session_id: str, episodes:
                 continue
             a_expert = arrays["a_expert"][i]
             takeover = bool(arrays["takeover"][i]) and bool(np.isfinite(a_expert).all())
-            encode = learner.encode_action  # a discrete learner's buffer holds one-hot actions
-            learner.buffer.add(
-                arrays["obs"][i],
-                encode(arrays["action"][i]),
-                float(arrays["reward"][i]),
-                arrays["next_obs"][i],
-                bool(arrays["terminated"][i] or arrays["violation"][i]),
-                cost=float(arrays["cost"][i]),
-                violation=bool(arrays["violation"][i]),
-                takeover=takeover,
-                a_rl=encode(arrays["a_rl"][i]),
-                a_expert=encode(a_expert) if takeover else None,
+            # through the learner's own store: it encodes actions (a discrete learner's one-hot) and may shape
+            # rewards (Multi-Hug's intervention penalty), as in headless training
+            learner.store(
+                StepRecord(
+                    episode=int(episode),
+                    t=int(arrays["t"][i]),
+                    obs=arrays["obs"][i],
+                    a_rl=arrays["a_rl"][i],
+                    a_expert=a_expert if takeover else None,
+                    action=arrays["action"][i],
+                    takeover=takeover,
+                    gate_fired=bool(arrays["gate_fired"][i]),
+                    actor=str(arrays["actor"][i]),  # type: ignore[arg-type]
+                    fear=float(arrays["fear"][i]),
+                    threshold=float(arrays["threshold"][i]),
+                    curiosity=float(arrays["curiosity"][i]),
+                    reward=float(arrays["reward"][i]),
+                    cost=float(arrays["cost"][i]),
+                    violation=bool(arrays["violation"][i]),
+                    terminated=bool(arrays["terminated"][i]),
+                    truncated=bool(arrays["truncated"][i]),
+                    next_obs=arrays["next_obs"][i],
+                    wall_time=float(arrays["wall_time"][i]),
+                )
             )
             out.steps += 1
             out.takeovers += int(takeover)

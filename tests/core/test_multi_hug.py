@@ -9,11 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from core.experts import CostSupervisor
+from core.finetune import ingest
 from core.learners import make_learner, preset
 from core.loop import StepRecord
 from core.sage.multi_hug import MultiHug
+from core.sessions import SessionStore
 from studies.spec import TrainSpec
 from studies.training import run_training
+from tests.core.test_export import recorded  # noqa: F401 (a fixture)
 
 
 def record(t: int, cost: float = 0.0, takeover: bool = False, episode: int = 0, reward: float = 1.0) -> StepRecord:
@@ -90,3 +93,22 @@ def test_supervised_training_on_the_ugv_collides_less_than_unsupervised(tmp_path
             assert sum(row["takeovers"] for row in rows) > 0
     assert collisions["sac"] >= 3, collisions
     assert collisions["multi-hug"] <= collisions["sac"] - 3, collisions
+
+
+def test_live_takeovers_ingested_for_fine_tuning_are_shaped_too(recorded: tuple[SessionStore, str]) -> None:  # noqa: F811
+    """Fine-tuning from a dashboard session goes through the learner's own store: the person's interventions
+    penalise the agent's action before each of them, as headless supervision does."""
+    store, session_id = recorded
+    steps = store.steps(session_id)
+    learner = make_learner("multi-hug", preset("multi-hug", intervention_penalty=10.0), 1, 1, seed=0)
+    assert isinstance(learner, MultiHug)
+    ingested = ingest(learner, store, session_id, sorted(set(steps["episode"].tolist())))
+    onsets = sum(
+        1
+        for i in range(1, len(steps["t"]))
+        if steps["takeover"][i] and not steps["takeover"][i - 1] and steps["episode"][i] == steps["episode"][i - 1]
+    )
+    assert ingested.takeovers > 0 and onsets > 0
+    assert learner.shaped == onsets
+    shaped_rows = np.isclose(learner.buffer.reward[: learner.buffer.size], steps["reward"].astype(np.float32) - 10.0)
+    assert int(shaped_rows.sum()) == onsets
