@@ -107,6 +107,15 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     return result
 
 
+def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
+    """Training success and collision against environment steps, for the methods that learn by interacting."""
+    from studies.learning_curves import write_learning_curves
+
+    online = [m for m in METHODS if m not in PLANNERS and m not in OFFLINE]
+    path = write_learning_curves(Path(settings["runs_dir"]), out, online, ("success", "collision"))
+    return [] if path is None else [path]
+
+
 STUDY = StudyDef(
     name="ugv",
     methods=METHODS,
@@ -131,4 +140,5 @@ STUDY = StudyDef(
         "training). The paper's numbers are real-robot field tests; ours are the pymunk re-creation.",
     ),
     settings={"scenarios": list(SCENARIOS), "min_eval_episodes": TRIALS},
+    figures=figures,
 )
