@@ -57,7 +57,8 @@ EnvFactory = Callable[[str], gym.Env[Any, Any]]
 EpisodeHook = Callable[[int, Runner], None]
 """Called before each training episode with its 0-based index and the Runner about to run it: a protocol
 changes the env's next scenario there (``runner.set_next_reset_options``: gymnasium reset options), points the
-env at the current policy (``runner.policy``) or swaps the expert (``runner.set_expert``)."""
+env at the current policy (``runner.policy``) or swaps the expert (``runner.set_expert``). A hook object may also
+define ``start_interaction(steps_done, train_steps)``, called once after the demonstrations."""
 
 DEMO_SEED_OFFSET = 500_000
 EVAL_SEED_OFFSET = 1_000_000
@@ -345,6 +346,10 @@ class Trainer:
         self.write_config()
         metrics_file = None if self.out is None else (self.out / "metrics.jsonl").open("a")
         demo_rows = self.demonstrate()
+        for hook in self.before_episode:  # a protocol that splits the interaction budget learns what is left of it
+            start = getattr(hook, "start_interaction", None)
+            if callable(start):
+                start(self.steps_done, self.run.train_steps)
         if metrics_file is not None:
             for row in demo_rows:
                 metrics_file.write(json.dumps(row, default=_json_default) + "\n")

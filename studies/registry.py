@@ -63,7 +63,7 @@ class StudyDef:
 _STUDIES: dict[str, StudyDef] = {}
 
 
-BUILTIN_STUDIES = ("studies.pedestrian", "studies.ugv", "studies.highway_study")
+BUILTIN_STUDIES = ("studies.pedestrian", "studies.ugv", "studies.highway_study", "studies.route_shift_study")
 """Modules whose ``STUDY`` is registered on first use (lazily: a study imports its simulator)."""
 _BUILTINS_DONE = False
 

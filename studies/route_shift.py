@@ -20,7 +20,7 @@ from typing import Any
 
 from core.experts import PolicyExpert
 from core.loop import Expert, Runner
-from studies.route_shift_schedule import DEFAULT_C1, DEFAULT_C2
+from studies.route_shift_schedule import DEFAULT_C1, DEFAULT_C2, RouteShiftEpisode
 
 PROTOCOL = "route-shift"
 STUDY_FILE = "study.json"
@@ -34,38 +34,77 @@ class RouteShift:
     c2: int = DEFAULT_C2
     expert_c2: Expert | None = None
     """The expert of phase C2 (None: keep the C1 expert, e.g. SUMO's driver model, in both phases)."""
+    c1_steps: int | None = None
+    """Switch to C2 at the first episode after this many interaction steps (the studies' budgets are in steps);
+    None: after ``c1`` episodes, and ``c2`` more end the run."""
+    c1_share: float | None = None
+    """Instead of ``c1_steps``: C1 takes this share of the interaction steps left after the demonstrations (the run's
+    step budget, set when interaction starts)."""
     applied: list[dict[str, Any]] = field(default_factory=list)
     """The scenario applied before each episode, in order."""
+    switch_episode: int | None = None
+    """The first C2 episode, once it has started."""
 
     def __post_init__(self) -> None:
         from studies.route_shift_schedule import route_shift_schedule
 
+        if self.c1_share is not None and not 0.0 < self.c1_share < 1.0:
+            raise ValueError(f"the C1 share must be in (0, 1), got {self.c1_share}")
+
         self.schedule = route_shift_schedule(self.c1, self.c2)
+        self.steps = 0
 
     @property
-    def episodes(self) -> int:
-        return self.c1 + self.c2
+    def episodes(self) -> int | None:
+        return None if self.by_steps else self.c1 + self.c2
+
+    @property
+    def by_steps(self) -> bool:
+        return self.c1_steps is not None or self.c1_share is not None
+
+    def start_interaction(self, steps_done: int, train_steps: int | None) -> None:
+        """Called by the trainer after the demonstrations: a share of what is left of the budget becomes C1."""
+        if self.c1_share is not None:
+            if train_steps is None:
+                raise ValueError("a C1 share of the budget needs a step budget (--train-steps)")
+            self.c1_steps = max(1, round(self.c1_share * max(0, train_steps - steps_done)))
+
+    def _entry(self, episode: int, runner: Runner) -> RouteShiftEpisode:
+        if not self.by_steps:
+            if episode >= len(self.schedule):
+                raise ValueError(f"episode {episode} is past the route-shift schedule of {len(self.schedule)} episodes")
+            return self.schedule[episode]
+        if episode > 0:
+            self.steps += runner.t  # the previous episode's steps (the runner resets t when it starts the next)
+        assert self.c1_steps is not None, "start_interaction sets the C1 steps from the share"
+        in_c2 = self.switch_episode is not None or self.steps >= self.c1_steps
+        return RouteShiftEpisode(episode, "C2" if in_c2 else "C1", 2 if in_c2 else 1, in_c2)
 
     def __call__(self, episode: int, runner: Runner) -> None:
-        if episode >= len(self.schedule):
-            raise ValueError(f"episode {episode} is past the route-shift schedule of {len(self.schedule)} episodes")
-        entry = self.schedule[episode]
+        entry = self._entry(episode, runner)
         kwargs = entry.env_kwargs()
         runner.set_next_reset_options(kwargs)  # gymnasium reset(options=...): the env checks the names
-        if episode == self.c1 and self.expert_c2 is not None and runner.expert is not None:
-            runner.set_expert(self.expert_c2)  # only methods with takeovers have an expert to swap
+        if entry.phase == "C2" and self.switch_episode is None:
+            self.switch_episode = episode
+            if self.expert_c2 is not None and runner.expert is not None:
+                runner.set_expert(self.expert_c2)  # only methods with takeovers have an expert to swap
         self.applied.append({"episode": episode, "phase": entry.phase, **kwargs})
 
     def describe(self, method: str, expert: str | None, expert_c2: str | None) -> dict[str, Any]:
-        return {
+        described = {
             "protocol": PROTOCOL,
-            "c1": self.c1,
-            "c2": self.c2,
-            "switch_episode": self.c1,
+            "c1": None if self.by_steps else self.c1,
+            "c2": None if self.by_steps else self.c2,
+            "switch_episode": None if self.by_steps else self.c1,
             "method": method,
             "expert_c1": expert or "sumo",
             "expert_c2": expert_c2 or expert or "sumo",
         }
+        if self.c1_steps is not None:
+            described["c1_steps"] = self.c1_steps
+        if self.c1_share is not None:
+            described["c1_share"] = self.c1_share
+        return described
 
 
 def policy_expert(run: str | Path) -> PolicyExpert:

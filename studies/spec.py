@@ -59,6 +59,9 @@ class TrainSpec:
     """route-shift: episodes of phase C1 (default 40)."""
     c2: int | None = field(default=None, metadata={"flag": "--c2"})
     """route-shift: episodes of phase C2 (default 20)."""
+    c1_share: float | None = None
+    """route-shift: C1 takes this share of the interaction steps of --train-steps (those left after the
+    demonstrations), C2 the rest, instead of --c1/--c2 episodes (the studies' budgets are in steps)."""
     expert_c2: str | None = None
     """route-shift: the expert run of phase C2 (default: the C1 expert)."""
     adversarial_ratio: float | None = None

@@ -61,8 +61,13 @@ class TrainingSetup:
         """After training: write the protocol's figures into the run folder; return what to print."""
         if self.study is None or self.study.get("protocol") != "route-shift":
             return []
-        from studies.route_shift import phase_table, read_run
+        from studies.route_shift import RouteShift, phase_table, read_run, write_study
         from studies.route_shift_figures import write_figures
+
+        for hook in self.hooks:
+            if isinstance(hook, RouteShift) and hook.by_steps and self.study.get("switch_episode") is None:
+                self.study.update(switch_episode=hook.switch_episode, c1_steps=hook.c1_steps)  # known now
+                write_study(out, self.study)
 
         run = read_run(out)
         paths = write_figures([run], out, window)
@@ -109,6 +114,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         expert_c2=spec.expert_c2,
         c1=spec.c1,
         c2=spec.c2,
+        c1_share=spec.c1_share,
         adversarial_ratio=spec.adversarial_ratio,
         bounded_by_steps=spec.train_steps is not None,
     )
@@ -151,6 +157,7 @@ def prepare_training(
     expert_c2: str | None = None,
     c1: int | None = None,
     c2: int | None = None,
+    c1_share: float | None = None,
     adversarial_ratio: float | None = None,
     bounded_by_steps: bool = False,
 ) -> TrainingSetup:
@@ -163,8 +170,8 @@ def prepare_training(
         raise ValueError(f"unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
     if adversarial_ratio is not None and sim != "highway":
         raise ValueError("--adversarial-ratio is for --sim highway (closed-loop adversarial training)")
-    if protocol != "route-shift" and (c1 is not None or c2 is not None or expert_c2 is not None):
-        raise ValueError("--c1, --c2 and --expert-c2 belong to --protocol route-shift")
+    if protocol != "route-shift" and (c1 is not None or c2 is not None or expert_c2 is not None or c1_share):
+        raise ValueError("--c1, --c2, --c1-share and --expert-c2 belong to --protocol route-shift")
     make_env = env_factory(sim)
     if protocol == "route-shift":
         from studies.route_shift import DEFAULT_C1, DEFAULT_C2, RouteShift, policy_expert
@@ -173,12 +180,18 @@ def prepare_training(
             raise ValueError(f"--protocol route-shift is the SUMO study; got --sim {sim}")
         if scenario is not None and scenario.strip().lower() != "c1":
             raise ValueError("--protocol route-shift sets the scenario itself (C1 then C2); drop --scenario")
+        if c1_share is not None:
+            if c1 is not None or c2 is not None:
+                raise ValueError("--c1-share switches by environment steps: drop --c1 and --c2")
+            if not bounded_by_steps or not 0.0 < c1_share < 1.0:
+                raise ValueError("--c1-share needs --train-steps (the whole run's budget) and must be in (0, 1)")
         shift = RouteShift(
             DEFAULT_C1 if c1 is None else c1,
             DEFAULT_C2 if c2 is None else c2,
             policy_expert(expert_c2) if expert_c2 else None,
+            c1_share=c1_share,
         )
-        if episodes is not None and episodes != shift.episodes:
+        if episodes is not None and shift.episodes is not None and episodes != shift.episodes:
             raise ValueError(f"--protocol route-shift runs --c1 + --c2 = {shift.episodes} episodes; drop --episodes")
         return TrainingSetup(
             ["c1"], make_env, shift.episodes, [shift], shift.describe(method, expert, expert_c2), "route_shift"

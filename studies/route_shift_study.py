@@ -1,0 +1,162 @@
+"""The route-shift study (the paper's Fig. sumo_1): ``sage study route-shift``.
+
+Protocol, the same for every method on every training seed (:class:`studies.route_shift.RouteShift` by steps):
+
+- **Budget**: ``train_steps`` environment steps, demonstrations included; phase C1 (route 1, ordinary traffic) takes
+  the first ``C1_SHARE`` of the interaction steps (the budget left after the demonstrations), phase C2 (route 2 with
+  special vehicles) the rest, switching at the first episode after that point (the paper: 1,000 + 500 episodes,
+  the same 2:1 ratio).
+- **Demonstrations**: ``demo_episodes`` expert episodes on route 1 (the same for every method on a seed), cloned
+  before interaction by every method.
+- **Terminal rule**: every violation (collision, red light) is terminal for learning (the buffer cuts the return
+  there), for every method; a collision also ends the episode, a red-light run does not (the car drives on).
+- **Methods**: ``sac`` (the paper's standard RL), ``fni-rl`` (fear-regularised, no expert) and ``sage`` (the gate
+  hands control to the expert), the paper's three.
+- **Experts** (setting ``expert``): ``sumo``, SUMO's own driver model on both routes (the stated stand-in; the
+  executed action is the label); or ``hg-dagger``, one policy per route trained by HG-DAgger from SUMO's driver
+  (route 1 supervises C1, route 2 supervises C2, as the paper's separately trained per-route policies), trained once
+  per results folder and cached in ``<results>/experts/route1`` and ``route2``.
+
+The table reports, per method, mean ± 95% interval over seeds: success, collision and red-light rates of the last
+third of C1 (stable?), the first third of C2 (the drop) and the last third of C2 (recovered?), the expert's share of
+steps in C2, and the final policy alone on each route (``eval_episodes`` each). The paper shows this study as curves,
+so no numbers stand beside; ``learning_curves.png`` draws ours.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from studies.registry import StudyDef
+
+METHODS = ("sac", "fni-rl", "sage")
+C1_SHARE = 2 / 3
+DEMO_EPISODES = 5
+EXPERT_DEMOS = 10
+EXPERT_EPISODES = 20
+PHASE_KEYS = ("success", "collision", "red_light")
+METRICS = (
+    *(f"c1_late_{k}" for k in PHASE_KEYS),
+    *(f"c2_early_{k}" for k in PHASE_KEYS),
+    *(f"c2_late_{k}" for k in PHASE_KEYS),
+    "c2_takeover_rate",
+    "eval_route1_success",
+    "eval_route2_success",
+    "eval_route2_collision",
+)
+
+
+def trial(config: dict[str, Any]) -> dict[str, float]:
+    """Train one method on one seed through the route shift (resumable), then evaluate it alone on both routes."""
+    from core.agents import load_agent
+    from core.train import evaluate
+    from studies.envs import env_factory
+    from studies.route_shift import read_run
+    from studies.spec import TrainSpec
+    from studies.training import run_training
+
+    method, seed = str(config["method"]), int(config["seed"])
+    budget = int(config["train_steps"])
+    demos = int(config.get("demo_episodes", DEMO_EPISODES))
+    out = Path(config["runs_dir"]) / f"{method}-s{seed}"
+    if not (out / "checkpoint.pt").is_file():
+        shutil.rmtree(out, ignore_errors=True)
+        run_training(
+            TrainSpec(
+                sim="sumo",
+                protocol="route-shift",
+                method=method,
+                seed=seed,
+                train_steps=budget,
+                c1_share=C1_SHARE,
+                demo_episodes=demos,
+                expert=config.get("expert_c1"),
+                expert_c2=config.get("expert_c2"),
+                checkpoint_every=0,
+                out=str(out),
+            )
+        )
+    run = read_run(out)
+    c1, c2 = run.rows[: run.switch], run.rows[run.switch :]
+    result: dict[str, float] = {"train_episodes": float(len(run.rows)), "c2_episodes": float(len(c2))}
+    for name, rows in (("c1_late", c1[-max(1, len(c1) // 3) :]), ("c2_early", c2[: max(1, len(c2) // 3)]),
+                       ("c2_late", c2[-max(1, len(c2) // 3) :])):  # fmt: skip
+        for key in PHASE_KEYS:
+            values = [float(r.get(key, 0.0)) for r in rows]
+            result[f"{name}_{key}"] = float(np.mean(values)) if values else float("nan")
+    steps = sum(int(r["steps"]) for r in c2)
+    result["c2_takeover_rate"] = sum(int(r.get("takeovers", 0)) for r in c2) / max(steps, 1)
+    policy = load_agent(out).policy
+    episodes = int(config["eval_episodes"])
+    evaluated = evaluate(policy, env_factory("sumo"), ["c1", "c2"], episodes, seed, None, False, progress=False)
+    result["eval_route1_success"] = float(np.mean([float(r["success"]) for r in evaluated["c1"]]))
+    result["eval_route2_success"] = float(np.mean([float(r["success"]) for r in evaluated["c2"]]))
+    result["eval_route2_collision"] = float(np.mean([float(r["collision"]) for r in evaluated["c2"]]))
+    return result
+
+
+def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
+    """The experts of phases C1 and C2: SUMO's driver, or one HG-DAgger policy per route (trained once, cached)."""
+    choice = str(settings.get("expert", "sumo"))
+    if choice == "sumo":
+        return {"expert_c1": None, "expert_c2": None}
+    if choice != "hg-dagger":
+        raise ValueError(f"expert={choice}: give sumo or hg-dagger")
+    from studies.spec import TrainSpec
+    from studies.training import run_training
+
+    experts: dict[str, Any] = {}
+    for route, scenario in (("route1", "c1"), ("route2", "c2")):
+        folder = (out / "experts" / route).resolve()
+        if not (folder / "checkpoint.pt").is_file():
+            shutil.rmtree(folder, ignore_errors=True)
+            run_training(
+                TrainSpec(
+                    sim="sumo",
+                    scenario=scenario,
+                    method="hg-dagger",
+                    episodes=EXPERT_EPISODES,
+                    demo_episodes=EXPERT_DEMOS,
+                    seed=0,
+                    checkpoint_every=0,
+                    out=str(folder),
+                )
+            )
+        experts[f"expert_{scenario}"] = str(folder)
+    return experts
+
+
+def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
+    from studies.learning_curves import write_learning_curves
+
+    path = write_learning_curves(Path(settings["runs_dir"]), out, METHODS, ("success", "collision", "red_light"))
+    return [] if path is None else [path]
+
+
+STUDY = StudyDef(
+    name="route-shift",
+    methods=METHODS,
+    trial=trial,
+    metrics=METRICS,
+    plot=("c2_early_success", "c2_late_collision", "eval_route2_success"),
+    notes=(
+        f"Every method: the same budget in environment steps, the same {DEMO_EPISODES} expert demonstrations on "
+        f"route 1 per seed (counted) cloned before interaction; C1 (route 1) takes the first {C1_SHARE:.0%} of the "
+        "interaction steps, C2 (route 2 with special vehicles) the rest. Every violation (collision, red light) is "
+        "terminal for learning for every method; a collision ends the episode, a red-light run does not.",
+        "sage gets the expert through the SAGE gate; sac and fni-rl have none after the demonstrations. The expert "
+        "is the setting expert: sumo (default: SUMO's driver model, its executed action the label) or hg-dagger "
+        f"(one policy per route, {EXPERT_DEMOS} demonstrations + {EXPERT_EPISODES} episodes each, cached in "
+        "experts/route1 and experts/route2; route 1's supervises C1, route 2's C2).",
+        "c1_late / c2_early / c2_late: the last third of C1, the first and the last third of C2. eval_*: the final "
+        "policy alone, deterministic, eval_episodes per route. The paper shows this study as curves (Fig. "
+        "sumo_1), so no paper numbers stand beside; learning_curves.png draws ours over environment steps.",
+    ),
+    settings={"expert": "sumo", "demo_episodes": DEMO_EPISODES},
+    prepare=prepare,
+    figures=figures,
+)
