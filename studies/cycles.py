@@ -54,6 +54,9 @@ class CyclesConfig:
     """Deploy the deterministic policy (its mean action), as a fielded policy runs; False samples it."""
     max_episode_steps: int | None = None
     """Cut episodes at this many steps (None: the scenario's time limit)."""
+    fine_tune: bool = True
+    """Fine-tune between cycles; False deploys the first version throughout (the control: the same situations,
+    gate and expert, no learning)."""
     finetune: FinetuneConfig = field(default_factory=lambda: FinetuneConfig(min_steps=1, min_takeover_samples=0))
     """Each cycle is the unit of data the study chose, so its round runs whatever its size (the live worker's
     minimum-data rule guards rounds that nobody asked for)."""
@@ -237,8 +240,8 @@ def run_cycles(
                     episodes.append({**summary.as_row(), "cycle": cycle, "version": version})
                 cycle_row = cycle_rows([e for e in episodes if e["cycle"] == cycle])[0]
                 say(f"cycle {cycle}/{cfg.cycles} (v{version:04d}): " + _cycle_line(cycle_row))
-                if cycle == cfg.cycles:
-                    break
+                if cycle == cfg.cycles or not cfg.fine_tune:
+                    continue
                 writer.flush()
                 result = finetuner.round()
                 rounds.append({**result.as_dict(), "after_cycle": cycle})

@@ -63,7 +63,13 @@ class StudyDef:
 _STUDIES: dict[str, StudyDef] = {}
 
 
-BUILTIN_STUDIES = ("studies.pedestrian", "studies.ugv", "studies.highway_study", "studies.route_shift_study")
+BUILTIN_STUDIES = (
+    "studies.pedestrian",
+    "studies.ugv",
+    "studies.highway_study",
+    "studies.route_shift_study",
+    "studies.cycles_study",
+)
 """Modules whose ``STUDY`` is registered on first use (lazily: a study imports its simulator)."""
 _BUILTINS_DONE = False
 
