@@ -121,26 +121,32 @@ def _builtins() -> None:
     for method, cls, switches in discrete:
         _REGISTRY[method] = LearnerEntry(method, cls, _switched_preset(method, switches, for_method))
         note_method(method)
-    # offline diffusion policies (the paper's UGV baselines)
-    from core.sage.diffusion import DiffusionPolicy, diffusion_preset
+    # offline diffusion policies (the paper's UGV baselines): every SAGE extra off, as plain SAC
+    from core.sage.diffusion import DiffusionPolicy
 
     for method, q_weight in (("diffusion-bc", 0.0), ("diffusion-ql", 1.0)):
-        _REGISTRY[method] = LearnerEntry(method, DiffusionPolicy, diffusion_preset(q_weight, method))
+        fixed = {"diffusion.q_weight": q_weight}
+        _REGISTRY[method] = LearnerEntry(method, DiffusionPolicy, _switched_preset(method, "sac", for_method, fixed))
         note_method(method)
-    # human-guided RL: the supervisor decides the takeovers
-    from core.sage.multi_hug import MultiHug, multi_hug_preset
+    # human-guided RL: SAC whose supervisor decides the takeovers (core.sage.multi_hug)
+    from core.sage.multi_hug import PRESET, MultiHug
 
-    _REGISTRY["multi-hug"] = LearnerEntry("multi-hug", MultiHug, multi_hug_preset)
+    _REGISTRY["multi-hug"] = LearnerEntry(
+        "multi-hug", MultiHug, _switched_preset("multi-hug", "sac", for_method, PRESET)
+    )
     note_method("multi-hug")
 
 
-def _switched_preset(method: str, switches_of: str, for_method: Callable[..., AgentConfig]) -> Preset:
-    """A preset with the switches of built-in method ``switches_of``, named ``method``."""
+def _switched_preset(
+    method: str, switches_of: str, for_method: Callable[..., AgentConfig], fixed: dict[str, Any] | None = None
+) -> Preset:
+    """A preset with the switches of built-in method ``switches_of`` and the method's own ``fixed`` settings (dotted
+    names), named ``method``; overrides apply last."""
 
     def build(base: AgentConfig | None = None, **overrides: Any) -> AgentConfig:
         cfg = for_method(switches_of, base)
         cfg.method = method
-        for key, value in overrides.items():
+        for key, value in {**(fixed or {}), **overrides}.items():
             set_field(cfg, key, value)
         validate(cfg)
         return cfg

@@ -25,7 +25,6 @@ shows success and collision over training against environment steps for every me
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -45,25 +44,22 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     from core.agents import load_agent
     from studies.highway import evaluate_policy
     from studies.spec import TrainSpec
-    from studies.training import run_training
+    from studies.training import train_once
 
     method, seed = str(config["method"]), int(config["seed"])
-    out = Path(config["runs_dir"]) / f"{method}-s{seed}"
-    if not (out / "checkpoint.pt").is_file():
-        shutil.rmtree(out, ignore_errors=True)
-        run_training(
-            TrainSpec(
-                sim="highway",
-                scenario="train",
-                method=method,
-                seed=seed,
-                train_steps=int(config["train_steps"]),
-                demo_episodes=int(config.get("demo_episodes", DEMO_EPISODES)),
-                expert=config.get("expert_run"),
-                checkpoint_every=0,
-                out=str(out),
-            )
+    out = train_once(
+        TrainSpec(
+            sim="highway",
+            scenario="train",
+            method=method,
+            seed=seed,
+            train_steps=int(config["train_steps"]),
+            demo_episodes=int(config.get("demo_episodes", DEMO_EPISODES)),
+            expert=config.get("expert_run"),
+            checkpoint_every=0,
+            out=str(Path(config["runs_dir"]) / f"{method}-s{seed}"),
         )
+    )
     policy = load_agent(out).policy
     results = evaluate_policy(
         policy, ("train", "test"), ("normal", "adversarial"), int(config["eval_episodes"]), (seed,)
@@ -92,31 +88,27 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
             raise ValueError(f"expert={choice}: give scripted, hg-dagger or the path of a trained highway run")
         return {"expert_run": str(Path(choice).resolve())}
     from studies.spec import TrainSpec
-    from studies.training import run_training
+    from studies.training import train_once
 
-    folder = (out / "experts" / "hg-dagger").resolve()
-    if not (folder / "checkpoint.pt").is_file():
-        shutil.rmtree(folder, ignore_errors=True)
-        run_training(
-            TrainSpec(
-                sim="highway",
-                scenario="train",
-                method="hg-dagger",
-                episodes=EXPERT_EPISODES,
-                demo_episodes=EXPERT_DEMOS,
-                seed=0,
-                checkpoint_every=0,
-                out=str(folder),
-            )
+    folder = train_once(
+        TrainSpec(
+            sim="highway",
+            scenario="train",
+            method="hg-dagger",
+            episodes=EXPERT_EPISODES,
+            demo_episodes=EXPERT_DEMOS,
+            seed=0,
+            checkpoint_every=0,
+            out=str((out / "experts" / "hg-dagger").resolve()),
         )
+    )
     return {"expert_run": str(folder)}
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     from studies.learning_curves import write_learning_curves
 
-    path = write_learning_curves(Path(settings["runs_dir"]), out, METHODS, ("success", "collision"))
-    return [] if path is None else [path]
+    return write_learning_curves(Path(settings["runs_dir"]), out, METHODS, ("success", "collision"))
 
 
 STUDY = StudyDef(

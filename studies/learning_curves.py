@@ -54,8 +54,9 @@ def curve(runs_dir: Path, method: str, key: str, window: int = 10) -> tuple[np.n
 
 def write_learning_curves(
     runs_dir: Path, out: Path, methods: Sequence[str], keys: Sequence[str], name: str = "learning_curves.png"
-) -> Path | None:
-    """One panel per metric in ``keys``, every method that has training episodes; None when none has."""
+) -> list[Path]:
+    """One panel per metric in ``keys``, every method that has training episodes: the figure's path, or no path when
+    no method has any (the shape a study's ``figures`` returns)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -77,11 +78,11 @@ def write_learning_curves(
         ax.grid(alpha=0.3)
     if not drawn:
         plt.close(fig)
-        return None
+        return []
     axes[0][0].legend(fontsize=8)
     fig.suptitle("training, mean over seeds with 95% band")
     fig.tight_layout()
     path = out / name
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    return path
+    return [path]

@@ -29,7 +29,6 @@ The paper reports these as curves only, so there are no paper numbers beside the
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -70,12 +69,10 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     from core.train import evaluate
     from studies.envs import env_factory
     from studies.spec import TrainSpec
-    from studies.training import run_training
+    from studies.training import train_once
 
-    out = run_folder(config)
-    if not (out / "checkpoint.pt").is_file():
-        shutil.rmtree(out, ignore_errors=True)
-        spec = TrainSpec(
+    out = train_once(
+        TrainSpec(
             sim="pedestrian",
             scenario=str(config.get("scenario", TRAIN_SCENARIO)),
             method=str(config["method"]),
@@ -84,9 +81,9 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             checkpoint_every=int(config.get("checkpoint_every", CHECKPOINT_EVERY)),
             overrides=list(config.get("overrides", [])),
             expert=config.get("expert_run") if str(config["method"]).startswith("sage") else None,
-            out=str(out),
+            out=str(run_folder(config)),
         )
-        run_training(spec)
+    )
     rows = read_rows(out)
     if not rows:
         raise RuntimeError(f"{out}: no training episode within {config['train_steps']} steps")
@@ -120,14 +117,10 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
     if settings.get("expert", "scripted") != "hg-dagger":
         return {"expert_run": None}
     from studies.spec import TrainSpec
-    from studies.training import run_training
+    from studies.training import train_once
 
-    folder = (out / "experts" / "hg-dagger").resolve()
-    if not (folder / "checkpoint.pt").is_file():
-        import shutil
-
-        shutil.rmtree(folder, ignore_errors=True)
-        spec = TrainSpec(
+    folder = train_once(
+        TrainSpec(
             sim="pedestrian",
             scenario=str(settings.get("scenario", TRAIN_SCENARIO)),
             method="hg-dagger-discrete",
@@ -135,9 +128,9 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
             demo_episodes=EXPERT_DEMOS,
             seed=0,
             checkpoint_every=0,
-            out=str(folder),
+            out=str((out / "experts" / "hg-dagger").resolve()),
         )
-        run_training(spec)
+    )
     return {"expert_run": str(folder)}
 
 

@@ -25,7 +25,6 @@ so no numbers stand beside; ``learning_curves.png`` draws ours.
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -57,29 +56,26 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     from studies.envs import env_factory
     from studies.route_shift import read_run
     from studies.spec import TrainSpec
-    from studies.training import run_training
+    from studies.training import train_once
 
     method, seed = str(config["method"]), int(config["seed"])
     budget = int(config["train_steps"])
     demos = int(config.get("demo_episodes", DEMO_EPISODES))
-    out = Path(config["runs_dir"]) / f"{method}-s{seed}"
-    if not (out / "checkpoint.pt").is_file():
-        shutil.rmtree(out, ignore_errors=True)
-        run_training(
-            TrainSpec(
-                sim="sumo",
-                protocol="route-shift",
-                method=method,
-                seed=seed,
-                train_steps=budget,
-                c1_share=C1_SHARE,
-                demo_episodes=demos,
-                expert=config.get("expert_c1"),
-                expert_c2=config.get("expert_c2"),
-                checkpoint_every=0,
-                out=str(out),
-            )
+    out = train_once(
+        TrainSpec(
+            sim="sumo",
+            protocol="route-shift",
+            method=method,
+            seed=seed,
+            train_steps=budget,
+            c1_share=C1_SHARE,
+            demo_episodes=demos,
+            expert=config.get("expert_c1"),
+            expert_c2=config.get("expert_c2"),
+            checkpoint_every=0,
+            out=str(Path(config["runs_dir"]) / f"{method}-s{seed}"),
         )
+    )
     run = read_run(out)
     c1, c2 = run.rows[: run.switch], run.rows[run.switch :]
     result: dict[str, float] = {"train_episodes": float(len(run.rows)), "c2_episodes": float(len(c2))}
@@ -107,25 +103,22 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
     if choice != "hg-dagger":
         raise ValueError(f"expert={choice}: give sumo or hg-dagger")
     from studies.spec import TrainSpec
-    from studies.training import run_training
+    from studies.training import train_once
 
     experts: dict[str, Any] = {}
     for route, scenario in (("route1", "c1"), ("route2", "c2")):
-        folder = (out / "experts" / route).resolve()
-        if not (folder / "checkpoint.pt").is_file():
-            shutil.rmtree(folder, ignore_errors=True)
-            run_training(
-                TrainSpec(
-                    sim="sumo",
-                    scenario=scenario,
-                    method="hg-dagger",
-                    episodes=EXPERT_EPISODES,
-                    demo_episodes=EXPERT_DEMOS,
-                    seed=0,
-                    checkpoint_every=0,
-                    out=str(folder),
-                )
+        folder = train_once(
+            TrainSpec(
+                sim="sumo",
+                scenario=scenario,
+                method="hg-dagger",
+                episodes=EXPERT_EPISODES,
+                demo_episodes=EXPERT_DEMOS,
+                seed=0,
+                checkpoint_every=0,
+                out=str((out / "experts" / route).resolve()),
             )
+        )
         experts[f"expert_{scenario}"] = str(folder)
     return experts
 
@@ -133,8 +126,7 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     from studies.learning_curves import write_learning_curves
 
-    path = write_learning_curves(Path(settings["runs_dir"]), out, METHODS, ("success", "collision", "red_light"))
-    return [] if path is None else [path]
+    return write_learning_curves(Path(settings["runs_dir"]), out, METHODS, ("success", "collision", "red_light"))
 
 
 STUDY = StudyDef(

@@ -31,7 +31,7 @@ from core.train import EpisodeHook, RunConfig, TrainResult
 from studies.envs import default_scenario, env_factory
 from studies.spec import TrainSpec
 
-__all__ = ["TrainOutcome", "TrainSpec", "TrainingSetup", "prepare_training", "run_training"]
+__all__ = ["TrainOutcome", "TrainSpec", "TrainingSetup", "prepare_training", "run_training", "train_once"]
 
 PROTOCOLS = ("none", "route-shift")
 DEFAULT_EPISODES = 100
@@ -143,6 +143,20 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     finally:
         trainer.close()
     return TrainOutcome(result, out, setup, setup.finish(out))
+
+
+def train_once(spec: TrainSpec) -> Path:
+    """``spec``'s run folder, trained unless it already holds a finished run (a study's trial resumes, an expert is
+    cached): a half-written folder (a crash) is cleared and trained afresh."""
+    if spec.out is None:
+        raise ValueError("train_once needs spec.out, the folder to reuse")
+    out = Path(spec.out)
+    if not (out / "checkpoint.pt").is_file():
+        import shutil
+
+        shutil.rmtree(out, ignore_errors=True)
+        run_training(spec)
+    return out
 
 
 def prepare_training(

@@ -24,7 +24,6 @@ The paper's numbers are real-robot field tests, ours are the pymunk re-creation.
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -65,32 +64,29 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     from core.train import evaluate
     from studies.envs import env_factory
     from studies.spec import TrainSpec
-    from studies.training import run_training
+    from studies.training import train_once
 
     method, seed = str(config["method"]), int(config["seed"])
     scenarios = list(config.get("scenarios", SCENARIOS))
     if method in PLANNERS:
         policy: Any = functools.partial(make_planner, method, sim="ugv")
     else:
-        out = Path(config["runs_dir"]) / f"{method}-s{seed}"
-        if not (out / "checkpoint.pt").is_file():
-            shutil.rmtree(out, ignore_errors=True)
-            spec = TrainSpec(
-                sim="ugv",
-                scenario=",".join(scenarios),
-                method=method,
-                seed=seed,
-                train_steps=int(config["train_steps"]),
-                init=None if method in OFFLINE else str(config.get("init", WARM_START)),
-                checkpoint_every=0,
-                out=str(out),
+        spec = TrainSpec(
+            sim="ugv",
+            scenario=",".join(scenarios),
+            method=method,
+            seed=seed,
+            train_steps=int(config["train_steps"]),
+            init=None if method in OFFLINE else str(config.get("init", WARM_START)),
+            checkpoint_every=0,
+            out=str(Path(config["runs_dir"]) / f"{method}-s{seed}"),
+        )
+        if method in OFFLINE:  # demonstrations until the budget is spent, then offline training only
+            offline_steps = min(OFFLINE_STEPS, int(config["train_steps"]))
+            spec = spec.replace(
+                demo_episodes=1_000_000, episodes=0, overrides=[f"diffusion.offline_steps={offline_steps}"]
             )
-            if method in OFFLINE:  # demonstrations until the budget is spent, then offline training only
-                offline_steps = min(OFFLINE_STEPS, int(config["train_steps"]))
-                spec = spec.replace(
-                    demo_episodes=1_000_000, episodes=0, overrides=[f"diffusion.offline_steps={offline_steps}"]
-                )
-            run_training(spec)
+        out = train_once(spec)
         policy = load_agent(out).policy
     episodes = int(config["eval_episodes"])  # the budget's, raised to min_eval_episodes by the registry
     rows = evaluate(policy, env_factory("ugv"), scenarios, episodes, seed, None, False, progress=False)
@@ -112,8 +108,7 @@ def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     from studies.learning_curves import write_learning_curves
 
     online = [m for m in METHODS if m not in PLANNERS and m not in OFFLINE]
-    path = write_learning_curves(Path(settings["runs_dir"]), out, online, ("success", "collision"))
-    return [] if path is None else [path]
+    return write_learning_curves(Path(settings["runs_dir"]), out, online, ("success", "collision"))
 
 
 STUDY = StudyDef(

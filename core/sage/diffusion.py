@@ -22,14 +22,12 @@ from __future__ import annotations
 import copy
 import itertools
 import math
-from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
 from core.loop import StepRecord
-from core.sage.config import AgentConfig
 from core.sage.learner import BaseLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, soft_update
 
@@ -200,21 +198,3 @@ class DiffusionPolicy(BaseLearner):
         soft_update(self.denoiser_target, self.denoiser, self.cfg.polyak)
         stats.update(critic_loss=float(critic_loss.detach()), q_loss=float(q_loss.detach()))
         return stats
-
-
-def diffusion_preset(q_weight: float, method: str) -> Any:
-    """A preset for the diffusion policies: no world model, gate, takeover or online updates."""
-
-    def build(base: AgentConfig | None = None, **overrides: Any) -> AgentConfig:
-        from core.sage.config import for_method, set_field, validate
-
-        cfg = for_method("sac", base)  # every SAGE extra off
-        cfg.method = method
-        cfg.diffusion.q_weight = q_weight
-        for key, value in overrides.items():
-            set_field(cfg, key, value)
-        validate(cfg)
-        return cfg
-
-    build.__doc__ = f"{method}: a conditional diffusion policy trained offline (q_weight={q_weight})."
-    return build

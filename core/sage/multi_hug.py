@@ -22,7 +22,6 @@ from __future__ import annotations
 from typing import Any
 
 from core.loop import StepRecord
-from core.sage.config import AgentConfig
 from core.sage.sac import SAC
 
 
@@ -48,16 +47,10 @@ class MultiHug(SAC):
         self._last_key = (record.episode, record.t)
 
 
-def multi_hug_preset(base: AgentConfig | None = None, **overrides: Any) -> AgentConfig:
-    """SAC with imitation, supervisor takeovers and intervention reward shaping; no world model or fear."""
-    from core.sage.config import for_method, set_field, validate
-
-    cfg = for_method("sac", base)
-    cfg.method = "multi-hug"
-    cfg.takeover = cfg.imitation = True
-    cfg.takeover_rule = "supervisor"
-    cfg.intervention_penalty = 10.0
-    for key, value in overrides.items():
-        set_field(cfg, key, value)
-    validate(cfg)
-    return cfg
+PRESET: dict[str, Any] = {
+    "takeover": True,
+    "imitation": True,
+    "takeover_rule": "supervisor",
+    "intervention_penalty": 10.0,
+}
+"""Multi-Hug's settings on top of plain SAC's switches (the registry's preset, :mod:`core.learners`)."""
