@@ -63,8 +63,8 @@ class DiffusionPolicy(BaseLearner):
     """Diffusion-BC, or Diffusion-QL when ``cfg.diffusion.q_weight > 0`` (see the module docstring).
 
     It acts by sampling, in evaluation too: a diffusion policy's point is to draw from the demonstrated modes, and
-    the reverse chain from zero noise lands between them (on the UGV's held-out expert states its action error
-    was 0.0127 against a sample's 0.0071). The sampler's generator is seeded, so a run repeats."""
+    the reverse chain from zero noise lands between them (``tests/core/test_diffusion.py`` checks that samples keep
+    a bimodal expert's modes apart). The sampler's generator is seeded, so a run repeats."""
 
     uses_random_warmup = False
     acting_module = "denoiser"
