@@ -65,8 +65,11 @@ class AgentMeta:
 
 
 # -- writing --------------------------------------------------------------------------------------
-def save_checkpoint(path: Path, learner: BaseLearner, meta: AgentMeta, dtype: str = "float32") -> Path:
-    """Write the learner's state (``dtype`` ``float16`` halves the file, for committed policies)."""
+def save_checkpoint(
+    path: Path, learner: BaseLearner, meta: AgentMeta, dtype: str = "float32", config: AgentConfig | None = None
+) -> Path:
+    """Write the learner's state (``dtype`` ``float16`` halves the file, for committed policies); ``config``: the
+    learner config to record, when it is not the one the learner ran with (a world-model-only refit)."""
     if dtype not in ("float32", "float16"):
         raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
     state = learner.state_dict()
@@ -76,7 +79,7 @@ def save_checkpoint(path: Path, learner: BaseLearner, meta: AgentMeta, dtype: st
         "format": CHECKPOINT_FORMAT,
         "version": CHECKPOINT_VERSION,
         "meta": dataclasses.asdict(meta),
-        "agent_config": _plain(to_dict(learner.cfg)),
+        "agent_config": _plain(to_dict(config or learner.cfg)),
         "state": state,
     }
     path = Path(path)

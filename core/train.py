@@ -48,7 +48,7 @@ from core.experts import CostSupervisor, PolicyExpert, ScriptedExpert
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
 from core.planners import PlannerExpert, PlannerFactory, is_planner
 from core.sage import make_learner
-from core.sage.config import AgentConfig, to_dict
+from core.sage.config import AgentConfig, to_dict, world_model_refit
 from core.sage.gate import AlwaysGate
 from core.sage.learner import BaseLearner
 
@@ -99,6 +99,9 @@ class RunConfig:
     datasets: list[str] = field(default_factory=list)
     """Offline data loaded into the buffer after the demonstrations and before pretraining (:mod:`core.datasets`:
     recorded session files, ``minari:<id>``); not counted in ``train_steps`` (no environment step is taken)."""
+    world_model_only: bool = False
+    """Refit only the world model of ``init`` (:func:`core.sage.config.world_model_refit`): the policy drives and
+    nothing else learns; checkpoints keep the learner config given (the policy's own schedule)."""
 
 
 @dataclass
@@ -163,6 +166,12 @@ class Trainer:
             raise ValueError("bound the run: give episodes, train_steps or both")
         if not run.scenarios:
             raise ValueError("at least one scenario is needed")
+        self.saved_cfg = agent
+        """The learner config the checkpoints and config.json record (a world-model-only refit runs another)."""
+        if run.world_model_only:
+            if not run.init:
+                raise ValueError("--world-model-only refits the world model of a trained policy: give --init")
+            agent = world_model_refit(agent)
         self.run, self.agent_cfg, self.out, self.progress = run, agent, out, progress
         self.before_episode: list[EpisodeHook] = list(before_episode)
         torch.manual_seed(run.seed)
@@ -311,9 +320,11 @@ class Trainer:
         self.out.mkdir(parents=True, exist_ok=True)
         config = {
             "run": dataclasses.asdict(self.run),
-            "agent": to_dict(self.agent_cfg),
+            "agent": to_dict(self.saved_cfg),
             "meta": dataclasses.asdict(self.meta()),
         }
+        if self.saved_cfg is not self.agent_cfg:
+            config["ran_with"] = to_dict(self.agent_cfg)
         (self.out / "config.json").write_text(json.dumps(config, indent=2, default=str) + "\n")
 
     def checkpoint(self, final: bool = False) -> Path | None:
@@ -321,9 +332,9 @@ class Trainer:
             return None
         dtype = self.run.checkpoint_dtype
         if final:
-            return save_checkpoint(self.out / FINAL_CHECKPOINT, self.learner, self.meta(), dtype)
+            return save_checkpoint(self.out / FINAL_CHECKPOINT, self.learner, self.meta(), dtype, self.saved_cfg)
         name = f"episode_{self.episodes_done:05d}.pt"
-        return save_checkpoint(self.out / CHECKPOINT_DIR / name, self.learner, self.meta(), dtype)
+        return save_checkpoint(self.out / CHECKPOINT_DIR / name, self.learner, self.meta(), dtype, self.saved_cfg)
 
     def _episode_cap(self) -> int | None:
         """Steps the next episode may take: the simulator's limit, cut at what is left of ``train_steps``."""
@@ -394,6 +405,8 @@ class Trainer:
             bar.close()
             if metrics_file is not None:
                 metrics_file.close()
+        if self.run.world_model_only and len(self.learner.buffer) >= 10:
+            self.learner.fit_world_model()  # on everything collected: the refit's only product
         if self.episodes_done > 0 and self.run.checkpoint_every:
             self.checkpoint()
         self.checkpoint(final=True)

@@ -66,6 +66,9 @@ class TrainSpec:
     """route-shift: the expert run of phase C2 (default: the C1 expert)."""
     adversarial_ratio: float | None = None
     """highway: share of adversarial training episodes (default 0.5)."""
+    world_model_only: bool = False
+    """Refit only the world model of --init: the policy drives (stochastic, no takeover) and nothing else learns;
+    the checkpoint keeps the policy's own config, --set world_model_config.* included (e.g. violation_steps)."""
 
     def replace(self, **changes: Any) -> TrainSpec:
         return dataclasses.replace(self, **changes)

@@ -102,14 +102,16 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     from core.train import Trainer
 
     base = from_dict(load_checkpoint(spec.init)["agent_config"]) if spec.init else None
-    agent_cfg = apply_overrides(preset(spec.method, base=base), list(spec.overrides))
+    # a world-model-only refit keeps the policy's own method (and so its schedule); only the model is refitted
+    method = base.method if spec.world_model_only and base is not None else spec.method
+    agent_cfg = apply_overrides(preset(method, base=base), list(spec.overrides))
     setup = prepare_training(
         spec.sim,
         scenario=spec.scenario,
         protocol=spec.protocol,
         episodes=spec.episodes,
         seed=spec.seed,
-        method=spec.method,
+        method=method,
         expert=spec.expert,
         expert_c2=spec.expert_c2,
         c1=spec.c1,
@@ -135,6 +137,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         expert=spec.expert,
         train_steps=spec.train_steps,
         datasets=list(spec.dataset),
+        world_model_only=spec.world_model_only,
     )
     trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)
     try:

@@ -9,6 +9,7 @@ preset of each method; ``apply_overrides`` edits a config from ``key=value`` str
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import types
 import typing
@@ -341,6 +342,20 @@ def for_method(method: str, base: AgentConfig | None = None, **overrides: Any) -
         set_field(cfg, key, value)
     validate(cfg)
     return cfg
+
+
+def world_model_refit(cfg: AgentConfig) -> AgentConfig:
+    """The schedule of a world-model-only refit of a trained policy (``sage train --init RUN --world-model-only``):
+    the policy drives as it would learn (stochastic actions), no expert takes over, and only the world model is
+    fitted on what it meets; actor, critics and temperature take no step. The saved checkpoint keeps ``cfg``
+    (the policy's own schedule), so that adapting from the refitted policy still learns."""
+    refit = copy.deepcopy(cfg)
+    refit.world_model = True
+    refit.updates_per_step = 0.0
+    refit.pretrain_bc_steps = refit.pretrain_critic_steps = refit.diffusion.offline_steps = 0
+    refit.takeover = refit.virtual_rollouts = False
+    validate(refit)
+    return refit
 
 
 def validate(cfg: AgentConfig) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -114,6 +116,36 @@ def test_warm_start_takes_the_parts_that_fit(sage_run) -> None:
     assert {"actor", "critic", "critic_target"} <= set(trainer.init_parts) and trainer.learner.warm
     trainer = Trainer(run, small("hg-dagger"), point_env, None, progress=False)
     assert {"actor", "world_model"} <= set(trainer.init_parts)
+
+
+def test_a_world_model_only_refit_changes_the_model_and_nothing_else(sage_run, tmp_path: Path) -> None:
+    """``--world-model-only``: the policy drives and its world model is refitted with the new label horizon; the
+    actor and critics stay as they were, and the checkpoint keeps the policy's own schedule, so adapting from it
+    still learns."""
+    init_out, _ = sage_run
+    before = load_agent(init_out)
+    cfg = copy.deepcopy(before.config)
+    cfg.world_model_config.violation_steps = 7
+    run = RunConfig(sim="point", scenarios=["dynamic"], episodes=3, seed=5, init=str(init_out), checkpoint_every=0,
+                    world_model_only=True)  # fmt: skip
+    result = train(run, cfg, point_env, tmp_path / "refit", progress=False)
+    assert result.learner.updates == 0
+    after = load_agent(tmp_path / "refit")
+    for name, value in before.learner.actor.state_dict().items():
+        assert torch.equal(value, after.learner.actor.state_dict()[name]), name
+    changed = [
+        name
+        for name, value in before.world_model.state_dict().items()
+        if value.is_floating_point() and not torch.equal(value, after.world_model.state_dict()[name])
+    ]
+    assert changed, "the world model was not refitted"
+    assert after.config.updates_per_step == before.config.updates_per_step > 0
+    assert after.config.takeover and after.config.method == "sage"
+    assert after.config.world_model_config.violation_steps == 7
+    ran = json.loads((tmp_path / "refit" / "config.json").read_text())["ran_with"]
+    assert ran["updates_per_step"] == 0 and ran["takeover"] is False
+    with pytest.raises(ValueError, match="--init"):
+        Trainer(dataclasses.replace(run, init=None), cfg, point_env, tmp_path / "no-init", progress=False)
 
 
 def test_bad_paths_and_runs_without_a_world_model_fail_clearly(tmp_path: Path) -> None:
