@@ -156,10 +156,12 @@ def register(app: typer.Typer) -> None:
 
         On highway: the first --episodes scenarios of each --set, in each --mode
         (adversaries aimed at the evaluated policy), pooled over --seeds, with the
-        paper's columns: success and collision rates, speed and acceleration."""
+        paper's columns: success and collision rates, speed and acceleration; with --scenario, --gate or
+        --expert, the per-scenario table instead (on highway: test, test-adversarial, train, ...)."""
         seed_list = _ints(seeds) if seeds else [seed]
         run_sim = _run_sim([run], sim)
-        table = _protocol_table(run_sim, [run], episodes, split, mode, seed_list, save, quiet)
+        generic = scenario is not None or gate or expert  # the protocol table runs the policy alone, on its sets
+        table = None if generic else _protocol_table(run_sim, [run], episodes, split, mode, seed_list, save, quiet)
         if table is not None:
             typer.echo(table)
             return

@@ -84,6 +84,13 @@ def test_highway_eval_prints_the_paper_columns_for_both_modes(highway_run: Path,
     assert "mean_gap" in result.output and "min_ttc" in result.output  # the interaction table follows
 
 
+def test_highway_eval_of_named_scenarios_gives_the_per_scenario_table(highway_run: Path) -> None:
+    """--scenario (or --gate / --expert) is not silently dropped for the paper's table: it runs those scenarios."""
+    result = sage("eval", str(highway_run), "--scenario", "test-adversarial", "--episodes", "1", "--quiet")
+    assert result.exit_code == 0, result.output
+    assert "(highway test-adversarial)" in result.output and "S.R.(%)" not in result.output
+
+
 def test_highway_eval_refuses_a_bad_set_or_another_simulator(highway_run: Path) -> None:
     result = sage("eval", str(highway_run), "--split", "validation", "--episodes", "1", "--quiet")
     assert result.exit_code == 2 and "choose from train, test" in result.output

@@ -209,3 +209,36 @@ def test_the_pedestrian_default_policy_is_served_live_with_its_gate() -> None:
     steps = [m for m in sent if m["type"] == "step"]
     assert len(steps) == 5 and all(m["fear"] is not None and len(m["horizon"]["cost"]) == 5 for m in steps)
     assert all(isinstance(m["action"][0], float) and m["action"][0] in range(9) for m in steps)
+
+
+@pytest.mark.parametrize(("sim", "scenario"), [("highway", "test-adversarial"), ("sumo", "c2")])
+def test_the_highway_and_sumo_defaults_are_served_live_with_fear(sim: str, scenario: str) -> None:
+    """policies/highway-default and policies/sumo-default carry world models: the dashboard opens them with the
+    gate, so fear, the threshold and the imagined horizon stream on every simulator out of the box."""
+    from pathlib import Path
+
+    from app.policies import default_policy, load_policy
+    from app.server import make_env
+
+    policy = default_policy([Path(__file__).resolve().parents[2] / "policies"], sim)
+    assert policy.endswith(f"{sim}-default")
+    sent: list[dict[str, Any]] = []
+    loop = LiveLoop(
+        LiveConfig(sim=sim, scenario=scenario, policy=policy, expert_mode="scripted"),
+        env_factory=make_env,
+        policy_loader=load_policy,
+        console=OperatorConsole(),
+        publish=lambda text: sent.append(json.loads(text)),
+        start_paused=True,
+    )
+    loop.start()
+    try:
+        for _ in range(5):
+            loop.submit(c.StepOnce()).result(30)
+        assert loop.state()["has_gate"]
+    finally:
+        loop.stop()
+    steps = [m for m in sent if m["type"] == "step"]
+    assert len(steps) == 5
+    assert all(0.0 <= m["fear"] <= 1.0 and 0.0 < m["threshold"] < 1.0 for m in steps)
+    assert all(m["curiosity"] is not None and len(m["horizon"]["cost"]) == 5 for m in steps)
