@@ -2,7 +2,8 @@
 model, on the scenarios where its simulator's danger lives; writes ``docs/calibration/README.md`` (the table the
 README quotes) and each run's figures, with the commit and the command that produced them.
 
-    .venv/bin/python bench/bench_calibration.py [--episodes 20] [--curve-episodes 10] [--gate-episodes 20]
+    .venv/bin/python bench/bench_calibration.py [--episodes 20] [--curve-episodes 10] [--gate-episodes 20] \
+        [--readme README.md]
 
 Targets (issue #11): fear AUROC >= 0.85 for "violation within 1 s"; the operating curve above random and
 curiosity-only gating at every takeover rate. Not a unit test: it takes minutes.
@@ -19,6 +20,7 @@ import torch
 
 import sims
 from studies.calibrate import calibrate_run, gate_with_expert, write_figures
+from studies.readme import include
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = [
@@ -37,10 +39,13 @@ def main() -> None:
     parser.add_argument("--curve-episodes", type=int, default=10)
     parser.add_argument("--gate-episodes", type=int, default=20, help="episodes per scenario of the gate table")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "calibration")
+    parser.add_argument("--readme", type=Path, help="also copy the result into this README's calibration section")
     args = parser.parse_args()
     torch.set_num_threads(1)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
-    rows, notes = [], []
+    rows: list[str] = []
+    notes: list[str] = []
+    curves: list[str] = []
     for policy, sim, scenario in CASES:
         folder = ROOT / "policies" / policy
         if not (folder / "checkpoint.pt").is_file():
@@ -57,7 +62,10 @@ def main() -> None:
             episodes=args.episodes,
             curve_episodes=args.curve_episodes,
         )
-        write_figures(report, args.out / f"{policy}-{scenario}")
+        figures = write_figures(report, args.out / f"{policy}-{scenario}")
+        curves += [
+            f"![{policy} on {sim} {scenario}]({f.parent.name}/{f.name})" for f in figures if f.stem == "operating_curve"
+        ]
         s = report.scores
         curve = report.curve.get("fear (SAGE)", [])
         best = min(curve, key=lambda p: (p["violation_rate"], p["takeover_rate"])) if curve else None
@@ -86,11 +94,19 @@ def main() -> None:
         *notes,
         "",
         "Figures: `<policy>-<scenario>/reliability.png` and `operating_curve.png`; numbers: `report.json`.",
+        "",
+        "Operating curves (episodes with a violation against the takeover rate, the gate's τ scaled; random and "
+        "curiosity-only gating at equal takeover rates):",
+        "",
+        " ".join(curves),
     ]
     text += gate_table(args.gate_episodes)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     print(f"wrote {args.out / 'README.md'}")
+    if args.readme is not None:
+        include(args.readme, "calibration", args.out / "README.md", "## Calibration of fear")
+        print(f"README section 'calibration' written into {args.readme}")
 
 
 def gate_table(episodes: int) -> list[str]:

@@ -34,14 +34,35 @@ def section(name: str, results: Path, readme: Path) -> str:
 
 def update_readme(readme: Path, name: str, results: Path) -> None:
     """Replace (or add) study ``name``'s section of ``readme`` with its results folder's table."""
+    replace_block(readme, f"results:{name}", f"### {name}\n\n{section(name, results, readme)}", HEADING)
+
+
+def include(readme: Path, key: str, generated: Path, heading: str) -> None:
+    """Copy the generated markdown file ``generated`` into ``readme``'s ``key`` block, its title dropped to a
+    sub-heading and its relative links and images made relative to the README."""
+    folder = generated.resolve().parent
+    try:
+        prefix = folder.relative_to(readme.resolve().parent).as_posix() + "/"
+    except ValueError:
+        prefix = folder.as_posix() + "/"
+    body = generated.read_text().strip()
+    body = "\n".join("###" + line[1:] if line.startswith("# ") else line for line in body.splitlines())
+    body = re.sub(r"\]\((?![a-z]+:|/|#)([^)]+)\)", lambda m: f"]({prefix}{m.group(1)})", body)
+    body = re.sub(r"`(<policy>-<scenario>/)", lambda m: f"`{prefix}{m.group(1)}", body)
+    replace_block(readme, key, body, heading)
+
+
+def replace_block(readme: Path, key: str, body: str, heading: str) -> None:
+    """Put ``body`` between ``<!-- key -->`` and ``<!-- /key -->`` in ``readme`` (appended under ``heading``
+    when the markers are not there yet)."""
     text = readme.read_text() if readme.is_file() else ""
-    start, end = f"<!-- results:{name} -->", f"<!-- /results:{name} -->"
-    block = f"{start}\n### {name}\n\n{section(name, results, readme)}\n{end}"
+    start, end = f"<!-- {key} -->", f"<!-- /{key} -->"
+    block = f"{start}\n{body}\n{end}"
     pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.DOTALL)
     if pattern.search(text):
         text = pattern.sub(lambda _: block, text)
     else:
-        if HEADING not in text:
-            text = text.rstrip("\n") + f"\n\n{HEADING}\n"
+        if heading not in text:
+            text = text.rstrip("\n") + f"\n\n{heading}\n"
         text = text.rstrip("\n") + f"\n\n{block}\n"
     readme.write_text(text)

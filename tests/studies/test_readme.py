@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from studies.readme import HEADING, update_readme
+from studies.readme import HEADING, include, update_readme
 
 
 def test_a_study_section_is_added_once_and_replaced_in_place(tmp_path: Path) -> None:
@@ -26,3 +26,16 @@ def test_a_study_section_is_added_once_and_replaced_in_place(tmp_path: Path) -> 
     assert second.startswith("# Project\n\nintro\n")
     with pytest.raises(FileNotFoundError, match="sage study other"):
         update_readme(readme, "other", tmp_path / "nothing")
+
+
+def test_a_generated_page_is_included_with_its_links_made_relative_to_the_readme(tmp_path: Path) -> None:
+    readme = tmp_path / "README.md"
+    readme.write_text("# Project\n\n<!-- calibration -->\nold\n<!-- /calibration -->\n\n## Speed\n")
+    page = tmp_path / "docs" / "calibration" / "README.md"
+    page.parent.mkdir(parents=True)
+    page.write_text("# Calibration, commit abc\n\n![curve](p-3/operating_curve.png) [site](https://x.org/a)\n")
+    include(readme, "calibration", page, "## Calibration")
+    text = readme.read_text()
+    assert "old" not in text and "### Calibration, commit abc" in text
+    assert "![curve](docs/calibration/p-3/operating_curve.png)" in text and "(https://x.org/a)" in text
+    assert text.endswith("<!-- /calibration -->\n\n## Speed\n") and "## Calibration\n" not in text
