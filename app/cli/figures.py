@@ -5,6 +5,11 @@
 ``route-shift`` overlays the success, collision and red-light rates of several route-shift runs (one line per
 run, the switch marked) and draws the SAGE signals (takeover frequency, mean fear, mean curiosity) of every
 run that recorded fear. Figures are PNG files; the drawing is :mod:`studies.route_shift_figures`.
+
+    sage figure learning-curves runs/highway-40k --methods sac,sage --out runs/highway-40k
+
+``learning-curves`` draws training metrics over environment steps from run folders named ``<method>-s<seed>``
+(mean over seeds, 95% band), as every study does for its own trials (:mod:`studies.learning_curves`).
 """
 
 from __future__ import annotations
@@ -52,4 +57,29 @@ def register(app: typer.Typer) -> None:
             _fail(str(exc))
         typer.echo(phase_table(studies))
         for path in write_figures(studies, out, window, prefix):
+            typer.echo(f"figure: {path}")
+
+    @group.command("learning-curves")
+    def learning_curves(
+        runs_dir: Annotated[Path, typer.Argument(help="Folder of run folders named <method>-s<seed>.")],
+        methods: Annotated[str, typer.Option(help="Comma list of methods (the run folders' prefixes).")],
+        metrics: Annotated[str, typer.Option(help="Comma list of per-episode training metrics.")] = "success,collision",
+        out: Annotated[Path, typer.Option(help="Folder the PNG file goes to.")] = Path("figures"),
+        name: Annotated[str, typer.Option(help="File name.")] = "learning_curves.png",
+    ) -> None:
+        """Training metrics over environment steps, mean over seeds with a 95% band (what the studies draw)."""
+        from studies.learning_curves import write_learning_curves
+
+        names = [m.strip() for m in methods.split(",") if m.strip()]
+        keys = [k.strip() for k in metrics.split(",") if k.strip()]
+        if not names or not keys:
+            _fail("give at least one method and one metric")
+        missing = [m for m in names if not any(runs_dir.glob(f"{m}-s*"))]
+        if missing:
+            _fail(f"{runs_dir} holds no run folder <method>-s<seed> for {', '.join(missing)}")
+        out.mkdir(parents=True, exist_ok=True)
+        paths = write_learning_curves(runs_dir, out, names, keys, name)
+        if not paths:
+            _fail(f"no training episodes with {', '.join(keys)} in those runs")
+        for path in paths:
             typer.echo(f"figure: {path}")

@@ -200,3 +200,19 @@ def test_study_settings_from_the_command_line_take_the_settings_own_types() -> N
 
     with pytest.raises(ValueError, match="is a number"):
         setting_value(20, "many", "min_eval_episodes")
+
+
+def test_learning_curves_are_drawn_from_run_folders(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    for method, seed, rate in (("sac", 0, 0.2), ("sac", 1, 0.4), ("sage", 0, 0.8)):
+        folder = runs / f"{method}-s{seed}"
+        folder.mkdir(parents=True)
+        rows = [
+            {"phase": "train", "steps_done": 100 * (i + 1), "success": rate, "collision": 1 - rate} for i in range(5)
+        ]
+        (folder / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    result = sage("figure", "learning-curves", str(runs), "--methods", "sac,sage", "--out", str(tmp_path / "fig"))
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "fig" / "learning_curves.png").stat().st_size > 10_000
+    result = sage("figure", "learning-curves", str(runs), "--methods", "td3", "--out", str(tmp_path / "fig"))
+    assert result.exit_code == 2 and "td3" in result.output
