@@ -179,42 +179,9 @@ def test_the_imagined_horizon_is_streamed_with_each_step_and_replayed_from_the_s
     assert replay.series["horizon"] == [m["horizon"] for m in steps]
 
 
-def test_the_pedestrian_default_policy_is_served_live_with_its_gate() -> None:
-    """The dashboard's picker finds policies/pedestrian-default; it drives the discrete-action simulator live
-    with a working gate (fear and the imagined horizon on one-hot actions)."""
-    from pathlib import Path
-
-    from app.policies import default_policy, load_policy
-    from app.server import make_env
-
-    root = Path(__file__).resolve().parents[2]
-    policy = default_policy([root / "policies"], "pedestrian")
-    assert policy.endswith("pedestrian-default")
-    sent: list[dict[str, Any]] = []
-    loop = LiveLoop(
-        LiveConfig(sim="pedestrian", scenario="crossing", policy=policy, expert_mode="scripted"),
-        env_factory=make_env,
-        policy_loader=load_policy,
-        console=OperatorConsole(),
-        publish=lambda text: sent.append(json.loads(text)),
-        start_paused=True,
-    )
-    loop.start()
-    try:
-        for _ in range(5):
-            loop.submit(c.StepOnce()).result(10)
-        assert loop.state()["has_gate"]
-    finally:
-        loop.stop()
-    steps = [m for m in sent if m["type"] == "step"]
-    assert len(steps) == 5 and all(m["fear"] is not None and len(m["horizon"]["cost"]) == 5 for m in steps)
-    assert all(isinstance(m["action"][0], float) and m["action"][0] in range(9) for m in steps)
-
-
-@pytest.mark.parametrize(("sim", "scenario"), [("highway", "test-adversarial"), ("sumo", "c2")])
-def test_the_highway_and_sumo_defaults_are_served_live_with_fear(sim: str, scenario: str) -> None:
-    """policies/highway-default and policies/sumo-default carry world models: the dashboard opens them with the
-    gate, so fear, the threshold and the imagined horizon stream on every simulator out of the box."""
+def _default_policy_live(sim: str, scenario: str, steps: int = 5, timeout: float = 30) -> list[dict[str, Any]]:
+    """Open ``sim``'s committed default the way the dashboard's picker does, step it ``steps`` times live with the
+    scripted expert, check that it has its gate, and return the streamed step messages."""
     from pathlib import Path
 
     from app.policies import default_policy, load_policy
@@ -233,12 +200,27 @@ def test_the_highway_and_sumo_defaults_are_served_live_with_fear(sim: str, scena
     )
     loop.start()
     try:
-        for _ in range(5):
-            loop.submit(c.StepOnce()).result(30)
+        for _ in range(steps):
+            loop.submit(c.StepOnce()).result(timeout)
         assert loop.state()["has_gate"]
     finally:
         loop.stop()
-    steps = [m for m in sent if m["type"] == "step"]
+    return [m for m in sent if m["type"] == "step"]
+
+
+def test_the_pedestrian_default_policy_is_served_live_with_its_gate() -> None:
+    """The dashboard's picker finds policies/pedestrian-default; it drives the discrete-action simulator live
+    with a working gate (fear and the imagined horizon on one-hot actions)."""
+    steps = _default_policy_live("pedestrian", "crossing", timeout=10)
+    assert len(steps) == 5 and all(m["fear"] is not None and len(m["horizon"]["cost"]) == 5 for m in steps)
+    assert all(isinstance(m["action"][0], float) and m["action"][0] in range(9) for m in steps)
+
+
+@pytest.mark.parametrize(("sim", "scenario"), [("highway", "test-adversarial"), ("sumo", "c2")])
+def test_the_highway_and_sumo_defaults_are_served_live_with_fear(sim: str, scenario: str) -> None:
+    """policies/highway-default and policies/sumo-default carry world models: the dashboard opens them with the
+    gate, so fear, the threshold and the imagined horizon stream on every simulator out of the box."""
+    steps = _default_policy_live(sim, scenario)
     assert len(steps) == 5
     assert all(0.0 <= m["fear"] <= 1.0 and 0.0 < m["threshold"] < 1.0 for m in steps)
     assert all(m["curiosity"] is not None and len(m["horizon"]["cost"]) == 5 for m in steps)
