@@ -14,6 +14,7 @@ other key columns (``keys`` besides ``method``).
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -168,12 +169,15 @@ def run_study(
         max_concurrent=max_concurrent,
     )
     wall_s = time.perf_counter() - start
+    runs = _log_wall_time(out / "sweep" / "wall_times.json", wall_s, max_concurrent)
+    total_s = sum(float(r["wall_s"]) for r in runs)
     table_rows = [r for row in rows for r in _unpack(row, study.row_keys, study.metrics)]
     trial_s = sum(float(row.get("trial_seconds", 0.0)) for row in rows)
     changed = [f"{k}={v}" for k, v in (overrides or {}).items()]
     timing = (
         f"The trials ran {trial_s / 60:.1f} min in total ({len(rows)} trials, at most "
-        f"{max_concurrent or 'one per core'} at once); the wall time above is this command's, which resumes "
+        f"{max_concurrent or 'one per core'} at once). The wall time above is the sum over the {len(runs)} "
+        f"invocation(s) of this command on this results folder (this one: {wall_s / 60:.1f} min); a rerun resumes "
         "finished trials from the sweep folder instead of running them again."
     )
     table = write_results(
@@ -183,7 +187,7 @@ def run_study(
         keys=study.keys,
         metrics=study.metrics,
         budget=spent,
-        wall_s=wall_s,
+        wall_s=total_s,
         plot=study.plot,
         notes=(
             *study.notes,
@@ -194,5 +198,24 @@ def run_study(
     if study.figures is not None:
         for path in study.figures(out, settings):
             log(f"figure: {path}")
-    log(f"study {name}: {len(rows)} trials, wall time {wall_s / 60:.1f} min; table {table}")
+    log(
+        f"study {name}: {len(rows)} trials, wall time {wall_s / 60:.1f} min "
+        f"(all runs on this folder: {total_s / 60:.1f} min); table {table}"
+    )
     return table
+
+
+def _log_wall_time(path: Path, wall_s: float, max_concurrent: int | None) -> list[dict[str, Any]]:
+    """Append this invocation's wall time to the sweep folder's log and return every entry: a study that was
+    interrupted and resumed reports the wall time it really took, not only its last (resuming) run's."""
+    runs: list[dict[str, Any]] = []
+    if path.exists():
+        try:
+            loaded = json.loads(path.read_text())
+            runs = [r for r in loaded if isinstance(r, dict) and isinstance(r.get("wall_s"), (int, float))]
+        except (OSError, ValueError):
+            runs = []  # an unreadable log loses only earlier timings, never the results
+    runs.append({"wall_s": wall_s, "max_concurrent": max_concurrent, "finished": time.strftime("%Y-%m-%dT%H:%M:%S")})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(runs, indent=1))
+    return runs

@@ -54,9 +54,19 @@ def test_study_runs_every_seed_and_writes_rows_per_split(toy_study: StudyDef, tm
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)
+        first = table.read_text()
+        table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)  # resumes: nothing left to run
     finally:
         ray.shutdown()
     text = table.read_text()
+    # the table's wall time is the sum over both invocations, and says so
+    assert "over the 1 invocation(s)" in first and "over the 2 invocation(s)" in text
+    import json
+
+    runs = json.loads((tmp_path / "sweep" / "wall_times.json").read_text())
+    assert len(runs) == 2 and all(r["wall_s"] > 0 for r in runs)
+    total_min = sum(r["wall_s"] for r in runs) / 60
+    assert f"wall time {total_min:.1f} min" in text
     # smoke budget: two seeds (0, 1); split a: 0.0, 0.1 -> mean 0.05; split b: 1, 2 -> mean 1.5
     assert "| a | sage | 2 | 0.050 ± 0.635 | — |" in text
     assert "| b | sage | 2 | 1.500 ± 6.353 | — |" in text
