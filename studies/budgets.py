@@ -27,12 +27,15 @@ class Budget:
     """Evaluation episodes per method, seed and evaluation split."""
     seeds: int
     """Training seeds per method (the paper's studies use five)."""
+    expert_steps: int = 0
+    """Environment steps of an expert trained by reinforcement learning (``--set expert=sac``, once per results
+    folder and route; :mod:`studies.experts`), demonstrations included."""
 
 
 BUDGETS: dict[str, Budget] = {
-    "smoke": Budget("smoke", train_steps=200, eval_episodes=2, seeds=2),
-    "small": Budget("small", train_steps=6_000, eval_episodes=10, seeds=5),
-    "full": Budget("full", train_steps=200_000, eval_episodes=100, seeds=5),
+    "smoke": Budget("smoke", train_steps=200, eval_episodes=2, seeds=2, expert_steps=300),
+    "small": Budget("small", train_steps=6_000, eval_episodes=10, seeds=5, expert_steps=20_000),
+    "full": Budget("full", train_steps=200_000, eval_episodes=100, seeds=5, expert_steps=1_000_000),
 }
 
 

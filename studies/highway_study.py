@@ -12,10 +12,12 @@ Protocol, the same for every method on every training seed:
   for every method.
 - **Methods**: ``sac``, ``td3``, ``fni-rl`` (fear-regularised, no expert) and ``sage`` (the gate hands control to the
   expert; value-weighted imitation), the paper's four rows.
-- **Expert** (setting ``expert``): ``scripted``, the simulator's rule-based driver (the stated stand-in);
-  ``hg-dagger``, a policy trained by HG-DAgger from the scripted driver's labels, trained once per results folder
-  and cached in ``<results>/experts/hg-dagger``; or the path of any trained run (a converged RL policy, as the
-  paper's, trained with ``sage train`` at the scale it needs). The expert also drives the demonstrations.
+- **Expert** (setting ``expert``, :mod:`studies.experts`): ``scripted``, the simulator's rule-based driver (the
+  stated stand-in); ``hg-dagger``, a policy trained by HG-DAgger from the scripted driver's labels; an RL learner's
+  name (``sac``, ...: the paper's kind, trained by reinforcement learning for the budget's ``expert_steps``), each
+  trained once per results folder and cached in ``<results>/experts/<expert>``; or the path of any trained run (a
+  converged RL policy trained with ``sage train`` at the scale it needs). The expert also drives the
+  demonstrations; its own success and collision rates alone are printed under the table.
 - **Evaluation**: the policy alone, deterministic, on the first ``eval_episodes`` scenarios of the training and the
   held-out test split, each in the normal (logged) and adversarial (opponents aimed at this policy) condition.
 
@@ -79,30 +81,26 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
 
 
 def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
-    """The expert of takeovers and demonstrations: scripted, HG-DAgger (trained once and cached) or a run."""
-    choice = str(settings.get("expert", "scripted"))
-    if choice == "scripted":
-        return {"expert_run": None}
-    if choice != "hg-dagger":
-        if not Path(choice).exists():
-            raise ValueError(f"expert={choice}: give scripted, hg-dagger or the path of a trained highway run")
-        return {"expert_run": str(Path(choice).resolve())}
-    from studies.spec import TrainSpec
-    from studies.training import train_once
+    """The expert of takeovers and demonstrations (:mod:`studies.experts`): scripted, HG-DAgger or an RL learner
+    (trained once and cached), or a run; measured alone on both splits for the note under the table."""
+    from studies.experts import expert_quality, expert_run, quality_cache, quality_note
+    from studies.registry import PREPARED_NOTES
 
-    folder = train_once(
-        TrainSpec(
-            sim="highway",
-            scenario="train",
-            method="hg-dagger",
-            episodes=EXPERT_EPISODES,
-            demo_episodes=EXPERT_DEMOS,
-            seed=0,
-            checkpoint_every=0,
-            out=str((out / "experts" / "hg-dagger").resolve()),
-        )
+    choice = str(settings.get("expert", "scripted"))
+    run = expert_run(
+        choice,
+        out,
+        "highway",
+        "train",
+        demo_episodes=EXPERT_DEMOS,
+        expert_steps=int(settings.get("expert_steps", 0)),
+        imitation_episodes=EXPERT_EPISODES,
     )
-    return {"expert_run": str(folder)}
+    episodes = int(settings["eval_episodes"])
+    splits = ["train", "test"]
+    quality = expert_quality(run, "highway", splits, episodes, quality_cache(out, choice, None, splits))
+    label = "the scripted driver" if run is None else choice
+    return {"expert_run": run, PREPARED_NOTES: [quality_note(label, quality, episodes)]}
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
@@ -124,8 +122,9 @@ STUDY = StudyDef(
         "episodes). Every violation (collision, off road) ends the episode and is terminal for every method.",
         "sage gets the expert through the SAGE gate; sac, td3 and fni-rl have no expert after the demonstrations. "
         "The expert is the setting expert: scripted (default, the rule-based driver), hg-dagger (trained from it "
-        f"with {EXPERT_DEMOS} demonstrations and {EXPERT_EPISODES} episodes, cached in experts/hg-dagger) or a "
-        "trained run's path.",
+        f"with {EXPERT_DEMOS} demonstrations and {EXPERT_EPISODES} episodes), an RL learner's name, e.g. sac "
+        f"(the paper's kind: {EXPERT_DEMOS} demonstrations cloned, then the budget's expert_steps), cached in "
+        "experts/<expert>, or a trained run's path.",
         "Evaluation: the policy alone, deterministic, on the first eval_episodes scenarios of each split; "
         "adversarial opponents are aimed at the evaluated policy. learning_curves.png: training success and "
         "collision against environment steps.",

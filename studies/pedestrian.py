@@ -112,26 +112,28 @@ EXPERT_EPISODES = 60
 
 
 def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
-    """The study's expert: with ``expert = "hg-dagger"``, an HG-DAgger policy trained from the
-    scripted driver on the study's scenario, cached in ``out/experts/hg-dagger`` (reused when it is there)."""
-    if settings.get("expert", "scripted") != "hg-dagger":
-        return {"expert_run": None}
-    from studies.spec import TrainSpec
-    from studies.training import train_once
+    """The study's expert (:mod:`studies.experts`): the scripted driver, an HG-DAgger policy (``hg-dagger``, trained
+    as ``hg-dagger-discrete``) or a discrete RL learner (``d3qn``), trained on the study's scenario once and cached
+    in ``out/experts/<expert>``; measured alone on that scenario for the note under the table."""
+    from studies.experts import expert_quality, expert_run, quality_cache, quality_note
+    from studies.registry import PREPARED_NOTES
 
-    folder = train_once(
-        TrainSpec(
-            sim="pedestrian",
-            scenario=str(settings.get("scenario", TRAIN_SCENARIO)),
-            method="hg-dagger-discrete",
-            episodes=EXPERT_EPISODES,
-            demo_episodes=EXPERT_DEMOS,
-            seed=0,
-            checkpoint_every=0,
-            out=str((out / "experts" / "hg-dagger").resolve()),
-        )
+    choice = str(settings.get("expert", "scripted"))
+    scenario = str(settings.get("scenario", TRAIN_SCENARIO))
+    run = expert_run(
+        choice,
+        out,
+        "pedestrian",
+        scenario,
+        demo_episodes=EXPERT_DEMOS,
+        expert_steps=int(settings.get("expert_steps", 0)),
+        imitation_method="hg-dagger-discrete",
+        imitation_episodes=EXPERT_EPISODES,
     )
-    return {"expert_run": str(folder)}
+    episodes = int(settings["eval_episodes"])
+    quality = expert_quality(run, "pedestrian", [scenario], episodes, quality_cache(out, choice, None, [scenario]))
+    label = "the scripted cautious driver" if run is None else choice
+    return {"expert_run": run, PREPARED_NOTES: [quality_note(label, quality, episodes)]}
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:

@@ -55,11 +55,15 @@ class StudyDef:
     folders: ``<results folder>/runs``)."""
     prepare: Callable[[Path, dict[str, Any]], dict[str, Any]] | None = None
     """``prepare(results folder, settings) -> more settings``, run once before the sweep: e.g. train (or find in
-    its cache, ``<results folder>/experts``) the expert the trials use."""
+    its cache, ``<results folder>/experts``) the expert the trials use (:mod:`studies.experts`). Its
+    ``PREPARED_NOTES`` entry, a list of sentences (how good that expert is alone), goes under the table."""
     figures: Callable[[Path, dict[str, Any]], list[Path]] | None = None
     """``figures(results folder, settings) -> paths``: the study's own figures from its trials' run folders,
     drawn after the table."""
 
+
+PREPARED_NOTES = "table_notes"
+"""The key of a ``prepare`` result whose sentences go under the table rather than to the trials."""
 
 _STUDIES: dict[str, StudyDef] = {}
 
@@ -152,11 +156,15 @@ def run_study(
         **chosen,
         "train_steps": spent.train_steps,
         "eval_episodes": spent.eval_episodes,
+        "expert_steps": spent.expert_steps,
         "runs_dir": str((out / "runs").resolve()),
     }
     start = time.perf_counter()
+    prepared_notes: list[str] = []
     if study.prepare is not None:
-        settings.update(study.prepare(out, settings))
+        prepared = dict(study.prepare(out, settings))
+        prepared_notes = [str(n) for n in prepared.pop(PREPARED_NOTES, [])]
+        settings.update(prepared)
     rows = run_sweep(
         study.trial,
         study.methods,
@@ -192,6 +200,7 @@ def run_study(
         notes=(
             *study.notes,
             *([f"Settings changed from the study's defaults: {', '.join(changed)}."] if changed else []),
+            *prepared_notes,
             timing,
         ),
     )

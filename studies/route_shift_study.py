@@ -12,10 +12,13 @@ Protocol, the same for every method on every training seed (:class:`studies.rout
   there), for every method; a collision also ends the episode, a red-light run does not (the car drives on).
 - **Methods**: ``sac`` (the paper's standard RL), ``fni-rl`` (fear-regularised, no expert) and ``sage`` (the gate
   hands control to the expert), the paper's three.
-- **Experts** (setting ``expert``): ``sumo``, SUMO's own driver model on both routes (the stated stand-in; the
-  executed action is the label); or ``hg-dagger``, one policy per route trained by HG-DAgger from SUMO's driver
-  (route 1 supervises C1, route 2 supervises C2, as the paper's separately trained per-route policies), trained once
-  per results folder and cached in ``<results>/experts/route1`` and ``route2``.
+- **Experts** (setting ``expert``, :mod:`studies.experts`): ``sumo``, SUMO's own driver model on both routes (the
+  stated stand-in; the executed action is the label); ``hg-dagger``, one policy per route trained by HG-DAgger from
+  SUMO's driver; or an RL learner's name (``sac``, ``sage``, ...), one policy per route trained by reinforcement
+  learning for the budget's ``expert_steps``, as the paper's separately trained per-route policies. Route 1's
+  supervises C1, route 2's C2; learned experts are trained once per results folder and cached in
+  ``<results>/experts/<expert>/route1`` and ``route2``. Each expert's own success and collision rates on its route
+  are measured and printed under the table.
 
 The table reports, per method, mean ± 95% interval over seeds: success, collision and red-light rates of the last
 third of C1 (stable?), the first third of C2 (the drop) and the last third of C2 (recovered?), the expert's share of
@@ -96,31 +99,32 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
 
 
 def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
-    """The experts of phases C1 and C2: SUMO's driver, or one HG-DAgger policy per route (trained once, cached)."""
-    choice = str(settings.get("expert", "sumo"))
-    if choice == "sumo":
-        return {"expert_c1": None, "expert_c2": None}
-    if choice != "hg-dagger":
-        raise ValueError(f"expert={choice}: give sumo or hg-dagger")
-    from studies.spec import TrainSpec
-    from studies.training import train_once
+    """The experts of phases C1 and C2 (:mod:`studies.experts`): SUMO's driver, or one learned policy per route
+    (trained once, cached), each measured alone on its route for the note under the table."""
+    from studies.experts import expert_quality, expert_run, quality_cache, quality_note
+    from studies.registry import PREPARED_NOTES
 
+    choice = str(settings.get("expert", "sumo"))
+    episodes = int(settings["eval_episodes"])
     experts: dict[str, Any] = {}
+    notes: list[str] = []
     for route, scenario in (("route1", "c1"), ("route2", "c2")):
-        folder = train_once(
-            TrainSpec(
-                sim="sumo",
-                scenario=scenario,
-                method="hg-dagger",
-                episodes=EXPERT_EPISODES,
-                demo_episodes=EXPERT_DEMOS,
-                seed=0,
-                checkpoint_every=0,
-                out=str((out / "experts" / route).resolve()),
-            )
+        run = expert_run(
+            choice,
+            out,
+            "sumo",
+            scenario,
+            name=route,
+            demo_episodes=EXPERT_DEMOS,
+            expert_steps=int(settings.get("expert_steps", 0)),
+            imitation_episodes=EXPERT_EPISODES,
+            aliases=("sumo",),
         )
-        experts[f"expert_{scenario}"] = str(folder)
-    return experts
+        experts[f"expert_{scenario}"] = run
+        quality = expert_quality(run, "sumo", [scenario], episodes, quality_cache(out, choice, route, [scenario]))
+        label = "SUMO's driver" if run is None else f"{choice}, trained on {route}"
+        notes.append(quality_note(label, quality, episodes))
+    return {**experts, PREPARED_NOTES: notes}
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
@@ -141,9 +145,11 @@ STUDY = StudyDef(
         "interaction steps, C2 (route 2 with special vehicles) the rest. Every violation (collision, red light) is "
         "terminal for learning for every method; a collision ends the episode, a red-light run does not.",
         "sage gets the expert through the SAGE gate; sac and fni-rl have none after the demonstrations. The expert "
-        "is the setting expert: sumo (default: SUMO's driver model, its executed action the label) or hg-dagger "
-        f"(one policy per route, {EXPERT_DEMOS} demonstrations + {EXPERT_EPISODES} episodes each, cached in "
-        "experts/route1 and experts/route2; route 1's supervises C1, route 2's C2).",
+        "is the setting expert: sumo (default: SUMO's driver model, its executed action the label), hg-dagger "
+        f"(one policy per route, {EXPERT_DEMOS} demonstrations + {EXPERT_EPISODES} episodes each) or an RL learner's "
+        f"name, e.g. sac (one policy per route, {EXPERT_DEMOS} demonstrations cloned, then the budget's "
+        "expert_steps); learned experts are cached in experts/<expert>/route1 and route2, route 1's supervises C1, "
+        "route 2's C2.",
         "c1_late / c2_early / c2_late: the last third of C1, the first and the last third of C2. eval_*: the final "
         "policy alone, deterministic, eval_episodes per route. The paper shows this study as curves (Fig. "
         "sumo_1), so no paper numbers stand beside; learning_curves.png draws ours over environment steps.",

@@ -43,6 +43,8 @@ def test_the_smoke_study_writes_seeds_table_and_figures(tmp_path: Path) -> None:
                                                               ("sage-d3qn", "1")]  # fmt: skip
     text = table.read_text()
     assert "train_collision_rate" in text and "sage-d3qn" in text and "expert=hg-dagger" in text
+    # the expert itself, measured alone, is stated under the table
+    assert "The expert (hg-dagger) alone, deterministic, 2 episodes per scenario: crossing: " in text
     assert (tmp_path / "reward.png").stat().st_size > 0 and (tmp_path / "safety_over_training.png").is_file()
     # the paper's kind of expert: trained by HG-DAgger once, cached, and used by SAGE-D3QN's takeovers only
     expert = (tmp_path / "experts" / "hg-dagger").resolve()
