@@ -106,7 +106,9 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     from studies.learning_curves import write_learning_curves
 
-    return write_learning_curves(Path(settings["runs_dir"]), out, METHODS, ("success", "collision"))
+    return write_learning_curves(
+        Path(settings["runs_dir"]), out, settings.get("methods", METHODS), ("success", "collision")
+    )
 
 
 STUDY = StudyDef(

@@ -138,7 +138,9 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     """The paper's panels (b)-(d) from the run folders under ``out/runs``."""
-    return write_figures(Path(settings["runs_dir"]), out, METHODS, str(settings.get("scenario", TRAIN_SCENARIO)))
+    return write_figures(
+        Path(settings["runs_dir"]), out, settings.get("methods", METHODS), str(settings.get("scenario", TRAIN_SCENARIO))
+    )
 
 
 STUDY = StudyDef(

@@ -141,14 +141,26 @@ def run_study(
     max_concurrent: int | None = None,
     log: Callable[[str], None] = print,
     overrides: Mapping[str, Any] | None = None,
+    methods: Sequence[str] | None = None,
+    train_steps: int | None = None,
 ) -> Path:
     """Train and evaluate every method of study ``name`` on every seed, write ``out``; returns the table path.
 
-    The Ray experiment state lives in ``out/sweep``: rerunning the same command resumes it.
+    ``methods``: only these of the study's methods (default: all); ``train_steps``: this many environment steps per
+    method and seed instead of the budget's (e.g. a longer comparison of two methods); both are stated under the
+    table. The Ray experiment state lives in ``out/sweep``: rerunning the same command resumes it.
     """
     study = get_study(name)
     spent: Budget = budget(budget_name)
     seeds = list(range(spent.seeds))
+    chosen_methods = tuple(methods) if methods else study.methods
+    unknown = [m for m in chosen_methods if m not in study.methods]
+    if unknown:
+        raise ValueError(f"{name} has no method {', '.join(unknown)}; its methods: {', '.join(study.methods)}")
+    if train_steps is not None:
+        if train_steps <= 0:
+            raise ValueError(f"train_steps must be positive, not {train_steps}")
+        spent = dataclasses.replace(spent, name=f"{spent.name}, train_steps={train_steps}", train_steps=train_steps)
     # a study may evaluate more episodes than the budget's default (the UGV table's 20 trials per scenario)
     chosen = {**dict(study.settings), **dict(overrides or {})}
     spent = dataclasses.replace(spent, eval_episodes=max(spent.eval_episodes, int(chosen.get("min_eval_episodes", 0))))
@@ -158,6 +170,7 @@ def run_study(
         "eval_episodes": spent.eval_episodes,
         "expert_steps": spent.expert_steps,
         "runs_dir": str((out / "runs").resolve()),
+        "methods": list(chosen_methods),
     }
     start = time.perf_counter()
     prepared_notes: list[str] = []
@@ -167,7 +180,7 @@ def run_study(
         settings.update(prepared)
     rows = run_sweep(
         study.trial,
-        study.methods,
+        chosen_methods,
         seeds,
         out / "sweep",
         name,
@@ -200,6 +213,12 @@ def run_study(
         notes=(
             *study.notes,
             *([f"Settings changed from the study's defaults: {', '.join(changed)}."] if changed else []),
+            *(
+                [f"Methods run: {', '.join(chosen_methods)} (the study's: {', '.join(study.methods)})."]
+                if chosen_methods != study.methods
+                else []
+            ),
+            *([f"Training budget: {train_steps} environment steps (not the budget's)."] if train_steps else []),
             *prepared_notes,
             timing,
         ),

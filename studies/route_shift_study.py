@@ -130,7 +130,8 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     from studies.learning_curves import write_learning_curves
 
-    return write_learning_curves(Path(settings["runs_dir"]), out, METHODS, ("success", "collision", "red_light"))
+    methods = settings.get("methods", METHODS)
+    return write_learning_curves(Path(settings["runs_dir"]), out, methods, ("success", "collision", "red_light"))
 
 
 STUDY = StudyDef(

@@ -107,7 +107,7 @@ def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
     """Training success and collision against environment steps, for the methods that learn by interacting."""
     from studies.learning_curves import write_learning_curves
 
-    online = [m for m in METHODS if m not in PLANNERS and m not in OFFLINE]
+    online = [m for m in settings.get("methods", METHODS) if m not in PLANNERS and m not in OFFLINE]
     return write_learning_curves(Path(settings["runs_dir"]), out, online, ("success", "collision"))
 
 

@@ -45,6 +45,29 @@ def test_cli_refuses_unknown_study_and_budget(toy_study: StudyDef) -> None:
     assert result.exit_code == 2 and "smoke, small, full" in result.output
     result = CliRunner().invoke(app, ["study", "toy-split", "--set", "nope=1"])
     assert result.exit_code == 2 and "--set 'nope=1'" in result.output
+    result = CliRunner().invoke(app, ["study", "toy-split", "--methods", "sage,nope"])
+    assert result.exit_code == 2 and "toy-split has no nope; its: sage" in result.output
+
+
+def test_a_study_runs_a_subset_of_its_methods_for_a_given_step_budget(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    import ray
+
+    study = StudyDef("toy-two", ("sac", "sage"), split_trial, metrics=("collision_rate",), keys=("split", "method"))
+    register_study(study)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        with pytest.raises(ValueError, match="toy-two has no method td3"):
+            run_study("toy-two", "smoke", tmp_path, log=lambda _: None, methods=["td3"])
+        table = run_study("toy-two", "smoke", tmp_path, log=lambda _: None, methods=["sage"], train_steps=1234)
+    finally:
+        ray.shutdown()
+        unregister_study(study.name)
+    text = table.read_text()
+    assert "| a | sage |" in text and "| a | sac |" not in text
+    assert "1234 environment steps per method and seed" in text and "Methods run: sage (the study's: sac, sage)" in text
+    rows = (tmp_path / "seeds.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2 * 2  # header + 2 seeds x 2 splits, one method
 
 
 def test_study_runs_every_seed_and_writes_rows_per_split(toy_study: StudyDef, tmp_path: Path) -> None:

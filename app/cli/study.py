@@ -1,6 +1,7 @@
 """``sage study NAME``: train every method of a study over its seeds on Ray, evaluate, write the results folder.
 
     sage study NAME --budget small --out results/NAME [--address HOST:PORT] [--cpus 2] [--max-concurrent 2]
+    sage study highway --methods sac,sage --train-steps 40000 --out results/highway-40k   # a longer comparison
 
 The budget (``smoke|small|full``) is counted in environment steps, the same for every method. Rerunning the
 same command resumes the sweep in ``OUT/sweep``. Writes ``seeds.csv``, ``table.md`` (mean ± 95% CI with the
@@ -33,6 +34,13 @@ def register(app: typer.Typer) -> None:
             list[str] | None,
             typer.Option("--set", help="A study setting key=value (e.g. expert=hg-dagger for pedestrian); repeatable."),
         ] = None,
+        methods: Annotated[
+            str | None, typer.Option(help="Only these of the study's methods, comma-separated (default: all).")
+        ] = None,
+        train_steps: Annotated[
+            int | None,
+            typer.Option(min=1, help="Environment steps per method and seed instead of the budget's."),
+        ] = None,
     ) -> None:
         """Run a paper study: every method, five seeds, equal budgets; results with 95% intervals."""
         from studies.budgets import BUDGET_NAMES
@@ -40,6 +48,12 @@ def register(app: typer.Typer) -> None:
 
         try:
             known = get_study(name).settings
+            chosen = [m.strip() for m in (methods or "").split(",") if m.strip()] or None
+            unknown = [m for m in chosen or () if m not in get_study(name).methods]
+            if unknown:
+                raise ValueError(
+                    f"--methods: {name} has no {', '.join(unknown)}; its: {', '.join(get_study(name).methods)}"
+                )
             if budget not in BUDGET_NAMES:
                 raise ValueError(f"unknown budget {budget!r}; choose one of {', '.join(BUDGET_NAMES)}")
             overrides: dict[str, Any] = {}
@@ -53,7 +67,10 @@ def register(app: typer.Typer) -> None:
             typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
         results = out or Path("results") / f"{name}-{budget}"
-        run_study(name, budget, results, address, cpus, max_concurrent, overrides=overrides)
+        run_study(
+            name, budget, results, address, cpus, max_concurrent, overrides=overrides, methods=chosen,
+            train_steps=train_steps,
+        )  # fmt: skip
         if readme is not None:
             from studies.readme import update_readme
 
