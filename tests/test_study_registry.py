@@ -59,11 +59,19 @@ def test_a_study_runs_a_subset_of_its_methods_for_a_given_step_budget(tmp_path: 
     try:
         with pytest.raises(ValueError, match="toy-two has no method td3"):
             run_study("toy-two", "smoke", tmp_path, log=lambda _: None, methods=["td3"])
-        table = run_study("toy-two", "smoke", tmp_path, log=lambda _: None, methods=["sage"], train_steps=1234)
+        from app.cli import app
+
+        readme = tmp_path / "README.md"
+        args = ["study", "toy-two", "--budget", "smoke", "--methods", "sage", "--train-steps", "1234", "--out"]
+        args += [str(tmp_path), "--readme", str(readme), "--readme-section", "toy-long"]
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 0, result.output
     finally:
         ray.shutdown()
         unregister_study(study.name)
-    text = table.read_text()
+    text = (tmp_path / "table.md").read_text()
+    # the README gets its own section for this comparison, beside the study's
+    assert "<!-- results:toy-long -->\n### toy-long" in readme.read_text()
     assert "| a | sage |" in text and "| a | sac |" not in text
     assert "1234 environment steps per method and seed" in text and "Methods run: sage (the study's: sac, sage)" in text
     rows = (tmp_path / "seeds.csv").read_text().splitlines()

@@ -30,6 +30,10 @@ def register(app: typer.Typer) -> None:
         readme: Annotated[
             Path | None, typer.Option(help="Also write the table into this README's section for the study.")
         ] = None,
+        readme_section: Annotated[
+            str | None,
+            typer.Option(help="The README section's name (default: the study's; e.g. highway-40k beside highway)."),
+        ] = None,
         set_: Annotated[
             list[str] | None,
             typer.Option("--set", help="A study setting key=value (e.g. expert=hg-dagger for pedestrian); repeatable."),
@@ -74,8 +78,8 @@ def register(app: typer.Typer) -> None:
         if readme is not None:
             from studies.readme import update_readme
 
-            update_readme(readme, name, results)
-            typer.echo(f"README section '{name}' written from {results} into {readme}")
+            update_readme(readme, readme_section or name, results)
+            typer.echo(f"README section '{readme_section or name}' written from {results} into {readme}")
 
 
 def setting_value(default: Any, text: str, key: str) -> Any:
