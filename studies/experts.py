@@ -67,10 +67,12 @@ def expert_run(
 
     ``imitation_*``: the study's HG-DAgger recipe (``demo_episodes`` demonstrations, then that many episodes);
     any other learner gets ``demo_episodes`` demonstrations and ``expert_steps`` environment steps in all."""
+    from core.learners import learner_names
+
     check_choice(choice, aliases)
     if is_scripted(choice, aliases):
         return None
-    if choice != IMITATION and Path(choice).exists():
+    if choice != IMITATION and choice not in learner_names():  # a learner's name wins over a same-named folder
         return str(Path(choice).resolve())
     from studies.spec import TrainSpec
     from studies.training import train_once
@@ -135,7 +137,10 @@ def expert_quality(
 
 def quality_cache(out: Path, choice: str, name: str | None, scenarios: Sequence[str]) -> Path:
     """Where :func:`expert_quality` keeps its numbers for this expert (beside it)."""
-    folder = out / "experts" / (choice if not Path(choice).exists() else "run")
+    from core.learners import learner_names
+
+    is_run = choice not in (*SCRIPTED, IMITATION, *learner_names()) and Path(choice).exists()
+    folder = out / "experts" / ("run" if is_run else choice)
     if name is not None:
         folder = folder / name
     return folder / f"quality-{'-'.join(scenarios)}.json"
