@@ -116,8 +116,9 @@ def gate_table(episodes: int) -> list[str]:
         "",
         f"## Gate + scripted expert at the gate's own threshold ({episodes} episodes per scenario)",
         "",
-        "| policy | scenario | episodes with a violation | takeover rate | time |",
-        "|---|---|---|---|---|",
+        "| policy | scenario | episodes with a violation | takeover rate | of which the expert was driving "
+        "(for how long before) | time |",
+        "|---|---|---|---|---|---|",
     ]
     for policy in sorted({case[0] for case in CASES}):
         sim = next(case[1] for case in CASES if case[0] == policy)
@@ -129,9 +130,11 @@ def gate_table(episodes: int) -> list[str]:
             started = time.perf_counter()
             point = gate_with_expert(folder, lambda d=d, name=spec.name: d.make(name), episodes)
             bad = round(point["violation_rate"] * episodes)
+            under = int(point["violations_under_expert"])
+            held = point["expert_steps_before_violation"] * d.dt
             lines.append(
                 f"| {policy} | {sim} {spec.name} | {bad}/{episodes} | {point['takeover_rate']:.0%} "
-                f"| {time.perf_counter() - started:.0f} s |"
+                f"| {under}/{bad}{f' ({held:.1f} s)' if under else ''} | {time.perf_counter() - started:.0f} s |"
             )
             print(lines[-1], flush=True)
     return lines

@@ -284,29 +284,45 @@ def _run_gated(
     env = make_env()
     try:
         runner = Runner(env, agent.policy, gate, ScriptedExpert(), seed=EVAL_SEED, deterministic=True)
-        violated = [False]
+        # per episode: the first violation's (expert driving?, steps the expert had been driving up to it)
+        first: list[tuple[bool, int] | None] = [None]
+        streak = [0]
 
         def watch(r: StepRecord) -> None:
-            violated[0] = violated[0] or bool(r.violation)
+            streak[0] = streak[0] + 1 if r.takeover else 0
+            if r.violation and first[0] is None:
+                first[0] = (bool(r.takeover), streak[0])
 
         runner.step_listeners.append(watch)
-        bad = takeovers = steps = 0
+        takeovers = steps = 0
+        violations: list[tuple[bool, int]] = []
         for _ in range(episodes):
-            violated[0] = False
+            first[0], streak[0] = None, 0
             summary = runner.run_episode(max_steps=max_steps)
-            bad += int(violated[0])
+            if first[0] is not None:
+                violations.append(first[0])
             takeovers += summary.takeovers
             steps += summary.steps
     finally:
         env.close()
-    return {"takeover_rate": takeovers / max(steps, 1), "violation_rate": bad / episodes}
+    under_expert = [n for expert, n in violations if expert]
+    return {
+        "takeover_rate": takeovers / max(steps, 1),
+        "violation_rate": len(violations) / episodes,
+        "violations_under_expert": float(len(under_expert)),
+        "expert_steps_before_violation": float(np.mean(under_expert)) if under_expert else float("nan"),
+    }
 
 
 def gate_with_expert(
     run: str | Path, make_env: Callable[[], gym.Env[Any, Any]], episodes: int, max_steps: int | None = None
 ) -> dict[str, float]:
     """The product as it runs: the policy with its own SAGE gate (its τ, unscaled) and the scripted expert.
-    Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds."""
+    Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds, and where the
+    remaining violations come from: how many episodes' first violation happened with the expert driving
+    (``violations_under_expert``: the gate warned, the expert could not avoid it from there) and for how many steps
+    the expert had been driving by then (``expert_steps_before_violation``, their mean); the others happened with
+    the policy driving (the gate did not warn)."""
     agent = load_agent(run)
     return _run_gated(agent, make_env, agent.make_gate(), episodes, max_steps)
 

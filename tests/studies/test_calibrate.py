@@ -53,3 +53,20 @@ def test_calibrate_scores_fear_against_what_happened(deployed: Path, tmp_path: P
     assert [p.name for p in paths] == ["reliability.png", "operating_curve.png"]
     assert all(p.read_bytes()[:4] == b"\x89PNG" for p in paths) and (tmp_path / "report.json").is_file()
     assert "AUROC" in report.summary()
+
+
+def test_gate_with_expert_says_who_was_driving_at_each_violation(deployed: Path) -> None:  # noqa: F811
+    from core.agents import load_agent
+    from studies.calibrate import RandomGate, _run_gated
+
+    agent = load_agent(deployed)
+    make_env = functools.partial(envs.make, "dynamic")
+    never = _run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=0.0), 8, None)
+    assert never["takeover_rate"] == 0.0 and never["violation_rate"] > 0
+    assert never["violations_under_expert"] == 0 and math.isnan(never["expert_steps_before_violation"])
+    always = _run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=1.0), 8, None)
+    assert always["takeover_rate"] == 1.0
+    # the expert drives every step, so every violation happens under it, after it drove the whole episode so far
+    assert always["violations_under_expert"] == round(always["violation_rate"] * 8)
+    if always["violations_under_expert"]:
+        assert always["expert_steps_before_violation"] >= 1
