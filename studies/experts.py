@@ -35,18 +35,26 @@ SEED = 0
 """Training seed of every learned expert (an expert is one fixed policy per results folder, not a sweep)."""
 
 
-def is_scripted(choice: str, aliases: Sequence[str] = ()) -> bool:
-    return choice in SCRIPTED or choice in aliases
+def expert_kind(choice: str, aliases: Sequence[str] = ()) -> str:
+    """``scripted``, ``imitation``, ``learner`` or ``run`` (a learner's name wins over a same-named folder); a clear
+    error for an ``expert`` setting that is none of them."""
+    from core.learners import learner_names
+
+    if choice in SCRIPTED or choice in aliases:
+        return "scripted"
+    if choice == IMITATION:
+        return "imitation"
+    if choice in learner_names():
+        return "learner"
+    if Path(choice).exists():
+        return "run"
+    names = ", ".join([*SCRIPTED, *aliases, IMITATION, *(n for n in learner_names() if n != IMITATION)])
+    raise ValueError(f"expert={choice}: give one of {names}, or the path of a trained run")
 
 
 def check_choice(choice: str, aliases: Sequence[str] = ()) -> None:
     """A clear error for an ``expert`` setting that is neither scripted, a learner nor an existing run."""
-    from core.learners import learner_names
-
-    if is_scripted(choice, aliases) or choice == IMITATION or choice in learner_names() or Path(choice).exists():
-        return
-    names = ", ".join([*SCRIPTED, *aliases, IMITATION, *(n for n in learner_names() if n != IMITATION)])
-    raise ValueError(f"expert={choice}: give one of {names}, or the path of a trained run")
+    expert_kind(choice, aliases)
 
 
 def expert_run(
@@ -67,20 +75,15 @@ def expert_run(
 
     ``imitation_*``: the study's HG-DAgger recipe (``demo_episodes`` demonstrations, then that many episodes);
     any other learner gets ``demo_episodes`` demonstrations and ``expert_steps`` environment steps in all."""
-    from core.learners import learner_names
-
-    check_choice(choice, aliases)
-    if is_scripted(choice, aliases):
+    kind = expert_kind(choice, aliases)
+    if kind == "scripted":
         return None
-    if choice != IMITATION and choice not in learner_names():  # a learner's name wins over a same-named folder
+    if kind == "run":
         return str(Path(choice).resolve())
     from studies.spec import TrainSpec
     from studies.training import train_once
 
-    folder = out / "experts" / choice
-    if name is not None:
-        folder = folder / name
-    if choice == IMITATION:
+    if kind == "imitation":
         budget: dict[str, Any] = {"method": imitation_method, "episodes": imitation_episodes}
     else:
         if expert_steps <= 0:
@@ -92,10 +95,37 @@ def expert_run(
         demo_episodes=demo_episodes,
         seed=SEED,
         checkpoint_every=0,
-        out=str(folder.resolve()),
+        out=str(_folder(out, choice, name, aliases).resolve()),
         **budget,
     )
     return str(train_once(spec))
+
+
+def _folder(out: Path, choice: str, name: str | None, aliases: Sequence[str] = ()) -> Path:
+    """``out/experts/<choice>[/<name>]`` (``run`` for a run's path): where a learned expert and its numbers live."""
+    folder = out / "experts" / ("run" if expert_kind(choice, aliases) == "run" else choice)
+    return folder if name is None else folder / name
+
+
+def study_expert(
+    choice: str,
+    out: Path,
+    sim: str,
+    scenario: str,
+    *,
+    evaluate_on: Sequence[str],
+    episodes: int,
+    scripted_label: str,
+    name: str | None = None,
+    **recipe: Any,
+) -> tuple[str | None, str]:
+    """What a study's ``prepare`` needs: the expert (:func:`expert_run`, ``recipe`` its keyword arguments) and the
+    sentence for under the table saying how it drives alone on ``evaluate_on`` (:func:`expert_quality`)."""
+    run = expert_run(choice, out, sim, scenario, name=name, **recipe)
+    cache = quality_cache(out, choice, name, evaluate_on, recipe.get("aliases", ()))
+    quality = expert_quality(run, sim, evaluate_on, episodes, cache)
+    label = scripted_label if run is None else (choice if name is None else f"{choice}, trained on {name}")
+    return run, quality_note(label, quality, episodes)
 
 
 def expert_quality(
@@ -135,15 +165,11 @@ def expert_quality(
     return quality
 
 
-def quality_cache(out: Path, choice: str, name: str | None, scenarios: Sequence[str]) -> Path:
+def quality_cache(
+    out: Path, choice: str, name: str | None, scenarios: Sequence[str], aliases: Sequence[str] = ()
+) -> Path:
     """Where :func:`expert_quality` keeps its numbers for this expert (beside it)."""
-    from core.learners import learner_names
-
-    is_run = choice not in (*SCRIPTED, IMITATION, *learner_names()) and Path(choice).exists()
-    folder = out / "experts" / ("run" if is_run else choice)
-    if name is not None:
-        folder = folder / name
-    return folder / f"quality-{'-'.join(scenarios)}.json"
+    return _folder(out, choice, name, aliases) / f"quality-{'-'.join(scenarios)}.json"
 
 
 def quality_note(label: str, quality: dict[str, dict[str, float]], episodes: int) -> str:

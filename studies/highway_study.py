@@ -83,24 +83,22 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
 def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
     """The expert of takeovers and demonstrations (:mod:`studies.experts`): scripted, HG-DAgger or an RL learner
     (trained once and cached), or a run; measured alone on both splits for the note under the table."""
-    from studies.experts import expert_quality, expert_run, quality_cache, quality_note
+    from studies.experts import study_expert
     from studies.registry import PREPARED_NOTES
 
-    choice = str(settings.get("expert", "scripted"))
-    run = expert_run(
-        choice,
+    run, note = study_expert(
+        str(settings.get("expert", "scripted")),
         out,
         "highway",
         "train",
+        evaluate_on=["train", "test"],
+        episodes=int(settings["eval_episodes"]),
+        scripted_label="the scripted driver",
         demo_episodes=EXPERT_DEMOS,
         expert_steps=int(settings.get("expert_steps", 0)),
         imitation_episodes=EXPERT_EPISODES,
     )
-    episodes = int(settings["eval_episodes"])
-    splits = ["train", "test"]
-    quality = expert_quality(run, "highway", splits, episodes, quality_cache(out, choice, None, splits))
-    label = "the scripted driver" if run is None else choice
-    return {"expert_run": run, PREPARED_NOTES: [quality_note(label, quality, episodes)]}
+    return {"expert_run": run, PREPARED_NOTES: [note]}
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:

@@ -115,25 +115,24 @@ def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
     """The study's expert (:mod:`studies.experts`): the scripted driver, an HG-DAgger policy (``hg-dagger``, trained
     as ``hg-dagger-discrete``) or a discrete RL learner (``d3qn``), trained on the study's scenario once and cached
     in ``out/experts/<expert>``; measured alone on that scenario for the note under the table."""
-    from studies.experts import expert_quality, expert_run, quality_cache, quality_note
+    from studies.experts import study_expert
     from studies.registry import PREPARED_NOTES
 
-    choice = str(settings.get("expert", "scripted"))
     scenario = str(settings.get("scenario", TRAIN_SCENARIO))
-    run = expert_run(
-        choice,
+    run, note = study_expert(
+        str(settings.get("expert", "scripted")),
         out,
         "pedestrian",
         scenario,
+        evaluate_on=[scenario],
+        episodes=int(settings["eval_episodes"]),
+        scripted_label="the scripted cautious driver",
         demo_episodes=EXPERT_DEMOS,
         expert_steps=int(settings.get("expert_steps", 0)),
         imitation_method="hg-dagger-discrete",
         imitation_episodes=EXPERT_EPISODES,
     )
-    episodes = int(settings["eval_episodes"])
-    quality = expert_quality(run, "pedestrian", [scenario], episodes, quality_cache(out, choice, None, [scenario]))
-    label = "the scripted cautious driver" if run is None else choice
-    return {"expert_run": run, PREPARED_NOTES: [quality_note(label, quality, episodes)]}
+    return {"expert_run": run, PREPARED_NOTES: [note]}
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:

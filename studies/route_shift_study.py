@@ -101,29 +101,28 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
 def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
     """The experts of phases C1 and C2 (:mod:`studies.experts`): SUMO's driver, or one learned policy per route
     (trained once, cached), each measured alone on its route for the note under the table."""
-    from studies.experts import expert_quality, expert_run, quality_cache, quality_note
+    from studies.experts import study_expert
     from studies.registry import PREPARED_NOTES
 
     choice = str(settings.get("expert", "sumo"))
-    episodes = int(settings["eval_episodes"])
     experts: dict[str, Any] = {}
     notes: list[str] = []
     for route, scenario in (("route1", "c1"), ("route2", "c2")):
-        run = expert_run(
+        experts[f"expert_{scenario}"], note = study_expert(
             choice,
             out,
             "sumo",
             scenario,
             name=route,
+            evaluate_on=[scenario],
+            episodes=int(settings["eval_episodes"]),
+            scripted_label="SUMO's driver",
             demo_episodes=EXPERT_DEMOS,
             expert_steps=int(settings.get("expert_steps", 0)),
             imitation_episodes=EXPERT_EPISODES,
             aliases=("sumo",),
         )
-        experts[f"expert_{scenario}"] = run
-        quality = expert_quality(run, "sumo", [scenario], episodes, quality_cache(out, choice, route, [scenario]))
-        label = "SUMO's driver" if run is None else f"{choice}, trained on {route}"
-        notes.append(quality_note(label, quality, episodes))
+        notes.append(note)
     return {**experts, PREPARED_NOTES: notes}
 
 
