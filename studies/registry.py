@@ -175,6 +175,9 @@ def run_study(
     start = time.perf_counter()
     prepared_notes: list[str] = []
     if study.prepare is not None:
+        from studies.sweep import ensure_ray
+
+        ensure_ray(address, cpus)  # a prepare may run Ray tasks (experts): on the trials' cluster, with their cores
         prepared = dict(study.prepare(out, settings))
         prepared_notes = [str(n) for n in prepared.pop(PREPARED_NOTES, [])]
         settings.update(prepared)

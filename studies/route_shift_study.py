@@ -100,30 +100,35 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
 
 def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
     """The experts of phases C1 and C2 (:mod:`studies.experts`): SUMO's driver, or one learned policy per route
-    (trained once, cached), each measured alone on its route for the note under the table."""
+    (trained once, cached), each measured alone on its route for the note under the table. The two routes' experts
+    train and are measured at once, as Ray tasks (each in its own process: libsumo runs one simulation per
+    process)."""
     from studies.experts import study_expert
     from studies.registry import PREPARED_NOTES
+    from studies.sweep import run_tasks
 
     choice = str(settings.get("expert", "sumo"))
-    experts: dict[str, Any] = {}
-    notes: list[str] = []
-    for route, scenario in (("route1", "c1"), ("route2", "c2")):
-        experts[f"expert_{scenario}"], note = study_expert(
-            choice,
-            out,
-            "sumo",
-            scenario,
-            name=route,
-            evaluate_on=[scenario],
-            episodes=int(settings["eval_episodes"]),
-            scripted_label="SUMO's driver",
-            demo_episodes=EXPERT_DEMOS,
-            expert_steps=int(settings.get("expert_steps", 0)),
-            imitation_episodes=EXPERT_EPISODES,
-            aliases=("sumo",),
-        )
-        notes.append(note)
-    return {**experts, PREPARED_NOTES: notes}
+    routes = (("route1", "c1"), ("route2", "c2"))
+    calls = [
+        {
+            "choice": choice,
+            "out": out,
+            "sim": "sumo",
+            "scenario": scenario,
+            "name": route,
+            "evaluate_on": [scenario],
+            "episodes": int(settings["eval_episodes"]),
+            "scripted_label": "SUMO's driver",
+            "demo_episodes": EXPERT_DEMOS,
+            "expert_steps": int(settings.get("expert_steps", 0)),
+            "imitation_episodes": EXPERT_EPISODES,
+            "aliases": ("sumo",),
+        }
+        for route, scenario in routes
+    ]
+    results = run_tasks(study_expert, calls, labels=[f"{choice} expert on {route}" for route, _ in routes])
+    experts = {f"expert_{scenario}": run for (_, scenario), (run, _) in zip(routes, results, strict=True)}
+    return {**experts, PREPARED_NOTES: [note for _, note in results]}
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:

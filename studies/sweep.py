@@ -83,6 +83,51 @@ def ensure_ray(address: str | None = None, cpus: int | None = None) -> None:
         ray.init(num_cpus=cpus or os.cpu_count() or 1, include_dashboard=False, log_to_driver=False)
 
 
+def _run_task(fn: Callable[..., Any], kwargs: Mapping[str, Any]) -> Any:
+    """Inside a Ray worker: one torch thread, as in a trial, then ``fn(**kwargs)``."""
+    import torch
+
+    torch.set_num_threads(1)
+    return fn(**kwargs)
+
+
+def run_tasks(
+    fn: Callable[..., Any],
+    calls: Sequence[Mapping[str, Any]],
+    labels: Sequence[str] | None = None,
+    address: str | None = None,
+    cpus: int | None = None,
+) -> list[Any]:
+    """``fn(**kwargs)`` for each of ``calls`` as Ray tasks, at once where the cores allow; results in order.
+    ``labels`` name the calls in errors (default: their positions).
+
+    For the work a study does before its sweep (e.g. training one expert per route). Each task takes one core and
+    a fresh worker process that exits afterwards (``max_calls=1``): libsumo allows one simulation per process, and
+    a reused worker would already hold one. Raises :class:`SweepError` naming the failed calls after all the
+    others have finished; what they wrote (cached experts) stays for a rerun.
+    """
+    import ray
+
+    names = list(labels) if labels is not None else [f"call {i}" for i in range(len(calls))]
+    if len(names) != len(calls):
+        raise ValueError(f"{len(names)} labels for {len(calls)} calls")
+    ensure_ray(address, cpus)
+    task = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_run_task)
+    refs = [task.remote(fn, dict(kwargs)) for kwargs in calls]
+    results: list[Any] = []
+    failed: list[str] = []
+    for name, ref in zip(names, refs, strict=True):
+        try:
+            results.append(ray.get(ref))
+        except Exception as error:  # every failure is reported together below, after the others finish
+            results.append(None)
+            cause = getattr(error, "cause", None) or error  # Ray wraps it with the worker's traceback
+            failed.append(f"{name}: {type(cause).__name__}: {cause}")
+    if failed:
+        raise SweepError(f"{len(failed)} of {len(calls)} tasks failed (rerun to resume): " + "; ".join(failed))
+    return results
+
+
 def run_sweep(
     trial: TrialFn,
     methods: Sequence[str],

@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("ray")
 
-from studies.sweep import SweepError, run_sweep
+from studies.sweep import SweepError, run_sweep, run_tasks
 
 
 def toy_trial(config: dict[str, Any]) -> dict[str, float]:
@@ -19,6 +19,14 @@ def toy_trial(config: dict[str, Any]) -> dict[str, float]:
     if config.get("fail_seed") == config["seed"] and config["method"] == "b":
         raise RuntimeError("deliberate failure")
     return {"score": offset + config["seed"] * config["scale"], "worker_pid": float(os.getpid())}
+
+
+def toy_task(value: int, folder: str) -> tuple[int, int]:
+    """A task that leaves a file behind (work a failed sibling must not lose) and says which process ran it."""
+    if value < 0:
+        raise RuntimeError("deliberate failure")
+    Path(folder, f"done-{value}").write_text(str(os.getpid()))
+    return value * 10, os.getpid()
 
 
 @pytest.fixture(scope="module")
@@ -46,3 +54,17 @@ def test_failed_trials_are_named_and_others_kept(ray_local: None, tmp_path: Path
         run_sweep(toy_trial, ["b"], [1, 2], tmp_path, "fails", settings={"scale": 1.0, "fail_seed": 2})
     with pytest.raises(ValueError, match="duplicate"):
         run_sweep(toy_trial, ["a"], [1, 1], tmp_path, "dup")
+
+
+def test_tasks_run_in_fresh_worker_processes_in_order_and_failures_are_named(ray_local: None, tmp_path: Path) -> None:
+    results = run_tasks(toy_task, [{"value": v, "folder": str(tmp_path)} for v in (2, 1, 3)])
+    assert [value for value, _ in results] == [20, 10, 30]
+    pids = {pid for _, pid in results}
+    # three tasks on two cores: a fresh process each all the same (libsumo: one simulation per process)
+    assert len(pids) == 3 and os.getpid() not in pids
+    with pytest.raises(SweepError, match=r"1 of 2 tasks failed.*route2: RuntimeError: deliberate failure$"):
+        run_tasks(toy_task, [{"value": 4, "folder": str(tmp_path)}, {"value": -1, "folder": str(tmp_path)}],
+                  labels=["route1", "route2"])  # fmt: skip
+    assert (tmp_path / "done-4").is_file()  # the sibling of the failed task finished and kept its work
+    with pytest.raises(ValueError, match="1 labels for 2 calls"):
+        run_tasks(toy_task, [{"value": 1, "folder": "x"}] * 2, labels=["only one"])
