@@ -58,7 +58,9 @@ EpisodeHook = Callable[[int, Runner], None]
 """Called before each training episode with its 0-based index and the Runner about to run it: a protocol
 changes the env's next scenario there (``runner.set_next_reset_options``: gymnasium reset options), points the
 env at the current policy (``runner.policy``) or swaps the expert (``runner.set_expert``). A hook object may also
-define ``start_interaction(steps_done, train_steps)``, called once after the demonstrations."""
+define ``start_interaction(steps_done, train_steps)``, called once after the demonstrations, and
+``episode_cap() -> int | None``, read after it is called: the most steps the coming episode may take (a phase
+that ends at a step count cuts its last episode there)."""
 
 DEMO_SEED_OFFSET = 500_000
 EVAL_SEED_OFFSET = 1_000_000
@@ -81,6 +83,9 @@ class RunConfig:
     """Run folder or checkpoint to warm-start from (the parts that fit: actor, critics, world model, ...)."""
     demo_episodes: int = 0
     """Expert-driven episodes recorded as intervention samples before training (then cloned: see pretrain)."""
+    demo_steps: int | None = None
+    """Most environment steps the demonstrations may take, the last one cut there (None: up to ``train_steps``),
+    so that a small step budget still leaves steps to interact in."""
     demo_noise: float = 0.0
     """Std of Gaussian noise on the expert's demonstrated actions (DART-style: the demonstrations then visit
     the states a slightly imperfect clone drifts into, and the zero-mean noise averages out in the regression)."""
@@ -160,6 +165,8 @@ class Trainer:
     ) -> None:
         if (run.episodes is not None and run.episodes < 0) or run.demo_episodes < 0:
             raise ValueError("episodes and demo_episodes must be >= 0")
+        if run.demo_steps is not None and run.demo_steps < 1:
+            raise ValueError(f"demo_steps must be >= 1, got {run.demo_steps}")
         if run.train_steps is not None and run.train_steps < 1:
             raise ValueError(f"train_steps must be >= 1, got {run.train_steps}")
         if run.episodes is None and run.train_steps is None:
@@ -286,8 +293,12 @@ class Trainer:
         for runner in runners:
             runner.step_listeners.append(store)
         scenarios = list(self.envs)
+        first_step = self.steps_done
         for i in range(self.run.demo_episodes):
             cap = self._episode_cap()
+            if self.run.demo_steps is not None:
+                left = max(0, self.run.demo_steps - (self.steps_done - first_step))
+                cap = left if cap is None else min(cap, left)
             if cap == 0:
                 break
             j = i % len(runners)
@@ -386,9 +397,14 @@ class Trainer:
             while self._more_episodes():
                 i = self.episodes_done
                 j = i % len(runners)
+                cap = self._episode_cap()
                 for hook in self.before_episode:
                     hook(i, runners[j])
-                summary = runners[j].run_episode(self._episode_cap())
+                    hook_cap = getattr(hook, "episode_cap", None)
+                    limit = hook_cap() if callable(hook_cap) else None
+                    if limit is not None:
+                        cap = limit if cap is None else min(cap, limit)
+                summary = runners[j].run_episode(cap)
                 self.episodes_done += 1
                 self.steps_done += summary.steps
                 row = self._row(summary, scenarios[j], started)

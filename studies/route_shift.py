@@ -35,8 +35,9 @@ class RouteShift:
     expert_c2: Expert | None = None
     """The expert of phase C2 (None: keep the C1 expert, e.g. SUMO's driver model, in both phases)."""
     c1_steps: int | None = None
-    """Switch to C2 at the first episode after this many interaction steps (the studies' budgets are in steps);
-    None: after ``c1`` episodes, and ``c2`` more end the run."""
+    """C1 takes exactly this many interaction steps (its last episode cut there: :meth:`episode_cap`), C2 the rest
+    of the step budget (the studies' budgets are in steps); None: after ``c1`` episodes, and ``c2`` more end the
+    run."""
     c1_share: float | None = None
     """Instead of ``c1_steps``: C1 takes this share of the interaction steps left after the demonstrations (the run's
     step budget, set when interaction starts)."""
@@ -89,6 +90,15 @@ class RouteShift:
             if self.expert_c2 is not None and runner.expert is not None:
                 runner.set_expert(self.expert_c2)  # only methods with takeovers have an expert to swap
         self.applied.append({"episode": episode, "phase": entry.phase, **kwargs})
+
+    def episode_cap(self) -> int | None:
+        """Steps left in C1 while the coming episode is in it (a budget in steps): C1's last episode is cut where
+        C1's steps end, so that every method gets exactly the same steps in each phase, and C2 its share however
+        long C1's episodes run."""
+        if not self.by_steps or not self.applied or self.applied[-1]["phase"] != "C1":
+            return None
+        assert self.c1_steps is not None
+        return max(1, self.c1_steps - self.steps)
 
     def describe(self, method: str, expert: str | None, expert_c2: str | None) -> dict[str, Any]:
         described = {

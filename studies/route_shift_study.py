@@ -4,10 +4,10 @@ Protocol, the same for every method on every training seed (:class:`studies.rout
 
 - **Budget**: ``train_steps`` environment steps, demonstrations included; phase C1 (route 1, ordinary traffic) takes
   the first ``C1_SHARE`` of the interaction steps (the budget left after the demonstrations), phase C2 (route 2 with
-  special vehicles) the rest, switching at the first episode after that point (the paper: 1,000 + 500 episodes,
-  the same 2:1 ratio).
-- **Demonstrations**: ``demo_episodes`` expert episodes on route 1 (the same for every method on a seed), cloned
-  before interaction by every method.
+  special vehicles) the rest, C1's last episode cut where its steps end, so that every method gets the same steps
+  in each phase (the paper: 1,000 + 500 episodes, the same 2:1 ratio).
+- **Demonstrations**: ``demo_episodes`` expert episodes on route 1 (the same for every method on a seed), at most
+  ``DEMO_SHARE`` of the budget, cloned before interaction by every method.
 - **Terminal rule**: every violation (collision, red light) is terminal for learning (the buffer cuts the return
   there), for every method; a collision also ends the episode, a red-light run does not (the car drives on).
 - **Methods**: ``sac`` (the paper's standard RL), ``fni-rl`` (fear-regularised, no expert) and ``sage`` (the gate
@@ -38,6 +38,9 @@ from studies.registry import StudyDef
 METHODS = ("sac", "fni-rl", "sage")
 C1_SHARE = 2 / 3
 DEMO_EPISODES = 5
+DEMO_SHARE = 0.5
+"""The demonstrations take at most this share of the step budget (the last one cut there), so that a small
+budget still leaves C1 and C2 to learn in; at the small budget the 5 demonstrations take about a third."""
 EXPERT_DEMOS = 10
 EXPERT_EPISODES = 20
 PHASE_KEYS = ("success", "collision", "red_light")
@@ -73,6 +76,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             train_steps=budget,
             c1_share=C1_SHARE,
             demo_episodes=demos,
+            demo_steps=max(1, int(DEMO_SHARE * budget)),
             expert=config.get("expert_c1"),
             expert_c2=config.get("expert_c2"),
             checkpoint_every=0,
@@ -146,9 +150,10 @@ STUDY = StudyDef(
     plot=("c2_early_success", "c2_late_collision", "eval_route2_success"),
     notes=(
         f"Every method: the same budget in environment steps, the same {DEMO_EPISODES} expert demonstrations on "
-        f"route 1 per seed (counted) cloned before interaction; C1 (route 1) takes the first {C1_SHARE:.0%} of the "
-        "interaction steps, C2 (route 2 with special vehicles) the rest. Every violation (collision, red light) is "
-        "terminal for learning for every method; a collision ends the episode, a red-light run does not.",
+        f"route 1 per seed (counted, at most {DEMO_SHARE:.0%} of the budget) cloned before interaction; C1 (route 1) "
+        f"takes the first {C1_SHARE:.0%} of the interaction steps, C2 (route 2 with special vehicles) the rest. "
+        "Every violation (collision, red light) is terminal for learning for every method; a collision ends the "
+        "episode, a red-light run does not.",
         "sage gets the expert through the SAGE gate; sac and fni-rl have none after the demonstrations. The expert "
         "is the setting expert: sumo (default: SUMO's driver model, its executed action the label), hg-dagger "
         f"(one policy per route, {EXPERT_DEMOS} demonstrations + {EXPERT_EPISODES} episodes each) or an RL learner's "

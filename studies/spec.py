@@ -37,6 +37,8 @@ class TrainSpec:
     """Run folder. None: runs/<sim>-<scenario>-<method>-s<seed>-<time>."""
     demo_episodes: int = 0
     """Expert episodes recorded and cloned before training."""
+    demo_steps: int | None = None
+    """Most environment steps the demonstrations may take, the last one cut there (None: up to train_steps)."""
     dataset: list[str] = field(default_factory=list)
     """Offline data loaded before pretraining (repeatable): a recorded session file (sessions/<id>.sqlite) or a
     Minari dataset (minari:<id>); steps an expert drove are its demonstrations."""

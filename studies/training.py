@@ -130,6 +130,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         seed=spec.seed,
         init=spec.init,
         demo_episodes=spec.demo_episodes,
+        demo_steps=spec.demo_steps,
         demo_noise=spec.demo_noise,
         checkpoint_every=spec.checkpoint_every,
         checkpoint_dtype=spec.checkpoint_dtype,
