@@ -49,13 +49,9 @@ def test_cli_refuses_unknown_study_and_budget(toy_study: StudyDef) -> None:
     assert result.exit_code == 2 and "toy-split has no nope; its: sage" in result.output
 
 
-def test_a_study_runs_a_subset_of_its_methods_for_a_given_step_budget(tmp_path: Path) -> None:
-    pytest.importorskip("ray")
-    import ray
-
+def test_a_study_runs_a_subset_of_its_methods_for_a_given_step_budget(ray_local: None, tmp_path: Path) -> None:
     study = StudyDef("toy-two", ("sac", "sage"), split_trial, metrics=("collision_rate",), keys=("split", "method"))
     register_study(study)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         with pytest.raises(ValueError, match="toy-two has no method td3"):
             run_study("toy-two", "smoke", tmp_path, log=lambda _: None, methods=["td3"])
@@ -67,7 +63,6 @@ def test_a_study_runs_a_subset_of_its_methods_for_a_given_step_budget(tmp_path: 
         result = CliRunner().invoke(app, args)
         assert result.exit_code == 0, result.output
     finally:
-        ray.shutdown()
         unregister_study(study.name)
     text = (tmp_path / "table.md").read_text()
     # the README gets its own section for this comparison, beside the study's
@@ -78,17 +73,10 @@ def test_a_study_runs_a_subset_of_its_methods_for_a_given_step_budget(tmp_path: 
     assert len(rows) == 1 + 2 * 2  # header + 2 seeds x 2 splits, one method
 
 
-def test_study_runs_every_seed_and_writes_rows_per_split(toy_study: StudyDef, tmp_path: Path) -> None:
-    pytest.importorskip("ray")
-    import ray
-
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)
-        first = table.read_text()
-        table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)  # resumes: nothing left to run
-    finally:
-        ray.shutdown()
+def test_study_runs_every_seed_and_writes_rows_per_split(ray_local: None, toy_study: StudyDef, tmp_path: Path) -> None:
+    table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)
+    first = table.read_text()
+    table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)  # resumes: nothing left to run
     text = table.read_text()
     # the table's wall time is the sum over both invocations, and says so
     assert "over the 1 invocation(s)" in first and "over the 2 invocation(s)" in text

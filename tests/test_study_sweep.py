@@ -29,15 +29,6 @@ def toy_task(value: int, folder: str) -> tuple[int, int]:
     return value * 10, os.getpid()
 
 
-@pytest.fixture(scope="module")
-def ray_local():
-    import ray
-
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield
-    ray.shutdown()
-
-
 def test_sweep_runs_every_method_and_seed_in_worker_processes(ray_local: None, tmp_path: Path) -> None:
     rows = run_sweep(toy_trial, ["a", "b"], [1, 3], tmp_path, "toy", settings={"scale": 2.0})
     assert [(r["method"], r["seed"]) for r in rows] == [("a", 1), ("a", 3), ("b", 1), ("b", 3)]

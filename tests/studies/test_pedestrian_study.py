@@ -6,8 +6,6 @@ import csv
 import json
 from pathlib import Path
 
-import pytest
-
 from studies.pedestrian import METRICS, read_rows, trial
 from studies.registry import get_study, run_study, study_names
 
@@ -28,15 +26,8 @@ def test_a_trial_trains_within_the_step_budget_and_resumes_a_finished_run(tmp_pa
     assert again == first and len(read_rows(tmp_path / "sage-d3qn-s3")) == len(rows)
 
 
-def test_the_smoke_study_writes_seeds_table_and_figures(tmp_path: Path) -> None:
-    pytest.importorskip("ray")
-    import ray
-
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        table = run_study("pedestrian", "smoke", tmp_path, log=lambda _: None, overrides={"expert": "hg-dagger"})
-    finally:
-        ray.shutdown()
+def test_the_smoke_study_writes_seeds_table_and_figures(ray_local: None, tmp_path: Path) -> None:
+    table = run_study("pedestrian", "smoke", tmp_path, log=lambda _: None, overrides={"expert": "hg-dagger"})
     with (tmp_path / "seeds.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert sorted((r["method"], r["seed"]) for r in rows) == [("d3qn", "0"), ("d3qn", "1"), ("sage-d3qn", "0"),

@@ -43,17 +43,12 @@ def test_a_switch_by_steps_needs_a_step_budget_and_no_episode_counts() -> None:
 
 
 @pytest.mark.slow  # SUMO experts and six SUMO trials (~3 min); the trial and run_tasks tests cover the same path
-def test_the_smoke_study_trains_one_rl_expert_per_route_and_hands_each_its_phase(tmp_path: Path) -> None:
-    pytest.importorskip("ray")
-    import ray
-
+def test_the_smoke_study_trains_one_rl_expert_per_route_and_hands_each_its_phase(
+    ray_local: None, tmp_path: Path
+) -> None:
     from studies.registry import run_study
 
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        table = run_study("route-shift", "smoke", tmp_path, log=lambda _: None, overrides={"expert": "sac"})
-    finally:
-        ray.shutdown()
+    table = run_study("route-shift", "smoke", tmp_path, log=lambda _: None, overrides={"expert": "sac"})
     text = table.read_text()
     assert "The expert (sac, trained on route1) alone" in text and "sac, trained on route2" in text
     experts = {route: (tmp_path / "experts" / "sac" / route).resolve() for route in ("route1", "route2")}
