@@ -116,9 +116,14 @@ def gate_table(episodes: int) -> list[str]:
         "",
         f"## Gate + scripted expert at the gate's own threshold ({episodes} episodes per scenario)",
         "",
-        "| policy | scenario | episodes with a violation | takeover rate | of which the expert was driving "
-        "(for how long before) | time |",
-        "|---|---|---|---|---|---|",
+        "Each episode's first violation, by who drove and what fear did in the second before it: the expert driving "
+        "(the gate warned; for how long it had been driving), or the policy driving after the gate fired and handed "
+        "back, with fear over τ_min but under τ (within the threshold's reach: its place is the lever), or with fear "
+        "under τ_min throughout (unforeseen: no threshold in the gate's range would have fired).",
+        "",
+        "| policy | scenario | episodes with a violation | takeover rate | expert driving (for how long) "
+        "| handed back | fear over τ_min, under τ | unforeseen | time |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for policy in sorted({case[0] for case in CASES}):
         sim = next(case[1] for case in CASES if case[0] == policy)
@@ -128,13 +133,16 @@ def gate_table(episodes: int) -> list[str]:
         d = sims.descriptor(sim)
         for spec in d.scenarios:
             started = time.perf_counter()
-            point = gate_with_expert(folder, lambda d=d, name=spec.name: d.make(name), episodes)
+            warn_steps = max(1, round(1.0 / d.dt))
+            point = gate_with_expert(folder, lambda d=d, name=spec.name: d.make(name), episodes, warn_steps=warn_steps)
             bad = round(point["violation_rate"] * episodes)
             under = int(point["violations_under_expert"])
             held = point["expert_steps_before_violation"] * d.dt
             lines.append(
                 f"| {policy} | {sim} {spec.name} | {bad}/{episodes} | {point['takeover_rate']:.0%} "
-                f"| {under}/{bad}{f' ({held:.1f} s)' if under else ''} | {time.perf_counter() - started:.0f} s |"
+                f"| {under}{f' ({held:.1f} s)' if under else ''} | {int(point['violations_handed_back'])} "
+                f"| {int(point['violations_under_threshold'])} | {int(point['violations_unforeseen'])} "
+                f"| {time.perf_counter() - started:.0f} s |"
             )
             print(lines[-1], flush=True)
     return lines

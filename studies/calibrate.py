@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -278,26 +279,43 @@ class CuriosityGate(_HoldGate):
         return math.isfinite(self.last_curiosity) and self.last_curiosity > self.level
 
 
+def _tau_min(gate: Gate) -> float:
+    """The lowest threshold the SAGE gate inside ``gate`` can reach (its τ_min), NaN for other gates."""
+    inner = getattr(gate, "inner", gate)
+    threshold = getattr(inner, "threshold", None)
+    return float(getattr(threshold, "tau_min", math.nan))
+
+
 def _run_gated(
-    agent: Any, make_env: Callable[[], gym.Env[Any, Any]], gate: Gate, episodes: int, max_steps: int | None
+    agent: Any,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    gate: Gate,
+    episodes: int,
+    max_steps: int | None,
+    warn_steps: int = 10,
 ) -> dict[str, float]:
     env = make_env()
+    tau_min = _tau_min(gate)
     try:
         runner = Runner(env, agent.policy, gate, ScriptedExpert(), seed=EVAL_SEED, deterministic=True)
-        # per episode: the first violation's (expert driving?, steps the expert had been driving up to it)
-        first: list[tuple[bool, int] | None] = [None]
+        # per episode: the first violation's (expert driving?, steps the expert had been driving up to it, and the
+        # last ``warn_steps`` steps' (fear, gate fired) up to it)
+        first: list[tuple[bool, int, list[tuple[float, bool]]] | None] = [None]
         streak = [0]
+        recent: deque[tuple[float, bool]] = deque(maxlen=max(1, warn_steps))
 
         def watch(r: StepRecord) -> None:
             streak[0] = streak[0] + 1 if r.takeover else 0
+            recent.append((r.fear, bool(r.gate_fired or r.takeover)))
             if r.violation and first[0] is None:
-                first[0] = (bool(r.takeover), streak[0])
+                first[0] = (bool(r.takeover), streak[0], list(recent))
 
         runner.step_listeners.append(watch)
         takeovers = steps = 0
-        violations: list[tuple[bool, int]] = []
+        violations: list[tuple[bool, int, list[tuple[float, bool]]]] = []
         for _ in range(episodes):
             first[0], streak[0] = None, 0
+            recent.clear()
             summary = runner.run_episode(max_steps=max_steps)
             if first[0] is not None:
                 violations.append(first[0])
@@ -305,26 +323,52 @@ def _run_gated(
             steps += summary.steps
     finally:
         env.close()
-    under_expert = [n for expert, n in violations if expert]
+    under_expert = [n for expert, n, _ in violations if expert]
+    # the others, with the policy driving: had the gate fired in the last warn_steps (and handed back), did fear
+    # at least reach τ_min (a threshold within the gate's own range would have fired), or was the danger unforeseen
+    handed_back = under_threshold = unforeseen = 0
+    for expert, _, window in violations:
+        if expert:
+            continue
+        peak = max((f for f, _ in window if math.isfinite(f)), default=math.nan)
+        if any(fired for _, fired in window):
+            handed_back += 1
+        elif math.isfinite(peak) and math.isfinite(tau_min) and peak >= tau_min:
+            under_threshold += 1
+        else:
+            unforeseen += 1
     return {
         "takeover_rate": takeovers / max(steps, 1),
         "violation_rate": len(violations) / episodes,
         "violations_under_expert": float(len(under_expert)),
         "expert_steps_before_violation": float(np.mean(under_expert)) if under_expert else float("nan"),
+        "violations_handed_back": float(handed_back),
+        "violations_under_threshold": float(under_threshold),
+        "violations_unforeseen": float(unforeseen),
     }
 
 
 def gate_with_expert(
-    run: str | Path, make_env: Callable[[], gym.Env[Any, Any]], episodes: int, max_steps: int | None = None
+    run: str | Path,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    episodes: int,
+    max_steps: int | None = None,
+    warn_steps: int = 10,
 ) -> dict[str, float]:
     """The product as it runs: the policy with its own SAGE gate (its τ, unscaled) and the scripted expert.
-    Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds, and where the
-    remaining violations come from: how many episodes' first violation happened with the expert driving
-    (``violations_under_expert``: the gate warned, the expert could not avoid it from there) and for how many steps
-    the expert had been driving by then (``expert_steps_before_violation``, their mean); the others happened with
-    the policy driving (the gate did not warn)."""
+    Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds, and where each
+    episode's first violation comes from:
+
+    - ``violations_under_expert``: the expert was driving (the gate warned; the expert could not avoid it from
+      there), and for how many steps it had been driving by then (``expert_steps_before_violation``, their mean);
+    - with the policy driving, judged on the last ``warn_steps`` steps up to the violation (1 s by default at
+      10 Hz): ``violations_handed_back`` (the gate had fired and its hold ran out), ``violations_under_threshold``
+      (it had not, but fear reached τ_min, the lowest threshold curiosity can set: the threshold's place was the
+      lever) and ``violations_unforeseen`` (fear stayed below τ_min throughout: the world model did not see it
+      coming, and no threshold in the gate's range would have fired).
+    """
     agent = load_agent(run)
-    return _run_gated(agent, make_env, agent.make_gate(), episodes, max_steps)
+    return _run_gated(agent, make_env, agent.make_gate(), episodes, max_steps, warn_steps)
 
 
 def operating_curve(

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from core.loop import GateDecision
 from studies.calibrate import calibrate_run, labels_within, write_figures
 from tests.core.sage import envs
 from tests.core.test_finetune import deployed  # noqa: F401  (the module fixture)
@@ -64,9 +65,50 @@ def test_gate_with_expert_says_who_was_driving_at_each_violation(deployed: Path)
     never = _run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=0.0), 8, None)
     assert never["takeover_rate"] == 0.0 and never["violation_rate"] > 0
     assert never["violations_under_expert"] == 0 and math.isnan(never["expert_steps_before_violation"])
+    # with the policy always driving and the gate never firing, each violation was either within the threshold's
+    # reach (fear over τ_min in the last second) or unforeseen, never handed back
+    assert never["violations_handed_back"] == 0
+    policy_driving = never["violations_under_threshold"] + never["violations_unforeseen"]
+    assert policy_driving == round(never["violation_rate"] * 8)
     always = _run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=1.0), 8, None)
     assert always["takeover_rate"] == 1.0
     # the expert drives every step, so every violation happens under it, after it drove the whole episode so far
     assert always["violations_under_expert"] == round(always["violation_rate"] * 8)
+    assert (
+        always["violations_handed_back"] == always["violations_under_threshold"] == always["violations_unforeseen"] == 0
+    )
     if always["violations_under_expert"]:
         assert always["expert_steps_before_violation"] >= 1
+
+
+class _SteadyFear:
+    """A gate that never fires and reports the same fear at every step, with a τ_min of 0.2."""
+
+    def __init__(self, fear: float) -> None:
+        self.fear = fear
+        self.threshold = type("Threshold", (), {"tau_min": 0.2})()
+
+    def reset(self) -> None:
+        pass
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
+        return GateDecision(self.fear, 0.9, False)
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        return 0.0
+
+
+def test_a_violation_the_gate_missed_is_unforeseen_only_when_fear_stayed_under_tau_min(
+    deployed: Path,  # noqa: F811
+) -> None:
+    from core.agents import load_agent
+    from studies.calibrate import _run_gated
+
+    agent = load_agent(deployed)
+    make_env = functools.partial(envs.make, "dynamic")
+    seen = _run_gated(agent, make_env, _SteadyFear(0.5), 6, None)
+    blind = _run_gated(agent, make_env, _SteadyFear(0.1), 6, None)
+    bad = round(seen["violation_rate"] * 6)
+    assert bad > 0 and blind["violation_rate"] == seen["violation_rate"]
+    assert seen["violations_under_threshold"] == bad and seen["violations_unforeseen"] == 0
+    assert blind["violations_unforeseen"] == bad and blind["violations_under_threshold"] == 0
