@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 import sims
-from studies.calibrate import calibrate_run, gate_with_expert, write_figures
+from studies.calibrate import calibrate_run, compare_curves, gate_with_expert, write_figures
 from studies.readme import include
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,6 +75,7 @@ def main() -> None:
             f"| {report.fire_rate_before_violation:.0%} / {report.fire_rate_elsewhere:.0%} "
             f"| {report.violations_warned:.0%} | "
             + (f"{best['violation_rate']:.0%} at {best['takeover_rate']:.0%}" if best else "–")
+            + f" | {verdict(report.curve, 'random')} | {verdict(report.curve, 'curiosity only')}"
             + f" | {time.perf_counter() - started:.0f} s |"
         )
         print(report.summary(), flush=True)
@@ -87,16 +88,21 @@ def main() -> None:
         "their gate and no expert (AUROC, firing); the operating curve adds the scripted expert.",
         "",
         "| policy | scenario | AUROC fear | ĉ | σ̂ | curiosity | firing before violation / elsewhere "
-        "| violations warned | fewest violations (at takeover) | time |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| violations warned | fewest violations (at takeover) | fear vs random | fear vs curiosity only | time |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         "",
         *notes,
         "",
         "Figures: `<policy>-<scenario>/reliability.png` and `operating_curve.png`; numbers: `report.json`.",
         "",
+        "Fear vs random / curiosity only: the fear curve's points better · tied · worse than the other gating's "
+        "point nearest in takeover rate (within 5 points; the rest unmatched), where their 95% Wilson intervals of "
+        "the share of episodes with a violation do not overlap. The target, above random at every takeover rate, "
+        "is all better; with the curve's episodes per point most differences cannot be told apart.",
+        "",
         "Operating curves (episodes with a violation against the takeover rate, the gate's τ scaled; random and "
-        "curiosity-only gating at equal takeover rates):",
+        "curiosity-only gating at equal takeover rates; bars: 95% Wilson intervals):",
         "",
         " ".join(curves),
     ]
@@ -107,6 +113,14 @@ def main() -> None:
     if args.readme is not None:
         include(args.readme, "calibration", args.out / "README.md", "## Calibration of fear")
         print(f"README section 'calibration' written into {args.readme}")
+
+
+def verdict(curve: dict[str, list[dict[str, float]]], against: str) -> str:
+    """``better · tied · worse`` (and how many were unmatched) of the fear curve against another gating."""
+    if not curve.get(against):
+        return "–"
+    v = compare_curves(curve, against)
+    return f"{v['better']} · {v['tied']} · {v['worse']}" + (f" ({v['unmatched']} unmatched)" if v["unmatched"] else "")
 
 
 def gate_table(episodes: int) -> list[str]:

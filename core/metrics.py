@@ -1,6 +1,9 @@
-"""Ranking metrics for the self-awareness signals (numpy only): AUROC, average precision, reliability bins."""
+"""Ranking metrics for the self-awareness signals (numpy only): AUROC, average precision, reliability bins, and
+the Wilson interval of a rate measured over episodes."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -56,3 +59,18 @@ def reliability(probabilities: np.ndarray, labels: np.ndarray, bins: int = 10) -
         if mask.any():
             out.append((float(p[mask].mean()), float(y[mask].mean()), int(mask.sum())))
     return out
+
+
+def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
+    """The Wilson score interval of a binomial proportion (95% by default): sound at 0 or n of n and for the
+    ten or twenty episodes of an operating-curve point, where the normal approximation is not. (nan, nan) for
+    no trials."""
+    if trials <= 0:
+        return math.nan, math.nan
+    if not 0 <= successes <= trials:
+        raise ValueError(f"successes must lie in [0, {trials}], got {successes}")
+    p = successes / trials
+    denominator = 1 + z * z / trials
+    centre = (p + z * z / (2 * trials)) / denominator
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denominator
+    return max(0.0, centre - half), min(1.0, centre + half)

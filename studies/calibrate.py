@@ -29,7 +29,7 @@ import numpy as np
 from core.agents import load_agent
 from core.experts import ScriptedExpert
 from core.loop import Gate, GateDecision, Runner, StepRecord
-from core.metrics import auroc, average_precision, reliability
+from core.metrics import auroc, average_precision, reliability, wilson_interval
 
 EVAL_SEED = 3_000_000
 """Calibration episodes use seeds apart from training (episode i: EVAL_SEED + i)."""
@@ -91,6 +91,13 @@ class CalibrationReport:
         for name, points in self.curve.items():
             pairs = ", ".join(f"{p['takeover_rate']:.0%}→{p['violation_rate']:.0%}" for p in points)
             lines.append(f"operating curve {name} (takeover → episodes with a violation): {pairs}")
+        for against in ("random", "curiosity only"):
+            if self.curve.get(against):
+                v = compare_curves(self.curve, against)
+                lines.append(
+                    f"fear against {against} at equal takeover (95% Wilson intervals): {v['better']} better, "
+                    f"{v['tied']} tied, {v['worse']} worse, {v['unmatched']} without a point within 5 points"
+                )
         return "\n".join(lines)
 
 
@@ -340,6 +347,7 @@ def _run_gated(
     return {
         "takeover_rate": takeovers / max(steps, 1),
         "violation_rate": len(violations) / episodes,
+        "episodes": float(episodes),
         "violations_under_expert": float(len(under_expert)),
         "expert_steps_before_violation": float(np.mean(under_expert)) if under_expert else float("nan"),
         "violations_handed_back": float(handed_back),
@@ -402,6 +410,36 @@ def operating_curve(
     return curve
 
 
+def violation_interval(point: dict[str, float]) -> tuple[float, float]:
+    """The 95% Wilson interval of a curve point's share of episodes with a violation."""
+    n = int(point.get("episodes", 0))
+    return wilson_interval(round(point["violation_rate"] * n), n)
+
+
+def compare_curves(
+    curve: dict[str, list[dict[str, float]]], against: str, name: str = "fear (SAGE)", tolerance: float = 0.05
+) -> dict[str, int]:
+    """Count ``name``'s points that are better, tied with or worse than ``against`` at (nearly) the same takeover
+    rate: the ``against`` point nearest in takeover, if within ``tolerance``, and 95% Wilson intervals of the share
+    of episodes with a violation that do not overlap (better: fewer violations). Points with no counterpart that
+    near are ``unmatched``. The issue's target, "above random at every takeover rate", is ``worse == tied == 0``."""
+    verdict = {"better": 0, "tied": 0, "worse": 0, "unmatched": 0}
+    others = curve.get(against, [])
+    for point in curve.get(name, []):
+        near = min(others, key=lambda q: abs(q["takeover_rate"] - point["takeover_rate"]), default=None)
+        if near is None or abs(near["takeover_rate"] - point["takeover_rate"]) > tolerance:
+            verdict["unmatched"] += 1
+            continue
+        (low, high), (other_low, other_high) = violation_interval(point), violation_interval(near)
+        if high < other_low:
+            verdict["better"] += 1
+        elif low > other_high:
+            verdict["worse"] += 1
+        else:
+            verdict["tied"] += 1
+    return verdict
+
+
 # -- figures ------------------------------------------------------------------------------------------------------
 def write_figures(report: CalibrationReport, out: Path) -> list[Path]:
     """reliability.png and (with a curve) operating_curve.png, plus report.json."""
@@ -436,9 +474,17 @@ def write_figures(report: CalibrationReport, out: Path) -> list[Path]:
         for name, points in report.curve.items():
             xs = [p["takeover_rate"] for p in points]
             ys = [p["violation_rate"] for p in points]
-            ax.plot(xs, ys, "o-", label=name, color=colours.get(name))
+            bounds = [violation_interval(p) for p in points]
+            if all(math.isfinite(lo) for lo, _ in bounds):
+                errors = [
+                    [y - lo for y, (lo, _) in zip(ys, bounds, strict=True)],
+                    [hi - y for y, (_, hi) in zip(ys, bounds, strict=True)],
+                ]
+                ax.errorbar(xs, ys, yerr=errors, fmt="o-", capsize=3, lw=1.2, label=name, color=colours.get(name))
+            else:
+                ax.plot(xs, ys, "o-", label=name, color=colours.get(name))
         ax.set_xlabel("takeover rate (share of steps under the expert)")
-        ax.set_ylabel("episodes with a violation")
+        ax.set_ylabel("episodes with a violation (95% Wilson interval)")
         ax.set_xlim(0, 1)
         ax.set_ylim(-0.02, 1.02)
         ax.set_title(f"{report.sim} {report.scenario}: the gate's operating curve", fontsize=10)

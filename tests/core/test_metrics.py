@@ -5,8 +5,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
-from core.metrics import auroc, average_precision, reliability
+from core.metrics import auroc, average_precision, reliability, wilson_interval
 
 
 def test_auroc_counts_ordered_pairs_and_ties_half() -> None:
@@ -24,3 +25,16 @@ def test_average_precision_and_reliability() -> None:
     assert average_precision(np.array([0.9, 0.8, 0.7]), np.array([1, 0, 1])) == (1 + 2 / 3) / 2
     bins = reliability(np.array([0.05, 0.05, 0.95, 0.95]), np.array([0, 0, 1, 0]), bins=10)
     assert bins == [(0.05, 0.0, 2), (0.95, 0.5, 2)]
+
+
+def test_wilson_interval_matches_the_textbook_values_and_stays_in_range() -> None:
+    # 0 of 10: (0, 0.278); 5 of 10: (0.237, 0.763) (Wilson 1927 / Newcombe 1998 tables)
+    assert wilson_interval(0, 10) == pytest.approx((0.0, 0.2775), abs=1e-4)
+    assert wilson_interval(5, 10) == pytest.approx((0.2366, 0.7634), abs=1e-4)
+    low, high = wilson_interval(10, 10)
+    assert high == pytest.approx(1.0) and low == pytest.approx(0.7225, abs=1e-4)
+    # more episodes, a narrower interval around the same rate
+    assert np.diff(wilson_interval(10, 40)) < np.diff(wilson_interval(5, 20))
+    assert all(math.isnan(v) for v in wilson_interval(0, 0))
+    with pytest.raises(ValueError, match="successes"):
+        wilson_interval(11, 10)

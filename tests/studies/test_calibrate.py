@@ -112,3 +112,18 @@ def test_a_violation_the_gate_missed_is_unforeseen_only_when_fear_stayed_under_t
     assert bad > 0 and blind["violation_rate"] == seen["violation_rate"]
     assert seen["violations_under_threshold"] == bad and seen["violations_unforeseen"] == 0
     assert blind["violations_unforeseen"] == bad and blind["violations_under_threshold"] == 0
+
+
+def test_curves_are_compared_at_equal_takeover_with_intervals() -> None:
+    from studies.calibrate import compare_curves
+
+    def point(takeover: float, violations: int, episodes: int = 20) -> dict[str, float]:
+        return {"takeover_rate": takeover, "violation_rate": violations / episodes, "episodes": episodes}
+
+    curve = {
+        "fear (SAGE)": [point(0.10, 0), point(0.20, 4), point(0.30, 12), point(0.60, 0)],
+        "random": [point(0.11, 15), point(0.21, 6), point(0.29, 2)],
+    }
+    # 0/20 vs 15/20 apart: better; 4/20 vs 6/20 overlap: tied; 12/20 vs 2/20 apart: worse; nothing near 60%
+    assert compare_curves(curve, "random") == {"better": 1, "tied": 1, "worse": 1, "unmatched": 1}
+    assert compare_curves(curve, "curiosity only")["unmatched"] == 4
