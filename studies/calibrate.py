@@ -477,8 +477,9 @@ def write_figures(report: CalibrationReport, out: Path) -> list[Path]:
             bounds = [violation_interval(p) for p in points]
             if all(math.isfinite(lo) for lo, _ in bounds):
                 errors = [
-                    [y - lo for y, (lo, _) in zip(ys, bounds, strict=True)],
-                    [hi - y for y, (_, hi) in zip(ys, bounds, strict=True)],
+                    # clipped at 0: at 0 or n of n the bound equals the rate up to rounding
+                    [max(y - lo, 0.0) for y, (lo, _) in zip(ys, bounds, strict=True)],
+                    [max(hi - y, 0.0) for y, (_, hi) in zip(ys, bounds, strict=True)],
                 ]
                 ax.errorbar(xs, ys, yerr=errors, fmt="o-", capsize=3, lw=1.2, label=name, color=colours.get(name))
             else:

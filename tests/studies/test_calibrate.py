@@ -127,3 +127,21 @@ def test_curves_are_compared_at_equal_takeover_with_intervals() -> None:
     # 0/20 vs 15/20 apart: better; 4/20 vs 6/20 overlap: tied; 12/20 vs 2/20 apart: worse; nothing near 60%
     assert compare_curves(curve, "random") == {"better": 1, "tied": 1, "worse": 1, "unmatched": 1}
     assert compare_curves(curve, "curiosity only")["unmatched"] == 4
+
+
+def test_operating_curve_figure_draws_intervals_at_zero_and_all_episodes(tmp_path: Path) -> None:
+    """Rates of 0 and 1 (where the Wilson bound equals the rate up to rounding) still draw."""
+    from studies.calibrate import CalibrationReport, SignalScore
+
+    def point(takeover: float, violations: int) -> dict[str, float]:
+        return {"takeover_rate": takeover, "violation_rate": violations / 10, "episodes": 10, "knob": 1.0}
+
+    report = CalibrationReport(
+        run="r", sim="point", scenario="s", episodes=10, steps=100, horizon_s=1.0, horizon_steps=10, violations=3,
+        positives=30, scores={"fear": SignalScore(0.9, 0.5)}, fire_rate_before_violation=0.5,
+        fire_rate_elsewhere=0.1, violations_warned=0.5, mean_lead_time_s=0.3,
+        curve={"fear (SAGE)": [point(0.1, 10), point(0.3, 0)], "random": [point(0.1, 10), point(0.3, 7)]},
+    )  # fmt: skip
+    paths = write_figures(report, tmp_path)
+    assert (tmp_path / "operating_curve.png") in paths
+    assert "1 better, 1 tied, 0 worse" in report.summary()
