@@ -97,9 +97,10 @@ def main() -> None:
         "Figures: `<policy>-<scenario>/reliability.png` and `operating_curve.png`; numbers: `report.json`.",
         "",
         "Fear vs random / curiosity only: the fear curve's points better · tied · worse than the other gating's "
-        "point nearest in takeover rate (within 5 points; the rest unmatched), where their 95% Wilson intervals of "
-        "the share of episodes with a violation do not overlap. The target, above random at every takeover rate, "
-        "is all better; with the curve's episodes per point most differences cannot be told apart.",
+        "point nearest in takeover rate (within 5 points; the rest unmatched), better or worse where the 95% "
+        "interval of the difference in the share of episodes with a violation (Newcombe's hybrid score interval) "
+        "excludes 0. The target, above random at every takeover rate, is all better. Where neither gating has a "
+        "violation at a takeover rate, the point is tied: no curve can lie above another there.",
         "",
         "Operating curves (episodes with a violation against the takeover rate, the gate's τ scaled; random and "
         "curiosity-only gating at equal takeover rates; bars: 95% Wilson intervals):",

@@ -29,7 +29,7 @@ import numpy as np
 from core.agents import load_agent
 from core.experts import ScriptedExpert
 from core.loop import Gate, GateDecision, Runner, StepRecord
-from core.metrics import auroc, average_precision, reliability, wilson_interval
+from core.metrics import auroc, average_precision, difference_interval, reliability, wilson_interval
 
 EVAL_SEED = 3_000_000
 """Calibration episodes use seeds apart from training (episode i: EVAL_SEED + i)."""
@@ -95,7 +95,7 @@ class CalibrationReport:
             if self.curve.get(against):
                 v = compare_curves(self.curve, against)
                 lines.append(
-                    f"fear against {against} at equal takeover (95% Wilson intervals): {v['better']} better, "
+                    f"fear against {against} at equal takeover (95% interval of the difference): {v['better']} better, "
                     f"{v['tied']} tied, {v['worse']} worse, {v['unmatched']} without a point within 5 points"
                 )
         return "\n".join(lines)
@@ -412,17 +412,17 @@ def operating_curve(
 
 def violation_interval(point: dict[str, float]) -> tuple[float, float]:
     """The 95% Wilson interval of a curve point's share of episodes with a violation."""
-    n = int(point.get("episodes", 0))
-    return wilson_interval(round(point["violation_rate"] * n), n)
+    return wilson_interval(*_violations(point))
 
 
 def compare_curves(
     curve: dict[str, list[dict[str, float]]], against: str, name: str = "fear (SAGE)", tolerance: float = 0.05
 ) -> dict[str, int]:
     """Count ``name``'s points that are better, tied with or worse than ``against`` at (nearly) the same takeover
-    rate: the ``against`` point nearest in takeover, if within ``tolerance``, and 95% Wilson intervals of the share
-    of episodes with a violation that do not overlap (better: fewer violations). Points with no counterpart that
-    near are ``unmatched``. The issue's target, "above random at every takeover rate", is ``worse == tied == 0``."""
+    rate: the ``against`` point nearest in takeover, if within ``tolerance``, and the 95% interval of the
+    difference in the share of episodes with a violation (:func:`core.metrics.difference_interval`): better when
+    it lies wholly below 0 (fewer violations), worse when wholly above. Points with no counterpart that near are
+    ``unmatched``. The issue's target, "above random at every takeover rate", is ``worse == tied == 0``."""
     verdict = {"better": 0, "tied": 0, "worse": 0, "unmatched": 0}
     others = curve.get(against, [])
     for point in curve.get(name, []):
@@ -430,14 +430,20 @@ def compare_curves(
         if near is None or abs(near["takeover_rate"] - point["takeover_rate"]) > tolerance:
             verdict["unmatched"] += 1
             continue
-        (low, high), (other_low, other_high) = violation_interval(point), violation_interval(near)
-        if high < other_low:
+        low, high = difference_interval(*_violations(point), *_violations(near))
+        if high < 0:
             verdict["better"] += 1
-        elif low > other_high:
+        elif low > 0:
             verdict["worse"] += 1
         else:
             verdict["tied"] += 1
     return verdict
+
+
+def _violations(point: dict[str, float]) -> tuple[int, int]:
+    """(episodes with a violation, episodes) of a curve point."""
+    n = int(point.get("episodes", 0))
+    return round(point["violation_rate"] * n), n
 
 
 # -- figures ------------------------------------------------------------------------------------------------------

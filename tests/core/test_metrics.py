@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from core.metrics import auroc, average_precision, reliability, wilson_interval
+from core.metrics import auroc, average_precision, difference_interval, reliability, wilson_interval
 
 
 def test_auroc_counts_ordered_pairs_and_ties_half() -> None:
@@ -38,3 +38,15 @@ def test_wilson_interval_matches_the_textbook_values_and_stays_in_range() -> Non
     assert all(math.isnan(v) for v in wilson_interval(0, 0))
     with pytest.raises(ValueError, match="successes"):
         wilson_interval(11, 10)
+
+
+def test_difference_interval_matches_newcombes_worked_examples() -> None:
+    # Newcombe (1998), Statistics in Medicine 17:873-890, table II, method 10
+    assert difference_interval(56, 70, 48, 80) == pytest.approx((0.0524, 0.3339), abs=1e-4)
+    assert difference_interval(9, 10, 3, 10) == pytest.approx((0.1705, 0.8090), abs=1e-4)
+    assert difference_interval(5, 56, 0, 29) == pytest.approx((-0.0381, 0.1926), abs=1e-4)
+    # antisymmetric, and narrower with more episodes at the same rates
+    low, high = difference_interval(3, 10, 9, 10)
+    assert (low, high) == pytest.approx((-0.8090, -0.1705), abs=1e-4)
+    assert np.diff(difference_interval(8, 40, 28, 40)) < np.diff(difference_interval(2, 10, 7, 10))
+    assert all(math.isnan(v) for v in difference_interval(0, 0, 1, 10))

@@ -121,12 +121,13 @@ def test_curves_are_compared_at_equal_takeover_with_intervals() -> None:
         return {"takeover_rate": takeover, "violation_rate": violations / episodes, "episodes": episodes}
 
     curve = {
-        "fear (SAGE)": [point(0.10, 0), point(0.20, 4), point(0.30, 12), point(0.60, 0)],
-        "random": [point(0.11, 15), point(0.21, 6), point(0.29, 2)],
+        "fear (SAGE)": [point(0.10, 0), point(0.20, 4), point(0.30, 12), point(0.45, 2, 10), point(0.60, 0)],
+        "random": [point(0.11, 15), point(0.21, 6), point(0.29, 2), point(0.46, 7, 10)],
     }
-    # 0/20 vs 15/20 apart: better; 4/20 vs 6/20 overlap: tied; 12/20 vs 2/20 apart: worse; nothing near 60%
-    assert compare_curves(curve, "random") == {"better": 1, "tied": 1, "worse": 1, "unmatched": 1}
-    assert compare_curves(curve, "curiosity only")["unmatched"] == 4
+    # 0/20 vs 15/20: better; 4/20 vs 6/20: tied; 12/20 vs 2/20: worse; nothing near 60%. 2/10 vs 7/10 is better
+    # although the two Wilson intervals overlap (0.06-0.51 and 0.40-0.89): the difference's interval excludes 0
+    assert compare_curves(curve, "random") == {"better": 2, "tied": 1, "worse": 1, "unmatched": 1}
+    assert compare_curves(curve, "curiosity only")["unmatched"] == 5
 
 
 def test_operating_curve_figure_draws_intervals_at_zero_and_all_episodes(tmp_path: Path) -> None:
