@@ -27,9 +27,14 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run the policy with its gate and no expert; report how well fear ranks the steps before a
         violation (AUROC, average precision), the gate's firing, a reliability diagram and the operating curve."""
+        import torch
+
         import sims
         from studies.calibrate import calibrate_run, write_figures
 
+        # batch-1 inference gains nothing from a second thread and loses much when another job holds a core
+        # (UGV 4 with a short curve beside a busy core: 35 s wall with torch's default threads, 12.5 s with one)
+        torch.set_num_threads(1)
         try:
             descriptor = sims.descriptor(sim)
             name = scenario or descriptor.default_scenario
