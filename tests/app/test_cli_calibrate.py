@@ -1,0 +1,51 @@
+"""``sage calibrate`` from the command line: the committed UGV default, a few short episodes, its printed report and
+its figures; and bad input answered with one clear line and exit code 2, nothing written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from typer.testing import CliRunner
+
+from app.cli import app
+
+torch.set_num_threads(1)
+ROOT = Path(__file__).resolve().parents[2]
+UGV_DEFAULT = str(ROOT / "policies" / "ugv-default")
+
+
+def test_calibrate_prints_the_report_and_writes_its_figures(tmp_path: Path) -> None:
+    out = tmp_path / "calib"
+    result = CliRunner().invoke(
+        app,
+        [
+            "calibrate", UGV_DEFAULT, "--sim", "ugv", "--scenario", "4", "--episodes", "4", "--max-steps", "120",
+            "--curve-episodes", "1", "--out", str(out),
+        ],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    # the scenario-4 cut-in meets the policy within 120 steps: the label has positives, so fear gets a score
+    assert "| fear |" in result.output and "label: violation within 1 s (10 steps)" in result.output
+    for gating in ("fear (SAGE)", "random", "curiosity only"):
+        assert f"operating curve {gating}" in result.output
+    assert {p.name for p in out.iterdir()} == {"report.json", "reliability.png", "operating_curve.png"}
+    report = json.loads((out / "report.json").read_text())
+    assert report["sim"] == "ugv" and report["scenario"] == "4"
+    assert 0.0 <= report["scores"]["fear"]["auroc"] <= 1.0
+    assert [len(points) for points in report["curve"].values()] == [6, 6, 6]
+
+
+def test_calibrate_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
+    out = tmp_path / "calib"
+    cases = {
+        "ugv scenario '9'": [UGV_DEFAULT, "--sim", "ugv", "--scenario", "9"],
+        "no run folder or checkpoint file": [str(tmp_path / "missing"), "--sim", "ugv"],
+        "unknown simulator 'warp'": [UGV_DEFAULT, "--sim", "warp"],
+    }
+    for message, args in cases.items():
+        result = CliRunner().invoke(app, ["calibrate", *args, "--episodes", "1", "--out", str(out)])
+        assert result.exit_code == 2, result.output
+        assert message in result.output
+    assert not out.exists()
