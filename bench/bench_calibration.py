@@ -3,24 +3,29 @@ model, on the scenarios where its simulator's danger lives; writes ``docs/calibr
 README quotes) and each run's figures, with the commit and the command that produced them.
 
     .venv/bin/python bench/bench_calibration.py [--episodes 20] [--curve-episodes 10] [--gate-episodes 20] \
-        [--readme README.md]
+        [--readme README.md] [--cpus N | --address HOST:PORT]
 
 Targets (issue #11): fear AUROC >= 0.85 for "violation within 1 s"; the operating curve above random and
-curiosity-only gating at every takeover rate. Not a unit test: it takes minutes.
+curiosity-only gating at every takeover rate. Not a unit test: it takes minutes. Each calibration and each row of
+the gate table is a Ray task (:func:`studies.sweep.run_tasks`, one core and one process each, libsumo's rule), on
+this machine's cores or a Ray cluster's; the results do not depend on how many run at once (fixed seeds per task).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import torch
 
 import sims
-from studies.calibrate import calibrate_run, compare_curves, gate_with_expert, write_figures
+from studies.calibrate import CalibrationReport, calibrate_run, compare_curves, gate_with_expert, write_figures
 from studies.readme import include
+from studies.sweep import run_tasks
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = [
@@ -40,44 +45,49 @@ def main() -> None:
     parser.add_argument("--gate-episodes", type=int, default=20, help="episodes per scenario of the gate table")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "calibration")
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's calibration section")
+    parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
+    parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()
     torch.set_num_threads(1)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     rows: list[str] = []
     notes: list[str] = []
     curves: list[str] = []
+    cases = []
     for policy, sim, scenario in CASES:
-        folder = ROOT / "policies" / policy
-        if not (folder / "checkpoint.pt").is_file():
+        if (ROOT / "policies" / policy / "checkpoint.pt").is_file():
+            cases.append((policy, sim, scenario))
+        else:
             notes.append(f"- `{policy}` ({sim} {scenario}): no committed policy, not measured.")
-            continue
-        started = time.perf_counter()
-        d = sims.descriptor(sim)
-        report = calibrate_run(
-            folder,
-            lambda d=d, scenario=scenario: d.make(scenario),
-            d.dt,
-            sim=sim,
-            scenario=scenario,
-            episodes=args.episodes,
-            curve_episodes=args.curve_episodes,
-        )
+    gate_cases = [
+        (policy, sim, spec.name)
+        for policy, sim in sorted({(case[0], case[1]) for case in cases})
+        for spec in sims.descriptor(sim).scenarios
+    ]
+    calibrations = [
+        {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.episodes}
+        | {"curve_episodes": args.curve_episodes}
+        for policy, sim, scenario in cases
+    ]
+    gate_rows = [
+        {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.gate_episodes}
+        for policy, sim, scenario in gate_cases
+    ]
+    # one batch, so that the gate table's short rows fill the cores beside the long calibrations
+    results = run_tasks(
+        run_case,
+        calibrations + gate_rows,
+        [f"{policy} on {sim} {scenario}" for policy, sim, scenario in cases]
+        + [f"gate table: {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases],
+        address=args.address,
+        cpus=args.cpus,
+    )
+    for (policy, sim, scenario), (report, seconds) in zip(cases, results[: len(cases)], strict=True):
         figures = write_figures(report, args.out / f"{policy}-{scenario}")
         curves += [
             f"![{policy} on {sim} {scenario}]({f.parent.name}/{f.name})" for f in figures if f.stem == "operating_curve"
         ]
-        s = report.scores
-        curve = report.curve.get("fear (SAGE)", [])
-        best = min(curve, key=lambda p: (p["violation_rate"], p["takeover_rate"])) if curve else None
-        rows.append(
-            f"| {policy} | {sim} {scenario} | {s['fear'].auroc:.2f} | {s['cost'].auroc:.2f} | {s['sigma'].auroc:.2f} "
-            f"| {s['curiosity'].auroc:.2f} "
-            f"| {report.fire_rate_before_violation:.0%} / {report.fire_rate_elsewhere:.0%} "
-            f"| {report.violations_warned:.0%} | "
-            + (f"{best['violation_rate']:.0%} at {best['takeover_rate']:.0%}" if best else "–")
-            + f" | {verdict(report.curve, 'random')} | {verdict(report.curve, 'curiosity only')}"
-            + f" | {time.perf_counter() - started:.0f} s |"
-        )
+        rows.append(calibration_row(policy, sim, scenario, report, seconds))
         print(report.summary(), flush=True)
     text = [
         "# Calibration of the default policies' fear",
@@ -107,7 +117,7 @@ def main() -> None:
         "",
         " ".join(curves),
     ]
-    text += gate_table(args.gate_episodes)
+    text += gate_table(args.gate_episodes, results[len(cases) :])
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     print(f"wrote {args.out / 'README.md'}")
@@ -124,10 +134,61 @@ def verdict(curve: dict[str, list[dict[str, float]]], against: str) -> str:
     return f"{v['better']} · {v['tied']} · {v['worse']}" + (f" ({v['unmatched']} unmatched)" if v["unmatched"] else "")
 
 
-def gate_table(episodes: int) -> list[str]:
+def run_case(policy: str, sim: str, scenario: str, episodes: int, curve_episodes: int | None = None) -> Any:
+    """One Ray task: the calibration of ``policy`` on a scenario, as ``(report, seconds)``, or (no
+    ``curve_episodes``) one row of the gate table."""
+    folder = ROOT / "policies" / policy
+    d = sims.descriptor(sim)
+    started = time.perf_counter()
+    if curve_episodes is not None:
+        report = calibrate_run(
+            folder,
+            lambda: d.make(scenario),
+            d.dt,
+            sim=sim,
+            scenario=scenario,
+            episodes=episodes,
+            curve_episodes=curve_episodes,
+        )
+        return report, time.perf_counter() - started
+    warn_steps = max(1, round(1.0 / d.dt))
+    point = gate_with_expert(folder, lambda: d.make(scenario), episodes, warn_steps=warn_steps)
+    bad = round(point["violation_rate"] * episodes)
+    under = int(point["violations_under_expert"])
+    held = point["expert_steps_before_violation"] * d.dt
+    return (
+        f"| {policy} | {sim} {scenario} | {bad}/{episodes} | {point['takeover_rate']:.0%} "
+        f"| {under}{f' ({held:.1f} s)' if under else ''} | {int(point['violations_handed_back'])} "
+        f"| {int(point['violations_under_threshold'])} | {int(point['violations_unforeseen'])} "
+        f"| {time.perf_counter() - started:.0f} s |"
+    )
+
+
+def calibration_row(policy: str, sim: str, scenario: str, report: CalibrationReport, seconds: float) -> str:
+    """The calibration table's row: AUROC of fear and its parts, firing, the curve's best point and verdicts."""
+    s = report.scores
+    curve = report.curve.get("fear (SAGE)", [])
+    best = min(curve, key=lambda p: (p["violation_rate"], p["takeover_rate"])) if curve else None
+    aurocs = " | ".join(_shown(s[name].auroc, ".2f") for name in ("fear", "cost", "sigma", "curiosity"))
+    return (
+        f"| {policy} | {sim} {scenario} | {aurocs} "
+        f"| {_shown(report.fire_rate_before_violation, '.0%')} / {_shown(report.fire_rate_elsewhere, '.0%')} "
+        f"| {_shown(report.violations_warned, '.0%')} | "
+        + (f"{best['violation_rate']:.0%} at {best['takeover_rate']:.0%}" if best else "–")
+        + f" | {verdict(report.curve, 'random')} | {verdict(report.curve, 'curiosity only')}"
+        + f" | {seconds:.0f} s |"
+    )
+
+
+def _shown(value: float, spec: str) -> str:
+    """``value`` formatted, or – where there is none (no violation among the episodes: no AUROC, no firing rate)."""
+    return format(value, spec) if math.isfinite(value) else "–"
+
+
+def gate_table(episodes: int, rows: list[str]) -> list[str]:
     """Gate + scripted expert at the gate's own threshold on every scenario of each default's simulator
     (issue #11's target: a violation in at most 1 of 20 episodes, at a takeover rate of at most 35%)."""
-    lines = [
+    return [
         "",
         f"## Gate + scripted expert at the gate's own threshold ({episodes} episodes per scenario)",
         "",
@@ -139,28 +200,8 @@ def gate_table(episodes: int) -> list[str]:
         "| policy | scenario | episodes with a violation | takeover rate | expert driving (for how long) "
         "| handed back | fear over τ_min, under τ | unforeseen | time |",
         "|---|---|---|---|---|---|---|---|---|",
+        *rows,
     ]
-    for policy in sorted({case[0] for case in CASES}):
-        sim = next(case[1] for case in CASES if case[0] == policy)
-        folder = ROOT / "policies" / policy
-        if not (folder / "checkpoint.pt").is_file():
-            continue
-        d = sims.descriptor(sim)
-        for spec in d.scenarios:
-            started = time.perf_counter()
-            warn_steps = max(1, round(1.0 / d.dt))
-            point = gate_with_expert(folder, lambda d=d, name=spec.name: d.make(name), episodes, warn_steps=warn_steps)
-            bad = round(point["violation_rate"] * episodes)
-            under = int(point["violations_under_expert"])
-            held = point["expert_steps_before_violation"] * d.dt
-            lines.append(
-                f"| {policy} | {sim} {spec.name} | {bad}/{episodes} | {point['takeover_rate']:.0%} "
-                f"| {under}{f' ({held:.1f} s)' if under else ''} | {int(point['violations_handed_back'])} "
-                f"| {int(point['violations_under_threshold'])} | {int(point['violations_unforeseen'])} "
-                f"| {time.perf_counter() - started:.0f} s |"
-            )
-            print(lines[-1], flush=True)
-    return lines
 
 
 if __name__ == "__main__":
