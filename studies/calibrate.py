@@ -30,6 +30,7 @@ from core.agents import load_agent
 from core.experts import ScriptedExpert
 from core.loop import Gate, GateDecision, Runner, StepRecord
 from core.metrics import auroc, average_precision, difference_interval, reliability, wilson_interval
+from core.sage.gate import SageGate
 
 EVAL_SEED = 3_000_000
 """Calibration episodes use seeds apart from training (episode i: EVAL_SEED + i)."""
@@ -236,12 +237,13 @@ class _HoldGate:
         self.remaining = 0
         self.last_curiosity = math.nan
 
-    def rule(self, decision: GateDecision) -> bool:
+    def rule(self, decision: GateDecision, held: bool) -> bool:
+        """Whether to (re)start the hold; ``held``: the expert holds control now."""
         raise NotImplementedError
 
     def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
         decision = self.inner.decide(obs, a_rl)
-        if self.rule(decision):
+        if self.rule(decision, self.remaining > 0):
             self.remaining = self.hold
         fired = self.remaining > 0
         if fired:
@@ -254,14 +256,18 @@ class _HoldGate:
 
 
 class ScaledFearGate(_HoldGate):
-    """SAGE's rule with τ scaled: fire when F > scale · τ."""
+    """SAGE's rule with τ scaled: fire when F > scale · τ; while the expert holds control, keep it while
+    F > scale · the SAGE gate's release level (its hysteresis, :meth:`SageGate.release_level`)."""
 
-    def __init__(self, inner: Gate, hold: int, scale: float) -> None:
+    def __init__(self, inner: SageGate, hold: int, scale: float) -> None:
         super().__init__(inner, hold)
-        self.scale = scale
+        self.sage, self.scale = inner, scale
 
-    def rule(self, decision: GateDecision) -> bool:
-        return math.isfinite(decision.fear) and decision.fear > self.scale * decision.threshold
+    def rule(self, decision: GateDecision, held: bool) -> bool:
+        if not math.isfinite(decision.fear):
+            return False
+        level = self.sage.release_level(decision.threshold) if held else decision.threshold
+        return decision.fear > self.scale * level
 
 
 class RandomGate(_HoldGate):
@@ -271,7 +277,7 @@ class RandomGate(_HoldGate):
         super().__init__(inner, hold)
         self.p, self.rng = p, np.random.default_rng(seed)
 
-    def rule(self, decision: GateDecision) -> bool:
+    def rule(self, decision: GateDecision, held: bool) -> bool:
         return bool(self.rng.random() < self.p)
 
 
@@ -282,7 +288,7 @@ class CuriosityGate(_HoldGate):
         super().__init__(inner, hold)
         self.level = level
 
-    def rule(self, decision: GateDecision) -> bool:
+    def rule(self, decision: GateDecision, held: bool) -> bool:
         return math.isfinite(self.last_curiosity) and self.last_curiosity > self.level
 
 

@@ -108,6 +108,10 @@ class GateConfig:
     """False fixes τ at (τ_min + τ_max) / 2, the value ρ = 1/2 gives for typical curiosity (FNI-RL, ablations)."""
     hold_steps: int = 5
     """k: once the gate fires, expert control is held for this many steps (restarted by every new firing)."""
+    release: float = 1.0
+    """Hysteresis of the hold, in [0, 1]: while the expert holds control, fear above τ_t - release (τ_t - τ_min)
+    restarts the hold. 0 hands back after ``hold_steps`` steps under τ_t; 1 (the default) only after
+    ``hold_steps`` steps under τ_min, the threshold of the most novel ground."""
 
 
 @dataclass
@@ -377,6 +381,8 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError("need 0 <= gate.tau_min_quantile < gate.tau_max_quantile <= 1")
     if not 0.0 < cfg.gate.curiosity_smoothing <= 1.0:
         raise ValueError(f"gate.curiosity_smoothing must be in (0, 1], got {cfg.gate.curiosity_smoothing}")
+    if not 0.0 <= cfg.gate.release <= 1.0:
+        raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
     if cfg.gate.horizon < 1 or cfg.gate.hold_steps < 1:
         raise ValueError("gate.horizon and gate.hold_steps must be >= 1")
     if not 0.0 < cfg.gamma < 1.0:

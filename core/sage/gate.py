@@ -2,7 +2,10 @@
 
 ``decide``: F^m_t of the policy's intended action a_RL (m-step rollout of the ensemble under the policy,
 :mod:`core.sage.fear`) against τ_t; Ξ_t = 1 when F^m_t > τ_t, and once fired the expert keeps control for
-``hold_steps`` steps (each new firing restarts the count), which avoids frame-by-frame switching.
+``hold_steps`` steps (each new firing restarts the count), which avoids frame-by-frame switching. While the
+expert holds control, fear over a lower release level (between τ_t and τ_min, ``release``) restarts the count
+too: hysteresis, so that control goes back to the policy only once its own plan looks safe again (handing back
+as soon as fear dipped under τ left the policy to meet the same danger again).
 ``observe``: curiosity C_{t+1} of the executed transition, which sets the threshold of the next step.
 The loop (:class:`core.loop.Runner`) executes a = (1 - Ξ) a_RL + Ξ a_expert and records both actions.
 
@@ -39,6 +42,9 @@ class GateDetail:
     threshold: float = math.nan
     curiosity: float = math.nan
     rho: float = math.nan
+    level: float = math.nan
+    """The fear that (re)started the hold at this step: τ_t, or the lower release level while the expert held
+    control (:attr:`GateConfig.release`)."""
     hold_remaining: int = 0
 
 
@@ -143,15 +149,25 @@ class SageGate:
                 terms = fear_of(folded, ro, self.cfg)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
                 self._horizon_source = ro.cost[..., 0].numpy().copy()
-        if value > threshold:
+        level = self._level(threshold)
+        if value > level:
             self.hold_remaining = self.cfg.hold_steps
         fired = self.hold_remaining > 0
         if fired:
             self.hold_remaining -= 1
         d = self.detail
-        d.fear, d.cost, d.sigma, d.threshold = value, cost, sigma, threshold
+        d.fear, d.cost, d.sigma, d.threshold, d.level = value, cost, sigma, threshold, level
         d.hold_remaining = self.hold_remaining
         return GateDecision(value, threshold, fired)
+
+    def _level(self, threshold: float) -> float:
+        """The fear that (re)starts the hold now: τ_t, or while the expert holds control the release level."""
+        return self.release_level(threshold) if self.hold_remaining > 0 else threshold
+
+    def release_level(self, threshold: float) -> float:
+        """τ_t - r (τ_t - τ_min), r = ``release``: while the expert holds control, fear above this keeps it there
+        (hysteresis), so that control is not handed back while the danger that called the expert persists."""
+        return threshold - self.cfg.release * max(threshold - self.threshold.tau_min, 0.0)
 
     def last_horizon(self) -> dict[str, list[Any]] | None:
         """The last decision's imagined horizon, read-only: ``cost`` (m lists of N members' predicted violation

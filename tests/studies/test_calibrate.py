@@ -146,3 +146,18 @@ def test_operating_curve_figure_draws_intervals_at_zero_and_all_episodes(tmp_pat
     paths = write_figures(report, tmp_path)
     assert (tmp_path / "operating_curve.png") in paths
     assert "1 better, 1 tied, 0 worse" in report.summary()
+
+
+def test_the_operating_curves_scaled_gate_keeps_the_sage_gates_hysteresis() -> None:
+    from studies.calibrate import ScaledFearGate
+    from tests.core.sage.test_gate import fitted_gate
+
+    # τ = 0.5, τ_min = 0.15, scale 0.8: fires over 0.4, and once fired holds while fear is over 0.8 · 0.15
+    fears = [0.3, 0.45, 0.3, 0.2, 0.1, 0.1, 0.3]
+    obs, action = np.zeros(3, np.float32), np.zeros(2, np.float32)
+    for release, expected in (
+        (1.0, [False, True, True, True, True, False, False]),
+        (0.0, [False, True, True, False, False, False, False]),
+    ):
+        gate = ScaledFearGate(fitted_gate(2, list(fears), release=release), hold=2, scale=0.8)
+        assert [gate.decide(obs, action).fired for _ in fears] == expected

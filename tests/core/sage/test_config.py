@@ -48,6 +48,8 @@ def test_overrides_convert_types_and_name_what_is_wrong() -> None:
         ("gamma", "key=value"),
         ("gamma=1.5", "gamma"),
         ("world_model=false", "world_model"),
+        ("gate.release=1.5", "gate.release"),
+        ("gate.release=-0.1", "gate.release"),
     ):
         with pytest.raises(ValueError, match=message):
             apply_overrides(for_method("sage"), [bad])

@@ -42,15 +42,16 @@ class ScriptedFear:
         return 1.0
 
 
-def fitted_gate(k: int, fears: list[float]) -> SageGate:
+def fitted_gate(k: int, fears: list[float], release: float = 1.0) -> SageGate:
     rng = np.random.default_rng(0)
     model = EnsembleWorldModel(3, 2, WorldModelConfig(hidden=16, max_updates_per_fit=5))
     s = rng.normal(size=(50, 3)).astype(np.float32)
     model.fit(s, rng.normal(size=(50, 2)).astype(np.float32), s, np.zeros(50, np.float32), rng)
-    gate = SageGate(model, Actor(3, 2, 16, 1, -torch.ones(2), torch.ones(2)), GateConfig(hold_steps=k))
+    gate = SageGate(model, Actor(3, 2, 16, 1, -torch.ones(2), torch.ones(2)), GateConfig(hold_steps=k, release=release))
     gate.kernel = lambda: fake  # type: ignore[method-assign]
     fake = ScriptedFear(fears)
     gate.threshold.threshold = 0.5
+    gate.threshold.tau_min = 0.15
     gate.threshold.update = lambda c: 0.5  # type: ignore[method-assign]
     return gate
 
@@ -70,6 +71,23 @@ def test_a_new_firing_during_the_hold_restarts_it_and_reset_clears_it() -> None:
     assert decisions(gate, 6) == [True, True, True, True, True, False]
     gate.reset()
     assert decisions(gate, 3) == [False, True, True]  # the hold starts again only on a firing
+
+
+def test_the_expert_keeps_control_while_fear_stays_over_the_release_level() -> None:
+    # τ = 0.5, τ_min = 0.15: fear 0.3 does not fire the gate, but keeps a fired gate holding (hysteresis); once
+    # fear is under τ_min the hold runs its k = 2 steps out
+    fears = [0.3, 0.9, 0.3, 0.3, 0.3, 0.3, 0.1, 0.1, 0.1, 0.3, 0.3]
+    held = decisions(fitted_gate(2, fears, release=1.0), len(fears))
+    assert held == [False, True, True, True, True, True, True, False, False, False, False]
+
+
+def test_half_release_sits_between_tau_and_tau_min_and_zero_release_hands_back_under_tau() -> None:
+    # release 0.5: the level is 0.5 - 0.5 (0.5 - 0.15) = 0.325; fear 0.35 keeps the hold, 0.3 does not
+    fears = [0.9, 0.35, 0.35, 0.3, 0.3, 0.3]
+    assert decisions(fitted_gate(2, fears, release=0.5), 6) == [True, True, True, True, False, False]
+    gate = fitted_gate(2, [0.9, 0.35, 0.35, 0.3, 0.3, 0.3], release=0.0)
+    assert decisions(gate, 6) == [True, True, False, False, False, False]
+    assert gate.detail.level == 0.5
 
 
 def test_decision_reports_fear_and_threshold() -> None:
