@@ -368,8 +368,10 @@ def gate_with_expert(
     episodes: int,
     max_steps: int | None = None,
     warn_steps: int = 10,
+    **gate_overrides: Any,
 ) -> dict[str, float]:
-    """The product as it runs: the policy with its own SAGE gate (its τ, unscaled) and the scripted expert.
+    """The product as it runs: the policy with its own SAGE gate (its τ, unscaled; ``gate_overrides``: any
+    :class:`~core.sage.config.GateConfig` field, e.g. ``release=1.0``) and the scripted expert.
     Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds, and where each
     episode's first violation comes from:
 
@@ -382,7 +384,7 @@ def gate_with_expert(
       coming, and no threshold in the gate's range would have fired).
     """
     agent = load_agent(run)
-    return _run_gated(agent, make_env, agent.make_gate(), episodes, max_steps, warn_steps)
+    return _run_gated(agent, make_env, agent.make_gate(**gate_overrides), episodes, max_steps, warn_steps)
 
 
 def operating_curve(

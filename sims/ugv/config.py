@@ -101,11 +101,6 @@ class ExpertConfig:
     on the arc that keeps clear longest, held for this long (s) before it stops and replans."""
     mover_margin: float = 0.12
     """Extra gap kept to movers beyond the touching distance of the two bounding circles (m)."""
-    evade_margin: float = 0.03
-    """Gap an evasion keeps between the robot's and the movers' footprints (m). Evasion compares footprints
-    (each covered by circles along its length), not bounding circles: handed over 1.3 m from the cut-in's
-    vehicle, bounding circles (0.82 m apart at touching, against 0.46-0.6 m for the footprints) see every arc
-    in contact at once and rank them by nothing that matters (7 of 20 late handovers collided, against 2)."""
 
 
 @dataclass(frozen=True)

@@ -13,20 +13,19 @@ Privileged: it reads the static layout and the movers' scripted future poses fro
    (bounding circles plus a margin) the whole time. If no cap is, it moves at most one step, to where
    standing still stays clear for ``stop_horizon`` seconds (it stops abruptly, as the paper's expert
    does). Failing even that (a takeover that finds the robot in a mover's way), it leaves the path on the
-   arc that keeps clear of the movers longest, judged on the footprints (:func:`mover_gaps`), then replans.
+   arc that keeps clear of the movers longest, then replans.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from sims.ugv.config import UGVConfig
-from sims.ugv.scenario import Layout, MoverPlan
+from sims.ugv.scenario import Layout
 
 if TYPE_CHECKING:
     from sims.ugv.world import World
@@ -241,40 +240,6 @@ def _resample(points: np.ndarray) -> Path:
     return Path(xy, s)
 
 
-def covering_circles(length: float, width: float) -> tuple[np.ndarray, float]:
-    """Three circles covering a length x width box: their centres' offsets along its heading and their radius."""
-    return np.array([-1.0, 0.0, 1.0]) * (length / 3), math.hypot(length / 6, width / 2)
-
-
-def mover_gaps(
-    length: float,
-    width: float,
-    px: np.ndarray,
-    py: np.ndarray,
-    heading: np.ndarray,
-    future: np.ndarray,
-    movers: Sequence[MoverPlan],
-) -> np.ndarray:
-    """(M, T) least distance between the robot's footprint at T poses and each mover's at the same times
-    (``future``: (M, T, 3) mover poses x, y, yaw), both covered by circles (:func:`covering_circles`; a round
-    mover is its own circle): negative where they overlap."""
-    offsets, radius = covering_circles(length, width)
-    rx = px[:, None] + offsets[None] * np.cos(heading)[:, None]  # (T, 3)
-    ry = py[:, None] + offsets[None] * np.sin(heading)[:, None]
-    gaps = np.empty(future.shape[:2])
-    for i, mover in enumerate(movers):
-        if mover.kind == "box":
-            m_offsets, m_radius = covering_circles(mover.length, mover.width)
-        else:
-            m_offsets, m_radius = np.zeros(1), mover.radius
-        yaw = future[i, :, 2:3]
-        mx = future[i, :, 0:1] + m_offsets[None] * np.cos(yaw)  # (T, K)
-        my = future[i, :, 1:2] + m_offsets[None] * np.sin(yaw)
-        d = np.hypot(rx[:, :, None] - mx[:, None, :], ry[:, :, None] - my[:, None, :])  # (T, 3, K)
-        gaps[i] = d.min(axis=(1, 2)) - radius - m_radius
-    return gaps
-
-
 class ExpertView(Protocol):
     """What the expert reads of the env (its privileged view), so that it depends on no env class."""
 
@@ -443,7 +408,7 @@ class UGVExpert:
         """Least clearance of three circles covering the robot's footprint at the given poses
         (centres at -L/3, 0, L/3 along the heading, radius hypot(L/6, W/2))."""
         robot = self.env.config.robot
-        offsets, _ = covering_circles(robot.length, robot.width)
+        offsets = np.array([-1.0, 0.0, 1.0]) * (robot.length / 3)
         cx = (np.asarray(px, dtype=float).reshape(-1, 1) + offsets * np.cos(heading)[:, None]).ravel()
         cy = (np.asarray(py, dtype=float).reshape(-1, 1) + offsets * np.sin(heading)[:, None]).ravel()
         return float(grid.clearance_at(np.column_stack([cx, cy])).min())
@@ -512,10 +477,10 @@ class UGVExpert:
         return float(caps[int(np.argmax(first_contact))]), False
 
     def _evade(self, x: float, y: float, yaw: float) -> tuple[float, float]:
-        """The arc (v, w), held for ``evade_time`` and then stopped, that keeps the robot's footprint clear of the
-        movers' longest (ties: the widest gap), without touching a static obstacle. Used where no speed along the
-        planned path keeps clear, e.g. after a takeover in a mover's way: there is no reverse gear, so the way out
-        is sideways or forwards, off the path; the path is replanned once clear."""
+        """The arc (v, w), held for ``evade_time`` and then stopped, that keeps clear of the movers longest
+        (ties: the widest gap), without touching a static obstacle. Used where no speed along the planned path
+        keeps clear, e.g. after a takeover in a mover's way: there is no reverse gear, so the way out is sideways
+        or forwards, off the path; the path is replanned once clear."""
         env, grid = self.env, self._grid
         world = env.world
         assert world is not None and env.layout is not None and grid is not None
@@ -525,9 +490,11 @@ class UGVExpert:
         n_move = max(1, round(ex.evade_time / dt))
         k = world.k
         world.ensure_table(k + n)
-        future = world.mover_poses[:, k + 1 : k + n + 1, :]  # (M, T, 3)
+        future = world.mover_poses[:, k + 1 : k + n + 1, 0:2]  # (M, T, 2)
+        radii = np.array([m.bounding_radius for m in env.layout.movers])
+        reach = (radii + robot.circumradius + ex.mover_margin)[:, None]  # (M, 1)
         t = np.minimum(np.arange(1, n + 1), n_move) * dt  # moving for evade_time, then standing
-        _, touching = covering_circles(robot.length, robot.width)
+        touching = math.hypot(robot.length / 6, robot.width / 2)  # the footprint circles' radius
         best, best_key = (0.0, 0.0), (-1, -math.inf)
         for v in (robot.v_max, 0.5 * robot.v_max, 0.0):
             for turn in (-1.0, -0.5, 0.0, 0.5, 1.0):
@@ -540,8 +507,7 @@ class UGVExpert:
                     px, py = x + v * t * math.cos(yaw), y + v * t * math.sin(yaw)
                 if v > 0 and self._footprint_clearance(grid, px[:n_move], py[:n_move], heading[:n_move]) < touching:
                     continue  # drives into a wall
-                gap = mover_gaps(robot.length, robot.width, px, py, heading, future, env.layout.movers)
-                gap -= ex.evade_margin  # (M, T)
+                gap = np.hypot(px[None] - future[:, :, 0], py[None] - future[:, :, 1]) - reach  # (M, T)
                 hit = (gap < 0).any(axis=0)
                 first = int(hit.argmax()) if hit.any() else n
                 key = (first, float(gap.min()))
