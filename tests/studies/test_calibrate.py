@@ -161,3 +161,13 @@ def test_the_operating_curves_scaled_gate_keeps_the_sage_gates_hysteresis() -> N
     ):
         gate = ScaledFearGate(fitted_gate(2, list(fears), release=release), hold=2, scale=0.8)
         assert [gate.decide(obs, action).fired for _ in fears] == expected
+
+
+def test_gate_with_expert_runs_the_gate_with_the_settings_it_is_given(deployed: Path) -> None:  # noqa: F811
+    from studies.calibrate import gate_with_expert
+
+    make_env = functools.partial(envs.make, "dynamic")
+    fixed = {"tau_from_data": False, "use_curiosity": False}
+    deaf = gate_with_expert(deployed, make_env, 4, tau_min=1.0, tau_max=1.0, **fixed)  # fear never exceeds 1
+    eager = gate_with_expert(deployed, make_env, 4, tau_min=0.0, tau_max=0.0, **fixed)
+    assert deaf["takeover_rate"] == 0.0 and eager["takeover_rate"] > 0.9
