@@ -2,10 +2,10 @@
 
 ``decide``: F^m_t of the policy's intended action a_RL (m-step rollout of the ensemble under the policy,
 :mod:`core.sage.fear`) against τ_t; Ξ_t = 1 when F^m_t > τ_t, and once fired the expert keeps control for
-``hold_steps`` steps (each new firing restarts the count), which avoids frame-by-frame switching. While the
-expert holds control, fear over a lower release level (between τ_t and τ_min, ``release``) restarts the count
-too: hysteresis, so that control goes back to the policy only once its own plan looks safe again (handing back
-as soon as fear dipped under τ left the policy to meet the same danger again).
+``hold_steps`` steps (each new firing restarts the count), which avoids frame-by-frame switching. With
+``release`` > 0 (off by default; README, "Calibration of fear", says what it measured), fear over a lower release
+level (between τ_t and τ_min) restarts the count too while the expert holds control: hysteresis, so that control
+goes back to the policy only once its own plan looks safe again.
 ``observe``: curiosity C_{t+1} of the executed transition, which sets the threshold of the next step.
 The loop (:class:`core.loop.Runner`) executes a = (1 - Ξ) a_RL + Ξ a_expert and records both actions.
 
