@@ -27,7 +27,7 @@ from typing import Any
 import torch
 
 import sims
-from core.sage.config import GateConfig, set_field
+from core.sage.config import AgentConfig, apply_overrides
 from studies.calibrate import CalibrationReport, calibrate_run, compare_curves, gate_with_expert, write_figures
 from studies.readme import include
 from studies.sweep import run_tasks
@@ -159,19 +159,14 @@ def verdict(curve: dict[str, list[dict[str, float]]], against: str) -> str:
 
 
 def gate_settings(items: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` strings as GateConfig settings of the right types; a wrong one is an error naming it."""
-    cfg = GateConfig()
-    names: list[str] = []
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"--compare-gate {item!r}: expected KEY=VALUE, e.g. release=1")
-        try:
-            set_field(cfg, key, value)
-        except ValueError as exc:
-            raise SystemExit(f"--compare-gate {item!r}: {exc}") from None
-        names.append(key)
-    return {name: getattr(cfg, name) for name in names}
+    """``KEY=VALUE`` strings as GateConfig settings of the right types, parsed and validated as ``--set gate.KEY=VALUE``
+    is; a wrong one stops the bench before anything runs."""
+    try:
+        gate = apply_overrides(AgentConfig(), [f"gate.{item}" for item in items]).gate
+    except ValueError as exc:
+        raise SystemExit(f"--compare-gate: {exc}") from None
+    names = [item.split("=", 1)[0].strip() for item in items]
+    return {name: getattr(gate, name) for name in names}
 
 
 def run_case(
