@@ -24,7 +24,9 @@ A scenario is a YAML file (see ``sims/ugv/scenarios/*.yaml``)::
     time_limit: 60                 # s (optional)
 
 Any number may instead be a ``[low, high]`` range: it is drawn uniformly at every reset from the
-env's seeded generator, which is how start, goal, obstacle poses and mover timings are randomised.
+env's seeded generator, which is how start, goal, obstacle poses and mover timings are randomised. A mover's
+waypoint coordinates may be ranges too (``path: [[[3, 7], 0.6], [[3, 7], 5.4]]``: a crossing at a slant drawn
+anew each episode); a path of fixed points draws nothing, so its seeded layouts do not depend on this.
 """
 
 from __future__ import annotations
@@ -76,6 +78,8 @@ Range = Annotated[tuple[float, float], BeforeValidator(_to_range)]
 """A number or a ``[low, high]`` range drawn uniformly at each reset."""
 
 Point = tuple[float, float]
+RangePoint = tuple[Range, Range]
+"""A waypoint whose coordinates may each be a ``[low, high]`` range."""
 
 
 class _Model(BaseModel):
@@ -117,7 +121,7 @@ class Mover(_Model):
     length: float = Field(0.6, gt=0)
     width: float = Field(0.45, gt=0)
     radius: float = Field(0.25, gt=0, description="used when kind is circle")
-    path: list[Point] = Field(min_length=2)
+    path: list[RangePoint] = Field(min_length=2, description="waypoints; a coordinate may be a [low, high] range")
     speed: Range
     start_time: Range = (0.0, 0.0)
     dwell: float = Field(0.0, ge=0)
@@ -134,8 +138,9 @@ class Mover(_Model):
 
     @model_validator(mode="after")
     def _path_has_length(self) -> Mover:
-        lengths = [math.dist(a, b) for a, b in itertools.pairwise(self.path)]
-        if sum(lengths) <= 0:
+        fixed = all(low == high for point in self.path for low, high in point)
+        centres = [((x[0] + x[1]) / 2, (y[0] + y[1]) / 2) for x, y in self.path]
+        if fixed and sum(math.dist(a, b) for a, b in itertools.pairwise(centres)) <= 0:
             raise ValueError("path has zero length")
         return self
 
@@ -196,8 +201,8 @@ class Scenario(_Model):
         for i, mover in enumerate(self.movers):
             shift = mover.shift
             for j, (px, py) in enumerate(mover.path):
-                check(f"movers.{i}.path.{j}", "x", (px + shift.x[0], px + shift.x[1]))
-                check(f"movers.{i}.path.{j}", "y", (py + shift.y[0], py + shift.y[1]))
+                check(f"movers.{i}.path.{j}", "x", (px[0] + shift.x[0], px[1] + shift.x[1]))
+                check(f"movers.{i}.path.{j}", "y", (py[0] + shift.y[0], py[1] + shift.y[1]))
         if problems:
             raise ValueError("; ".join(problems))
         return self
@@ -363,6 +368,11 @@ def sample_obstacles_and_movers(
             circles.append(CirclePose(_draw(rng, obstacle.x), _draw(rng, obstacle.y), obstacle.radius, obstacle.label))
     movers = []
     for mover in scenario.movers:
+        # fixed coordinates draw nothing, so a scenario without ranges in its paths keeps its seeded layouts
+        path = np.array([[_draw(rng, x), _draw(rng, y)] for x, y in mover.path])
+        if not np.any(np.hypot(*np.diff(path, axis=0).T) > 1e-6):
+            # ranged waypoints that happened to coincide: stretch the last one so the mover still moves
+            path[-1] += (1e-3, 0.0)
         shift = np.array([_draw(rng, mover.shift.x), _draw(rng, mover.shift.y)])
         movers.append(
             MoverPlan(
@@ -370,7 +380,7 @@ def sample_obstacles_and_movers(
                 length=mover.length,
                 width=mover.width,
                 radius=mover.radius,
-                path=np.asarray(mover.path, dtype=float) + shift,
+                path=path + shift,
                 speed=_draw(rng, mover.speed),
                 start_time=_draw(rng, mover.start_time),
                 dwell=mover.dwell,

@@ -158,3 +158,36 @@ def test_randomisation_is_seeded_and_within_ranges() -> None:
         assert 0.8 <= layout.start[0] <= 1.2 and 2.75 <= layout.start[1] <= 3.25
         assert 0.45 <= layout.movers[0].speed <= 0.55 and -0.5 <= layout.movers[0].start_time <= 1.5
         assert 4.1 <= layout.movers[0].path[0, 0] <= 4.5  # shifted by [-0.2, 0.2]
+
+
+def test_ranged_waypoints_are_drawn_per_reset_within_their_ranges() -> None:
+    walker = {"path": [[[0.5, 1.5], 1.0], [3.0, [2.5, 3.5]]], "speed": 0.5, "shift": {"x": [0, 0.2]}}
+    scenario = parse_scenario(room(movers=[walker]))
+    paths = [sample_layout(scenario, np.random.default_rng(seed)).movers[0].path for seed in range(20)]
+    starts, ends = np.array([p[0] for p in paths]), np.array([p[1] for p in paths])
+    assert (starts[:, 0] >= 0.5).all() and (starts[:, 0] <= 1.7).all() and np.ptp(starts[:, 0]) > 0.5
+    assert (ends[:, 1] >= 2.5).all() and (ends[:, 1] <= 3.5).all() and np.ptp(ends[:, 1]) > 0.5
+    np.testing.assert_array_equal(starts[:, 1], 1.0)  # a fixed coordinate stays put
+    again = sample_layout(scenario, np.random.default_rng(3)).movers[0].path
+    np.testing.assert_array_equal(again, paths[3])  # seeded
+
+
+def test_ranged_waypoints_are_validated_over_their_whole_range() -> None:
+    outside = {"path": [[1, 1], [[2.0, 4.5], 1]], "speed": 0.5}
+    assert "movers.0.path.1.x: [2, 4.5] lies outside the map bounds x in [0, 4]" in _error(room(movers=[outside]))
+    assert "movers.0: path has zero length" in _error(room(movers=[{"path": [[1, 1], [1, 1]], "speed": 1}]))
+    # ranged points that could coincide are allowed, and a draw that makes them coincide still moves
+    overlapping = parse_scenario(room(movers=[{"path": [[[1, 2], 1], [[1, 2], 1]], "speed": 1}]))
+    layout = sample_layout(overlapping, np.random.default_rng(0))
+    assert np.isfinite(layout.movers[0].poses(np.linspace(0, 5, 11))).all()
+
+
+def test_the_traffic_training_field_draws_movers_that_cross_the_field() -> None:
+    scenario = load_scenario(Path(sims.__file__).parent / "ugv" / "scenarios" / "traffic.yaml")
+    headings = []
+    for seed in range(10):
+        layout = sample_layout(scenario, np.random.default_rng(seed))
+        assert len(layout.movers) == 3
+        first = layout.movers[0].path
+        headings.append(np.arctan2(*(first[1] - first[0])[::-1]))
+    assert np.ptp(headings) > 0.3  # the crossing vehicle's slant differs from reset to reset
