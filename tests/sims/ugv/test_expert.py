@@ -7,9 +7,10 @@ import pytest
 
 import sims
 from sims.ugv.expert import UGVExpert
+from sims.ugv.scenario import SCENARIO_DIR
 
 
-def run(scenario: int, seeds: range, yield_to_movers: bool = True, random_steps: int = 0) -> list[str]:
+def run(scenario: int | str, seeds: range, yield_to_movers: bool = True, random_steps: int = 0) -> list[str]:
     env = sims.make("ugv", scenario=scenario)
     unwrapped = env.unwrapped
     expert = UGVExpert(unwrapped, yield_to_movers=yield_to_movers)
@@ -30,6 +31,13 @@ def run(scenario: int, seeds: range, yield_to_movers: bool = True, random_steps:
 def test_expert_succeeds_in_every_scenario(scenario: int) -> None:
     outcomes = run(scenario, range(20))
     assert outcomes.count("success") >= 19, outcomes
+
+
+@pytest.mark.parametrize("field", ["traffic", "head_on"])
+def test_expert_gets_through_the_mover_fields(field: str) -> None:
+    """The fields with movers on drawn paths are passable: a collision there under gate + expert is the gate's."""
+    outcomes = run(str(SCENARIO_DIR / f"{field}.yaml"), range(20))
+    assert outcomes.count("collision") == 0 and outcomes.count("success") >= 18, outcomes
 
 
 @pytest.mark.parametrize("scenario", [3, 4])
