@@ -282,14 +282,37 @@ class RandomGate(_HoldGate):
 
 
 class CuriosityGate(_HoldGate):
-    """Fires when the curiosity of the last transition exceeds ``level`` (curiosity alone, no fear)."""
+    """Fires when the curiosity of the last transition exceeds ``level`` (curiosity alone, no fear); ``seen`` keeps
+    every curiosity it observed (an infinite level makes it a pilot that never fires)."""
 
     def __init__(self, inner: Gate, hold: int, level: float) -> None:
         super().__init__(inner, hold)
         self.level = level
+        self.seen: list[float] = []
 
     def rule(self, decision: GateDecision, held: bool) -> bool:
         return math.isfinite(self.last_curiosity) and self.last_curiosity > self.level
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        curiosity = super().observe(obs, action, next_obs)
+        if math.isfinite(curiosity):
+            self.seen.append(curiosity)
+        return curiosity
+
+
+def firing_share(rate: float, hold: int) -> float:
+    """The per-step firing probability p at which independent firing with a ``hold``-step hold takes over a share
+    ``rate`` of the steps: rate = k p / (1 + (k - 1) p)."""
+    return min(max(rate / max(hold - (hold - 1) * rate, 1e-9), 0.0), 1.0)
+
+
+def level_for_share(curiosities: Sequence[float], share: float) -> float:
+    """The curiosity level exceeded by a ``share`` of ``curiosities`` (above all of them for a share of 0)."""
+    values = np.sort(np.asarray(curiosities, dtype=float))
+    if len(values) == 0 or share <= 0.0:
+        return math.inf
+    index = int(np.clip(math.ceil((1.0 - share) * len(values)) - 1, 0, len(values) - 1))
+    return float(values[index])
 
 
 def _tau_min(gate: Gate) -> float:
@@ -395,7 +418,9 @@ def operating_curve(
     max_steps: int | None = None,
 ) -> dict[str, list[dict[str, float]]]:
     """Episodes with a violation against the takeover rate for SAGE's gate (τ scaled), random gating and
-    curiosity-only gating, each swept over its knob, on the same seeds."""
+    curiosity-only gating on the same seeds; random and curiosity-only gating are set to the takeover rates that
+    the scaled gate reached (the firing probability from the rate; the curiosity level from a pilot's curiosity,
+    corrected once), so that each fear point has a counterpart at about its own rate."""
     agent = load_agent(run)
     hold = agent.config.gate.hold_steps
     curve: dict[str, list[dict[str, float]]] = {"fear (SAGE)": [], "random": [], "curiosity only": []}
@@ -403,19 +428,48 @@ def operating_curve(
         point = _run_gated(agent, make_env, ScaledFearGate(agent.make_gate(), hold, scale), episodes, max_steps)
         curve["fear (SAGE)"].append({"knob": scale, **point})
     rates = sorted(p["takeover_rate"] for p in curve["fear (SAGE)"])
+    # curiosity-only gating's level comes from the curiosity met on the same episodes with no gating (a pilot)
+    pilot = CuriosityGate(agent.make_gate(), hold, math.inf)
+    _run_gated(agent, make_env, pilot, episodes, max_steps)
+
+    def random_at(share: float) -> tuple[float, Gate]:
+        return share, RandomGate(agent.make_gate(), hold, share)
+
+    def curiosity_at(share: float) -> tuple[float, Gate]:
+        level = level_for_share(pilot.seen, share)
+        return level, CuriosityGate(agent.make_gate(), hold, level)
+
     for rate in rates:
-        # per-step firing probability that yields this takeover rate with a hold of k steps: r = k p / (1 + (k-1) p)
-        p = rate / max(hold - (hold - 1) * rate, 1e-9)
-        point = _run_gated(agent, make_env, RandomGate(agent.make_gate(), hold, min(p, 1.0)), episodes, max_steps)
-        curve["random"].append({"knob": p, **point})
-    reference = float(agent.make_gate().world_model.curiosity_ref)
-    for multiple in (0.8, 1.2, 1.6, 2.2, 3.0, 4.5):
-        level = multiple * reference
-        point = _run_gated(agent, make_env, CuriosityGate(agent.make_gate(), hold, level), episodes, max_steps)
-        curve["curiosity only"].append({"knob": level, **point})
+        curve["random"].append(_at_rate(rate, hold, random_at, agent, make_env, episodes, max_steps))
+        curve["curiosity only"].append(_at_rate(rate, hold, curiosity_at, agent, make_env, episodes, max_steps))
     for points in curve.values():
         points.sort(key=lambda q: q["takeover_rate"])
     return curve
+
+
+def _at_rate(
+    rate: float,
+    hold: int,
+    gate_for_share: Callable[[float], tuple[float, Gate]],
+    agent: Any,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    episodes: int,
+    max_steps: int | None,
+) -> dict[str, float]:
+    """A comparison gating's curve point at about takeover ``rate``: ``gate_for_share`` builds it (and names its
+    knob) from a per-step firing share, first the share that independent firing would need, then once more scaled
+    by how far the takeover rate missed (the expert's driving changes what the gating meets); the nearer point."""
+    share = firing_share(rate, hold)
+    tries = []
+    for _ in range(2):
+        knob, gate = gate_for_share(share)
+        point = {"knob": knob, **_run_gated(agent, make_env, gate, episodes, max_steps)}
+        tries.append(point)
+        reached = point["takeover_rate"]
+        if abs(reached - rate) <= 0.02 or reached <= 0.0:
+            break
+        share = min(share * rate / reached, 1.0)
+    return min(tries, key=lambda q: abs(q["takeover_rate"] - rate))
 
 
 def violation_interval(point: dict[str, float]) -> tuple[float, float]:

@@ -46,7 +46,7 @@ def test_calibrate_scores_fear_against_what_happened(deployed: Path, tmp_path: P
     assert 0.0 <= report.fire_rate_elsewhere <= 1.0 and not math.isnan(report.fire_rate_before_violation)
     assert sum(n for _, _, n in report.reliability) == report.steps
     sage = report.curve["fear (SAGE)"]
-    assert len(sage) == 3 and len(report.curve["random"]) == 3 and report.curve["curiosity only"]
+    assert len(sage) == 3 and len(report.curve["random"]) == 3 and len(report.curve["curiosity only"]) == 3
     # a lower threshold scale hands over more
     by_knob = {p["knob"]: p["takeover_rate"] for p in sage}
     assert by_knob[0.5] >= by_knob[2.0]
@@ -171,3 +171,17 @@ def test_gate_with_expert_runs_the_gate_with_the_settings_it_is_given(deployed: 
     deaf = gate_with_expert(deployed, make_env, 4, tau_min=1.0, tau_max=1.0, **fixed)  # fear never exceeds 1
     eager = gate_with_expert(deployed, make_env, 4, tau_min=0.0, tau_max=0.0, **fixed)
     assert deaf["takeover_rate"] == 0.0 and eager["takeover_rate"] > 0.9
+
+
+def test_curiosity_levels_are_set_to_take_over_the_asked_share_of_steps() -> None:
+    from studies.calibrate import firing_share, level_for_share
+
+    curiosities = np.arange(100, dtype=float)
+    for share in (0.05, 0.25, 0.5):
+        level = level_for_share(curiosities, share)
+        assert (curiosities > level).mean() == share
+    assert level_for_share(curiosities, 0.0) == math.inf and level_for_share([], 0.3) == math.inf
+    # a k-step hold turns a per-step firing share p into a takeover share k p / (1 + (k - 1) p), and back
+    for p in (0.0, 0.02, 0.1, 0.5, 1.0):
+        rate = 5 * p / (1 + 4 * p)
+        assert math.isclose(firing_share(rate, 5), p, abs_tol=1e-9)
