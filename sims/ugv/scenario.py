@@ -138,9 +138,10 @@ class Mover(_Model):
 
     @model_validator(mode="after")
     def _path_has_length(self) -> Mover:
+        # a path with a ranged point can only be judged once drawn (sampling keeps a coinciding draw moving)
         fixed = all(low == high for point in self.path for low, high in point)
-        centres = [((x[0] + x[1]) / 2, (y[0] + y[1]) / 2) for x, y in self.path]
-        if fixed and sum(math.dist(a, b) for a, b in itertools.pairwise(centres)) <= 0:
+        points = [(x[0], y[0]) for x, y in self.path]
+        if fixed and sum(math.dist(a, b) for a, b in itertools.pairwise(points)) <= 0:
             raise ValueError("path has zero length")
         return self
 
