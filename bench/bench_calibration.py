@@ -24,11 +24,19 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 import sims
 from core.sage.config import AgentConfig, apply_overrides
-from studies.calibrate import CalibrationReport, calibrate_run, compare_curves, gate_with_expert, write_figures
+from studies.calibrate import (
+    CalibrationReport,
+    calibrate_run,
+    compare_curves,
+    expert_lead,
+    gate_with_expert,
+    write_figures,
+)
 from studies.readme import include
 from studies.sweep import run_tasks
 
@@ -46,6 +54,8 @@ FIELDS = {
 }
 """Scenario files beyond a simulator's built-in scenarios that its gate-table rows also cover: layouts with movers
 on paths drawn at each reset, which no committed model was trained on (its refits used 1, 2 and clutter.yaml)."""
+LEADS_S = (0.5, 1.0, 1.5, 2.0, 3.0)
+"""Seconds before the policy's violation at which the expert takes over in the table of the warning it needs."""
 
 
 def main() -> None:
@@ -92,17 +102,19 @@ def main() -> None:
         for policy, sim, scenario in gate_cases
     ]
     compare_rows = [row | {"gate": compare} for row in gate_rows] if compare else []
+    lead_rows = [row | {"lead": True} for row in gate_rows]
     # one batch, so that the gate table's short rows fill the cores beside the long calibrations
     results = run_tasks(
         run_case,
-        calibrations + gate_rows + compare_rows,
+        calibrations + gate_rows + compare_rows + lead_rows,
         [f"{policy} on {sim} {scenario}" for policy, sim, scenario in cases]
         + [f"gate table: {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases]
         + (
             [f"gate table ({compare}): {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases]
             if compare
             else []
-        ),
+        )
+        + [f"expert lead: {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases],
         address=args.address,
         cpus=args.cpus,
     )
@@ -144,9 +156,11 @@ def main() -> None:
         " ".join(curves),
     ]
     first = len(cases) + len(gate_rows)
+    last = first + len(compare_rows)
     text += gate_table(args.gate_episodes, results[len(cases) : first])
     if compare:
-        text += gate_table(args.gate_episodes, results[first:], compare)
+        text += gate_table(args.gate_episodes, results[first:last], compare)
+    text += lead_table(args.gate_episodes, results[last:])
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     print(f"wrote {args.out / 'README.md'}")
@@ -181,9 +195,11 @@ def run_case(
     episodes: int,
     curve_episodes: int | None = None,
     gate: dict[str, Any] | None = None,
+    lead: bool = False,
 ) -> Any:
     """One Ray task: the calibration of ``policy`` on a scenario, as ``(report, seconds)``, or (no
-    ``curve_episodes``) one row of the gate table (``gate``: GateConfig settings over the policy's own)."""
+    ``curve_episodes``) one row of the gate table (``gate``: GateConfig settings over the policy's own), or
+    (``lead``) one row of the table of the warning the expert needs."""
     folder = ROOT / "policies" / policy
     d = sims.descriptor(sim)
     started = time.perf_counter()
@@ -200,18 +216,52 @@ def run_case(
             curve_episodes=curve_episodes,
         )
         return report, time.perf_counter() - started
+    shown = Path(scenario).name if scenario.endswith(".yaml") else scenario
+    if lead:
+        measured = expert_lead(folder, lambda: d.make(scenario), d.dt, episodes=episodes, leads_s=LEADS_S)
+        warning = float(np.median(measured.gate_warning_s)) if measured.gate_warning_s else math.nan
+        needed = measured.needed_s()
+        return (
+            f"| {policy} | {sim} {shown} | {measured.violations}/{episodes} | "
+            + (f"{warning:.1f} s" if math.isfinite(warning) else "–")
+            + " | "
+            + (" | ".join(str(n) for n in measured.left) if measured.violations else " | ".join("–" for _ in LEADS_S))
+            + " | "
+            + _needed(needed, measured.violations)
+            + f" | {time.perf_counter() - started:.0f} s |"
+        )
     warn_steps = max(1, round(1.0 / d.dt))
     point = gate_with_expert(folder, lambda: d.make(scenario), episodes, warn_steps=warn_steps, **(gate or {}))
     bad = round(point["violation_rate"] * episodes)
     under = int(point["violations_under_expert"])
     held = point["expert_steps_before_violation"] * d.dt
-    shown = Path(scenario).name if scenario.endswith(".yaml") else scenario
     return (
         f"| {policy} | {sim} {shown} | {bad}/{episodes} | {point['takeover_rate']:.0%} "
         f"| {under}{f' ({held:.1f} s)' if under else ''} | {int(point['violations_handed_back'])} "
         f"| {int(point['violations_under_threshold'])} | {int(point['violations_unforeseen'])} "
         f"| {time.perf_counter() - started:.0f} s |"
     )
+
+
+def lead_table(episodes: int, rows: list[str]) -> list[str]:
+    """How much warning the scripted expert needs (:func:`studies.calibrate.expert_lead`) beside the warning the
+    gate gives, on every scenario of the gate table."""
+    leads = " | ".join(f"left, expert from {lead:g} s before" for lead in LEADS_S)
+    return [
+        "",
+        f"## The warning the expert needs ({episodes} episodes per scenario)",
+        "",
+        "The policy drives alone with its gate watching (no expert). Each episode with a violation is replayed from "
+        "the same seed with the scripted expert taking over a given time before the policy's violation and driving "
+        "to the end: the columns count the violations it could not avoid from there. Gate's warning: the median "
+        f"time from the gate's first firing in the {max(LEADS_S):g} s before a violation to it (0: none). "
+        "Warning needed: the shortest of these leads at which the expert avoided them all.",
+        "",
+        f"| policy | scenario | policy alone: episodes with a violation | gate's warning | {leads} | warning needed "
+        "| time |",
+        "|---|---|---|---|" + "---|" * len(LEADS_S) + "---|---|",
+        *rows,
+    ]
 
 
 def calibration_row(policy: str, sim: str, scenario: str, report: CalibrationReport, seconds: float) -> str:
@@ -228,6 +278,16 @@ def calibration_row(policy: str, sim: str, scenario: str, report: CalibrationRep
         + f" | {verdict(report.curve, 'random')} | {verdict(report.curve, 'curiosity only')}"
         + f" | {seconds:.0f} s |"
     )
+
+
+def _needed(seconds: float, violations: int) -> str:
+    """The warning the expert needs, as the table shows it: – with nothing to avoid, an upper bound when the
+    shortest lead was enough, a lower bound when the longest was not."""
+    if violations == 0:
+        return "–"
+    if not math.isfinite(seconds):
+        return f"> {max(LEADS_S):g} s"
+    return f"≤ {seconds:g} s" if seconds <= min(LEADS_S) else f"{seconds:g} s"
 
 
 def _shown(value: float, spec: str) -> str:

@@ -11,6 +11,10 @@ happens within the next H seconds" (1 s by default; H / dt steps from the simula
 - the gate's operating curve (:func:`operating_curve`): with the gate and the scripted expert, episodes with a
   violation against the takeover rate, sweeping a scale on τ; beside random gating and curiosity-only gating
   swept over their own knobs, so that the three are compared at equal takeover rates.
+
+:func:`expert_lead` asks the question the gate has to answer in time: how much warning does the expert need? It
+replays each of the policy's violations with the expert taking over a given time before it, beside how long
+before it the gate first fired.
 """
 
 from __future__ import annotations
@@ -563,3 +567,104 @@ def write_figures(report: CalibrationReport, out: Path) -> list[Path]:
         plt.close(fig)
         written.append(out / "operating_curve.png")
     return written
+
+
+# -- the warning the expert needs --------------------------------------------------------------------------------
+@dataclass
+class LeadReport:
+    """What :func:`expert_lead` measured: the policy's violations, how early the gate saw each coming, and how many
+    the expert still could not avoid when it took over a given time before them."""
+
+    episodes: int
+    violations: int
+    """Episodes in which the policy alone had a violation (the gate watching, no expert)."""
+    gate_warning_s: list[float]
+    """Per such episode: time from the gate's first firing in the ``max(leads_s)`` before the violation to it (0:
+    no firing in that window)."""
+    leads_s: list[float]
+    left: list[int]
+    """Per lead: of those episodes, how many still had a violation with the expert driving from that long before
+    the policy's violation to the end of the episode."""
+
+    def needed_s(self) -> float:
+        """The shortest lead at which the expert avoided every one of them (NaN: none of the leads was enough; 0:
+        there was nothing to avoid)."""
+        if self.violations == 0:
+            return 0.0
+        return next((lead for lead, left in zip(self.leads_s, self.left, strict=True) if left == 0), math.nan)
+
+
+class _ExpertFrom:
+    """Fires from step ``start`` of the episode on (the expert drives from there to the end)."""
+
+    def __init__(self) -> None:
+        self.start, self.t = 0, 0
+
+    def reset(self) -> None:
+        self.t = 0
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
+        fired = self.t >= self.start
+        self.t += 1
+        return GateDecision(math.nan, math.nan, fired)
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        return math.nan
+
+
+def _play(runner: Runner, seed: int, max_steps: int | None) -> list[StepRecord]:
+    """One episode from ``seed``, step by step (a failed step ends it)."""
+    runner.reset(seed)
+    records: list[StepRecord] = []
+    while max_steps is None or len(records) < max_steps:
+        record = runner.step()
+        if record is None:
+            break
+        records.append(record)
+        if record.done:
+            break
+    else:
+        runner.end_episode(reason="step limit")
+    return records
+
+
+def expert_lead(
+    run: str | Path,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    dt: float,
+    episodes: int = 20,
+    leads_s: Sequence[float] = (0.5, 1.0, 1.5, 2.0, 3.0),
+    max_steps: int | None = None,
+) -> LeadReport:
+    """The policy drives alone with its gate watching (as in :func:`calibrate_run`) on the evaluation seeds; each
+    episode with a violation is then replayed from the same seed with the scripted expert taking over ``lead``
+    seconds before the policy's first violation and driving to the end. Policy and simulator are deterministic
+    given the seed, so the replay is the same episode up to the takeover; the fewest seconds at which the expert
+    avoids every violation is the warning the gate has to give."""
+    agent = load_agent(run)
+    env = make_env()
+    try:
+        watching = Runner(env, agent.policy, agent.make_gate(), None, seed=EVAL_SEED, deterministic=True)
+        window = max(1, round(max(leads_s, default=0.0) / dt))
+        first: list[tuple[int, int]] = []  # (episode, step of its first violation)
+        warnings: list[float] = []
+        for episode in range(episodes):
+            records = _play(watching, EVAL_SEED + episode, max_steps)
+            step = next((i for i, r in enumerate(records) if r.violation), None)
+            if step is None:
+                continue
+            first.append((episode, step))
+            fired = [i for i in range(max(0, step - window), step + 1) if records[i].gate_fired]
+            warnings.append((step - fired[0]) * dt if fired else 0.0)
+        gate = _ExpertFrom()
+        replay = Runner(env, agent.policy, gate, ScriptedExpert(), seed=EVAL_SEED, deterministic=True)
+        left = []
+        for lead in leads_s:
+            count = 0
+            for episode, step in first:
+                gate.start = max(0, step - round(lead / dt))
+                count += any(r.violation for r in _play(replay, EVAL_SEED + episode, max_steps))
+            left.append(count)
+    finally:
+        env.close()
+    return LeadReport(episodes, len(first), warnings, [float(lead) for lead in leads_s], left)

@@ -185,3 +185,18 @@ def test_curiosity_levels_are_set_to_take_over_the_asked_share_of_steps() -> Non
     for p in (0.0, 0.02, 0.1, 0.5, 1.0):
         rate = 5 * p / (1 + 4 * p)
         assert math.isclose(firing_share(rate, 5), p, abs_tol=1e-9)
+
+
+def test_expert_lead_replays_each_violation_with_the_expert_taking_over_before_it(deployed: Path) -> None:  # noqa: F811
+    from studies.calibrate import expert_lead
+
+    report = expert_lead(deployed, functools.partial(envs.make, "dynamic"), dt=0.1, episodes=10, leads_s=(0.0, 2.0))
+    assert report.violations > 0, "the statically trained policy should meet the moving obstacle"
+    assert len(report.gate_warning_s) == report.violations
+    assert all(0.0 <= w <= 2.0 for w in report.gate_warning_s)
+    # the replay is the same episode up to the takeover (a drifted replay would miss some collisions): taking over
+    # at the very step of the contact, the expert's one action comes too late in the point world
+    assert report.left[0] == report.violations
+    # two seconds ahead, the expert (which knows the obstacle's future) keeps clear of every one of them
+    assert report.left[1] == 0
+    assert report.needed_s() == 2.0
