@@ -586,6 +586,21 @@ class LeadReport:
     """Per lead: of those episodes, how many still had a violation with the expert driving from that long before
     the policy's violation to the end of the episode."""
 
+    def summary(self) -> str:
+        warning = f"{np.median(self.gate_warning_s):.1f} s" if self.gate_warning_s else "–"
+        left = ", ".join(f"{lead:g} s: {n}" for lead, n in zip(self.leads_s, self.left, strict=True))
+        needed = self.needed_s()
+        return "\n".join(
+            [
+                f"the policy alone had a violation in {self.violations} of {self.episodes} episodes; the gate first "
+                f"fired a median {warning} before it (within {max(self.leads_s, default=0.0):g} s)",
+                f"the scripted expert taking over that long before each, violations left: {left or '–'}",
+                "warning the expert needs: "
+                + ("nothing to avoid" if self.violations == 0 else f"{needed:g} s" if math.isfinite(needed) else "more")
+                + " (the shortest of those leads at which it avoided every one)",
+            ]
+        )
+
     def needed_s(self) -> float:
         """The shortest lead at which the expert avoided every one of them (NaN: none of the leads was enough; 0:
         there was nothing to avoid)."""

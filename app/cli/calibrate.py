@@ -1,6 +1,7 @@
 """``sage calibrate``: does the policy's fear predict danger? (:mod:`studies.calibrate`)
 
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve-episodes 20 --out calib/ugv3
+sage calibrate policies/ugv-default --sim ugv --scenario 4 --episodes 20 --expert-lead
 """
 
 from __future__ import annotations
@@ -23,6 +24,14 @@ def register(app: typer.Typer) -> None:
             int, typer.Option(min=0, help="Episodes per point of the operating curve (0: no curve).")
         ] = 0,
         max_steps: Annotated[int | None, typer.Option(help="Cut episodes at this many steps.")] = None,
+        expert_lead: Annotated[
+            bool,
+            typer.Option(
+                "--expert-lead",
+                help="Also replay each of the policy's violations with the scripted expert taking over 0.5-3 s "
+                "before it: the warning the expert needs, beside the gate's.",
+            ),
+        ] = False,
         out: Annotated[Path | None, typer.Option(help="Folder for report.json and the PNG figures.")] = None,
     ) -> None:
         """Run the policy with its gate and no expert; report how well fear ranks the steps before a
@@ -31,6 +40,7 @@ def register(app: typer.Typer) -> None:
 
         import sims
         from studies.calibrate import calibrate_run, write_figures
+        from studies.calibrate import expert_lead as measure_lead
 
         # batch-1 inference gains nothing from a second thread and loses much when another job holds a core
         # (UGV 4 with a short curve beside a busy core: 35 s wall with torch's default threads, 12.5 s with one)
@@ -50,10 +60,17 @@ def register(app: typer.Typer) -> None:
                 max_steps=max_steps,
                 curve_episodes=curve_episodes,
             )
+            lead = (
+                measure_lead(run, lambda: descriptor.make(name), descriptor.dt, episodes=episodes, max_steps=max_steps)
+                if expert_lead
+                else None
+            )
         except (ValueError, FileNotFoundError, LookupError) as exc:
             typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
         typer.echo(report.summary())
+        if lead is not None:
+            typer.echo(lead.summary())
         if out is not None:
             for path in write_figures(report, out):
                 typer.echo(f"wrote {path}")
