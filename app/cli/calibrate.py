@@ -6,6 +6,8 @@ sage calibrate policies/ugv-default --sim ugv --scenario 4 --episodes 20 --exper
 
 from __future__ import annotations
 
+import json
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated
 
@@ -73,4 +75,8 @@ def register(app: typer.Typer) -> None:
             typer.echo(lead.summary())
         if out is not None:
             for path in write_figures(report, out):
+                typer.echo(f"wrote {path}")
+            if lead is not None:
+                path = out / "expert_lead.json"
+                path.write_text(json.dumps(asdict(lead) | {"needed_s": lead.needed_s()}, indent=2) + "\n")
                 typer.echo(f"wrote {path}")

@@ -37,11 +37,11 @@ def test_calibrate_prints_the_report_and_writes_its_figures(tmp_path: Path) -> N
     assert [len(points) for points in report["curve"].values()] == [6, 6, 6]
 
 
-def test_calibrate_says_how_much_warning_the_expert_needs() -> None:
+def test_calibrate_says_how_much_warning_the_expert_needs(tmp_path: Path) -> None:
     result = CliRunner().invoke(
         app,
         ["calibrate", UGV_DEFAULT, "--sim", "ugv", "--scenario", "4", "--episodes", "3", "--max-steps", "120",
-         "--expert-lead"],
+         "--expert-lead", "--out", str(tmp_path)],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     # the cut-in meets the policy in every one of these episodes; the expert, taking over 3 s ahead, avoids it
@@ -49,6 +49,8 @@ def test_calibrate_says_how_much_warning_the_expert_needs() -> None:
     left = result.output.split("violations left: ")[1].splitlines()[0]
     assert left.startswith("0.5 s: ") and left.endswith("3 s: 0")
     assert "warning the expert needs: " in result.output
+    saved = json.loads((tmp_path / "expert_lead.json").read_text())
+    assert saved["violations"] == 3 and saved["left"][-1] == 0 and saved["needed_s"] <= 3.0
 
 
 def test_calibrate_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
