@@ -200,3 +200,17 @@ def test_expert_lead_replays_each_violation_with_the_expert_taking_over_before_i
     # two seconds ahead, the expert (which knows the obstacle's future) keeps clear of every one of them
     assert report.left[1] == 0
     assert report.needed_s() == 2.0
+
+
+def test_the_warning_needed_is_the_shortest_lead_that_avoided_every_violation() -> None:
+    from studies.calibrate import LeadReport
+
+    report = LeadReport(
+        episodes=20, violations=4, gate_warning_s=[0.2, 0.6, 0.6, 3.0], leads_s=[0.5, 1.0, 2.0], left=[3, 1, 0]
+    )
+    assert report.needed_s() == 2.0
+    assert "median 0.6 s" in report.summary() and "needs: 2 s" in report.summary()
+    never = LeadReport(episodes=20, violations=2, gate_warning_s=[0.0, 0.0], leads_s=[0.5, 1.0], left=[2, 1])
+    assert math.isnan(never.needed_s()) and "needs: more" in never.summary()
+    calm = LeadReport(episodes=20, violations=0, gate_warning_s=[], leads_s=[0.5], left=[0])
+    assert calm.needed_s() == 0.0 and "nothing to avoid" in calm.summary()
