@@ -627,19 +627,14 @@ class _ExpertFrom:
         return math.nan
 
 
-def _play(runner: Runner, seed: int, max_steps: int | None) -> list[StepRecord]:
-    """One episode from ``seed``, step by step (a failed step ends it)."""
-    runner.reset(seed)
+def _episode(runner: Runner, max_steps: int | None) -> list[StepRecord]:
+    """The step records of one whole episode of ``runner`` (:meth:`Runner.run_episode`)."""
     records: list[StepRecord] = []
-    while max_steps is None or len(records) < max_steps:
-        record = runner.step()
-        if record is None:
-            break
-        records.append(record)
-        if record.done:
-            break
-    else:
-        runner.end_episode(reason="step limit")
+    runner.step_listeners.append(records.append)
+    try:
+        runner.run_episode(max_steps=max_steps)
+    finally:
+        runner.step_listeners.remove(records.append)
     return records
 
 
@@ -664,7 +659,7 @@ def expert_lead(
         first: list[tuple[int, int]] = []  # (episode, step of its first violation)
         warnings: list[float] = []
         for episode in range(episodes):
-            records = _play(watching, EVAL_SEED + episode, max_steps)
+            records = _episode(watching, max_steps)  # seed EVAL_SEED + episode
             step = next((i for i, r in enumerate(records) if r.violation), None)
             if step is None:
                 continue
@@ -672,13 +667,14 @@ def expert_lead(
             fired = [i for i in range(max(0, step - window), step + 1) if records[i].gate_fired]
             warnings.append((step - fired[0]) * dt if fired else 0.0)
         gate = _ExpertFrom()
-        replay = Runner(env, agent.policy, gate, ScriptedExpert(), seed=EVAL_SEED, deterministic=True)
         left = []
         for lead in leads_s:
             count = 0
             for episode, step in first:
                 gate.start = max(0, step - round(lead / dt))
-                count += any(r.violation for r in _play(replay, EVAL_SEED + episode, max_steps))
+                # a runner's first episode has its seed: the same episode as the watched one up to the takeover
+                replay = Runner(env, agent.policy, gate, ScriptedExpert(), seed=EVAL_SEED + episode, deterministic=True)
+                count += any(r.violation for r in _episode(replay, max_steps))
             left.append(count)
     finally:
         env.close()
