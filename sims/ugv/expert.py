@@ -12,8 +12,9 @@ Privileged: it reads the static layout and the movers' scripted future poses fro
    is predicted for ``go_horizon`` seconds; the cap is taken if the robot keeps clear of every mover
    (bounding circles plus a margin) the whole time. If no cap is, it moves at most one step, to where
    standing still stays clear for ``stop_horizon`` seconds (it stops abruptly, as the paper's expert
-   does). Failing even that (a takeover that finds the robot in a mover's way), it leaves the path on the
-   arc that keeps clear of the movers longest, then replans.
+   does). Failing even that (a takeover that finds the robot in a mover's way), it leaves the path by the
+   manoeuvre (an arc, or a turn on the spot and a straight run) that keeps clear of the movers longest,
+   then replans.
 """
 
 from __future__ import annotations
@@ -477,41 +478,91 @@ class UGVExpert:
         return float(caps[int(np.argmax(first_contact))]), False
 
     def _evade(self, x: float, y: float, yaw: float) -> tuple[float, float]:
-        """The arc (v, w), held for ``evade_time`` and then stopped, that keeps clear of the movers longest
-        (ties: the widest gap), without touching a static obstacle. Used where no speed along the planned path
-        keeps clear, e.g. after a takeover in a mover's way: there is no reverse gear, so the way out is sideways
-        or forwards, off the path; the path is replanned once clear."""
+        """The first command of the manoeuvre that keeps clear of the movers longest, without touching a static
+        obstacle. Used where no speed along the planned path keeps clear, e.g. after a takeover in a mover's way:
+        there is no reverse gear, so the way out is sideways or forwards, off the path; the path is replanned once
+        clear. Re-chosen at every step (receding horizon), so a manoeuvre need only be good from here.
+
+        The manoeuvres (:meth:`_manoeuvres`): arcs held for ``evade_time``, and turns on the spot for a while
+        followed by a straight run, which is how a robot facing the wrong way leaves a mover's sweep; each then
+        stands still. Ranked by the first real contact (the footprint's three circles against the mover's
+        bounding circle: waiting on the spot is not safe just because the margin is kept for longer), then the
+        first breach of the margin, then the narrowest gap."""
         env, grid = self.env, self._grid
         world = env.world
         assert world is not None and env.layout is not None and grid is not None
         cfg = env.config
         robot, ex, dt = cfg.robot, cfg.expert, cfg.dt
         n = max(1, round(ex.stop_horizon / dt))
-        n_move = max(1, round(ex.evade_time / dt))
         k = world.k
         world.ensure_table(k + n)
         future = world.mover_poses[:, k + 1 : k + n + 1, 0:2]  # (M, T, 2)
-        radii = np.array([m.bounding_radius for m in env.layout.movers])
-        reach = (radii + robot.circumradius + ex.mover_margin)[:, None]  # (M, 1)
-        t = np.minimum(np.arange(1, n + 1), n_move) * dt  # moving for evade_time, then standing
+        radii = np.array([m.bounding_radius for m in env.layout.movers])[:, None, None]  # (M, 1, 1)
+        v, w = self._manoeuvres(n)  # (P, T)
+        px, py, heading = _unicycle(x, y, yaw, v, w, dt)  # (P, T) poses after each step
         touching = math.hypot(robot.length / 6, robot.width / 2)  # the footprint circles' radius
-        best, best_key = (0.0, 0.0), (-1, -math.inf)
-        for v in (robot.v_max, 0.5 * robot.v_max, 0.0):
-            for turn in (-1.0, -0.5, 0.0, 0.5, 1.0):
-                w = turn * robot.w_max
-                heading = yaw + w * t
-                if abs(w) > 1e-9:
-                    px = x + v / w * (np.sin(heading) - math.sin(yaw))
-                    py = y - v / w * (np.cos(heading) - math.cos(yaw))
-                else:
-                    px, py = x + v * t * math.cos(yaw), y + v * t * math.sin(yaw)
-                if v > 0 and self._footprint_clearance(grid, px[:n_move], py[:n_move], heading[:n_move]) < touching:
-                    continue  # drives into a wall
-                gap = np.hypot(px[None] - future[:, :, 0], py[None] - future[:, :, 1]) - reach  # (M, T)
-                hit = (gap < 0).any(axis=0)
-                first = int(hit.argmax()) if hit.any() else n
-                key = (first, float(gap.min()))
-                if key > best_key:
-                    best, best_key = (v, w), key
+        moving = v > 0
+        offsets = np.array([-1.0, 0.0, 1.0]) * (robot.length / 3)
+        cx = px[..., None] + offsets * np.cos(heading)[..., None]  # (P, T, 3)
+        cy = py[..., None] + offsets * np.sin(heading)[..., None]
+        walls = grid.clearance_at(np.column_stack([cx.ravel(), cy.ravel()])).reshape(cx.shape).min(axis=2)
+        blocked = (moving & (walls < touching)).any(axis=1)  # drives into a static obstacle
+        # the margin: the bounding circles (what the path's speed caps keep clear of); real contact: the footprint
+        margin_gap = np.hypot(px[:, None] - future[None, :, :, 0], py[:, None] - future[None, :, :, 1])
+        margin_gap = (margin_gap - radii[None, :, :, 0] - robot.circumradius - ex.mover_margin).min(axis=1)  # (P, T)
+        touch_gap = np.hypot(
+            cx[:, None] - future[None, :, :, None, 0], cy[:, None] - future[None, :, :, None, 1]
+        )  # (P, M, T, 3)
+        touch = ((touch_gap - radii[None] - touching) < 0).any(axis=(1, 3))  # (P, T)
+        breach = margin_gap < 0
+        first_touch = np.where(touch.any(axis=1), touch.argmax(axis=1), n)
+        first_breach = np.where(breach.any(axis=1), breach.argmax(axis=1), n)
+        keys = [
+            (int(first_touch[p]), int(first_breach[p]), float(margin_gap[p].min())) if not blocked[p] else None
+            for p in range(v.shape[0])
+        ]
         self._path = None  # replan from wherever the evasion leads
-        return best
+        candidates = [p for p, key in enumerate(keys) if key is not None]
+        if not candidates:
+            return 0.0, 0.0
+        best = max(candidates, key=lambda p: keys[p])  # type: ignore[arg-type, return-value]
+        return float(v[best, 0]), float(w[best, 0])
+
+    def _manoeuvres(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(v, w) per step, (P, n) each: the arcs (three speeds, five turn rates) held for ``evade_time`` (at top
+        speed also twice as long), and turns on the spot either way for each of ``evade_turns`` followed by a
+        straight run at top speed for ``evade_time``; every manoeuvre then stands still."""
+        cfg = self.env.config
+        robot, ex, dt = cfg.robot, cfg.expert, cfg.dt
+        n_move = max(1, round(ex.evade_time / dt))
+        plans: list[tuple[np.ndarray, np.ndarray]] = []
+
+        def plan(segments: list[tuple[int, float, float]]) -> None:
+            v, w, t = np.zeros(n), np.zeros(n), 0
+            for steps, speed, rate in segments:
+                v[t : t + steps], w[t : t + steps] = speed, rate
+                t += steps
+            plans.append((v, w))
+
+        for speed in (robot.v_max, 0.5 * robot.v_max, 0.0):
+            for turn in (-1.0, -0.5, 0.0, 0.5, 1.0):
+                plan([(n_move, speed, turn * robot.w_max)])
+                if speed == robot.v_max:
+                    plan([(2 * n_move, speed, turn * robot.w_max)])
+        for seconds in ex.evade_turns:
+            for turn in (-1.0, 1.0):
+                plan([(max(1, round(seconds / dt)), 0.0, turn * robot.w_max), (n_move, robot.v_max, 0.0)])
+        return np.stack([v for v, _ in plans]), np.stack([w for _, w in plans])
+
+
+def _unicycle(
+    x: float, y: float, yaw: float, v: np.ndarray, w: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Poses after each step of (v, w) sequences (P, T), each step an exact arc as the world drives it (the
+    chord at the mean heading)."""
+    start = yaw + np.cumsum(w * dt, axis=1) - w * dt  # heading at each step's start
+    half = 0.5 * w * dt
+    chord = v * dt * np.sinc(half / np.pi)  # np.sinc(x) = sin(pi x) / (pi x): the arc's chord
+    px = x + np.cumsum(chord * np.cos(start + half), axis=1)
+    py = y + np.cumsum(chord * np.sin(start + half), axis=1)
+    return px, py, start + 2 * half
