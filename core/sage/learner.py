@@ -49,6 +49,16 @@ SAFE_LABEL = 0.1
 dense proximity cost of 0.3 near a wall is not a state the gate should learn to leave alone)."""
 
 
+def familiar_for_bounds(buffer: ReplayBuffer, violation_steps: int, horizon: int) -> np.ndarray:
+    """Per stored row (the order of :meth:`ReplayBuffer.arrays`): whether the state counts as safe for the
+    threshold bounds, the states whose fear a gate should leave alone: cost below :data:`SAFE_LABEL`, and no
+    violation within all that fear looks at, the m = ``horizon`` rollout steps and then the violation label's own
+    ``violation_steps``. A state 1.2 s before a collision, where fear should rise, is not familiar; counted as
+    such (the label's window alone ends at 1 s), it lifts τ above the fear that warns of the collision."""
+    ahead = buffer.violation_soon(violation_steps + horizon)
+    return np.maximum(buffer.arrays()["cost"], ahead) < SAFE_LABEL
+
+
 class ActorPolicy:
     """A :class:`core.loop.Policy` over an actor: its sample, or its deterministic action.
 
@@ -299,8 +309,9 @@ class BaseLearner:
         self.last_fit = report
         idx = self.rng.integers(0, len(self.buffer), size=min(len(self.buffer), 2048))
         starts = torch.from_numpy(data["obs"][idx])
-        # the threshold bounds come from the fear of states that were safe (no violation ahead, low cost)
-        safe = torch.from_numpy(np.maximum(data["cost"][idx], labels[idx]) < SAFE_LABEL)
+        safe = torch.from_numpy(
+            familiar_for_bounds(self.buffer, self.world_model.cfg.violation_steps, self.cfg.gate.horizon)[idx]
+        )
         start_motion = None if motion is None else torch.from_numpy(motion[idx])
         calibrate(
             self.world_model,

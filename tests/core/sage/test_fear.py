@@ -180,3 +180,23 @@ def test_fear_is_higher_facing_a_near_obstacle_than_in_open_space() -> None:
         f_open = fear(model.folded(), policy, open_space, forward.expand(len(open_space), 2), GateConfig())
     assert float(f_near.fear.mean()) > float(f_open.fear.mean()) + 0.1
     assert float(f_near.cost.mean()) > 0.5 > 0.1 > float(f_open.cost.mean())
+
+
+def test_states_fear_looks_past_to_a_violation_are_not_familiar_for_the_bounds() -> None:
+    """The threshold bounds come from states whose fear the gate should leave alone: fear looks m rollout steps
+    and then the label's window ahead, so every state within that reach of a violation is left out, and only those
+    (with a low cost)."""
+    from core.replay import ReplayBuffer
+    from core.sage.learner import familiar_for_bounds
+
+    buffer = ReplayBuffer(1, 1, 100)
+    for t in range(40):  # one episode: the violation at step 30, a dense cost of 0.5 at step 5
+        violation = t == 30
+        cost = 1.0 if violation else 0.5 if t == 5 else 0.0
+        buffer.add([t], [0.0], 0.0, [t + 1], violation, cost=cost, violation=violation)
+        if violation:
+            break
+    familiar = familiar_for_bounds(buffer, violation_steps=10, horizon=5)
+    # rows 16-30 reach the violation within 15 steps; rows 16-20 lie beyond the label's own 10-step window
+    assert not familiar[16:31].any() and not familiar[5]
+    assert familiar[:5].all() and familiar[6:16].all()
