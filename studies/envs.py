@@ -7,6 +7,7 @@ rebuilds the same env from it.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from typing import Any
 
@@ -24,6 +25,23 @@ def scenario_kwargs(sim: str, scenario: str) -> dict[str, Any]:
     import sims
 
     return sims.descriptor(sim).scenario_kwargs(scenario)
+
+
+def parse_env_overrides(pairs: list[str]) -> dict[str, Any]:
+    """``key=value`` strings (``sage train --env``) as keyword arguments of the simulator's ``make()``: a value is
+    read as JSON where it parses (``false``, ``0.3``, ``[1, 2]``; ``True``/``False`` too), else kept as text."""
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--env {pair!r} is not of the form key=value")
+        text = text.strip()
+        try:
+            value: Any = json.loads(text.lower() if text in ("True", "False") else text)
+        except json.JSONDecodeError:
+            value = text
+        out[key.strip()] = value
+    return out
 
 
 def env_factory(sim: str, **fixed: Any) -> Callable[[str], gym.Env[Any, Any]]:

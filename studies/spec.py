@@ -50,6 +50,10 @@ class TrainSpec:
     """float32, or float16 for small committed policies."""
     max_episode_steps: int | None = None
     """Cut episodes at this many steps (None: the simulator's own time limit)."""
+    env: list[str] = field(default_factory=list, metadata={"flag": "--env"})
+    """Simulator config overrides key=value for every env of the run (repeatable), e.g. expert.yield_to_movers=false
+    on ugv (demonstrations that run into movers); a value is read as JSON where it parses (false, 0.3), else as
+    text."""
     overrides: list[str] = field(default_factory=list, metadata={"flag": "--set"})
     """Learner config overrides key=value, e.g. gate.tau_max=0.7 (fields: core.sage.config)."""
     expert: str | None = None

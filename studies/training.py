@@ -28,7 +28,7 @@ from typing import Any
 import gymnasium as gym
 
 from core.train import EpisodeHook, RunConfig, TrainResult
-from studies.envs import default_scenario, env_factory
+from studies.envs import default_scenario, env_factory, parse_env_overrides
 from studies.spec import TrainSpec
 
 __all__ = ["TrainOutcome", "TrainSpec", "TrainingSetup", "prepare_training", "run_training", "train_once"]
@@ -119,6 +119,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         c1_share=spec.c1_share,
         adversarial_ratio=spec.adversarial_ratio,
         bounded_by_steps=spec.train_steps is not None,
+        env=parse_env_overrides(list(spec.env)),
     )
     out = Path(spec.out) if spec.out else default_out(spec, setup)
     if (out / "checkpoint.pt").exists():
@@ -139,6 +140,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         train_steps=spec.train_steps,
         datasets=list(spec.dataset),
         world_model_only=spec.world_model_only,
+        env=parse_env_overrides(list(spec.env)),
     )
     trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)
     try:
@@ -178,11 +180,13 @@ def prepare_training(
     c1_share: float | None = None,
     adversarial_ratio: float | None = None,
     bounded_by_steps: bool = False,
+    env: dict[str, Any] | None = None,
 ) -> TrainingSetup:
     """What a :class:`TrainSpec` runs for these options; a ValueError naming the option that does not fit.
 
     ``bounded_by_steps``: the run has an environment-step budget, so no episode count means "until the
-    budget is spent" rather than the default count."""
+    budget is spent" rather than the default count. ``env``: keyword arguments for every env's ``make()``
+    (``--env``)."""
     protocol = protocol or "none"
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
@@ -190,7 +194,7 @@ def prepare_training(
         raise ValueError("--adversarial-ratio is for --sim highway (closed-loop adversarial training)")
     if protocol != "route-shift" and (c1 is not None or c2 is not None or expert_c2 is not None or c1_share):
         raise ValueError("--c1, --c2, --c1-share and --expert-c2 belong to --protocol route-shift")
-    make_env = env_factory(sim)
+    make_env = env_factory(sim, **(env or {}))
     if protocol == "route-shift":
         from studies.route_shift import DEFAULT_C1, DEFAULT_C2, RouteShift, policy_expert
 

@@ -69,6 +69,11 @@ class WorldModelConfig:
     violation_steps: int = 5
     """The violation head predicts "a violation at this transition or within the next this-many steps"; the
     fear rollout then looks m steps further along the policy's imagined path."""
+    cost_label_weight: float = 1.0
+    """Weight w of a dense safety cost in the violation head's label, max(w · cost, violation soon): 1 takes the
+    cost itself as a soft early warning (the UGV's proximity cost), 0 violations alone. Lower weights keep fear on
+    a safe close pass (a narrow passage) below the fear before a real violation, which data with violations in it
+    can teach."""
     logvar_bound_weight: float = 0.01
     """Weight of the PETS term ``sum(max_logvar) - sum(min_logvar)`` that keeps the learnable bounds tight."""
 
@@ -385,6 +390,10 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"gate.curiosity_smoothing must be in (0, 1], got {cfg.gate.curiosity_smoothing}")
     if not 0.0 <= cfg.gate.release <= 1.0:
         raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
+    if not 0.0 <= cfg.world_model_config.cost_label_weight <= 1.0:
+        raise ValueError(
+            f"world_model_config.cost_label_weight must be in [0, 1], got {cfg.world_model_config.cost_label_weight}"
+        )
     if cfg.gate.horizon < 1 or cfg.gate.hold_steps < 1:
         raise ValueError("gate.horizon and gate.hold_steps must be >= 1")
     if not 0.0 < cfg.gamma < 1.0:

@@ -198,7 +198,8 @@ class EnsembleWorldModel(nn.Module):
         """Train on real transitions with a held-out split; keep each member's best held-out snapshot.
 
         ``violation_soon``: the classifier's labels (1 when a violation happens within the next
-        ``violation_steps``), joined by the clipped ``cost`` as a soft label (a dense cost warns earlier).
+        ``violation_steps``), joined by the clipped ``cost`` times ``cost_label_weight`` as a soft label (a dense
+        cost warns earlier).
         The normalisers are refitted on this data first, preserving the function the network computes (see the
         module docstring).
         """
@@ -208,7 +209,7 @@ class EnsembleWorldModel(nn.Module):
             raise ValueError(f"world model fit needs at least 10 transitions, got {n}")
         # a dense safety cost (the UGV's proximity cost) is a graded early warning: it joins the label as a soft
         # target; a binary cost equals the violation flag and adds nothing
-        label = np.clip(cost, 0.0, 1.0)
+        label = cfg.cost_label_weight * np.clip(cost, 0.0, 1.0)
         if violation_soon is not None:
             label = np.maximum(label, np.clip(violation_soon, 0.0, 1.0))
         label = label.astype(np.float32)

@@ -99,6 +99,10 @@ class ExpertConfig:
     evade_time: float = 1.0
     """Where no speed along the path keeps clear of a mover (a takeover in its way), the expert leaves the path
     on the arc that keeps clear longest, held for this long (s) before it stops and replans."""
+    yield_to_movers: bool = True
+    """False makes the expert a goal seeker blind to movers (the same planner and tracker): demonstrations that run
+    into movers, the collision-rich data a world model needs to learn what a closing mover means (``sage train
+    --env expert.yield_to_movers=false``)."""
     evade_turns: tuple[float, ...] = (0.3, 0.6, 1.0, 1.5, 2.0, 2.5)
     """Durations of the turns on the spot (either way) that precede a straight run among the evasive manoeuvres
     (s): a robot facing the wrong way, with no reverse gear, leaves a mover's sweep so. () keeps to arcs alone."""

@@ -253,10 +253,11 @@ class ExpertView(Protocol):
 class UGVExpert:
     """The expert of one env; call :meth:`act` at any step (takeovers may start mid-episode)."""
 
-    def __init__(self, env: ExpertView, yield_to_movers: bool = True, evade: bool = True) -> None:
+    def __init__(self, env: ExpertView, yield_to_movers: bool | None = None, evade: bool = True) -> None:
         self.env = env
-        self.yield_to_movers = yield_to_movers
-        """False gives the naive goal seeker: the same planner and tracker, blind to movers."""
+        self.yield_to_movers = env.config.expert.yield_to_movers if yield_to_movers is None else yield_to_movers
+        """False gives the naive goal seeker: the same planner and tracker, blind to movers (None: the env's
+        ``expert.yield_to_movers``)."""
         self.evade = evade
         """Leave the path when no speed along it keeps clear of a mover (False: delay contact along the path,
         the behaviour before evasion existed; kept for the comparison in the tests)."""

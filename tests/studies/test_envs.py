@@ -31,3 +31,21 @@ def test_the_factory_builds_the_named_variant() -> None:
         env.close()
     with pytest.raises(ValueError, match="unknown simulator"):
         env_factory("carla")
+
+
+def test_env_overrides_are_read_as_json_where_they_parse_and_reach_every_env() -> None:
+    from studies.envs import parse_env_overrides
+    from studies.training import prepare_training
+
+    overrides = parse_env_overrides(["expert.yield_to_movers=false", "time_limit=30", "lidar.backend=pymunk"])
+    assert overrides == {"expert.yield_to_movers": False, "time_limit": 30, "lidar.backend": "pymunk"}
+    assert parse_env_overrides(["expert.yield_to_movers=False"]) == {"expert.yield_to_movers": False}
+    with pytest.raises(ValueError, match="key=value"):
+        parse_env_overrides(["yield_to_movers"])
+    setup = prepare_training("ugv", scenario="3,4", env={"expert.yield_to_movers": False})
+    for scenario in setup.scenarios:
+        env = setup.make_env(scenario).unwrapped
+        assert env.config.expert.yield_to_movers is False and env.expert.yield_to_movers is False
+    with pytest.raises(ValueError, match="unknown UGV config field"):
+        setup = prepare_training("ugv", scenario="3", env={"expert.yield": False})
+        setup.make_env("3")

@@ -50,6 +50,7 @@ def test_overrides_convert_types_and_name_what_is_wrong() -> None:
         ("world_model=false", "world_model"),
         ("gate.release=1.5", "gate.release"),
         ("gate.release=-0.1", "gate.release"),
+        ("world_model_config.cost_label_weight=1.5", "cost_label_weight"),
     ):
         with pytest.raises(ValueError, match=message):
             apply_overrides(for_method("sage"), [bad])

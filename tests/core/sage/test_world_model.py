@@ -204,3 +204,19 @@ def test_the_gate_kernel_agrees_with_fear_when_there_is_motion() -> None:
     assert value == pytest.approx(float(reference.fear), abs=1e-5)
     assert cost_hat == pytest.approx(float(reference.cost), abs=1e-5)
     assert without != (value, cost_hat, sigma)  # the motion input changes the prediction
+
+
+def test_the_dense_cost_joins_the_violation_label_with_its_weight() -> None:
+    """cost_label_weight 1: a dense cost is a soft violation label (ĉ follows it); 0: violations alone (no violation
+    in the data, so ĉ stays low where the cost is high)."""
+    rng = np.random.default_rng(3)
+    s, a, nxt, cost = known_system(1500, rng)  # cost = clip(s_0, 0, 1): high on half the states, no violations
+    high = torch.as_tensor(s[cost > 0.8]), torch.as_tensor(a[cost > 0.8])
+    predicted = {}
+    for weight in (1.0, 0.0):
+        model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=600, cost_label_weight=weight))
+        model.fit(s, a, nxt, cost, rng, violation_soon=np.zeros_like(cost))
+        with torch.no_grad():
+            mean, _ = model.predict(*high)
+        predicted[weight] = float(torch.sigmoid(mean[..., OBS]).mean())
+    assert predicted[1.0] > 0.6 and predicted[0.0] < 0.1, predicted

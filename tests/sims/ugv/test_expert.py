@@ -55,9 +55,7 @@ def test_expert_takes_over_mid_episode() -> None:
     assert outcomes.count("success") >= 5, outcomes
 
 
-def late_handover(
-    scenario: int | str, seeds: range, evade: bool, distance: float = 1.3, **overrides: Any
-) -> list[str]:
+def late_handover(scenario: int | str, seeds: range, evade: bool, distance: float = 1.3, **overrides: Any) -> list[str]:
     """A goal seeker blind to movers drives until a mover is within ``distance`` of the robot, then the expert
     takes over for the rest of the episode: a takeover that comes late, in the mover's way."""
     env = sims.make("ugv", scenario=scenario, **overrides)
