@@ -20,6 +20,7 @@ loop's :class:`~core.loop.EpisodeSummary` row, the simulator's metrics and the l
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
@@ -182,6 +183,10 @@ class Trainer:
             if not run.init:
                 raise ValueError("--world-model-only refits the world model of a trained policy: give --init")
             agent = world_model_refit(agent)
+            # the checkpoints carry the fitted world model, so their config must say it has one (a policy preset
+            # without it made fine-tuning rebuild the learner without a world model: no gate after the first cycle)
+            self.saved_cfg = copy.deepcopy(self.saved_cfg)
+            self.saved_cfg.world_model = True
         self.run, self.agent_cfg, self.out, self.progress = run, agent, out, progress
         self.before_episode: list[EpisodeHook] = list(before_episode)
         torch.manual_seed(run.seed)

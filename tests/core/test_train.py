@@ -148,6 +148,19 @@ def test_a_world_model_only_refit_changes_the_model_and_nothing_else(sage_run, t
         Trainer(dataclasses.replace(run, init=None), cfg, point_env, tmp_path / "no-init", progress=False)
 
 
+def test_a_world_model_only_refit_records_the_model_it_fitted(sage_run, tmp_path: Path) -> None:
+    """Given a preset without the world-model switch (``--method sac``), the refit's checkpoint still says it holds
+    a world model, so that fine-tuning from it keeps its gate."""
+    init_out, _ = sage_run
+    cfg = small("sac")
+    cfg.world_model = False
+    run = RunConfig(sim="point", scenarios=["dynamic"], episodes=2, seed=5, init=str(init_out), checkpoint_every=0,
+                    world_model_only=True)  # fmt: skip
+    train(run, cfg, point_env, tmp_path / "refit", progress=False)
+    after = load_agent(tmp_path / "refit")
+    assert after.config.world_model and after.has_world_model and after.config.method == "sac"
+
+
 def test_bad_paths_and_runs_without_a_world_model_fail_clearly(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="no run folder"):
         load_agent(tmp_path / "missing")
