@@ -106,8 +106,8 @@ class RunConfig:
     """Offline data loaded into the buffer after the demonstrations and before pretraining (:mod:`core.datasets`:
     recorded session files, ``minari:<id>``); not counted in ``train_steps`` (no environment step is taken)."""
     env: dict[str, Any] = field(default_factory=dict)
-    """Simulator config overrides every env of the run was built with (``--env``; recorded for the record: the
-    caller's ``make_env`` applies them)."""
+    """Simulator config overrides that every env of the run was built with (``--env``), recorded in config.json;
+    the caller's ``make_env`` applies them."""
     world_model_only: bool = False
     """Refit only the world model of ``init`` (:func:`core.sage.config.world_model_refit`): the policy drives and
     nothing else learns; checkpoints keep the learner config given (the policy's own schedule)."""

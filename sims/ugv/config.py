@@ -97,8 +97,9 @@ class ExpertConfig:
     stop_horizon: float = 10.0
     """Failing that, the robot moves at most one step, to where standing still stays clear this long (s)."""
     evade_time: float = 1.0
-    """Where no speed along the path keeps clear of a mover (a takeover in its way), the expert leaves the path
-    on the arc that keeps clear longest, held for this long (s) before it stops and replans."""
+    """Where no speed along the path keeps clear of a mover (a takeover in its way), the expert leaves the path by
+    the manoeuvre that keeps clear longest (``sims/ugv/expert.py``); its arcs and straight runs last this long (s)
+    before it stops and replans."""
     yield_to_movers: bool = True
     """False makes the expert a goal seeker blind to movers (the same planner and tracker): demonstrations that run
     into movers, the collision-rich data a world model needs to learn what a closing mover means (``sage train
