@@ -102,9 +102,14 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     from core.train import Trainer
 
     base = from_dict(load_checkpoint(spec.init)["agent_config"]) if spec.init else None
-    # a world-model-only refit keeps the policy's own method (and so its schedule); only the model is refitted
-    method = base.method if spec.world_model_only and base is not None else spec.method
-    agent_cfg = apply_overrides(preset(method, base=base), list(spec.overrides))
+    # a world-model-only refit keeps the policy's own config (its method, switches and schedule: a method preset
+    # would turn off what the policy was trained with, e.g. imitation of takeovers when fine-tuned); only the
+    # model is refitted, with the --set overrides
+    if spec.world_model_only and base is not None:
+        method, start = base.method, base
+    else:
+        method, start = spec.method, preset(spec.method, base=base)
+    agent_cfg = apply_overrides(start, list(spec.overrides))
     setup = prepare_training(
         spec.sim,
         scenario=spec.scenario,

@@ -117,3 +117,33 @@ def test_sage_train_runs_the_spec_it_is_given(point_sim, tmp_path: Path) -> None
     assert config["agent"]["hidden"] == 32
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 2 and "already holds a finished run" in again.output
+
+
+def test_a_world_model_only_refit_keeps_the_policys_own_config_whatever_method_is_named(
+    point_sim, tmp_path: Path
+) -> None:
+    """``--world-model-only`` from a policy that imitates its takeovers: the refit's checkpoint keeps the
+    policy's switches (a method preset turned imitation off, and fine-tuning from the refit then ignored the
+    expert), with the --set overrides applied."""
+    from core.agents import load_agent
+
+    common = dict(sim="point", scenario="static", seed=1, checkpoint_every=0)
+    # SAC with a world model and imitation, as policies/ugv-default was trained: no preset of its method has these
+    switched = [*SMALL, "world_model=true", "imitation=true"]
+    policy = run_training(
+        TrainSpec(**common, method="sac", train_steps=120, overrides=switched, out=str(tmp_path / "policy"))
+    ).out
+    before = load_agent(policy).config
+    assert before.imitation and before.world_model
+    refit = TrainSpec(
+        **common,
+        method="sac",
+        episodes=2,
+        init=str(policy),
+        world_model_only=True,
+        overrides=["world_model_config.cost_label_weight=0.3"],
+        out=str(tmp_path / "refit"),
+    )
+    after = load_agent(run_training(refit).out).config
+    assert (after.method, after.imitation, after.world_model) == ("sac", True, True)
+    assert after.world_model_config.cost_label_weight == 0.3 and after.updates_per_step == before.updates_per_step
