@@ -94,9 +94,10 @@ def test_cycle_rows_weigh_takeovers_by_steps() -> None:
 
 def test_deployment_and_fine_tuning_cycles_stay_safe_and_ask_less(policy: Path, tmp_path: Path) -> None:
     """The paper's field test 3 in small: the same two crossings deployed four times, fine-tuned in between
-    (about 40 s on an idle core). The deployed policy never met a moving obstacle, but its world model's fear
-    carries over to one: the gate hands the crossing to the expert, and fine-tuning on those takeovers teaches
-    the policy the crossing, so the last cycle drives it safely while asking for help less often than the first.
+    (about 40 s on an idle core). The deployed policy never met a moving obstacle, and its world model never met this
+    crossing (it was refitted on a field of random movers), but its fear carries over to it: the gate hands the
+    crossing to the expert, and fine-tuning on those takeovers teaches the policy the crossing, so the last cycle
+    drives it safely while asking for help less often than the first.
     (Before issue #11's refit, fear rose too late and the first cycle collided; the story was "collisions stop".)"""
     cfg = CyclesConfig(
         sim="ugv",
