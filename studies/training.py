@@ -94,7 +94,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     """Train as ``spec`` says and write its run folder; a ValueError names the option that does not fit.
 
     The learner's configuration is the method's preset (on a warm start: the hyperparameters of the run it
-    starts from) with ``spec.overrides`` applied.
+    starts from; a world-model-only refit: that run's own configuration) with ``spec.overrides`` applied.
     """
     from core.agents import load_checkpoint
     from core.learners import preset
@@ -110,6 +110,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     else:
         method, start = spec.method, preset(spec.method, base=base)
     agent_cfg = apply_overrides(start, list(spec.overrides))
+    env = parse_env_overrides(list(spec.env))
     setup = prepare_training(
         spec.sim,
         scenario=spec.scenario,
@@ -124,7 +125,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         c1_share=spec.c1_share,
         adversarial_ratio=spec.adversarial_ratio,
         bounded_by_steps=spec.train_steps is not None,
-        env=parse_env_overrides(list(spec.env)),
+        env=env,
     )
     out = Path(spec.out) if spec.out else default_out(spec, setup)
     if (out / "checkpoint.pt").exists():
@@ -145,7 +146,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         train_steps=spec.train_steps,
         datasets=list(spec.dataset),
         world_model_only=spec.world_model_only,
-        env=parse_env_overrides(list(spec.env)),
+        env=env,
     )
     trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)
     try:

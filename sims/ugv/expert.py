@@ -518,15 +518,15 @@ class UGVExpert:
         breach = margin_gap < 0
         first_touch = np.where(touch.any(axis=1), touch.argmax(axis=1), n)
         first_breach = np.where(breach.any(axis=1), breach.argmax(axis=1), n)
-        keys = [
-            (int(first_touch[p]), int(first_breach[p]), float(margin_gap[p].min())) if not blocked[p] else None
+        keys = {
+            p: (int(first_touch[p]), int(first_breach[p]), float(margin_gap[p].min()))
             for p in range(v.shape[0])
-        ]
+            if not blocked[p]
+        }
         self._path = None  # replan from wherever the evasion leads
-        candidates = [p for p, key in enumerate(keys) if key is not None]
-        if not candidates:
+        if not keys:
             return 0.0, 0.0
-        best = max(candidates, key=lambda p: keys[p])  # type: ignore[arg-type, return-value]
+        best = max(keys, key=keys.__getitem__)  # the first of equals, in the order of the manoeuvres
         return float(v[best, 0]), float(w[best, 0])
 
     def _manoeuvres(self, n: int) -> tuple[np.ndarray, np.ndarray]:
