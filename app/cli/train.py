@@ -114,8 +114,9 @@ def register(app: typer.Typer) -> None:
             _fail(str(exc))
         result, rows = outcome.result, outcome.result.rows
         tail = rows[-max(1, len(rows) // 4) :] if rows else []
+        method, scenarios = result.learner.cfg.method, ",".join(outcome.setup.scenarios)
         typer.echo(
-            f"trained {spec.method} on {spec.sim} {','.join(outcome.setup.scenarios)}: {len(rows)} episodes, "
+            f"trained {method} on {spec.sim} {scenarios}: {len(rows)} episodes, "
             f"{result.learner.env_steps} steps, {result.learner.updates} updates in {result.seconds:.0f} s"
         )
         if tail:

@@ -147,3 +147,26 @@ def test_a_world_model_only_refit_keeps_the_policys_own_config_whatever_method_i
     after = load_agent(run_training(refit).out).config
     assert (after.method, after.imitation, after.world_model) == ("sac", True, True)
     assert after.world_model_config.cost_label_weight == 0.3 and after.updates_per_step == before.updates_per_step
+
+
+def test_a_world_model_only_refit_of_a_discrete_policy_runs_in_a_fresh_process(tmp_path: Path) -> None:
+    """The committed D3QN policy refitted (0 episodes: only its gate's settings change) by the CLI in a process of
+    its own, where no learner has been registered yet: the refit once validated the policy's method before the
+    built-in learners were registered and refused ``sage-d3qn``."""
+    import subprocess
+    import sys
+
+    from core.agents import load_agent
+
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "refit"
+    policy = root / "policies" / "pedestrian-default"
+    args = ["train", "--sim", "pedestrian", "--scenario", "crossing", "--init", str(policy)]
+    args += ["--world-model-only", "--episodes", "0", "--demo-episodes", "0", "--set", "gate.release=0.5"]
+    args += ["--checkpoint-every", "0", "--quiet", "--out", str(out)]
+    code = "import sys; from app.cli import app; app(sys.argv[1:])"
+    done = subprocess.run([sys.executable, "-c", code, *args], cwd=root, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "trained sage-d3qn on pedestrian" in done.stdout
+    refit = load_agent(out).config
+    assert (refit.method, refit.gate.release, refit.world_model) == ("sage-d3qn", 0.5, True)
