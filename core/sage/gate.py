@@ -3,9 +3,9 @@
 ``decide``: F^m_t of the policy's intended action a_RL (m-step rollout of the ensemble under the policy,
 :mod:`core.sage.fear`) against τ_t; Ξ_t = 1 when F^m_t > τ_t, and once fired the expert keeps control for
 ``hold_steps`` steps (each new firing restarts the count), which avoids frame-by-frame switching. With
-``release`` > 0 (off by default; README, "Calibration of fear", says what it measured), fear over a lower release
-level (between τ_t and τ_min) restarts the count too while the expert holds control: hysteresis, so that control
-goes back to the policy only once its own plan looks safe again.
+``release`` > 0 (off in the paper's gate; the committed default policies deploy 1; README, "Calibration of fear",
+says what it measured), fear over a lower release level (between τ_t and τ_min) restarts the count too while the
+expert holds control: hysteresis, so that control goes back to the policy only once its own plan looks safe again.
 ``observe``: curiosity C_{t+1} of the executed transition, which sets the threshold of the next step.
 The loop (:class:`core.loop.Runner`) executes a = (1 - Ξ) a_RL + Ξ a_expert and records both actions.
 

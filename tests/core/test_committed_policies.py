@@ -21,6 +21,18 @@ def test_a_committed_policy_carries_a_learning_schedule(checkpoint: Path) -> Non
     assert config["world_model"] is True
 
 
+@pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
+def test_a_committed_policy_deploys_its_gate_with_hysteresis(checkpoint: Path) -> None:
+    """The dashboard, ``sage eval --gate`` and the calibration bench build the gate from the checkpoint's config: the
+    defaults deploy the hysteresis (``gate.release=1``) that README, "Calibration of fear", measured, and a refit
+    that rewrote it with the paper's 0 would silently change what a person supervising the robot gets."""
+    from core.agents import load_agent
+
+    gate = load_agent(checkpoint.parent).make_gate()
+    assert gate.cfg.release == 1.0
+    assert gate.release_level(0.5) == pytest.approx(gate.threshold.tau_min)
+
+
 def test_adapting_from_the_default_ugv_policy_updates_it(tmp_path: Path) -> None:
     from studies.spec import TrainSpec
     from studies.training import run_training
