@@ -5,9 +5,9 @@ README quotes) and each run's figures, with the commit and the command that prod
     .venv/bin/python bench/bench_calibration.py [--episodes 20] [--curve-episodes 10] [--gate-episodes 20] \
         [--lead-episodes N] [--compare-gate KEY=VALUE ...] [--readme README.md] [--cpus N | --address HOST:PORT]
 
-``--compare-gate release=0`` adds a second gate table with those GateConfig settings over the policies' own (e.g.
-the hold's hysteresis). Below about 100 ``--episodes`` an AUROC near 0.85 is not decided: with 10 violations in
-40 highway episodes it moves by about ±0.05.
+``--compare-gate release=0`` adds a second gate table with those GateConfig settings over the policies' own (there:
+the paper's gate, without the hold's hysteresis that the defaults deploy). Below about 100 ``--episodes`` an AUROC
+near 0.85 is not decided: with 10 violations in 40 highway episodes it moves by about ±0.05.
 
 Targets (issue #11): fear AUROC >= 0.85 for "violation within 1 s"; the operating curve above random and
 curiosity-only gating at every takeover rate. Not a unit test: it takes minutes. Each calibration and each row of
