@@ -145,6 +145,11 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         )
     payload["state"] = _map_tensors(payload["state"], lambda t: t.float() if t.is_floating_point() else t)
     payload["file"] = str(file)
+    from core.learners import learner_names
+
+    # the registry names its built-in learners on first use: before then the method of a saved config (a discrete
+    # policy's sage-d3qn) would fail validation wherever the config is edited (a refit's or a fine-tune's --set)
+    learner_names()
     return payload
 
 

@@ -97,7 +97,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     starts from; a world-model-only refit: that run's own configuration) with ``spec.overrides`` applied.
     """
     from core.agents import load_checkpoint
-    from core.learners import learner_entry, preset
+    from core.learners import preset
     from core.sage.config import apply_overrides, from_dict
     from core.train import Trainer
 
@@ -106,7 +106,6 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     # would turn off what the policy was trained with, e.g. imitation of takeovers when fine-tuned); only the
     # model is refitted, with the --set overrides
     if spec.world_model_only and base is not None:
-        learner_entry(base.method)  # registers the built-in learners (a discrete one's method) before validation
         method, start = base.method, base
     else:
         method, start = spec.method, preset(spec.method, base=base)
