@@ -185,17 +185,24 @@ class ReplayBuffer:
         soon[order] = near.astype(np.float32)
         return soon
 
-    def previous_deltas(self) -> np.ndarray:
-        """Per stored row (the order of :meth:`arrays`): s_t - s_{t-1} when the previous row led into this one
-        (same episode), else zeros: the motion input of the world model."""
+    def previous_deltas(self, lag: int = 1) -> np.ndarray:
+        """Per stored row (the order of :meth:`arrays`): (s_t - s_{t-j}) / j, j = ``lag`` or fewer where the
+        episode (as far as the buffer holds it) began fewer than ``lag`` rows before, zeros at its first row: the
+        motion input of the world model."""
         n = self.size
         out = np.zeros((n, self.obs_dim), np.float32)
         if n < 2:
             return out
         order, continues = self._chronology()
-        prev, cur = order[:-1], order[1:]
-        linked = continues[:-1]
-        out[cur[linked]] = self.obs[cur[linked]] - self.obs[prev[linked]]
+        # linked[p]: the row at chronological position p follows on from the row before it
+        linked = np.zeros(n, bool)
+        linked[1:] = continues[:-1]
+        position = np.arange(n)
+        start = np.maximum.accumulate(np.where(linked, 0, position))  # where each row's chain began
+        back = np.minimum(position - start, max(int(lag), 1))
+        has = back > 0
+        cur, prev = order[position[has]], order[position[has] - back[has]]
+        out[cur] = (self.obs[cur] - self.obs[prev]) / back[has, None].astype(np.float32)
         return out
 
     def reward_magnitude(self) -> float:

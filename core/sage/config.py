@@ -66,6 +66,11 @@ class WorldModelConfig:
     """The model also reads the last observed change of state (s_t - s_{t-1}; zero at an episode's start): one
     lidar frame carries no motion, so without it a crossing mover is unforeseeable until it is close. The
     policy's observation is unchanged; in a rollout the next step's motion is the model's own predicted Δ."""
+    motion_lag: int = 1
+    """k of the motion input (s_t - s_{t-k}) / k: the mean change per step over the last k steps (fewer at an
+    episode's start). Over one step a mover's approach is a few millimetres of lidar range, under the jitter of
+    a sector's minimum as the mover crosses rays; over k steps it is k times that. In a rollout the next step's
+    motion is ((k - 1) m + Δ) / k, Δ the model's own predicted change."""
     violation_steps: int = 5
     """The violation head predicts "a violation at this transition or within the next this-many steps"; the
     fear rollout then looks m steps further along the policy's imagined path."""
@@ -390,6 +395,8 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"gate.curiosity_smoothing must be in (0, 1], got {cfg.gate.curiosity_smoothing}")
     if not 0.0 <= cfg.gate.release <= 1.0:
         raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
+    if cfg.world_model_config.motion_lag < 1:
+        raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
     if not 0.0 <= cfg.world_model_config.cost_label_weight <= 1.0:
         raise ValueError(
             f"world_model_config.cost_label_weight must be in [0, 1], got {cfg.world_model_config.cost_label_weight}"

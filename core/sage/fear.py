@@ -82,7 +82,7 @@ def rollout(
 ) -> Rollout:
     """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
     the last observed change of state (zeros when None), for a model with the motion input; later steps take
-    each member's own predicted Δ as their motion."""
+    each member's own predicted Δ into their motion (:func:`next_motion`)."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
@@ -97,7 +97,7 @@ def rollout(
             h = F.silu(torch.baddbmm(bias, h, weight))
         out = torch.baddbmm(model.out_bias, h, model.out_weight)
         if m is not None:
-            m = out[..., :d]
+            m = next_motion(m, out[..., :d], model.motion_lag)
         s = s + out[..., :d]
         states.append(s)
         actions.append(a)
@@ -109,6 +109,14 @@ def rollout(
     spread = (probability - probability.mean(1, keepdim=True)).square().mean(1)
     sigma_raw = spread.clamp_min(1e-12).sqrt()
     return Rollout(torch.stack(states), torch.stack(actions), probability, sigma_raw)
+
+
+def next_motion(motion: Tensor, delta: Tensor, lag: int) -> Tensor:
+    """The motion input one imagined step on: ((k - 1) m + Δ) / k, which is Δ itself for k = 1 (the mean change
+    over the last k steps, with the step that leaves the window taken as the mean)."""
+    if lag == 1:
+        return delta
+    return motion.mul((lag - 1) / lag).add_(delta, alpha=1.0 / lag)
 
 
 def aggregate(per_step: Tensor, how: str, discount: float) -> Tensor:
@@ -270,6 +278,8 @@ class GateKernel:
         self.delta_w = model.out_weight[..., :d].contiguous()
         self.delta_b = model.out_bias[..., :d].contiguous()
         self.motion = model.motion
+        self.motion_lag = model.motion_lag
+        self.keep = (model.motion_lag - 1) / model.motion_lag  # see next_motion
         width = d + act_dim + (d if self.motion else 0)
         self.x = torch.zeros(m + 1, n, 1, width)  # rows [state, action (, motion)], one block per step
         self.states = self.x[..., :d]
@@ -323,7 +333,15 @@ class GateKernel:
             torch.baddbmm(self.out_b, h, self.out_w, out=self.output_steps[k])
             torch.add(states[k], self.deltas[k], out=states[k + 1])
             if self.motion:
-                self.motion_steps[k + 1].copy_(self.deltas[k])  # each member's own predicted change
+                if self.motion_lag == 1:
+                    self.motion_steps[k + 1].copy_(self.deltas[k])  # each member's own predicted change
+                else:
+                    torch.add(
+                        self.motion_steps[k].mul(self.keep),
+                        self.deltas[k],
+                        alpha=1.0 - self.keep,
+                        out=self.motion_steps[k + 1],
+                    )
             if k + 1 < self.m:
                 x = self.policy_inputs[k]
                 for i, ((bias, weight_t), buf) in enumerate(zip(self.actor, self.policy_buffers, strict=True)):

@@ -15,6 +15,7 @@ core (bench/bench_gate.py): inference mode, cached folded weights, every member 
 
 from __future__ import annotations
 
+import collections
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -74,10 +75,11 @@ class SageGate:
         self._last: tuple[object, object, int] = (None, None, -1)
         self.hold_remaining = 0
         self.detail = GateDetail(threshold=self.threshold.threshold)
-        self._previous_obs: np.ndarray | None = None
+        self._history: collections.deque[np.ndarray] = collections.deque(maxlen=world_model.motion_lag)
+        """The last observations the gate saw in this episode, oldest first (at most ``motion_lag``): the world
+        model's motion input is (obs - the oldest) / their number."""
         self._horizon_source: Any = None
         """The last decision's rollout costs (the kernel's buffers, or an (m, N) array): :meth:`last_horizon`."""
-        """The last observation the gate saw in this episode: the world model's motion input is obs - it."""
 
     def _encoded(self, action: Any) -> np.ndarray:
         if self.encode is not None:
@@ -98,13 +100,15 @@ class SageGate:
         self.hold_remaining = 0
         self.detail.hold_remaining = 0
         self.threshold.reset_smoothing()
-        self._previous_obs = None
+        self._history.clear()
 
     def _motion(self, obs: np.ndarray) -> torch.Tensor | None:
-        """s_t - s_{t-1} as a (1, D) tensor (None at an episode's start, or for a model without the input)."""
-        if not self.world_model.motion or self._previous_obs is None:
+        """(s_t - s_{t-k}) / k as a (1, D) tensor, k = ``motion_lag`` or the steps seen so far in this episode
+        (None at an episode's start, or for a model without the input)."""
+        if not self.world_model.motion or not self._history:
             return None
-        delta = np.asarray(obs, dtype=np.float32).reshape(-1) - self._previous_obs
+        oldest = self._history[0]
+        delta = (np.asarray(obs, dtype=np.float32).reshape(-1) - oldest) / len(self._history)
         return torch.from_numpy(delta).view(1, -1)
 
     def _model_bounds(self) -> tuple[float, float] | None:
@@ -199,7 +203,9 @@ class SageGate:
                 curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)
             else:
                 curiosity = float(curiosity_folded(self.world_model, o, a, s1, motion)[0])
-        self._previous_obs = np.asarray(obs, dtype=np.float32).reshape(-1).copy()
+        if self._history.maxlen != self.world_model.motion_lag:  # a model of another lag swapped in
+            self._history = collections.deque(self._history, maxlen=self.world_model.motion_lag)
+        self._history.append(np.asarray(obs, dtype=np.float32).reshape(-1).copy())
         self.detail.rho = self.threshold.rho(curiosity)
         self.threshold.update(curiosity)
         self.detail.curiosity = curiosity

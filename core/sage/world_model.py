@@ -78,6 +78,8 @@ class FoldedModel:
     members: int
     motion: bool
     """Whether the first layer also reads the last change of state (after obs and action)."""
+    motion_lag: int
+    """k of the motion input (s_t - s_{t-k}) / k (``WorldModelConfig.motion_lag``)."""
     sigma_scale: Tensor
     """(MAX_HORIZON,) scale κ_k of σ_raw at rollout step k on real states (see :func:`core.sage.fear.calibrate`)."""
     curiosity_ref: float
@@ -107,6 +109,7 @@ class EnsembleWorldModel(nn.Module):
         self.obs_dim, self.act_dim, self.cfg = obs_dim, act_dim, cfg
         self.members = cfg.members
         self.motion = bool(cfg.motion_input)
+        self.motion_lag = int(cfg.motion_lag)
         in_dim, out_dim = obs_dim + act_dim + (obs_dim if self.motion else 0), obs_dim + 1
         dims = [in_dim] + [cfg.hidden] * cfg.layers
         self.hidden_layers = nn.ModuleList(VectorizedLinear(i, o, cfg.members) for i, o in itertools.pairwise(dims))
@@ -402,6 +405,7 @@ class EnsembleWorldModel(nn.Module):
                 obs_dim=d,
                 members=self.members,
                 motion=self.motion,
+                motion_lag=self.motion_lag,
                 sigma_scale=self.sigma_scale.clone(),
                 curiosity_ref=float(self.curiosity_ref),
             )

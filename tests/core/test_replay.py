@@ -109,3 +109,16 @@ def test_previous_deltas_follow_episodes_through_the_ring() -> None:
     deltas = buffer.previous_deltas()[:, 0]
     by_state = dict(zip(buffer.obs[: buffer.size, 0].tolist(), deltas.tolist(), strict=True))
     assert by_state == {1.0: 0.0, 3.0: 2.0, 10.0: 0.0, 11.0: 1.0}  # 1.0's predecessor was overwritten
+
+
+def test_previous_deltas_over_a_lag_are_the_mean_change_since_k_steps_back() -> None:
+    """(s_t - s_{t-k}) / k, over fewer steps where the episode began less than k steps before, zero at its start."""
+    buffer = ReplayBuffer(1, 1, capacity=8)
+    for s, s1 in itertools.pairwise([0.0, 1.0, 3.0, 6.0, 10.0]):
+        buffer.add(np.array([s]), np.zeros(1), 0.0, np.array([s1]), False)
+    buffer.add(np.array([20.0]), np.zeros(1), 0.0, np.array([22.0]), False)  # another episode
+    buffer.add(np.array([22.0]), np.zeros(1), 0.0, np.array([25.0]), True)
+    deltas = buffer.previous_deltas(lag=2)[:, 0]
+    by_state = dict(zip(buffer.obs[: buffer.size, 0].tolist(), deltas.tolist(), strict=True))
+    assert by_state == {0.0: 0.0, 1.0: 1.0, 3.0: 1.5, 6.0: 2.5, 20.0: 0.0, 22.0: 2.0}
+    assert buffer.previous_deltas(lag=1)[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 0.0, 2.0]

@@ -156,3 +156,29 @@ class _Forward:
 @pytest.fixture(autouse=True)
 def _threads() -> None:
     torch.set_num_threads(1)
+
+
+@pytest.mark.parametrize("lag", [1, 3])
+def test_the_gates_motion_input_is_the_one_the_world_model_was_fitted_on(lag: int) -> None:
+    """What the gate feeds the model at decision time, step by step through an episode and into the next, equals
+    what the replay buffer gives the fit for the same rows (``previous_deltas``): one definition of motion."""
+    from core.replay import ReplayBuffer
+
+    rng = np.random.default_rng(1)
+    model = EnsembleWorldModel(3, 2, WorldModelConfig(hidden=16, max_updates_per_fit=5, motion_lag=lag))
+    s = rng.normal(size=(50, 3)).astype(np.float32)
+    model.fit(s, rng.normal(size=(50, 2)).astype(np.float32), s, np.zeros(50, np.float32), rng)
+    gate = SageGate(model, Actor(3, 2, 16, 1, -torch.ones(2), torch.ones(2)), GateConfig())
+    buffer = ReplayBuffer(3, 2, capacity=64)
+    seen: list[np.ndarray] = []
+    action = np.zeros(2, np.float32)
+    for length in (7, 4):
+        gate.reset()
+        states = np.cumsum(rng.normal(size=(length + 1, 3)), axis=0).astype(np.float32)
+        for t in range(length):
+            motion = gate._motion(states[t])
+            seen.append(np.zeros(3, np.float32) if motion is None else motion.numpy().reshape(-1))
+            gate.observe(states[t], action, states[t + 1])
+            buffer.add(states[t], action, 0.0, states[t + 1], t == length - 1)
+    np.testing.assert_allclose(np.stack(seen), buffer.previous_deltas(lag), atol=1e-6)
+    assert lag == 1 or not np.allclose(buffer.previous_deltas(lag), buffer.previous_deltas(1))

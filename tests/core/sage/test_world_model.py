@@ -184,12 +184,15 @@ def test_the_motion_input_makes_a_moving_obstacle_predictable() -> None:
     assert errors[True] < 0.02 < 0.05 < errors[False], errors
 
 
-def test_the_gate_kernel_agrees_with_fear_when_there_is_motion() -> None:
+@pytest.mark.parametrize("lag", [1, 4])
+def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int) -> None:
+    """The gate's preallocated kernel and the batched rollout carry the motion input alike over the imagined steps
+    (for a lag k > 1: ((k - 1) m + Δ) / k), so both give the same fear."""
     from core.sage.fear import GateKernel, fear
     from core.sage.networks import Actor
 
     rng = np.random.default_rng(7)
-    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=50))
+    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=50, motion_lag=lag))
     s, a, nxt, cost = known_system(300, rng)
     model.fit(s, a, nxt, cost, rng, motion=0.05 * rng.standard_normal(s.shape).astype(np.float32))
     actor = Actor(OBS, ACT, 16, 2, -torch.ones(ACT), torch.ones(ACT))
