@@ -114,9 +114,7 @@ def rollout(
 def next_motion(motion: Tensor, delta: Tensor, lag: int) -> Tensor:
     """The motion input one imagined step on: ((k - 1) m + Δ) / k, which is Δ itself for k = 1 (the mean change
     over the last k steps, with the step that leaves the window taken as the mean)."""
-    if lag == 1:
-        return delta
-    return motion.mul((lag - 1) / lag).add_(delta, alpha=1.0 / lag)
+    return torch.lerp(motion, delta, 1.0 / lag)
 
 
 def aggregate(per_step: Tensor, how: str, discount: float) -> Tensor:
@@ -278,8 +276,7 @@ class GateKernel:
         self.delta_w = model.out_weight[..., :d].contiguous()
         self.delta_b = model.out_bias[..., :d].contiguous()
         self.motion = model.motion
-        self.motion_lag = model.motion_lag
-        self.keep = (model.motion_lag - 1) / model.motion_lag  # see next_motion
+        self.motion_weight = 1.0 / model.motion_lag  # see next_motion
         width = d + act_dim + (d if self.motion else 0)
         self.x = torch.zeros(m + 1, n, 1, width)  # rows [state, action (, motion)], one block per step
         self.states = self.x[..., :d]
@@ -333,15 +330,8 @@ class GateKernel:
             torch.baddbmm(self.out_b, h, self.out_w, out=self.output_steps[k])
             torch.add(states[k], self.deltas[k], out=states[k + 1])
             if self.motion:
-                if self.motion_lag == 1:
-                    self.motion_steps[k + 1].copy_(self.deltas[k])  # each member's own predicted change
-                else:
-                    torch.add(
-                        self.motion_steps[k].mul(self.keep),
-                        self.deltas[k],
-                        alpha=1.0 - self.keep,
-                        out=self.motion_steps[k + 1],
-                    )
+                # each member's own predicted change enters its motion (next_motion, in place)
+                torch.lerp(self.motion_steps[k], self.deltas[k], self.motion_weight, out=self.motion_steps[k + 1])
             if k + 1 < self.m:
                 x = self.policy_inputs[k]
                 for i, ((bias, weight_t), buf) in enumerate(zip(self.actor, self.policy_buffers, strict=True)):

@@ -203,8 +203,6 @@ class SageGate:
                 curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)
             else:
                 curiosity = float(curiosity_folded(self.world_model, o, a, s1, motion)[0])
-        if self._history.maxlen != self.world_model.motion_lag:  # a model of another lag swapped in
-            self._history = collections.deque(self._history, maxlen=self.world_model.motion_lag)
         self._history.append(np.asarray(obs, dtype=np.float32).reshape(-1).copy())
         self.detail.rho = self.threshold.rho(curiosity)
         self.threshold.update(curiosity)
