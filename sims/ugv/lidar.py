@@ -193,7 +193,13 @@ class NumpyLidar:
         self._offsets[:] = (-x, -y, 1.0, -y, x, y, -x, x, y, -y, x)
         if k:
             np.matmul(v["table_h"], v["offset_h"], out=self._neg_h)  # -(distance from o to each line)
+            edge_on = not self._neg_h.all()  # o on a segment's line (a pose on a crate's edge line, say)
+            if edge_on:
+                on_line = self._neg_h == 0.0
+                self._neg_h[on_line] = 1.0
             np.divide(v["table_n"], v["neg_h"], out=v["mt_n"])  # rows n / -h: the inverse range along d
+            if edge_on:
+                v["mt_n"][on_line] = 0.0  # seen edge-on, a segment has no width to hit (a box's other edges do)
             np.subtract(v["table_ab"], v["offset_ab"], out=v["mt_ab"])  # perp(a - o), perp'(b - o)
         if n_circles:
             np.subtract(self._circle_rows, v["offset_c"], out=v["mt_c"])  # c - o, perp(c - o)

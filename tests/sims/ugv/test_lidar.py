@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pymunk
@@ -64,6 +65,26 @@ def test_boxes_circles_and_walls_from_many_poses() -> None:
             continue  # inside an obstacle
         np.testing.assert_allclose(1.0 / lidar.cast(x, y, yaw), 1.0 / reference.cast(x, y, yaw), atol=1e-4)
         tested += 1
+
+
+def test_a_pose_on_an_edges_line_sees_the_box_without_warnings() -> None:
+    """The robot's centre exactly on the line of a box's edge (h = 0) divided by zero; now that edge is seen
+    edge-on, as hiding nothing, and every ray still agrees with pymunk, with no floating-point warning."""
+    config = LidarConfig()
+    edges = oriented_box_edges(1.5, 0.5, 0.0, 1.0, 1.0)  # the box [1, 2] x [0, 1]: edges on y = 0 and x = 1
+    space = pymunk.Space()
+    space.add(pymunk.Poly(space.static_body, [tuple(p) for p in edges[:, 0:2]]))
+    lidar = NumpyLidar(config)
+    lidar.set_static(edges, np.zeros((0, 3)))
+    reference = PymunkLidar(config, space, pymunk.ShapeFilter())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for pose in [(0.0, 0.0, 0.0), (0.0, 0.0, 0.3), (3.0, 1.0, math.pi), (1.0, 3.0, -1.2)]:
+            ours = 1.0 / lidar.cast(*pose)
+            assert np.all(np.isfinite(ours))
+            np.testing.assert_allclose(ours, 1.0 / reference.cast(*pose), atol=1e-4)
+    ahead = 1.0 / lidar.cast(0.0, 0.0, 0.0)
+    assert ahead[np.argmin(np.abs(ray_angles(config)))] == pytest.approx(1.0)  # the corner (1, 0), 1 m ahead
 
 
 def test_known_ranges_and_ray_order() -> None:
