@@ -109,6 +109,14 @@ class ExpertConfig:
     (s): a robot facing the wrong way, with no reverse gear, leaves a mover's sweep so. () keeps to arcs alone."""
     mover_margin: float = 0.12
     """Extra gap kept to movers beyond the touching distance of the two bounding circles (m)."""
+    detour_after: float = 1.0
+    """After yielding this long (s), the expert plans a way around the movers in its way: the grid of the static
+    obstacles plus each mover's bounding circle over the next ``detour_horizon``. It takes that path if a faster
+    speed keeps clear along it than along its own (the same check as every step), so a mover going its way slowly
+    is passed rather than trailed, and a crossing one may be passed behind. inf never detours (the yielding expert
+    before detours existed)."""
+    detour_horizon: float = 3.0
+    """How far ahead the movers' sweep is laid on the detour's grid (s)."""
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,9 @@ Privileged: it reads the static layout and the movers' scripted future poses fro
    does). Failing even that (a takeover that finds the robot in a mover's way), it leaves the path by the
    manoeuvre (an arc, or a turn on the spot and a straight run) that keeps clear of the movers longest,
    then replans.
+4. Detours: after yielding for ``detour_after`` seconds, it plans again on the grid with the movers' sweep over
+   the next few seconds laid on it as obstacles, and follows that path if a faster speed keeps clear along it
+   (the check of 3.): a mover going its way slowly is passed rather than trailed for the rest of the episode.
 """
 
 from __future__ import annotations
@@ -123,19 +126,39 @@ def build_grid(layout: Layout, config: UGVConfig) -> Grid:
     res = ex.grid_resolution
     xmin, ymin, xmax, ymax = layout.bounds
     nx, ny = max(1, math.ceil((xmax - xmin) / res)), max(1, math.ceil((ymax - ymin) / res))
-    xs = xmin + (np.arange(nx) + 0.5) * res
-    ys = ymin + (np.arange(ny) + 0.5) * res
-    gx, gy = np.meshgrid(xs, ys)
-    points = np.column_stack([gx.ravel(), gy.ravel()])
+    points = _cell_centres(xmin, ymin, res, nx, ny)
     clearance = static_clearance(points, layout).reshape(ny, nx)
+    return Grid(xmin, ymin, res, clearance, _navigation(clearance, points, layout, config))
 
+
+def detour_grid(grid: Grid, layout: Layout, config: UGVConfig, circles: np.ndarray) -> Grid:
+    """``grid`` with more round obstacles, (K, 3) rows x, y, radius (the movers' sweep): its clearance and its
+    navigation function recomputed around them."""
+    ny, nx = grid.clearance.shape
+    points = _cell_centres(grid.x0, grid.y0, grid.res, nx, ny)
+    clearance = grid.clearance.ravel().copy()
+    for cx, cy, radius in circles:
+        np.minimum(clearance, np.hypot(points[:, 0] - cx, points[:, 1] - cy) - radius, out=clearance)
+    clearance = np.maximum(clearance, 0.0).reshape(ny, nx)
+    return Grid(grid.x0, grid.y0, grid.res, clearance, _navigation(clearance, points, layout, config))
+
+
+def _cell_centres(x0: float, y0: float, res: float, nx: int, ny: int) -> np.ndarray:
+    gx, gy = np.meshgrid(x0 + (np.arange(nx) + 0.5) * res, y0 + (np.arange(ny) + 0.5) * res)
+    return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+def _navigation(clearance: np.ndarray, points: np.ndarray, layout: Layout, config: UGVConfig) -> np.ndarray:
+    """The navigation function (path cost to the goal per cell) over a clearance grid."""
+    ex = config.expert
+    ny, nx = clearance.shape
     # traversal cost per cell: 1 in the open, more near obstacles, inf inside the inflation
     shortfall = np.clip((ex.preferred_clearance - clearance) / ex.preferred_clearance, 0.0, 1.0)
     cell_cost = 1.0 + ex.clearance_weight * shortfall
     gxg, gyg, goal_radius = layout.goal
-    goal_dist = np.hypot(gx - gxg, gy - gyg)
+    goal_dist = np.hypot(points[:, 0] - gxg, points[:, 1] - gyg).reshape(ny, nx)
     # cells inside the goal region are targets even within the inflation, as long as the robot fits
-    targets = (goal_dist <= max(goal_radius, res)) & (clearance >= config.robot.width / 2)
+    targets = (goal_dist <= max(goal_radius, ex.grid_resolution)) & (clearance >= config.robot.width / 2)
     blocked = (clearance < ex.inflation) & ~targets
     cell_cost[blocked] = np.inf
     cost_to_go = np.full((ny, nx), np.inf)
@@ -143,8 +166,8 @@ def build_grid(layout: Layout, config: UGVConfig) -> Grid:
     if not targets.any():
         iy, ix = np.unravel_index(np.argmin(goal_dist), goal_dist.shape)
         cost_to_go[iy, ix] = 0.0
-    _relax(cost_to_go, cell_cost, res)
-    return Grid(xmin, ymin, res, clearance, cost_to_go)
+    _relax(cost_to_go, cell_cost, ex.grid_resolution)
+    return cost_to_go
 
 
 def _relax(cost_to_go: np.ndarray, cell_cost: np.ndarray, res: float) -> None:
@@ -271,6 +294,7 @@ class UGVExpert:
         self._best_cost_to_go = math.inf
         self._stalled = 0
         self._escape: tuple[int, float, float] | None = None  # steps left, v, w
+        self._yielded = 0  # steps yielding in a row, since the last detour looked for
 
     # -- planning --------------------------------------------------------------------------------
     def _ensure_plan(self, x: float, y: float) -> Path | None:
@@ -341,6 +365,12 @@ class UGVExpert:
                 w = w * (cap / v) if v > 0 else w
                 v = cap
                 yielding = True
+                self._yielded += 1
+                if self._yielded >= cfg.expert.detour_after * cfg.control_hz - 1e-6:  # inf: never
+                    self._yielded = 0
+                    self._detour(x, y, cap, v_track)  # followed from the next step if it is faster
+            else:
+                self._yielded = 0
         if self._stuck(x, y, yielding):
             return self._escaping(x, y, yaw)
         return self._normalised(v, w)
@@ -477,6 +507,32 @@ class UGVExpert:
         contact = (gap < 0).any(axis=1)  # (C, T)
         first_contact = np.where(contact.any(axis=1), contact.argmax(axis=1), n_go)
         return float(caps[int(np.argmax(first_contact))]), False
+
+    def _detour(self, x: float, y: float, cap: float, v_track: float) -> bool:
+        """Plan around the movers' sweep over the next ``detour_horizon`` (their bounding circles, grown so that the
+        grid's inflation keeps the robot's centre as far from them as the speed caps do) and take that path if a
+        faster cap keeps clear along it than ``cap`` along the current one."""
+        env, grid = self.env, self._grid
+        world, layout = env.world, env.layout
+        assert world is not None and layout is not None and grid is not None
+        cfg = env.config
+        ex = cfg.expert
+        n = max(1, round(ex.detour_horizon / cfg.dt))
+        k = world.k
+        world.ensure_table(k + n)
+        sweep = world.mover_poses[:, k : k + n + 1 : max(1, round(0.25 / cfg.dt)), 0:2]  # (M, S, 2)
+        grow = cfg.robot.circumradius + ex.mover_margin - ex.inflation
+        radii = np.array([m.bounding_radius + grow for m in layout.movers])
+        circles = np.column_stack([sweep.reshape(-1, 2), np.repeat(radii, sweep.shape[1])])
+        gx, gy, _ = layout.goal
+        path = extract_path(detour_grid(grid, layout, cfg, circles), (x, y), (gx, gy), min_keep=0.45)
+        if path is None:
+            return False
+        faster, safe = self._speed_cap(path, 0, v_track)
+        if not safe or faster <= cap:
+            return False
+        self._path, self._index = path, 0
+        return True
 
     def _evade(self, x: float, y: float, yaw: float) -> tuple[float, float]:
         """The first command of the manoeuvre that keeps clear of the movers longest, without touching a static

