@@ -50,10 +50,11 @@ CASES = [
 ]
 """(policy under policies/, simulator, scenario): the issue's four measured cases, and the occluded crossing."""
 FIELDS = {
-    "ugv": ["sims/ugv/scenarios/head_on.yaml", "sims/ugv/scenarios/traffic.yaml"],
+    "ugv": ["sims/ugv/scenarios/head_on.yaml", "sims/ugv/scenarios/traffic.yaml", "sims/ugv/scenarios/slow_lead.yaml"],
 }
 """Scenario files beyond a simulator's built-in scenarios that its gate-table rows also cover: layouts with movers
-on paths drawn at each reset, which no committed model was trained on (its refits used 1, 2 and clutter.yaml)."""
+on paths drawn at each reset, which no committed model was trained on (its refits used 1, 2, clutter.yaml and
+movers.yaml)."""
 LEADS_S = (0.5, 1.0, 1.5, 2.0, 3.0)
 """Seconds before the policy's violation at which the expert takes over in the table of the warning it needs."""
 
