@@ -38,6 +38,9 @@ SQRT2 = math.sqrt(2.0)
 NEIGHBOURS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
 PATH_SPACING = 0.05
 """Spacing of the resampled path that pure pursuit follows (m)."""
+SWEEP_SPACING = 0.25
+"""Time between the circles that lay a mover's sweep on a detour's grid (s): at the movers' speeds (up to about
+1 m/s) the gaps between them stay under a mover's bounding radius."""
 
 
 def wrap(angle: float) -> float:
@@ -294,7 +297,7 @@ class UGVExpert:
         self._best_cost_to_go = math.inf
         self._stalled = 0
         self._escape: tuple[int, float, float] | None = None  # steps left, v, w
-        self._yielded = 0  # steps yielding in a row, since the last detour looked for
+        self._yielded = 0  # steps spent yielding in a row (since the last search for a detour)
 
     # -- planning --------------------------------------------------------------------------------
     def _ensure_plan(self, x: float, y: float) -> Path | None:
@@ -520,7 +523,7 @@ class UGVExpert:
         n = max(1, round(ex.detour_horizon / cfg.dt))
         k = world.k
         world.ensure_table(k + n)
-        sweep = world.mover_poses[:, k : k + n + 1 : max(1, round(0.25 / cfg.dt)), 0:2]  # (M, S, 2)
+        sweep = world.mover_poses[:, k : k + n + 1 : max(1, round(SWEEP_SPACING / cfg.dt)), 0:2]  # (M, S, 2)
         grow = cfg.robot.circumradius + ex.mover_margin - ex.inflation
         radii = np.array([m.bounding_radius + grow for m in layout.movers])
         circles = np.column_stack([sweep.reshape(-1, 2), np.repeat(radii, sweep.shape[1])])
