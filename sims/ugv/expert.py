@@ -511,7 +511,7 @@ class UGVExpert:
         first_contact = np.where(contact.any(axis=1), contact.argmax(axis=1), n_go)
         return float(caps[int(np.argmax(first_contact))]), False
 
-    def _detour(self, x: float, y: float, cap: float, v_track: float) -> bool:
+    def _detour(self, x: float, y: float, cap: float, v_track: float) -> None:
         """Plan around the movers' sweep over the next ``detour_horizon`` (their bounding circles, grown so that the
         grid's inflation keeps the robot's centre as far from them as the speed caps do) and take that path if a
         faster cap keeps clear along it than ``cap`` along the current one."""
@@ -530,12 +530,10 @@ class UGVExpert:
         gx, gy, _ = layout.goal
         path = extract_path(detour_grid(grid, layout, cfg, circles), (x, y), (gx, gy), min_keep=0.45)
         if path is None:
-            return False
+            return
         faster, safe = self._speed_cap(path, 0, v_track)
-        if not safe or faster <= cap:
-            return False
-        self._path, self._index = path, 0
-        return True
+        if safe and faster > cap:
+            self._path, self._index = path, 0
 
     def _evade(self, x: float, y: float, yaw: float) -> tuple[float, float]:
         """The first command of the manoeuvre that keeps clear of the movers longest, without touching a static

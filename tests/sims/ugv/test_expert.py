@@ -13,12 +13,15 @@ from sims.ugv.expert import UGVExpert
 from sims.ugv.scenario import SCENARIO_DIR
 
 
-def run(scenario: int | str, seeds: range, yield_to_movers: bool = True, random_steps: int = 0) -> list[str]:
-    env = sims.make("ugv", scenario=scenario)
+def drive(
+    scenario: int | str, seeds: range, yield_to_movers: bool = True, random_steps: int = 0, **overrides: Any
+) -> list[tuple[str, int]]:
+    """Each seed's outcome and episode length with the expert driving (after ``random_steps`` random actions)."""
+    env = sims.make("ugv", scenario=scenario, **overrides)
     unwrapped = env.unwrapped
     expert = UGVExpert(unwrapped, yield_to_movers=yield_to_movers)
     rng = np.random.default_rng(0)
-    outcomes = []
+    episodes = []
     for seed in seeds:
         env.reset(seed=seed)
         for t in range(10_000):
@@ -26,8 +29,13 @@ def run(scenario: int | str, seeds: range, yield_to_movers: bool = True, random_
             _, _, terminated, truncated, info = env.step(action)
             if terminated or truncated:
                 break
-        outcomes.append("success" if info["success"] else "collision" if info["collision"] else "timeout")
-    return outcomes
+        outcome = "success" if info["success"] else "collision" if info["collision"] else "timeout"
+        episodes.append((outcome, t + 1))
+    return episodes
+
+
+def run(scenario: int | str, seeds: range, yield_to_movers: bool = True, random_steps: int = 0) -> list[str]:
+    return [outcome for outcome, _ in drive(scenario, seeds, yield_to_movers, random_steps)]
 
 
 @pytest.mark.parametrize("scenario", [1, 2, 3, 4])
@@ -108,18 +116,9 @@ def test_a_slow_walker_going_the_robots_way_is_passed_not_trailed() -> None:
     field = str(SCENARIO_DIR / "slow_lead.yaml")
 
     def steps(detour_after: float) -> list[int]:
-        env = sims.make("ugv", scenario=field, **{"expert.detour_after": detour_after})
-        expert = UGVExpert(env.unwrapped)
-        out = []
-        for seed in range(8):
-            env.reset(seed=seed)
-            taken, done = 0, False
-            while not done:
-                _, _, terminated, truncated, info = env.step(expert.act())
-                taken, done = taken + 1, terminated or truncated
-            assert info["success"], (detour_after, seed, info)
-            out.append(taken)
-        return out
+        episodes = drive(field, range(8), **{"expert.detour_after": detour_after})
+        assert all(outcome == "success" for outcome, _ in episodes), (detour_after, episodes)
+        return [length for _, length in episodes]
 
     passing, trailing = steps(1.0), steps(math.inf)
     assert np.mean(passing) < 0.7 * np.mean(trailing), (passing, trailing)
