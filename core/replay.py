@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 
 from core.loop import StepRecord
+from core.motion import ScanAlignment, motion_between
 
 
 @dataclass
@@ -185,10 +186,10 @@ class ReplayBuffer:
         soon[order] = near.astype(np.float32)
         return soon
 
-    def previous_deltas(self, lag: int = 1) -> np.ndarray:
+    def previous_deltas(self, lag: int = 1, scan: ScanAlignment | None = None) -> np.ndarray:
         """Per stored row (the order of :meth:`arrays`): (s_t - s_{t-j}) / j, j = ``lag`` or fewer where the
         episode (as far as the buffer holds it) began fewer than ``lag`` rows before, zeros at its first row: the
-        motion input of the world model."""
+        motion input of the world model (``scan``: with s_{t-j}'s scan turned to s_t's heading)."""
         n = self.size
         out = np.zeros((n, self.obs_dim), np.float32)
         if n < 2:
@@ -202,7 +203,7 @@ class ReplayBuffer:
         back = np.minimum(position - start, max(int(lag), 1))
         has = back > 0
         cur, prev = order[position[has]], order[position[has] - back[has]]
-        out[cur] = (self.obs[cur] - self.obs[prev]) / back[has, None].astype(np.float32)
+        out[cur] = motion_between(self.obs[prev], self.obs[cur], scan) / back[has, None].astype(np.float32)
         return out
 
     def reward_magnitude(self) -> float:

@@ -71,6 +71,15 @@ class WorldModelConfig:
     episode's start). Over one step a mover's approach is a few millimetres of lidar range, under the jitter of
     a sector's minimum as the mover crosses rays; over k steps it is k times that. In a rollout the next step's
     motion is ((k - 1) m + Δ) / k, Δ the model's own predicted change."""
+    scan_sectors: int = 0
+    """With the motion input: the first this-many observation channels are a range scan over evenly spaced
+    sectors (the UGV's lidar), and the previous frame is turned to the current heading before differencing
+    (:mod:`core.motion`), so the robot's own turn does not swamp a mover's motion. 0: plain differences.
+    Needs ``motion_lag`` 1. The UGV's layout: :func:`sims.ugv.env.scan_layout`."""
+    scan_turn_channel: int = -1
+    """The observation channel holding the turn over the last step (the UGV's last yaw-rate command)."""
+    scan_turn_sectors: float = 0.0
+    """Sectors the heading turns by over one step per unit of ``scan_turn_channel`` (UGV: w_max dt / 5°)."""
     violation_steps: int = 5
     """The violation head predicts "a violation at this transition or within the next this-many steps"; the
     fear rollout then looks m steps further along the policy's imagined path."""
@@ -397,6 +406,10 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
     if cfg.world_model_config.motion_lag < 1:
         raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
+    if cfg.world_model_config.scan_sectors < 0:
+        raise ValueError(f"world_model_config.scan_sectors must be >= 0, got {cfg.world_model_config.scan_sectors}")
+    if cfg.world_model_config.scan_sectors and cfg.world_model_config.motion_lag != 1:
+        raise ValueError("world_model_config.scan_sectors (a scan-aligned motion input) needs motion_lag=1")
     if not 0.0 <= cfg.world_model_config.cost_label_weight <= 1.0:
         raise ValueError(
             f"world_model_config.cost_label_weight must be in [0, 1], got {cfg.world_model_config.cost_label_weight}"

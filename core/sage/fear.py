@@ -82,7 +82,8 @@ def rollout(
 ) -> Rollout:
     """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
     the last observed change of state (zeros when None), for a model with the motion input; later steps take
-    each member's own predicted Δ into their motion (:func:`next_motion`)."""
+    each member's own predicted Δ into their motion (:func:`next_motion`; scan-aligned for a model with a
+    :class:`core.motion.ScanAlignment`)."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
@@ -96,9 +97,10 @@ def rollout(
         for weight, bias in model.hidden:
             h = F.silu(torch.baddbmm(bias, h, weight))
         out = torch.baddbmm(model.out_bias, h, model.out_weight)
+        s_next = s + out[..., :d]
         if m is not None:
-            m = next_motion(m, out[..., :d], model.motion_lag)
-        s = s + out[..., :d]
+            m = next_motion(m, out[..., :d], model.motion_lag) if model.scan is None else model.scan.motion(s, s_next)
+        s = s_next
         states.append(s)
         actions.append(a)
         costs.append(out[..., d])  # the violation logit
@@ -277,6 +279,7 @@ class GateKernel:
         self.delta_b = model.out_bias[..., :d].contiguous()
         self.motion = model.motion
         self.motion_weight = 1.0 / model.motion_lag  # see next_motion
+        self.scan = model.scan
         width = d + act_dim + (d if self.motion else 0)
         self.x = torch.zeros(m + 1, n, 1, width)  # rows [state, action (, motion)], one block per step
         self.states = self.x[..., :d]
@@ -329,7 +332,11 @@ class GateKernel:
             h = self._trunk(self.inputs[k], self.hidden)
             torch.baddbmm(self.out_b, h, self.out_w, out=self.output_steps[k])
             torch.add(states[k], self.deltas[k], out=states[k + 1])
-            if self.motion:
+            if self.scan is not None:
+                if k + 1 < self.m:  # the last imagined state's motion feeds no further step
+                    # the imagined step's change, with the imagined turn taken out of the scan (core.motion)
+                    self.motion_steps[k + 1].copy_(self.scan.motion(states[k], states[k + 1]))
+            elif self.motion:
                 # each member's own predicted change enters its motion (next_motion, in place)
                 torch.lerp(self.motion_steps[k], self.deltas[k], self.motion_weight, out=self.motion_steps[k + 1])
             if k + 1 < self.m:

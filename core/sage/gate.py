@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from core.loop import GateDecision
+from core.motion import motion_between
 from core.sage.config import GateConfig
 from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, fear_of, rollout
 from core.sage.networks import Actor
@@ -108,8 +109,9 @@ class SageGate:
         if not self.world_model.motion or not self._history:
             return None
         oldest = self._history[0]
-        delta = (np.asarray(obs, dtype=np.float32).reshape(-1) - oldest) / len(self._history)
-        return torch.from_numpy(delta).view(1, -1)
+        current = np.asarray(obs, dtype=np.float32).reshape(1, -1)
+        delta = motion_between(oldest.reshape(1, -1), current, self.world_model.scan) / len(self._history)
+        return torch.from_numpy(delta)
 
     def _model_bounds(self) -> tuple[float, float] | None:
         """The (τ_min, τ_max) measured at the model's last calibration, when the config asks for them."""

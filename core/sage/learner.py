@@ -301,7 +301,8 @@ class BaseLearner:
             return None
         data = self.buffer.arrays()
         labels = self.buffer.violation_soon(self.world_model.cfg.violation_steps)
-        motion = self.buffer.previous_deltas(self.world_model.motion_lag) if self.world_model.motion else None
+        wm = self.world_model
+        motion = self.buffer.previous_deltas(wm.motion_lag, wm.scan) if wm.motion else None
         report = self.world_model.fit(
             data["obs"], data["action"], data["next_obs"], data["cost"], self.rng, violation_soon=labels, motion=motion
         )

@@ -47,6 +47,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from core.motion import ScanAlignment
 from core.sage.config import WorldModelConfig
 from core.sage.networks import VectorizedLinear
 
@@ -84,6 +85,8 @@ class FoldedModel:
     """(MAX_HORIZON,) scale κ_k of σ_raw at rollout step k on real states (see :func:`core.sage.fear.calibrate`)."""
     curiosity_ref: float
     """Mean one-step curiosity on held-out real transitions at the last fit (the curiosity EMA's start)."""
+    scan: ScanAlignment | None = None
+    """How the motion input turns the previous scan to the current heading (None: plain differences)."""
 
 
 @dataclass
@@ -110,6 +113,12 @@ class EnsembleWorldModel(nn.Module):
         self.members = cfg.members
         self.motion = bool(cfg.motion_input)
         self.motion_lag = int(cfg.motion_lag)
+        self.scan = (
+            ScanAlignment.of(cfg.scan_sectors, cfg.scan_turn_channel, cfg.scan_turn_sectors, obs_dim)
+            if self.motion
+            else None
+        )
+        """How the motion input turns the previous scan to the current heading (:mod:`core.motion`)."""
         in_dim, out_dim = obs_dim + act_dim + (obs_dim if self.motion else 0), obs_dim + 1
         dims = [in_dim] + [cfg.hidden] * cfg.layers
         self.hidden_layers = nn.ModuleList(VectorizedLinear(i, o, cfg.members) for i, o in itertools.pairwise(dims))
@@ -406,6 +415,7 @@ class EnsembleWorldModel(nn.Module):
                 members=self.members,
                 motion=self.motion,
                 motion_lag=self.motion_lag,
+                scan=self.scan,
                 sigma_scale=self.sigma_scale.clone(),
                 curiosity_ref=float(self.curiosity_ref),
             )

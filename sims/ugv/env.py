@@ -47,6 +47,21 @@ INITIAL_TABLE_STEPS = 320
 MAX_PLACEMENT_TRIES = 100
 """Draws of the start (and, failing that, the whole layout) before a scenario is declared unplayable."""
 
+
+def scan_layout(config: UGVConfig | None = None) -> dict[str, Any]:
+    """``world_model_config`` fields for a world model whose motion input turns the previous lidar frame to the
+    current heading (:mod:`core.motion`): the first 54 channels are sectors over the front 270° (rightmost
+    first), the last channel the last yaw-rate command over w_max, and one step at it turns the heading by
+    w_max dt, that many sector widths. Measured (``bench/bench_refit_spread.py``), not a default."""
+    config = config or UGVConfig()
+    sector_width = math.radians(config.lidar.fov_deg) / SECTORS
+    return {
+        "scan_sectors": SECTORS,
+        "scan_turn_channel": OBS_SIZE - 1,
+        "scan_turn_sectors": config.robot.w_max * config.dt / sector_width,
+    }
+
+
 COLORS = {
     "wall": "#4a4f57",
     "box": "#8a8f98",

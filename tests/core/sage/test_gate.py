@@ -158,14 +158,16 @@ def _threads() -> None:
     torch.set_num_threads(1)
 
 
-@pytest.mark.parametrize("lag", [1, 3])
-def test_the_gates_motion_input_is_the_one_the_world_model_was_fitted_on(lag: int) -> None:
+@pytest.mark.parametrize(("lag", "scan"), [(1, False), (3, False), (1, True)])
+def test_the_gates_motion_input_is_the_one_the_world_model_was_fitted_on(lag: int, scan: bool) -> None:
     """What the gate feeds the model at decision time, step by step through an episode and into the next, equals
-    what the replay buffer gives the fit for the same rows (``previous_deltas``): one definition of motion."""
+    what the replay buffer gives the fit for the same rows (``previous_deltas``): one definition of motion, with
+    or without a scan turned to the current heading."""
     from core.replay import ReplayBuffer
 
     rng = np.random.default_rng(1)
-    model = EnsembleWorldModel(3, 2, WorldModelConfig(hidden=16, max_updates_per_fit=5, motion_lag=lag))
+    layout = {"scan_sectors": 2, "scan_turn_channel": 2, "scan_turn_sectors": 0.8} if scan else {}
+    model = EnsembleWorldModel(3, 2, WorldModelConfig(hidden=16, max_updates_per_fit=5, motion_lag=lag, **layout))
     s = rng.normal(size=(50, 3)).astype(np.float32)
     model.fit(s, rng.normal(size=(50, 2)).astype(np.float32), s, np.zeros(50, np.float32), rng)
     gate = SageGate(model, Actor(3, 2, 16, 1, -torch.ones(2), torch.ones(2)), GateConfig())
@@ -180,5 +182,6 @@ def test_the_gates_motion_input_is_the_one_the_world_model_was_fitted_on(lag: in
             seen.append(np.zeros(3, np.float32) if motion is None else motion.numpy().reshape(-1))
             gate.observe(states[t], action, states[t + 1])
             buffer.add(states[t], action, 0.0, states[t + 1], t == length - 1)
-    np.testing.assert_allclose(np.stack(seen), buffer.previous_deltas(lag), atol=1e-6)
+    np.testing.assert_allclose(np.stack(seen), buffer.previous_deltas(lag, model.scan), atol=1e-6)
     assert lag == 1 or not np.allclose(buffer.previous_deltas(lag), buffer.previous_deltas(1))
+    assert not scan or not np.allclose(buffer.previous_deltas(lag, model.scan), buffer.previous_deltas(lag))

@@ -184,15 +184,18 @@ def test_the_motion_input_makes_a_moving_obstacle_predictable() -> None:
     assert errors[True] < 0.02 < 0.05 < errors[False], errors
 
 
-@pytest.mark.parametrize("lag", [1, 4])
-def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int) -> None:
+@pytest.mark.parametrize(("lag", "scan"), [(1, False), (4, False), (1, True)])
+def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: bool) -> None:
     """The gate's preallocated kernel and the batched rollout carry the motion input alike over the imagined steps
-    (for a lag k > 1: ((k - 1) m + Δ) / k), so both give the same fear."""
+    (for a lag k > 1: ((k - 1) m + Δ) / k; with a scan alignment, each imagined step's change with its imagined
+    turn taken out of the scan), so both give the same fear."""
     from core.sage.fear import GateKernel, fear
     from core.sage.networks import Actor
 
     rng = np.random.default_rng(7)
-    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=50, motion_lag=lag))
+    layout = {"scan_sectors": 3, "scan_turn_channel": 3, "scan_turn_sectors": 1.5} if scan else {}
+    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=50, motion_lag=lag, **layout))
+    assert (model.folded().scan is not None) == scan
     s, a, nxt, cost = known_system(300, rng)
     model.fit(s, a, nxt, cost, rng, motion=0.05 * rng.standard_normal(s.shape).astype(np.float32))
     actor = Actor(OBS, ACT, 16, 2, -torch.ones(ACT), torch.ones(ACT))

@@ -224,3 +224,28 @@ def test_scene_is_plain_data_and_cheap_to_diff() -> None:
     np.testing.assert_allclose(ranges, 1.0 / unwrapped.lidar.cast(*unwrapped.world.pose), rtol=1e-5)
     env.reset(seed=1)
     assert unwrapped.scene()["static_key"] != first["static_key"]
+
+
+def test_the_scan_layout_takes_the_robots_own_turn_out_of_the_motion_input() -> None:
+    """``scan_layout`` describes the UGV's observation: turning on the spot among static obstacles
+    (scenario 2), the scan-aligned change of the lidar sectors is a fraction of the plain one, at full and half
+    yaw rate either way (the first step after each change of rate excepted: the body's rate lags the command)."""
+    from core.motion import ScanAlignment, motion_between
+    from sims.ugv.env import scan_layout
+
+    layout = scan_layout()
+    env = gym.make("sage/UGV-v0", scenario=2)
+    obs, _ = env.reset(seed=3)
+    align = ScanAlignment.of(layout["scan_sectors"], layout["scan_turn_channel"], layout["scan_turn_sectors"], 58)
+    assert align is not None and align.sectors == 54
+    plain, aligned = [], []
+    for w in (1.0, 0.5, -1.0, -0.5):
+        obs, *_ = env.step(np.array([-1.0, w], np.float32))
+        for _ in range(4):
+            nxt, *_ = env.step(np.array([-1.0, w], np.float32))
+            plain.append(np.abs(nxt[:54] - obs[:54]).mean())
+            aligned.append(np.abs(motion_between(obs, nxt, align)[:54]).mean())
+            obs = nxt
+    assert min(plain) > 0.005
+    assert np.mean(aligned) < 0.35 * np.mean(plain)
+    assert max(a / p for a, p in zip(aligned, plain, strict=True)) < 0.8

@@ -1,0 +1,116 @@
+"""The world model's motion input with a scan turned to the current heading (:mod:`core.motion`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from core.motion import ScanAlignment, motion_between
+from core.sage.config import AgentConfig, WorldModelConfig, validate
+
+SECTORS = 36
+WIDTH = np.radians(5.0)
+
+
+def scene(heading: float, approach: float = 0.0) -> np.ndarray:
+    """A smooth range profile over 36 sectors seen from ``heading`` (radians, left positive), then a goal
+    distance and the turn channel; ``approach`` brings the sectors around bearing 0.4 rad closer."""
+    bearings = (np.arange(SECTORS) - SECTORS / 2 + 0.5) * WIDTH + heading
+    ranges = 0.6 + 0.3 * np.sin(3.0 * bearings) + 0.1 * np.cos(7.0 * bearings)
+    ranges -= approach * np.exp(-(((bearings - heading) - 0.4) ** 2) / 0.02)
+    return np.concatenate([ranges, [0.5, 0.0]]).astype(np.float32)
+
+
+def turned(previous_heading: float, turn: float, per_unit: float, approach: float = 0.0) -> np.ndarray:
+    """The scene after turning by ``turn`` rad, its turn channel holding turn / (per_unit sector widths)."""
+    obs = scene(previous_heading + turn, approach)
+    obs[-1] = turn / (per_unit * WIDTH)
+    return obs
+
+
+@pytest.mark.parametrize("turn_sectors", [0.3, 1.0, 1.7, -0.6, -2.2])
+def test_a_pure_turn_of_a_static_scene_leaves_almost_no_motion_once_aligned(turn_sectors: float) -> None:
+    """Turning on the spot slides every range sideways: the plain difference of the two frames is large, the
+    aligned one is the interpolation error only (and the sectors turned in from outside the field of view)."""
+    per_unit = 1.2
+    align = ScanAlignment.of(SECTORS, SECTORS + 1, per_unit, SECTORS + 2)
+    assert align is not None
+    before = scene(0.0)
+    after = turned(0.0, turn_sectors * WIDTH, per_unit)
+    plain = np.abs((after - before)[:SECTORS])
+    aligned = np.abs(motion_between(before, after, align)[:SECTORS])
+    inner = slice(3, SECTORS - 3)  # sectors that saw the same bearings in both frames
+    # linear interpolation between sectors errs by at most h^2/8 max|r''| (h one sector): the scene's
+    # r = 0.6 + 0.3 sin 3b + 0.1 cos 7b has |r''| <= 0.3 * 9 + 0.1 * 49 per rad^2
+    interpolation_error = (0.3 * 9 + 0.1 * 49) * WIDTH**2 / 8
+    assert aligned[inner].max() <= interpolation_error + 1e-6
+    assert aligned[inner].mean() < 0.2 * plain[inner].mean()
+    wrong_way = ScanAlignment(SECTORS, SECTORS + 1, -per_unit)
+    assert np.abs(motion_between(before, after, wrong_way)[:SECTORS])[inner].mean() > plain[inner].mean()
+
+
+def test_a_mover_shows_in_the_aligned_motion_while_turning() -> None:
+    """While the robot turns, the one thing that moved (ranges near bearing 0.4 shrinking) is what the aligned
+    motion holds; in the plain difference it is a small part of what changed."""
+    align = ScanAlignment(SECTORS, SECTORS + 1, 1.0)
+    before = scene(0.0)
+    turn = 0.8 * WIDTH
+    after = turned(0.0, turn, 1.0, approach=0.05)
+    static_after = turned(0.0, turn, 1.0)
+    motion = motion_between(before, after, align)[:SECTORS]
+    truth = (after - static_after)[:SECTORS]  # the mover's own change, in the current frame
+    inner = slice(3, SECTORS - 3)
+    plain = (after - before)[:SECTORS]
+    assert np.abs(motion - truth)[inner].max() < 0.2 * np.abs(truth).max()
+    assert np.abs(plain - truth)[inner].max() > np.abs(truth).max()
+
+
+def test_channels_after_the_scan_are_plain_differences_and_batches_align_row_by_row() -> None:
+    align = ScanAlignment(SECTORS, SECTORS + 1, 1.0)
+    previous = np.stack([scene(0.0), scene(0.2)])
+    current = np.stack([turned(0.0, WIDTH, 1.0), turned(0.2, -0.5 * WIDTH, 1.0)])
+    batch = motion_between(previous, current, align)
+    for row in range(2):
+        np.testing.assert_allclose(batch[row], motion_between(previous[row], current[row], align), atol=1e-7)
+    np.testing.assert_allclose(batch[:, SECTORS:], (current - previous)[:, SECTORS:], atol=1e-7)
+    # an imagined rollout's (members, batch, D) tensors align the same way
+    stacked = align.motion(torch.from_numpy(previous).expand(3, 2, -1), torch.from_numpy(current).expand(3, 2, -1))
+    np.testing.assert_allclose(stacked[1].numpy(), batch, atol=1e-7)
+
+
+def test_a_scan_layout_that_does_not_fit_is_refused_with_its_field() -> None:
+    assert ScanAlignment.of(0, -1, 0.0, 10) is None
+    with pytest.raises(ValueError, match="scan_sectors"):
+        ScanAlignment.of(12, 11, 1.0, 10)
+    with pytest.raises(ValueError, match="scan_turn_channel"):
+        ScanAlignment.of(6, 3, 1.0, 10)
+    with pytest.raises(ValueError, match="scan_turn_sectors"):
+        ScanAlignment.of(6, 8, 0.0, 10)
+    wm = WorldModelConfig(motion_lag=3, scan_sectors=6, scan_turn_channel=8, scan_turn_sectors=1.0)
+    with pytest.raises(ValueError, match="motion_lag=1"):
+        validate(AgentConfig(world_model_config=wm))
+
+
+def test_fear_of_a_scan_aligned_model_stays_differentiable_through_its_imagined_turns() -> None:
+    """The learner's fear term back-propagates through the rollout (each imagined step's aligned motion included)
+    to the first action, after the gate has run the same alignment in inference mode."""
+    from core.sage.config import GateConfig
+    from core.sage.fear import fear
+    from core.sage.networks import Actor
+    from core.sage.world_model import EnsembleWorldModel
+
+    rng = np.random.default_rng(0)
+    wm = WorldModelConfig(hidden=16, max_updates_per_fit=20, scan_sectors=6, scan_turn_channel=7, scan_turn_sectors=1.3)
+    model = EnsembleWorldModel(8, 2, wm)
+    s = rng.uniform(0, 1, (200, 8)).astype(np.float32)
+    a = rng.uniform(-1, 1, (200, 2)).astype(np.float32)
+    model.fit(s, a, s + 0.05 * a[:, :1], np.zeros(200, np.float32), rng, motion=0.1 * s)
+    actor = Actor(8, 2, 16, 1, -torch.ones(2), torch.ones(2))
+    obs = torch.from_numpy(s[:4])
+    with torch.inference_mode():
+        fear(model.folded(), actor.deterministic, obs, torch.from_numpy(a[:4]), GateConfig(), motion=obs)
+    action = torch.from_numpy(a[:4]).requires_grad_(True)
+    terms = fear(model.folded(), actor.deterministic, obs, action, GateConfig(), motion=obs)
+    terms.fear.sum().backward()
+    assert action.grad is not None and bool(torch.isfinite(action.grad).all()) and float(action.grad.abs().sum()) > 0
