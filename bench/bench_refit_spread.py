@@ -1,0 +1,235 @@
+"""How much does the gate's safety depend on which refit of the world model it runs? And does a change to the world
+model (an arm: ``--set`` overrides) beat that spread?
+
+Each arm refits the default UGV policy's world model with the command in ``policies/ugv-default/README.md`` (the
+same demonstrations, episodes and label; the policy from c36823a, as there), once per seed. Then every refit drives
+the gate + scripted expert table of ``bench/bench_calibration.py`` (its seeds, its UGV scenarios and fields). The
+table gives per arm and scenario the episodes with a violation for each seed, their mean with a 95% t-interval
+over seeds, and the mean takeover rate.
+
+    .venv/bin/python bench/bench_refit_spread.py [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
+        [--runs runs/refit-spread] [--readme README.md] [--cpus N | --address HOST:PORT]
+
+Arms: ``plain`` (the deployed refit's settings) and ``scan`` (its motion input with the previous lidar frame turned
+to the current heading, :mod:`core.motion`). A refit takes about 18 minutes of one core; each is a Ray task
+(:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
+resumable). Not a unit test: it takes an hour on two cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from studies.readme import include
+from studies.spec import TrainSpec
+from studies.sweep import run_tasks
+
+ROOT = Path(__file__).resolve().parents[1]
+POLICY_COMMIT = "c36823a"
+"""The policy whose world model the deployed refit replaced (``policies/ugv-default`` at this commit)."""
+REFIT = TrainSpec(
+    sim="ugv",
+    scenario="1,2,sims/ugv/scenarios/clutter.yaml,sims/ugv/scenarios/movers.yaml",
+    method="sac",
+    episodes=400,
+    world_model_only=True,
+    demo_episodes=300,
+    demo_noise=0.3,
+    env=["expert.yield_to_movers=false"],
+    overrides=["world_model_config.violation_steps=20", "world_model_config.cost_label_weight=0.3", "gate.release=1"],
+    checkpoint_every=0,
+    checkpoint_dtype="float16",
+)
+"""The refit of ``policies/ugv-default/README.md`` (seed, init and out filled in per run)."""
+SCENARIOS = [
+    "1",
+    "2",
+    "3",
+    "4",
+    "sims/ugv/scenarios/head_on.yaml",
+    "sims/ugv/scenarios/traffic.yaml",
+    "sims/ugv/scenarios/slow_lead.yaml",
+]
+"""The UGV rows of the calibration bench's gate table (its built-in scenarios and FIELDS)."""
+
+
+def arms() -> dict[str, list[str]]:
+    from sims.ugv.env import scan_layout
+
+    return {
+        "plain": [],
+        "scan": [f"world_model_config.{key}={value}" for key, value in scan_layout().items()],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--arms", nargs="+", default=["plain", "scan"], choices=sorted(arms()))
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")
+    parser.add_argument("--runs", type=Path, default=ROOT / "runs" / "refit-spread", help="refits are kept here")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "refit_spread")
+    parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
+    parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
+    parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
+    args = parser.parse_args()
+    if len(args.seeds) < 2:
+        parser.error("give at least two --seeds: the spread over refits is the point")
+    args.runs = args.runs.resolve()  # Ray workers need not share this working directory
+    init = policy_at_commit(args.runs)
+    settings = arms()
+    folders = {(arm, seed): args.runs / f"{arm}-s{seed}" for arm in args.arms for seed in args.seeds}
+    todo = [(arm, seed) for (arm, seed), folder in folders.items() if not (folder / "checkpoint.pt").is_file()]
+    if todo:
+        specs = [
+            REFIT.replace(
+                seed=seed,
+                init=str(init),
+                out=str(folders[arm, seed]),
+                overrides=[*REFIT.overrides, *settings[arm]],
+            )
+            for arm, seed in todo
+        ]
+        run_tasks(
+            refit,
+            [{"spec": spec} for spec in specs],
+            [f"refit {arm} seed {seed}" for arm, seed in todo],
+            address=args.address,
+            cpus=args.cpus,
+        )
+    cases = [(arm, seed, scenario) for arm in args.arms for seed in args.seeds for scenario in SCENARIOS]
+    rows = run_tasks(
+        gate_row,
+        [
+            {"folder": str(folders[arm, seed]), "scenario": scenario, "episodes": args.episodes}
+            for arm, seed, scenario in cases
+        ],
+        [f"gate + expert: {arm} seed {seed} on {scenario}" for arm, seed, scenario in cases],
+        address=args.address,
+        cpus=args.cpus,
+    )
+    measured = dict(zip(cases, rows, strict=True))
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    text = report(args, settings, measured, commit.stdout.strip())
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "README.md").write_text("\n".join(text) + "\n")
+    (args.out / "rows.json").write_text(
+        json.dumps([{"arm": a, "seed": s, "scenario": sc, **measured[a, s, sc]} for a, s, sc in cases], indent=1)
+    )
+    print("\n".join(text))
+    if args.readme is not None:
+        include(args.readme, "refit-spread", args.out / "README.md", "## Calibration of fear")
+        print(f"README section 'refit-spread' written into {args.readme}")
+
+
+def policy_at_commit(runs: Path) -> Path:
+    """``policies/ugv-default`` as it was at :data:`POLICY_COMMIT` (the deployed refit's --init), under ``runs``."""
+    folder = runs / f"ugv-default-{POLICY_COMMIT}"
+    if not (folder / "checkpoint.pt").is_file():
+        folder.mkdir(parents=True, exist_ok=True)
+        for name in ("checkpoint.pt", "config.json"):
+            blob = subprocess.run(
+                ["git", "show", f"{POLICY_COMMIT}:policies/ugv-default/{name}"],
+                cwd=ROOT,
+                capture_output=True,
+                check=True,
+            ).stdout
+            (folder / name).write_bytes(blob)
+    return folder
+
+
+def refit(spec: TrainSpec) -> str:
+    """One Ray task: a refit, run from the checkout (its scenario paths are relative to it)."""
+    import os
+
+    import torch
+
+    from studies.training import run_training
+
+    torch.set_num_threads(1)
+    os.chdir(ROOT)
+    return str(run_training(spec).out)
+
+
+def gate_row(folder: str, scenario: str, episodes: int) -> dict[str, Any]:
+    """One Ray task: the gate + scripted expert on a scenario (cached in the refit's folder)."""
+    import sims
+    from studies.calibrate import gate_with_expert
+
+    shown = Path(scenario).stem
+    cache = Path(folder) / f"gate-{shown}-{episodes}.json"
+    if cache.is_file():
+        return json.loads(cache.read_text())
+    d = sims.descriptor("ugv")
+    path = str(ROOT / scenario) if scenario.endswith(".yaml") else scenario
+    started = time.perf_counter()
+    point = gate_with_expert(folder, lambda: d.make(path), episodes, warn_steps=max(1, round(1.0 / d.dt)))
+    row = {
+        "violations": round(point["violation_rate"] * episodes),
+        "takeover": float(point["takeover_rate"]),
+        "expert_driving": int(point["violations_under_expert"]),
+        "handed_back": int(point["violations_handed_back"]),
+        "seconds": time.perf_counter() - started,
+    }
+    cache.write_text(json.dumps(row))
+    return row
+
+
+def interval(values: list[float]) -> str:
+    """mean ± half-width of the 95% t-interval over seeds."""
+    mean = float(np.mean(values))
+    half = float(stats.t.ppf(0.975, len(values) - 1) * np.std(values, ddof=1) / math.sqrt(len(values)))
+    return f"{mean:.1f} ± {half:.1f}"
+
+
+def report(
+    args: argparse.Namespace, settings: dict[str, list[str]], measured: dict[tuple[str, int, str], Any], commit: str
+) -> list[str]:
+    seeds = " ".join(str(s) for s in args.seeds)
+    header = (
+        "| scenario | "
+        + " | ".join(f"{arm}: violations per seed | {arm}: mean ± 95% | {arm}: takeover" for arm in args.arms)
+        + " |"
+    )
+    lines = [
+        "### The gate's safety over refits of the world model",
+        "",
+        f"Generated by `python bench/bench_refit_spread.py --arms {' '.join(args.arms)} --seeds {seeds} "
+        f"--episodes {args.episodes}` at commit {commit}. Each refit: `policies/ugv-default/README.md`'s command "
+        f"with `--seed` set (the policy from {POLICY_COMMIT}); arms add "
+        + "; ".join(f"{arm}: {' '.join('--set ' + s for s in settings[arm]) or 'nothing'}" for arm in args.arms)
+        + f". Gate + scripted expert over {args.episodes} episodes per scenario and refit (the calibration bench's "
+        "seeds): episodes with a violation, per seed in the order given.",
+        "",
+        header,
+        "|---|" + "---|---|---|" * len(args.arms),
+    ]
+    totals: dict[str, list[float]] = {arm: [0.0] * len(args.seeds) for arm in args.arms}
+    for scenario in SCENARIOS:
+        cells = []
+        for arm in args.arms:
+            counts = [measured[arm, seed, scenario]["violations"] for seed in args.seeds]
+            takeover = np.mean([measured[arm, seed, scenario]["takeover"] for seed in args.seeds])
+            for i, count in enumerate(counts):
+                totals[arm][i] += count
+            cells.append(f"{' · '.join(str(c) for c in counts)} | {interval(counts)} | {takeover:.0%}")
+        lines.append(f"| ugv {Path(scenario).name} | " + " | ".join(cells) + " |")
+    lines.append(
+        "| all rows | "
+        + " | ".join(f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms)
+        + " |"
+    )
+    return lines
+
+
+if __name__ == "__main__":
+    main()
