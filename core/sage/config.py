@@ -408,8 +408,12 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
     if cfg.world_model_config.scan_sectors < 0:
         raise ValueError(f"world_model_config.scan_sectors must be >= 0, got {cfg.world_model_config.scan_sectors}")
-    if cfg.world_model_config.scan_sectors and cfg.world_model_config.motion_lag != 1:
-        raise ValueError("world_model_config.scan_sectors (a scan-aligned motion input) needs motion_lag=1")
+    if cfg.world_model_config.scan_sectors and (
+        cfg.world_model_config.motion_lag != 1 or not cfg.world_model_config.motion_input
+    ):
+        raise ValueError(
+            "world_model_config.scan_sectors (a scan-aligned motion input) needs motion_input=true and motion_lag=1"
+        )
     if not 0.0 <= cfg.world_model_config.cost_label_weight <= 1.0:
         raise ValueError(
             f"world_model_config.cost_label_weight must be in [0, 1], got {cfg.world_model_config.cost_label_weight}"

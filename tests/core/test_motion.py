@@ -90,6 +90,9 @@ def test_a_scan_layout_that_does_not_fit_is_refused_with_its_field() -> None:
     wm = WorldModelConfig(motion_lag=3, scan_sectors=6, scan_turn_channel=8, scan_turn_sectors=1.0)
     with pytest.raises(ValueError, match="motion_lag=1"):
         validate(AgentConfig(world_model_config=wm))
+    without_motion = WorldModelConfig(motion_input=False, scan_sectors=6, scan_turn_channel=8, scan_turn_sectors=1.0)
+    with pytest.raises(ValueError, match="motion_input=true"):
+        validate(AgentConfig(world_model_config=without_motion))
 
 
 def test_fear_of_a_scan_aligned_model_stays_differentiable_through_its_imagined_turns() -> None:
