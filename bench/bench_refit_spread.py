@@ -191,14 +191,22 @@ def interval(values: list[float]) -> str:
     return f"{mean:.1f} ± {half:.1f}"
 
 
+def welch_p(first: list[float], second: list[float]) -> str:
+    """Two-sided p of Welch's t-test that two arms' means over seeds differ (– where both have no spread)."""
+    if np.std(first) == 0 and np.std(second) == 0:
+        return "–"
+    return f"{stats.ttest_ind(first, second, equal_var=False).pvalue:.3f}"
+
+
 def report(
     args: argparse.Namespace, settings: dict[str, list[str]], measured: dict[tuple[str, int, str], Any], commit: str
 ) -> list[str]:
     seeds = " ".join(str(s) for s in args.seeds)
+    compared = args.arms[:2] if len(args.arms) >= 2 else []
     header = (
         "| scenario | "
         + " | ".join(f"{arm}: violations per seed | {arm}: mean ± 95% | {arm}: takeover" for arm in args.arms)
-        + " |"
+        + (f" | p, {compared[0]} vs {compared[1]} |" if compared else " |")
     )
     lines = [
         "### The gate's safety over refits of the world model",
@@ -208,26 +216,29 @@ def report(
         f"with `--seed` set (the policy from {POLICY_COMMIT}); arms add "
         + "; ".join(f"{arm}: {' '.join('--set ' + s for s in settings[arm]) or 'nothing'}" for arm in args.arms)
         + f". Gate + scripted expert over {args.episodes} episodes per scenario and refit (the calibration bench's "
-        "seeds): episodes with a violation, per seed in the order given.",
+        "seeds): episodes with a violation, per seed in the order given"
+        + ("; p: Welch's t-test of the first two arms' means over seeds." if compared else "."),
         "",
         header,
-        "|---|" + "---|---|---|" * len(args.arms),
+        "|---|" + "---|---|---|" * len(args.arms) + ("---|" if compared else ""),
     ]
     totals: dict[str, list[float]] = {arm: [0.0] * len(args.seeds) for arm in args.arms}
     for scenario in SCENARIOS:
         cells = []
+        counts: dict[str, list[float]] = {}
         for arm in args.arms:
-            counts = [measured[arm, seed, scenario]["violations"] for seed in args.seeds]
+            counts[arm] = [measured[arm, seed, scenario]["violations"] for seed in args.seeds]
             takeover = np.mean([measured[arm, seed, scenario]["takeover"] for seed in args.seeds])
-            for i, count in enumerate(counts):
+            for i, count in enumerate(counts[arm]):
                 totals[arm][i] += count
-            cells.append(f"{' · '.join(str(c) for c in counts)} | {interval(counts)} | {takeover:.0%}")
+            cells.append(f"{' · '.join(f'{c:.0f}' for c in counts[arm])} | {interval(counts[arm])} | {takeover:.0%}")
+        if compared:
+            cells.append(welch_p(counts[compared[0]], counts[compared[1]]))
         lines.append(f"| ugv {Path(scenario).name} | " + " | ".join(cells) + " |")
-    lines.append(
-        "| all rows | "
-        + " | ".join(f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms)
-        + " |"
-    )
+    cells = [f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms]
+    if compared:
+        cells.append(welch_p(totals[compared[0]], totals[compared[1]]))
+    lines.append("| all rows | " + " | ".join(cells) + " |")
     return lines
 
 
