@@ -27,8 +27,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bench_calibration import FIELDS  # the sibling bench (this folder is on the path when run as a script)
 from scipy import stats
 
+import sims
 from studies.readme import include
 from studies.spec import TrainSpec
 from studies.sweep import run_tasks
@@ -50,15 +52,7 @@ REFIT = TrainSpec(
     checkpoint_dtype="float16",
 )
 """The refit of ``policies/ugv-default/README.md`` (seed, init and out filled in per run)."""
-SCENARIOS = [
-    "1",
-    "2",
-    "3",
-    "4",
-    "sims/ugv/scenarios/head_on.yaml",
-    "sims/ugv/scenarios/traffic.yaml",
-    "sims/ugv/scenarios/slow_lead.yaml",
-]
+SCENARIOS = [spec.name for spec in sims.descriptor("ugv").scenarios] + FIELDS["ugv"]
 """The UGV rows of the calibration bench's gate table (its built-in scenarios and FIELDS)."""
 
 
@@ -162,7 +156,6 @@ def refit(spec: TrainSpec) -> str:
 
 def gate_row(folder: str, scenario: str, episodes: int) -> dict[str, Any]:
     """One Ray task: the gate + scripted expert on a scenario (cached in the refit's folder)."""
-    import sims
     from studies.calibrate import gate_with_expert
 
     shown = Path(scenario).stem

@@ -98,7 +98,7 @@ def rollout(
             h = F.silu(torch.baddbmm(bias, h, weight))
         out = torch.baddbmm(model.out_bias, h, model.out_weight)
         s_next = s + out[..., :d]
-        if m is not None:
+        if m is not None and k + 1 < horizon:  # the last imagined state's motion feeds no further step
             m = next_motion(m, out[..., :d], model.motion_lag) if model.scan is None else model.scan.motion(s, s_next)
         s = s_next
         states.append(s)
