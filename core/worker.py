@@ -269,6 +269,9 @@ class FinetuneService:
         self.pinned: int | None = None
         self._base: int | None = spec.base
         self._pending: _Pending | None = None
+        # every choice of the next version (automatic or the operator's) takes a ticket under the lock; a load
+        # that finishes after a later choice was made is dropped, so a slow load never undoes a newer pin
+        self._choice = 0
         self._known: set[int] = {v.number for v in self.store.versions()}
         self._versions: list[dict[str, Any]] = [v.summary() for v in self.store.versions()]
         self._lock = threading.RLock()
@@ -427,20 +430,21 @@ class FinetuneService:
             self._versions = summaries
             if new:
                 self._base = None  # the worker's line now ends in a published version: continue from the latest
-            following = self.pinned is None
-            in_control = self.in_control
-        if following:
-            # the summaries already hold each verdict: no second read of every promotion.json
-            promoted = [
-                row["number"]
-                for row in summaries
-                if _promoted(row)
-                and row["number"] not in self._offered
-                and (in_control is None or row["number"] > in_control)
-            ]
-            if promoted:
-                self._offered.add(promoted[-1])
-                self._offer(promoted[-1])
+            offer: tuple[int, int] | None = None
+            if self.pinned is None:
+                # the summaries already hold each verdict: no second read of every promotion.json
+                promoted = [
+                    row["number"]
+                    for row in summaries
+                    if _promoted(row)
+                    and row["number"] not in self._offered
+                    and (self.in_control is None or row["number"] > self.in_control)
+                ]
+                if promoted:
+                    self._offered.add(promoted[-1])
+                    offer = (promoted[-1], self._claim())
+        if offer is not None:
+            self._offer(*offer)
         return changed
 
     def _handle_death(self, process: Any) -> bool:
@@ -467,11 +471,18 @@ class FinetuneService:
         return False
 
     # -- versions for the loop ---------------------------------------------------------------------------------
-    def _offer(self, number: int) -> None:
-        """Load ``number`` (off the loop's thread) and make it the version the loop takes at its next boundary."""
+    def _claim(self) -> int:
+        """A ticket for a choice of the next version (call holding the lock, where the choice is decided)."""
+        self._choice += 1
+        return self._choice
+
+    def _offer(self, number: int, ticket: int) -> None:
+        """Load ``number`` (off the loop's thread) and make it the version the loop takes at its next boundary,
+        unless a later choice (``ticket`` is not the newest) was made meanwhile."""
         if number == self.in_control:
             with self._lock:
-                self._pending = None
+                if ticket == self._choice:
+                    self._pending = None
             return
         loaded: Any = None
         if self.loader is not None:
@@ -483,7 +494,8 @@ class FinetuneService:
                 log.warning("version v%04d does not load: %s", number, exc)
                 return
         with self._lock:
-            self._pending = _Pending(number, loaded)
+            if ticket == self._choice:
+                self._pending = _Pending(number, loaded)
 
     def take_pending(self) -> tuple[int, Any] | None:
         """The version to switch to now (call at an episode boundary), or None. Clears it."""
@@ -519,10 +531,11 @@ class FinetuneService:
             write_verdict(path, {**(read_verdict(path) or {}), "rolled_back": True, "rollback_reason": reason})
         with self._lock:
             self.last_rollback = reason
-            pinned = self.pinned
+            # decided under the lock: an operator's pin made a moment earlier is kept, not undone
+            ticket = self._rebase(previous) if self.pinned is None else None
         log.warning("automatic rollback: %s", reason)
-        if pinned is None:
-            self.rollback(previous)
+        if ticket is not None:
+            self._offer(previous, ticket)
         self._scan_versions()
         if self.on_change is not None:
             self.on_change()
@@ -533,27 +546,33 @@ class FinetuneService:
         self.store.get(number)  # a clear error for a version that does not exist
         with self._lock:
             self.pinned = number
-        self._offer(number)
+            ticket = self._claim()
+        self._offer(number, ticket)
 
     def follow(self) -> None:
         """Unpin: run the newest promoted version from the next episode on, and each new one as it is promoted."""
         latest = next((v for v in reversed(self.store.versions()) if v.promoted), None)
         with self._lock:
             self.pinned = None
+            ticket = self._claim()
         if latest is not None:
-            self._offer(latest.number)
+            self._offer(latest.number, ticket)
 
     def rollback(self, number: int) -> None:
         """Deploy ``number`` again and continue fine-tuning from it (later versions stay on disk, listed)."""
         self.store.get(number)
         with self._lock:
             self.pinned = None
-            self._base = number
-            commands = self._commands
-        if commands is not None:  # (a worker started later begins from _base anyway)
+            ticket = self._rebase(number)
+        self._offer(number, ticket)
+
+    def _rebase(self, number: int) -> int:
+        """Continue fine-tuning from ``number`` and claim the next version for it (call holding the lock)."""
+        self._base = number
+        if self._commands is not None:  # (a worker started later begins from _base anyway)
             with contextlib.suppress(Exception):
-                commands.put(("rebase", number))
-        self._offer(number)
+                self._commands.put(("rebase", number))
+        return self._claim()
 
     # -- what the page shows ----------------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:

@@ -294,6 +294,12 @@ def test_the_page_shows_versions_progress_and_takeovers_and_pins_a_version(brows
         page.wait_for_function(
             "document.getElementById('ft-mode').textContent.startsWith('pinned to v0000')", timeout=WAIT_MS
         )
+        # the pin is stated at once; v0000 is loaded off the loop's thread, then offered for the next episode
+        page.wait_for_function(
+            "document.getElementById('ft-mode').textContent.includes('v0000 from the next episode')"
+            " || document.getElementById('ft-version').textContent === 'v0000'",
+            timeout=WAIT_MS,
+        )
         page.click("#btn-new")
         page.wait_for_function("document.getElementById('ft-version').textContent === 'v0000'", timeout=WAIT_MS)
         assert live.state()["finetune"]["pinned"] == 0 and live.state()["version"] == 0

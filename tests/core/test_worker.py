@@ -208,3 +208,34 @@ def _alive(pid: int) -> bool:
     except OSError:
         return False
     return True
+
+
+def test_a_slow_load_begun_before_a_pin_does_not_undo_it(versions: VersionStore, tmp_path: Path) -> None:
+    """The automatic offer of a newly promoted version loads on the monitor's thread; the operator pins meanwhile.
+    The pin is the later choice: the load that finishes after it must not become the loop's next version."""
+    import shutil
+
+    from core.promotion import write_verdict
+
+    shutil.copytree(versions.get(0).path, versions.root / "v0001")
+    write_verdict(versions.root / "v0001", {"promoted": True, "reason": "test"})
+    loading, release = threading.Event(), threading.Event()
+
+    def loader(path: Path) -> str:
+        if path.name == "v0001":
+            loading.set()
+            assert release.wait(10)
+        return path.name
+
+    spec = WorkerSpec(versions.root, tmp_path / "sessions", "session", CONFIG)
+    service = FinetuneService(spec, loader=loader, in_control=0)
+    service._known.discard(1)  # v0001 appears after the service started
+    scan = threading.Thread(target=service._scan_versions)
+    scan.start()
+    assert loading.wait(10)
+    service.pin(0)  # the operator keeps the version in control while v0001 is still loading
+    release.set()
+    scan.join(10)
+    assert service.take_pending() is None and service.status()["pinned"] == 0
+    service.follow()  # following again: the promoted version is the next one
+    assert service.take_pending() == (1, "v0001")
