@@ -120,6 +120,12 @@ class GateConfig:
     """τ_min = this quantile of fear on real states under the policy (most ready to ask: novel ground)."""
     tau_max_quantile: float = 0.99
     """τ_max = this quantile of fear on real states under the policy (familiar ground)."""
+    calibration_states: int = 16384
+    """Real states whose fear sets κ and the τ bounds at every world-model fit: drawn from the replay buffer
+    without replacement, or all of them when it holds fewer. τ_max is a tail quantile, so its estimate is noisy:
+    over 2048 states its sampling sd was 0.030-0.034 on the UGV's refits, where τ_max differs by 0.04 between
+    refits and gate + expert violations move with it; 16384 states bring the sd to about 0.012 for under a second
+    a fit (``bench/bench_tau_estimate.py``)."""
     curiosity_smoothing: float = 0.3
     """Weight of the newest curiosity in the short moving average that ρ reads, so that τ does not jump with
     every noisy transition (1: no smoothing)."""
@@ -400,6 +406,8 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"need 0 <= gate.tau_min <= gate.tau_max, got {cfg.gate.tau_min}, {cfg.gate.tau_max}")
     if not 0.0 <= cfg.gate.tau_min_quantile < cfg.gate.tau_max_quantile <= 1.0:
         raise ValueError("need 0 <= gate.tau_min_quantile < gate.tau_max_quantile <= 1")
+    if cfg.gate.calibration_states < 100:
+        raise ValueError(f"gate.calibration_states must be >= 100, got {cfg.gate.calibration_states}")
     if not 0.0 < cfg.gate.curiosity_smoothing <= 1.0:
         raise ValueError(f"gate.curiosity_smoothing must be in (0, 1], got {cfg.gate.curiosity_smoothing}")
     if not 0.0 <= cfg.gate.release <= 1.0:

@@ -308,7 +308,9 @@ class BaseLearner:
         )
         self._steps_at_last_fit = self.env_steps
         self.last_fit = report
-        idx = self.rng.integers(0, len(self.buffer), size=min(len(self.buffer), 2048))
+        n, wanted = len(self.buffer), self.cfg.gate.calibration_states
+        # distinct states, as many as the config allows: τ_max is a tail quantile (see GateConfig)
+        idx = np.arange(n) if n <= wanted else np.sort(self.rng.choice(n, size=wanted, replace=False))
         starts = torch.from_numpy(data["obs"][idx])
         safe = torch.from_numpy(
             familiar_for_bounds(self.buffer, self.world_model.cfg.violation_steps, self.cfg.gate.horizon)[idx]

@@ -200,6 +200,37 @@ def test_actor_batches_mix_real_and_virtual_states() -> None:
     assert torch.equal(states[:n_real], batch.obs[:n_real])
 
 
+# -- the threshold's calibration -------------------------------------------------------------------
+def test_the_tau_bounds_come_from_every_state_of_a_buffer_smaller_than_the_calibration_sample() -> None:
+    from core.sage.fear import calibrate
+    from core.sage.learner import familiar_for_bounds
+
+    learner = filled("sage")  # 600 states, under calibration_states: the fit calibrates on all of them
+    wm = learner.world_model
+    assert wm is not None and learner.cfg.gate.calibration_states > len(learner.buffer)
+    fitted = wm.tau_bounds.clone(), wm.sigma_scale.clone()
+    obs = torch.from_numpy(learner.buffer.arrays()["obs"])
+    safe = torch.from_numpy(familiar_for_bounds(learner.buffer, wm.cfg.violation_steps, learner.cfg.gate.horizon))
+    motion = torch.from_numpy(learner.buffer.previous_deltas(wm.motion_lag, wm.scan)) if wm.motion else None
+    calibrate(wm, learner.rollout_policy, obs, learner.cfg.gate.horizon, cfg=learner.cfg.gate, safe=safe, motion=motion)
+    assert torch.equal(wm.tau_bounds, fitted[0]) and torch.equal(wm.sigma_scale, fitted[1])
+
+
+def test_a_larger_buffer_is_calibrated_on_distinct_states(monkeypatch: pytest.MonkeyPatch) -> None:
+    import core.sage.learner as learner_module
+
+    learner = filled("sage")
+    learner.cfg.gate.calibration_states = 200
+    seen: list[torch.Tensor] = []
+    real = learner_module.calibrate
+    monkeypatch.setattr(
+        learner_module, "calibrate", lambda wm, policy, obs, *a, **k: seen.append(obs) or real(wm, policy, obs, *a, **k)
+    )
+    learner.fit_world_model()
+    (starts,) = seen
+    assert len(starts) == 200 and len(torch.unique(starts, dim=0)) == 200  # drawn without replacement
+
+
 # -- baselines -----------------------------------------------------------------------------------------
 def test_td3_updates_critic_every_step_and_actor_every_other() -> None:
     learner = filled("td3")
