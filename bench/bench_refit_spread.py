@@ -10,8 +10,15 @@ over seeds, and the mean takeover rate.
     .venv/bin/python bench/bench_refit_spread.py [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
         [--runs runs/refit-spread] [--readme README.md] [--cpus N | --address HOST:PORT]
 
-Arms: ``plain`` (the deployed refit's settings) and ``scan`` (its motion input with the previous lidar frame turned
-to the current heading, :mod:`core.motion`). A refit takes about 18 minutes of one core; each is a Ray task
+Arms: ``plain`` (the deployed refit's settings), ``scan`` (its motion input with the previous lidar frame turned
+to the current heading, :mod:`core.motion`) and ``states16k`` (κ and the τ bounds from 16384 buffer states at each
+fit, ``GateConfig.calibration_states``, where the deployed refit took 2048). The refits of ``plain`` and ``scan``
+kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their 2048 states were drawn
+with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035 and 0.034 on the
+rebuilt buffer of plain seed 0, a scratch measurement),
+so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit.
+
+A refit takes about 18 minutes of one core; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
 resumable). Not a unit test: it takes an hour on two cores.
 """
@@ -59,9 +66,11 @@ SCENARIOS = [spec.name for spec in sims.descriptor("ugv").scenarios] + FIELDS["u
 def arms() -> dict[str, list[str]]:
     from sims.ugv.env import scan_layout
 
+    old_draw = "gate.calibration_states=2048"  # the deployed refit's τ estimate (before calibration_states)
     return {
-        "plain": [],
-        "scan": [f"world_model_config.{key}={value}" for key, value in scan_layout().items()],
+        "plain": [old_draw],
+        "scan": [old_draw, *(f"world_model_config.{key}={value}" for key, value in scan_layout().items())],
+        "states16k": ["gate.calibration_states=16384"],
     }
 
 
@@ -113,7 +122,8 @@ def main() -> None:
     )
     measured = dict(zip(cases, rows, strict=True))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    text = report(args, settings, measured, commit.stdout.strip())
+    older = sorted({arm for (arm, _), folder in folders.items() if predates_calibration_states(folder)})
+    text = report(args, settings, measured, commit.stdout.strip(), older)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     (args.out / "rows.json").write_text(
@@ -139,6 +149,12 @@ def policy_at_commit(runs: Path) -> Path:
             ).stdout
             (folder / name).write_bytes(blob)
     return folder
+
+
+def predates_calibration_states(folder: Path) -> bool:
+    """Whether a kept refit ran before ``GateConfig.calibration_states`` (its 2048 states drawn with replacement)."""
+    ran_with = json.loads((folder / "config.json").read_text()).get("ran_with") or {}
+    return "calibration_states" not in (ran_with.get("gate") or {})
 
 
 def refit(spec: TrainSpec) -> str:
@@ -192,14 +208,19 @@ def welch_p(first: list[float], second: list[float]) -> str:
 
 
 def report(
-    args: argparse.Namespace, settings: dict[str, list[str]], measured: dict[tuple[str, int, str], Any], commit: str
+    args: argparse.Namespace,
+    settings: dict[str, list[str]],
+    measured: dict[tuple[str, int, str], Any],
+    commit: str,
+    older: list[str],
 ) -> list[str]:
     seeds = " ".join(str(s) for s in args.seeds)
-    compared = args.arms[:2] if len(args.arms) >= 2 else []
+    first, others = args.arms[0], args.arms[1:]  # each other arm is compared with the first
     header = (
         "| scenario | "
         + " | ".join(f"{arm}: violations per seed | {arm}: mean ± 95% | {arm}: takeover" for arm in args.arms)
-        + (f" | p, {compared[0]} vs {compared[1]} |" if compared else " |")
+        + "".join(f" | p, {arm} vs {first}" for arm in others)
+        + " |"
     )
     lines = [
         "### The gate's safety over refits of the world model",
@@ -208,12 +229,18 @@ def report(
         f"--episodes {args.episodes}` at commit {commit}. Each refit: `policies/ugv-default/README.md`'s command "
         f"with `--seed` set (the policy from {POLICY_COMMIT}); arms add "
         + "; ".join(f"{arm}: {' '.join('--set ' + s for s in settings[arm]) or 'nothing'}" for arm in args.arms)
+        + (
+            f" ({', '.join(older)}: refits kept from before `gate.calibration_states`, whose 2048 states were drawn "
+            "with replacement)"
+            if older
+            else ""
+        )
         + f". Gate + scripted expert over {args.episodes} episodes per scenario and refit (the calibration bench's "
         "seeds): episodes with a violation, per seed in the order given"
-        + ("; p: Welch's t-test of the first two arms' means over seeds." if compared else "."),
+        + (f"; p: Welch's t-test of an arm's mean over seeds against {first}'s." if others else "."),
         "",
         header,
-        "|---|" + "---|---|---|" * len(args.arms) + ("---|" if compared else ""),
+        "|---|" + "---|---|---|" * len(args.arms) + "---|" * len(others),
     ]
     totals: dict[str, list[float]] = {arm: [0.0] * len(args.seeds) for arm in args.arms}
     for scenario in SCENARIOS:
@@ -225,12 +252,10 @@ def report(
             for i, count in enumerate(counts[arm]):
                 totals[arm][i] += count
             cells.append(f"{' · '.join(f'{c:.0f}' for c in counts[arm])} | {interval(counts[arm])} | {takeover:.0%}")
-        if compared:
-            cells.append(welch_p(counts[compared[0]], counts[compared[1]]))
+        cells.extend(welch_p(counts[first], counts[arm]) for arm in others)
         lines.append(f"| ugv {Path(scenario).name} | " + " | ".join(cells) + " |")
     cells = [f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms]
-    if compared:
-        cells.append(welch_p(totals[compared[0]], totals[compared[1]]))
+    cells.extend(welch_p(totals[first], totals[arm]) for arm in others)
     lines.append("| all rows | " + " | ".join(cells) + " |")
     return lines
 
