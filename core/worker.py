@@ -472,8 +472,10 @@ class FinetuneService:
 
     # -- versions for the loop ---------------------------------------------------------------------------------
     def _claim(self) -> int:
-        """A ticket for a choice of the next version (call holding the lock, where the choice is decided)."""
+        """A ticket for a choice of the next version (call holding the lock, where the choice is decided). The
+        choice voids the version offered before it: until its own load ends, the loop keeps the one in control."""
         self._choice += 1
+        self._pending = None
         return self._choice
 
     def _offer(self, number: int, ticket: int) -> None:

@@ -239,3 +239,12 @@ def test_a_slow_load_begun_before_a_pin_does_not_undo_it(versions: VersionStore,
     assert service.take_pending() is None and service.status()["pinned"] == 0
     service.follow()  # following again: the promoted version is the next one
     assert service.take_pending() == (1, "v0001")
+
+    def failing(path: Path) -> str:
+        raise OSError("disk gone")
+
+    shutil.copytree(versions.get(0).path, versions.root / "v0002")
+    service._offer(1, service._claim())  # v0001 offered again ...
+    service.loader = failing
+    service.pin(2)  # ... then v0002 pinned, and its load fails: the loop must not take v0001 instead
+    assert service.take_pending() is None and "v0002 does not load" in (service.status()["error"] or "")
