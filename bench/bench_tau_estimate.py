@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from bench_refit_spread import REFIT  # the sibling bench (this folder is on the path when run as a script)
 
 import sims
 from core.agents import LoadedAgent, load_agent
@@ -34,8 +35,6 @@ from studies.envs import parse_env_overrides
 from studies.readme import include
 
 ROOT = Path(__file__).resolve().parents[1]
-UGV_REFIT_FIELD = "1,2,sims/ugv/scenarios/clutter.yaml,sims/ugv/scenarios/movers.yaml"
-"""The scenarios of the deployed UGV world model's refit (``policies/ugv-default/README.md``)."""
 CAPACITY = 250_000
 """Rows of the replay buffer the states are collected in (a refit's buffer held about 105,000)."""
 SIZES = (2048, 8192, 16384, 32768)
@@ -68,7 +67,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--policy", type=Path, default=ROOT / "policies" / "ugv-default")
     parser.add_argument("--sim", default="ugv")
-    parser.add_argument("--scenario", default=UGV_REFIT_FIELD, help="comma-separated, as sage train takes them")
+    parser.add_argument("--scenario", default=REFIT.scenario, help="comma-separated, as sage train takes them")
     parser.add_argument("--env", nargs="*", default=[], help="simulator overrides KEY=VALUE, as sage train takes them")
     parser.add_argument("--episodes", type=int, default=200, help="policy episodes, over the scenarios in turn")
     parser.add_argument("--draws", type=int, default=30, help="independent draws of N states per N")

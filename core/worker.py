@@ -482,10 +482,7 @@ class FinetuneService:
         """Load ``number`` (off the loop's thread) and make it the version the loop takes at its next boundary,
         unless a later choice (``ticket`` is not the newest) was made meanwhile."""
         if number == self.in_control:
-            with self._lock:
-                if ticket == self._choice:
-                    self._pending = None
-            return
+            return  # nothing to switch to (the choice's claim already voided what was offered before)
         loaded: Any = None
         if self.loader is not None:
             try:

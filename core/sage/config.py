@@ -123,9 +123,9 @@ class GateConfig:
     calibration_states: int = 16384
     """Real states whose fear sets κ and the τ bounds at every world-model fit: drawn from the replay buffer
     without replacement, or all of them when it holds fewer. τ_max is a tail quantile, so its estimate is noisy:
-    over 2048 states its sampling sd was 0.030-0.034 on the UGV's refits, where τ_max differs by 0.04 between
-    refits and gate + expert violations move with it; 16384 states bring the sd to about 0.012 for under a second
-    a fit (``bench/bench_tau_estimate.py``)."""
+    on the deployed UGV policy's states its sampling sd is 0.025 over 2048 states (the draw before this field),
+    where τ_max differs by up to 0.06 between refits, and 0.010 over 16384, for about a second a fit
+    (``bench/bench_tau_estimate.py``)."""
     curiosity_smoothing: float = 0.3
     """Weight of the newest curiosity in the short moving average that ρ reads, so that τ does not jump with
     every noisy transition (1: no smoothing)."""
