@@ -15,7 +15,8 @@ another run's policy the expert (:class:`core.experts.PolicyExpert`) in place of
 
 A run folder holds ``config.json`` ({"run", "agent", "meta"}), ``metrics.jsonl`` (one row per episode: the
 loop's :class:`~core.loop.EpisodeSummary` row, the simulator's metrics and the learner's statistics),
-``checkpoint.pt`` and ``checkpoints/episode_NNNNN.pt`` (see :mod:`core.agents`).
+``checkpoint.pt`` and ``checkpoints/episode_NNNNN.pt`` (see :mod:`core.agents`), and with a world model
+``calibration.npz``, the states its last fit set κ and the τ bounds on (:class:`core.sage.fear.CalibrationSample`).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, Step
 from core.planners import PlannerExpert, PlannerFactory, is_planner
 from core.sage import make_learner
 from core.sage.config import AgentConfig, to_dict, world_model_refit
+from core.sage.fear import CALIBRATION_FILE
 from core.sage.gate import AlwaysGate
 from core.sage.learner import BaseLearner
 
@@ -434,6 +436,8 @@ class Trainer:
         if self.episodes_done > 0 and self.run.checkpoint_every:
             self.checkpoint()
         self.checkpoint(final=True)
+        if self.out is not None and self.learner.last_calibration is not None:
+            self.learner.last_calibration.save(self.out / CALIBRATION_FILE)
         self.write_config()
         return TrainResult(self.rows, self.learner, self.out, demo_rows, time.time() - started)
 

@@ -14,6 +14,7 @@ COMMAND_MODULES = (
     "app.cli.figures",  # sage figure
     "app.cli.cycles",  # sage cycles
     "app.cli.calibrate",  # sage calibrate
+    "app.cli.merge",  # sage merge
     "app.cli.study",  # sage study
 )
 

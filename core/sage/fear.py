@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -196,6 +197,89 @@ def calibrate(
             world_model.tau_bounds.copy_(torch.tensor([lo, max(hi, lo + 1e-3)]))
     world_model.touch()
     return scale
+
+
+CALIBRATION_FILE = "calibration.npz"
+"""A run folder's :class:`CalibrationSample` of its last world-model fit."""
+
+
+@dataclass
+class CalibrationSample:
+    """Real states a world model's κ and τ bounds were set on (:func:`calibrate`), with what re-setting them on
+    another model needs: whether each was familiar (``safe``), its motion input, and the transition that
+    followed (for curiosity). A run folder keeps its last fit's sample as ``calibration.npz``, so that the
+    world models of several refits can be merged into one ensemble and calibrated on their own data
+    (:func:`core.merge.merge_runs`)."""
+
+    obs: np.ndarray
+    action: np.ndarray
+    next_obs: np.ndarray
+    familiar: np.ndarray
+    motion: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.obs)
+        parts = {"action": self.action, "next_obs": self.next_obs, "familiar": self.familiar}
+        if self.motion is not None:
+            parts["motion"] = self.motion
+        for name, values in parts.items():
+            if len(values) != n:
+                raise ValueError(f"calibration sample: {name} has {len(values)} rows, obs has {n}")
+
+    def __len__(self) -> int:
+        return len(self.obs)
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        arrays = {"obs": self.obs, "action": self.action, "next_obs": self.next_obs, "familiar": self.familiar}
+        if self.motion is not None:
+            arrays["motion"] = self.motion
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> CalibrationSample:
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {key: np.asarray(data[key]) for key in data.files}
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{path} is not a readable calibration sample ({exc})") from None
+        missing = {"obs", "action", "next_obs", "familiar"} - set(arrays)
+        if missing:
+            raise ValueError(f"{path} is not a calibration sample: it lacks {', '.join(sorted(missing))}")
+        return cls(
+            obs=arrays["obs"].astype(np.float32),
+            action=arrays["action"].astype(np.float32),
+            next_obs=arrays["next_obs"].astype(np.float32),
+            familiar=arrays["familiar"].astype(bool),
+            motion=arrays["motion"].astype(np.float32) if "motion" in arrays else None,
+        )
+
+    @classmethod
+    def concat(cls, samples: list[CalibrationSample]) -> CalibrationSample:
+        if not samples:
+            raise ValueError("no calibration samples to join")
+        with_motion = {s.motion is not None for s in samples}
+        if len(with_motion) > 1:
+            raise ValueError("calibration samples disagree on the motion input: some have it, some do not")
+        return cls(
+            obs=np.concatenate([s.obs for s in samples]),
+            action=np.concatenate([s.action for s in samples]),
+            next_obs=np.concatenate([s.next_obs for s in samples]),
+            familiar=np.concatenate([s.familiar for s in samples]),
+            motion=np.concatenate([s.motion for s in samples]) if with_motion == {True} else None,  # type: ignore[misc]
+        )
+
+    def subset(self, index: np.ndarray) -> CalibrationSample:
+        return CalibrationSample(
+            obs=self.obs[index],
+            action=self.action[index],
+            next_obs=self.next_obs[index],
+            familiar=self.familiar[index],
+            motion=None if self.motion is None else self.motion[index],
+        )
 
 
 class CuriosityThreshold:

@@ -39,7 +39,7 @@ from torch import Tensor
 from core.loop import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.config import AgentConfig, GateConfig
-from core.sage.fear import PolicyFn, calibrate, rollout, sample_member_transitions
+from core.sage.fear import CalibrationSample, PolicyFn, calibrate, rollout, sample_member_transitions
 from core.sage.gate import SageGate
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel, FitReport
@@ -140,6 +140,8 @@ class BaseLearner:
         self._steps_at_last_fit: int | None = None
         self._steps_at_last_rollout = 0
         self.last_fit: FitReport | None = None
+        self.last_calibration: CalibrationSample | None = None
+        """The states the last fit calibrated κ and the τ bounds on (a run folder keeps them, for ``sage merge``)."""
         self.info: dict[str, float] = {}
         """Latest training statistics (losses, λ, α, ...), for progress bars and metrics rows."""
         self._gates: list[SageGate] = []
@@ -316,6 +318,13 @@ class BaseLearner:
             familiar_for_bounds(self.buffer, self.world_model.cfg.violation_steps, self.cfg.gate.horizon)[idx]
         )
         start_motion = None if motion is None else torch.from_numpy(motion[idx])
+        self.last_calibration = CalibrationSample(
+            obs=data["obs"][idx],
+            action=data["action"][idx],
+            next_obs=data["next_obs"][idx],
+            familiar=safe.numpy(),
+            motion=None if motion is None else motion[idx],
+        )
         calibrate(
             self.world_model,
             self.rollout_policy,

@@ -39,7 +39,9 @@ changes, so that a gate step is a handful of ``baddbmm`` calls and no normalisat
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -326,6 +328,13 @@ class EnsembleWorldModel(nn.Module):
         in_mean, in_std = inputs.mean(0), inputs.std(0).clamp_min(IN_STD_FLOOR)
         out_mean, out_std = targets.mean(0), targets.std(0).clamp_min(STD_FLOOR)
         out_mean[d], out_std[d] = 0.0, 1.0
+        self.set_normalisers(in_mean, in_std, out_mean, out_std)
+
+    @torch.no_grad()
+    def set_normalisers(self, in_mean: Tensor, in_std: Tensor, out_mean: Tensor, out_std: Tensor) -> None:
+        """Take these normalisers; a fitted model's first and last layers are rewritten so that it computes the
+        same function (an unfitted one has no function to keep)."""
+        d = self.obs_dim
         if bool(self.fitted):
             first = self.hidden_layers[0]
             # x_old = (x - m_old) / s_old = x_new * (s_new / s_old) + (m_new - m_old) / s_old
@@ -421,6 +430,57 @@ class EnsembleWorldModel(nn.Module):
             )
         self._folded = (self.version, folded)
         return folded
+
+
+def merge_ensembles(models: Sequence[EnsembleWorldModel]) -> EnsembleWorldModel:
+    """One ensemble holding every member of ``models`` (bagging over refits: fits on different draws of the
+    data, whose errors in the timing of a warning partly cancel in the members' mean).
+
+    The models must share their shape and configuration but for ``members``. Each is first moved, exactly, to
+    the first one's normalisers (:meth:`EnsembleWorldModel.set_normalisers`), so that every member computes what
+    it computed in its own model; the shared soft log-variance bounds become the widest of them. κ and the τ bounds
+    are left unset (NaN): they belong to the new ensemble, so recalibrate it (:func:`core.sage.fear.calibrate`).
+    ``curiosity_ref``, the curiosity EMA's starting value, is the mean of the models'.
+    """
+    if len(models) < 2:
+        raise ValueError(f"merging needs at least two world models, got {len(models)}")
+    first = models[0]
+    shape = (first.obs_dim, first.act_dim)
+    base_cfg = dataclasses.replace(first.cfg, members=0)
+    for i, model in enumerate(models[1:], start=2):
+        if (model.obs_dim, model.act_dim) != shape:
+            raise ValueError(
+                f"world model {i} predicts {model.obs_dim} states from {model.act_dim} actions, the first "
+                f"{shape[0]} from {shape[1]}: merge only models of one policy"
+            )
+        differing = [
+            f.name
+            for f in dataclasses.fields(base_cfg)
+            if getattr(dataclasses.replace(model.cfg, members=0), f.name) != getattr(base_cfg, f.name)
+        ]
+        if differing:
+            raise ValueError(f"world model {i}'s config differs from the first's in {', '.join(differing)}")
+        if not bool(model.fitted):
+            raise ValueError(f"world model {i} was never fitted")
+    if not bool(first.fitted):
+        raise ValueError("world model 1 was never fitted")
+    moved = []
+    for model in models:
+        twin = copy.deepcopy(model)
+        twin.set_normalisers(first.in_mean, first.in_std, first.out_mean, first.out_std)
+        moved.append(twin)
+    members = sum(m.members for m in models)
+    merged = EnsembleWorldModel(first.obs_dim, first.act_dim, dataclasses.replace(first.cfg, members=members))
+    state = {name: value.clone() for name, value in first.state_dict().items()}
+    for name in first._member_parameter_names():
+        state[name] = torch.cat([twin.state_dict()[name] for twin in moved], dim=0)
+    state["max_logvar"] = torch.stack([twin.max_logvar.detach() for twin in moved]).amax(0)
+    state["min_logvar"] = torch.stack([twin.min_logvar.detach() for twin in moved]).amin(0)
+    state["curiosity_ref"] = torch.stack([m.curiosity_ref for m in models]).mean()
+    state["sigma_scale"] = torch.ones(MAX_HORIZON)
+    state["tau_bounds"] = torch.tensor([float("nan"), float("nan")])
+    merged.load_state_dict(state)
+    return merged
 
 
 def _torch_generator(rng: np.random.Generator) -> torch.Generator:
