@@ -6,7 +6,7 @@ Sizes are the UGV's: 58 observations, 2 actions, the default world model (5 x 2 
 (2 x 128). The world model is fitted briefly on synthetic transitions (the weights' values do not change
 the cost). Both variants are timed in interleaved rounds in the same run; the median of all steps is printed.
 
-    .venv/bin/python bench/bench_gate.py [--steps 3000]
+    .venv/bin/python bench/bench_gate.py [--steps 3000] [--members 10 25]
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import argparse
 import os
 import statistics
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -53,41 +54,39 @@ class LoopGate:
             x = F.silu(torch.addmm(b, x, w))
         return torch.addmm(ob, x, ow)
 
-    def fear(self, obs: torch.Tensor, action: torch.Tensor) -> float:
-        fm, d = self.fm, self.fm.obs_dim
-        states = [obs for _ in range(fm.members)]
-        actions = [action for _ in range(fm.members)]
+    def fear(self, obs: torch.Tensor, action: torch.Tensor, motion: torch.Tensor) -> float:
+        """F^m as :func:`core.sage.fear.fear` computes it (motion input, ĉ and σ̂ from the members' violation
+        probabilities, the maximum over the horizon), one member at a time."""
+        fm, d, members = self.fm, self.fm.obs_dim, range(self.fm.members)
+        states, actions, motions = [obs for _ in members], [action for _ in members], [motion for _ in members]
         costs, sigmas = [], []
         for k in range(self.cfg.horizon):
-            outs = [self.member_forward(n, torch.cat([states[n], actions[n]], -1)) for n in range(fm.members)]
-            states = [states[n] + outs[n][:, :d] for n in range(fm.members)]
-            stacked = torch.stack(states)
-            logvar = torch.stack([o[:, d + 1 : 2 * d + 1] for o in outs])
-            logvar = fm.max_logvar[0] - F.softplus(fm.max_logvar[0] - logvar)
-            logvar = fm.min_logvar[0] + F.softplus(logvar - fm.min_logvar[0])
-            epistemic = (stacked - stacked.mean(0)).square().mean(0) * fm.inv_delta_var
-            sigma_raw = (epistemic + logvar.exp().mean(0)).sqrt().mean()
+            outs = [self.member_forward(n, torch.cat([states[n], actions[n], motions[n]], -1)) for n in members]
+            motions = [torch.lerp(motions[n], outs[n][:, :d], 1.0 / fm.motion_lag) for n in members]
+            states = [states[n] + outs[n][:, :d] for n in members]
+            probability = torch.sigmoid(torch.stack([o[0, d] for o in outs]))
+            sigma_raw = (probability - probability.mean()).square().mean().clamp_min(1e-12).sqrt()
             sigmas.append(torch.tanh(sigma_raw / self.divisor[k]))
-            costs.append(torch.stack([o[0, d] for o in outs]).clamp(0, 1).mean())
+            costs.append(probability.mean())
             if k + 1 < self.cfg.horizon:
                 actions = [self.actor.deterministic(s) for s in states]
         c, s = float(torch.stack(costs).max()), float(torch.stack(sigmas).max())
         return self.cfg.beta * c + (1 - self.cfg.beta) * s
 
-    def curiosity(self, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor) -> float:
+    def curiosity(self, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor, motion: torch.Tensor) -> float:
         d = self.fm.obs_dim
-        x = torch.cat([obs, action], -1)
+        x = torch.cat([obs, action, motion], -1)
         delta = torch.stack([self.member_forward(n, x)[:, :d] for n in range(self.fm.members)]).mean(0)
         return float(((obs + delta - next_obs) * self.fm.inv_obs_std).norm())
 
 
-def setup() -> tuple[EnsembleWorldModel, Actor, np.ndarray, np.ndarray]:
+def setup(members: int = 5) -> tuple[EnsembleWorldModel, Actor, np.ndarray, np.ndarray]:
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
     obs = rng.random((2000, OBS_DIM)).astype(np.float32)
     act = rng.uniform(-1, 1, (2000, ACT_DIM)).astype(np.float32)
     nxt = (obs + 0.01 * rng.standard_normal(obs.shape)).astype(np.float32)
-    model = EnsembleWorldModel(OBS_DIM, ACT_DIM, WorldModelConfig(max_updates_per_fit=100))
+    model = EnsembleWorldModel(OBS_DIM, ACT_DIM, WorldModelConfig(members=members, max_updates_per_fit=100))
     model.fit(obs, act, nxt, rng.random(2000).astype(np.float32), rng)
     actor = Actor(OBS_DIM, ACT_DIM, 128, 2, -torch.ones(ACT_DIM), torch.ones(ACT_DIM))
     return model, actor, obs, nxt
@@ -97,6 +96,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--rounds", type=int, default=6)
+    parser.add_argument(
+        "--members",
+        type=int,
+        nargs="*",
+        default=[],
+        help="also time the batched gate with ensembles of these sizes (a merged ensemble, sage merge)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     model, actor, observations, next_observations = setup()
@@ -104,6 +110,17 @@ def main() -> None:
     gate = SageGate(model, actor, cfg)
     policy = ActorPolicy(actor)
     loop = LoopGate(model, actor, cfg)
+    larger = {n: SageGate(setup(n)[0], actor, cfg) for n in args.members}
+
+    def sized_step(n: int) -> Callable[[int], float]:
+        def step(i: int) -> float:
+            obs = observations[i % len(observations)]
+            action = policy.act(obs, deterministic=True)
+            decision = larger[n].decide(obs, action)
+            larger[n].observe(obs, action, next_observations[i % len(observations)])
+            return decision.fear
+
+        return step
 
     def batched_step(i: int) -> float:
         obs = observations[i % len(observations)]
@@ -117,18 +134,22 @@ def main() -> None:
         action = policy.act(obs, deterministic=True)
         with torch.inference_mode():
             o, a = torch.from_numpy(obs).view(1, -1), torch.from_numpy(action).view(1, -1)
-            value = loop.fear(o, a)
-            loop.curiosity(o, a, torch.from_numpy(next_observations[i % len(observations)]).view(1, -1))
+            # the gate's motion input: the change since the observation it saw last (none at the first)
+            m = torch.zeros_like(o) if i == 0 else o - torch.from_numpy(observations[(i - 1) % len(observations)])
+            value = loop.fear(o, a, m)
+            loop.curiosity(o, a, torch.from_numpy(next_observations[i % len(observations)]).view(1, -1), m)
         return value
 
     for i in range(20):  # same numbers, and warm caches
         assert abs(batched_step(i) - loop_step(i)) < 1e-4
-    names = ("batched (SageGate)", "loop over members")
+    steps: dict[str, Callable[[int], float]] = {"batched (SageGate)": batched_step, "loop over members": loop_step}
+    steps.update({f"batched, N={n}": sized_step(n) for n in args.members})
+    names = tuple(steps)
     wall: dict[str, list[float]] = {name: [] for name in names}
     cpu: dict[str, list[float]] = {name: [] for name in names}
     per_round = max(1, args.steps // args.rounds)
     for r in range(args.rounds):
-        for name, fn in zip(names, (batched_step, loop_step), strict=True):
+        for name, fn in steps.items():
             for i in range(r * per_round, (r + 1) * per_round):
                 start, start_cpu = time.perf_counter(), time.thread_time()
                 fn(i)
@@ -145,6 +166,9 @@ def main() -> None:
         )
     batched_cpu, batched_wall = statistics.median(cpu[names[0]]) * 1e3, statistics.median(wall[names[0]]) * 1e3
     print(f"loop / batched (CPU medians): {statistics.median(cpu[names[1]]) / statistics.median(cpu[names[0]]):.2f}x")
+    for n in args.members:
+        ratio = statistics.median(cpu[f"batched, N={n}"]) / statistics.median(cpu[names[0]])
+        print(f"batched N={n} / N={model.members} (CPU medians): {ratio:.2f}x")
     verdict = "OK" if batched_cpu <= TARGET_MS else "ABOVE TARGET"
     print(
         f"target: median <= {TARGET_MS} ms on one core: CPU {batched_cpu:.3f} ms {verdict}; wall {batched_wall:.3f} ms"

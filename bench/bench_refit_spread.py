@@ -8,7 +8,11 @@ table gives per arm and scenario the episodes with a violation for each seed, th
 over seeds, and the mean takeover rate.
 
     .venv/bin/python bench/bench_refit_spread.py [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
-        [--runs runs/refit-spread] [--readme README.md] [--cpus N | --address HOST:PORT]
+        [--runs runs/refit-spread] [--merge] [--readme README.md] [--cpus N | --address HOST:PORT]
+
+``--merge`` also merges each arm's refits into one ensemble of all their members (``sage merge``: bagging over
+refits, :mod:`core.merge`) and drives its gate rows beside the single refits'. It needs refits that kept their
+calibration states (``calibration.npz``, since 1294db4).
 
 Arms: ``plain`` (the deployed refit's settings), ``scan`` (its motion input with the previous lidar frame turned
 to the current heading, :mod:`core.motion`) and ``states16k`` (κ and the τ bounds from 16384 buffer states at each
@@ -59,6 +63,8 @@ REFIT = TrainSpec(
     checkpoint_dtype="float16",
 )
 """The refit of ``policies/ugv-default/README.md`` (seed, init and out filled in per run)."""
+MERGED = "merged"
+"""The seed slot of an arm's merged refits (``--merge``) in the measured rows."""
 SCENARIOS = [spec.name for spec in sims.descriptor("ugv").scenarios] + FIELDS["ugv"]
 """The UGV rows of the calibration bench's gate table (its built-in scenarios and FIELDS)."""
 
@@ -82,6 +88,11 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=ROOT / "runs" / "refit-spread", help="refits are kept here")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "refit_spread")
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
+    parser.add_argument(
+        "--merge",
+        action="store_true",
+        help="also merge each arm's refits into one ensemble (sage merge) and drive its gate rows",
+    )
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()
@@ -109,11 +120,18 @@ def main() -> None:
             address=args.address,
             cpus=args.cpus,
         )
-    cases = [(arm, seed, scenario) for arm in args.arms for seed in args.seeds for scenario in SCENARIOS]
+    cases: list[tuple[str, int | str, str]] = [
+        (arm, seed, scenario) for arm in args.arms for seed in args.seeds for scenario in SCENARIOS
+    ]
+    where: dict[tuple[str, int | str], Path] = dict(folders)
+    if args.merge:
+        for arm in args.arms:
+            where[arm, MERGED] = merged_folder(args.runs, arm, args.seeds, [folders[arm, seed] for seed in args.seeds])
+            cases.extend((arm, MERGED, scenario) for scenario in SCENARIOS)
     rows = run_tasks(
         gate_row,
         [
-            {"folder": str(folders[arm, seed]), "scenario": scenario, "episodes": args.episodes}
+            {"folder": str(where[arm, seed]), "scenario": scenario, "episodes": args.episodes}
             for arm, seed, scenario in cases
         ],
         [f"gate + expert: {arm} seed {seed} on {scenario}" for arm, seed, scenario in cases],
@@ -148,6 +166,17 @@ def policy_at_commit(runs: Path) -> Path:
                 check=True,
             ).stdout
             (folder / name).write_bytes(blob)
+    return folder
+
+
+def merged_folder(runs: Path, arm: str, seeds: list[int], refits: list[Path]) -> Path:
+    """The arm's refits merged into one ensemble (:func:`core.merge.merge_runs`), made once and kept."""
+    from core.merge import merge_runs
+
+    folder = runs / f"{arm}-merged-s{''.join(str(seed) for seed in seeds)}"
+    if not (folder / "checkpoint.pt").is_file():
+        result = merge_runs(refits, folder, dtype="float16")
+        print(f"merged {arm}: {result.members} members, τ bounds {result.tau_bounds}")
     return folder
 
 
@@ -216,9 +245,11 @@ def report(
 ) -> list[str]:
     seeds = " ".join(str(s) for s in args.seeds)
     first, others = args.arms[0], args.arms[1:]  # each other arm is compared with the first
+    merge = bool(getattr(args, "merge", False))
     header = (
         "| scenario | "
         + " | ".join(f"{arm}: violations per seed | {arm}: mean ± 95% | {arm}: takeover" for arm in args.arms)
+        + "".join(f" | {arm}, merged: violations | {arm}, merged: takeover" for arm in args.arms if merge)
         + "".join(f" | p, {arm} vs {first}" for arm in others)
         + " |"
     )
@@ -237,11 +268,18 @@ def report(
         )
         + f". Gate + scripted expert over {args.episodes} episodes per scenario and refit (the calibration bench's "
         "seeds): episodes with a violation, per seed in the order given"
-        + (f"; p: Welch's t-test of an arm's mean over seeds against {first}'s." if others else "."),
+        + (f"; p: Welch's t-test of an arm's mean over seeds against {first}'s" if others else "")
+        + (
+            f"; merged: the arm's {len(args.seeds)} refits as one ensemble of all their members (`sage merge` of "
+            "their folders, κ and τ set on the union of their calibration states)."
+            if merge
+            else "."
+        ),
         "",
         header,
-        "|---|" + "---|---|---|" * len(args.arms) + "---|" * len(others),
+        "|---|" + "---|---|---|" * len(args.arms) + "---|---|" * len(args.arms) * merge + "---|" * len(others),
     ]
+    merged_total = dict.fromkeys(args.arms, 0.0)
     totals: dict[str, list[float]] = {arm: [0.0] * len(args.seeds) for arm in args.arms}
     for scenario in SCENARIOS:
         cells = []
@@ -252,9 +290,14 @@ def report(
             for i, count in enumerate(counts[arm]):
                 totals[arm][i] += count
             cells.append(f"{' · '.join(f'{c:.0f}' for c in counts[arm])} | {interval(counts[arm])} | {takeover:.0%}")
+        for arm in args.arms if merge else []:
+            row = measured[arm, MERGED, scenario]
+            merged_total[arm] += row["violations"]
+            cells.append(f"{row['violations']:.0f} | {row['takeover']:.0%}")
         cells.extend(welch_p(counts[first], counts[arm]) for arm in others)
         lines.append(f"| ugv {Path(scenario).name} | " + " | ".join(cells) + " |")
     cells = [f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms]
+    cells.extend(f"{merged_total[arm]:.0f} | " for arm in args.arms if merge)
     cells.extend(welch_p(totals[first], totals[arm]) for arm in others)
     lines.append("| all rows | " + " | ".join(cells) + " |")
     return lines
