@@ -12,7 +12,7 @@ over seeds, and the mean takeover rate.
 
 ``--merge`` also merges each arm's refits into one ensemble of all their members (``sage merge``: bagging over
 refits, :mod:`core.merge`) and drives its gate rows beside the single refits'. It needs refits that kept their
-calibration states (``calibration.npz``, since 1294db4).
+calibration states (``calibration.npz``, since 1294db4); an arm whose refits are older is named and left unmerged.
 
 Arms: ``plain`` (the deployed refit's settings), ``scan`` (its motion input with the previous lidar frame turned
 to the current heading, :mod:`core.motion`) and ``states16k`` (κ and the τ bounds from 16384 buffer states at each
@@ -257,7 +257,7 @@ def report(
     header = (
         "| scenario | "
         + " | ".join(f"{arm}: violations per seed | {arm}: mean ± 95% | {arm}: takeover" for arm in args.arms)
-        + "".join(f" | {arm}, merged: violations | {arm}, merged: takeover" for arm in args.arms if merge)
+        + "".join(f" | {arm}, merged: violations | {arm}, merged: takeover" for arm in merged_arms)
         + "".join(f" | p, {arm} vs {first}" for arm in others)
         + " |"
     )
@@ -292,9 +292,9 @@ def report(
         ),
         "",
         header,
-        "|---|" + "---|---|---|" * len(args.arms) + "---|---|" * len(args.arms) * merge + "---|" * len(others),
+        "|---|" + "---|---|---|" * len(args.arms) + "---|---|" * len(merged_arms) + "---|" * len(others),
     ]
-    merged_total = dict.fromkeys(args.arms, 0.0)
+    merged_total = dict.fromkeys(merged_arms, 0.0)
     totals: dict[str, list[float]] = {arm: [0.0] * len(args.seeds) for arm in args.arms}
     for scenario in SCENARIOS:
         cells = []
@@ -305,17 +305,14 @@ def report(
             for i, count in enumerate(counts[arm]):
                 totals[arm][i] += count
             cells.append(f"{' · '.join(f'{c:.0f}' for c in counts[arm])} | {interval(counts[arm])} | {takeover:.0%}")
-        for arm in args.arms if merge else []:
-            row = measured.get((arm, MERGED, scenario))
-            if row is None:
-                cells.append("– | –")
-                continue
+        for arm in merged_arms:
+            row = measured[arm, MERGED, scenario]
             merged_total[arm] += row["violations"]
             cells.append(f"{row['violations']:.0f} | {row['takeover']:.0%}")
         cells.extend(welch_p(counts[first], counts[arm]) for arm in others)
         lines.append(f"| ugv {Path(scenario).name} | " + " | ".join(cells) + " |")
     cells = [f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms]
-    cells.extend((f"{merged_total[arm]:.0f} | " if arm in merged_arms else "– | ") for arm in args.arms if merge)
+    cells.extend(f"{merged_total[arm]:.0f} | " for arm in merged_arms)
     cells.extend(welch_p(totals[first], totals[arm]) for arm in others)
     lines.append("| all rows | " + " | ".join(cells) + " |")
     return lines
