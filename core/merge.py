@@ -113,17 +113,15 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
         raise ValueError(
             f"the calibration samples hold {int(used.familiar.sum())} familiar states, too few to set the τ bounds"
         )
+    if dtype not in ("float32", "float16"):
+        raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
     out.mkdir(parents=True, exist_ok=True)
     payload = dict(first_payload)
     payload.pop("file", None)
     state = dict(payload["state"])
-    world = {name: value.detach().clone() for name, value in merged.state_dict().items()}
-    if dtype == "float16":
-        world = {k: v.half() if v.is_floating_point() else v for k, v in world.items()}
-    elif dtype != "float32":
-        raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
-    state["world_model"] = world
-    payload["state"] = state
+    state["world_model"] = {name: value.detach().clone() for name, value in merged.state_dict().items()}
+    # as save_checkpoint does: float16 halves every floating tensor of the file (load_checkpoint widens them again)
+    payload["state"] = _halved(state) if dtype == "float16" else state
     agent_config = json.loads(json.dumps(payload["agent_config"]))
     agent_config["world_model_config"]["members"] = merged.members
     payload["agent_config"] = agent_config
@@ -152,6 +150,14 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
     record = {**dataclasses.asdict(result), "out": str(out), "seed": seed, "samples": [len(s) for s in samples]}
     (out / MERGE_FILE).write_text(json.dumps(record, indent=2) + "\n")
     return result
+
+
+def _halved(value: Any) -> Any:
+    if isinstance(value, torch.Tensor):
+        return value.half() if value.is_floating_point() else value
+    if isinstance(value, dict):
+        return {key: _halved(item) for key, item in value.items()}
+    return value
 
 
 def _same_tensors(a: Any, b: Any) -> bool:

@@ -113,7 +113,7 @@ def test_a_run_folder_keeps_the_states_its_last_fit_calibrated_on(refits) -> Non
 def test_merged_refits_make_one_policy_with_all_their_members(refits, tmp_path: Path) -> None:
     policy, runs = refits
     out = tmp_path / "merged"
-    result = merge_runs(runs, out, dtype="float16")
+    result = merge_runs(runs, out)
     agents = [load_agent(run) for run in runs]
     merged = load_agent(out)
     members = sum(a.world_model.members for a in agents)
@@ -145,6 +145,16 @@ def test_merged_refits_make_one_policy_with_all_their_members(refits, tmp_path: 
     assert load_agent(refit).world_model.members == members
     with pytest.raises(ValueError, match="already holds"):
         merge_runs(runs, out)
+    # float16, as for committed policies: every tensor of the file halved, the same model to float16's precision
+    half = merge_runs(runs, tmp_path / "half", dtype="float16").out
+    stored = torch.load(half / "checkpoint.pt", map_location="cpu", weights_only=True)["state"]
+    assert {t.dtype for part in ("actor", "world_model") for t in stored[part].values() if t.is_floating_point()} == {
+        torch.float16
+    }
+    reference = load_agent(out).world_model.state_dict()
+    for name, value in load_agent(half).world_model.state_dict().items():
+        if value.is_floating_point():
+            torch.testing.assert_close(value, reference[name].half().float(), atol=0, rtol=0)
     del policy
 
 
