@@ -74,7 +74,7 @@ def save_checkpoint(
         raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
     state = learner.state_dict()
     if dtype == "float16":
-        state = _map_tensors(state, lambda t: t.half() if t.is_floating_point() else t)
+        state = halved(state)
     payload = {
         "format": CHECKPOINT_FORMAT,
         "version": CHECKPOINT_VERSION,
@@ -96,6 +96,11 @@ def _plain(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [_plain(v) for v in value]
     return value
+
+
+def halved(state: Any) -> Any:
+    """A checkpoint state with every floating tensor in float16 (``load_checkpoint`` widens them again)."""
+    return _map_tensors(state, lambda t: t.half() if t.is_floating_point() else t)
 
 
 def _map_tensors(value: Any, fn: Any) -> Any:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from core.agents import FINAL_CHECKPOINT, load_agent, load_checkpoint, resolve_checkpoint
+from core.agents import FINAL_CHECKPOINT, halved, load_agent, load_checkpoint, resolve_checkpoint
 from core.sage.fear import CALIBRATION_FILE, CalibrationSample, calibrate
 from core.sage.world_model import merge_ensembles
 
@@ -54,6 +54,8 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
     A ValueError names the run that does not fit."""
     if len(runs) < 2:
         raise ValueError(f"merge needs at least two runs, got {len(runs)}")
+    if dtype not in ("float32", "float16"):
+        raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
     out = Path(out)
     if (out / FINAL_CHECKPOINT).exists():
         raise ValueError(f"{out} already holds a checkpoint; choose another out folder")
@@ -113,15 +115,12 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
         raise ValueError(
             f"the calibration samples hold {int(used.familiar.sum())} familiar states, too few to set the τ bounds"
         )
-    if dtype not in ("float32", "float16"):
-        raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
     out.mkdir(parents=True, exist_ok=True)
     payload = dict(first_payload)
     payload.pop("file", None)
     state = dict(payload["state"])
     state["world_model"] = {name: value.detach().clone() for name, value in merged.state_dict().items()}
-    # as save_checkpoint does: float16 halves every floating tensor of the file (load_checkpoint widens them again)
-    payload["state"] = _halved(state) if dtype == "float16" else state
+    payload["state"] = halved(state) if dtype == "float16" else state  # as save_checkpoint writes it
     agent_config = json.loads(json.dumps(payload["agent_config"]))
     agent_config["world_model_config"]["members"] = merged.members
     payload["agent_config"] = agent_config
@@ -150,14 +149,6 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
     record = {**dataclasses.asdict(result), "out": str(out), "seed": seed, "samples": [len(s) for s in samples]}
     (out / MERGE_FILE).write_text(json.dumps(record, indent=2) + "\n")
     return result
-
-
-def _halved(value: Any) -> Any:
-    if isinstance(value, torch.Tensor):
-        return value.half() if value.is_floating_point() else value
-    if isinstance(value, dict):
-        return {key: _halved(item) for key, item in value.items()}
-    return value
 
 
 def _same_tensors(a: Any, b: Any) -> bool:
