@@ -113,6 +113,11 @@ class RunConfig:
     world_model_only: bool = False
     """Refit only the world model of ``init`` (:func:`core.sage.config.world_model_refit`): the policy drives and
     nothing else learns; checkpoints keep the learner config given (the policy's own schedule)."""
+    refit_gated_share: float = 0.0
+    """A world-model-only refit: the share of its episodes (of each scenario, spread evenly) driven as the policy
+    is deployed, its gate handing control to the expert; the others, the policy alone. The deployed loop visits
+    states the policy alone never reaches, where the expert hands control back (a car stopped at a stop line on
+    red): a model fitted on the policy alone has never seen what the policy does there."""
 
 
 @dataclass
@@ -181,6 +186,10 @@ class Trainer:
             raise ValueError("at least one scenario is needed")
         self.saved_cfg = agent
         """The learner config the checkpoints and config.json record (a world-model-only refit runs another)."""
+        if not 0.0 <= run.refit_gated_share <= 1.0:
+            raise ValueError(f"refit_gated_share must be in [0, 1], got {run.refit_gated_share}")
+        if run.refit_gated_share > 0 and not run.world_model_only:
+            raise ValueError("refit_gated_share is for a world-model-only refit (--world-model-only)")
         if run.world_model_only:
             if not run.init:
                 raise ValueError("--world-model-only refits the world model of a trained policy: give --init")
@@ -408,6 +417,9 @@ class Trainer:
                 i = self.episodes_done
                 j = i % len(runners)
                 cap = self._episode_cap()
+                if self.run.refit_gated_share > 0:
+                    gated = gated_episode(i // len(runners), self.run.refit_gated_share)
+                    runners[j].set_expert(self.expert if gated else None)
                 for hook in self.before_episode:
                     hook(i, runners[j])
                     hook_cap = getattr(hook, "episode_cap", None)
@@ -418,6 +430,8 @@ class Trainer:
                 self.episodes_done += 1
                 self.steps_done += summary.steps
                 row = self._row(summary, scenarios[j], started)
+                if self.run.refit_gated_share > 0:
+                    row["expert_behind_gate"] = runners[j].expert is not None
                 self.rows.append(row)
                 if metrics_file is not None:
                     metrics_file.write(json.dumps(row, default=_json_default) + "\n")
@@ -455,6 +469,12 @@ class Trainer:
             wall_time=round(time.time() - started, 2),
             **stats,
         )
+
+
+def gated_episode(k: int, share: float) -> bool:
+    """Whether a scenario's ``k``-th episode of a refit runs with the expert behind the gate: ``share`` of them,
+    spread evenly (0.5: every second one)."""
+    return math.floor((k + 1) * share) > math.floor(k * share)
 
 
 def returns_to_go(reward: np.ndarray, terminated: np.ndarray, episode_end: np.ndarray, gamma: float) -> np.ndarray:

@@ -146,6 +146,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         train_steps=spec.train_steps,
         datasets=list(spec.dataset),
         world_model_only=spec.world_model_only,
+        refit_gated_share=spec.refit_gated_share,
         env=env,
     )
     trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from core.agents import NoWorldModelError, list_checkpoints, load_agent, resolve_checkpoint
 from core.sage.config import AgentConfig, for_method
-from core.train import RunConfig, Trainer, evaluate, returns_to_go, train
+from core.train import RunConfig, Trainer, evaluate, gated_episode, returns_to_go, train
 from tests.core.sage import envs
 
 torch.set_num_threads(1)
@@ -146,6 +146,35 @@ def test_a_world_model_only_refit_changes_the_model_and_nothing_else(sage_run, t
     assert ran["updates_per_step"] == 0 and ran["takeover"] is False
     with pytest.raises(ValueError, match="--init"):
         Trainer(dataclasses.replace(run, init=None), cfg, point_env, tmp_path / "no-init", progress=False)
+
+
+def test_a_refit_drives_its_gated_share_of_episodes_as_deployed(sage_run, tmp_path: Path) -> None:
+    """``refit_gated_share``: that share of a refit's episodes (of each scenario, spread evenly) runs the policy
+    with its gate handing control to the expert, so takeovers and hand-backs reach the model's data; the others
+    run the policy alone, with nobody to take over. A threshold of 0 makes the gate fire at every step."""
+    init_out, _ = sage_run
+    cfg = copy.deepcopy(load_agent(init_out).config)
+    cfg.gate.tau_from_data, cfg.gate.tau_min, cfg.gate.tau_max = False, 0.0, 0.0
+    run = RunConfig(sim="point", scenarios=["static", "dynamic"], episodes=8, seed=5, init=str(init_out),
+                    checkpoint_every=0, world_model_only=True, refit_gated_share=0.5)  # fmt: skip
+    result = train(run, cfg, point_env, tmp_path / "refit", progress=False)
+    rows = result.rows
+    assert [r["scenario"] for r in rows] == ["static", "dynamic"] * 4
+    assert [r["expert_behind_gate"] for r in rows] == [False, False, True, True] * 2
+    assert all(r["takeover_rate"] > 0.9 for r in rows if r["expert_behind_gate"])
+    assert all(r["takeover_rate"] == 0.0 for r in rows if not r["expert_behind_gate"])
+    assert result.learner.updates == 0 and result.learner.buffer.takeover_count() > 0
+    with pytest.raises(ValueError, match="world-model-only"):
+        Trainer(dataclasses.replace(run, world_model_only=False), cfg, point_env, None, progress=False)
+    with pytest.raises(ValueError, match="refit_gated_share"):
+        Trainer(dataclasses.replace(run, refit_gated_share=1.5), cfg, point_env, None, progress=False)
+
+
+def test_gated_episodes_are_spread_evenly() -> None:
+    for share, n in [(0.0, 0), (0.3, 3), (0.5, 5), (1.0, 10)]:
+        picked = [gated_episode(k, share) for k in range(10)]
+        assert sum(picked) == n, share
+    assert [gated_episode(k, 0.5) for k in range(4)] == [False, True, False, True]
 
 
 def test_a_world_model_only_refit_records_the_model_it_fitted(sage_run, tmp_path: Path) -> None:
