@@ -1,14 +1,15 @@
 """How much does the gate's safety depend on which refit of the world model it runs? And does a change to the world
 model (an arm: ``--set`` overrides) beat that spread?
 
-Each arm refits the default UGV policy's world model with the command in ``policies/ugv-default/README.md`` (the
-same demonstrations, episodes and label; the policy from c36823a, as there), once per seed. Then every refit drives
-the gate + scripted expert table of ``bench/bench_calibration.py`` (its seeds, its UGV scenarios and fields). The
-table gives per arm and scenario the episodes with a violation for each seed, their mean with a 95% t-interval
-over seeds, and the mean takeover rate.
+Each arm refits a default policy's world model (``--sim``: :data:`REFITS`; on the UGV the command in
+``policies/ugv-default/README.md``: the same demonstrations, episodes and label, the policy from c36823a, as there),
+once per seed. Then every refit drives the gate + scripted expert table of ``bench/bench_calibration.py`` (its
+seeds, the simulator's scenarios and fields). The table gives per arm and scenario the episodes with a violation
+for each seed, their mean with a 95% t-interval over seeds, and the mean takeover rate; ``--deployed`` adds the
+committed policy's own rows beside them.
 
-    .venv/bin/python bench/bench_refit_spread.py [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
-        [--runs runs/refit-spread] [--merge] [--readme README.md] [--cpus N | --address HOST:PORT]
+    .venv/bin/python bench/bench_refit_spread.py [--sim ugv] [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
+        [--runs runs/refit-spread] [--merge] [--deployed] [--readme README.md] [--cpus N | --address HOST:PORT]
 
 ``--merge`` also merges each arm's refits into one ensemble of all their members (``sage merge``: bagging over
 refits, :mod:`core.merge`) and drives its gate rows beside the single refits'. It needs refits that kept their
@@ -22,7 +23,7 @@ with replacement, those of a rerun without (about the same noise: τ_max's sampl
 rebuilt buffer of plain seed 0, a scratch measurement),
 so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit.
 
-A refit takes about 18 minutes of one core; each is a Ray task
+A UGV refit takes about 18 minutes of one core, a highway one about 7; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
 resumable). Not a unit test: it takes an hour on two cores.
 """
@@ -30,10 +31,12 @@ resumable). Not a unit test: it takes an hour on two cores.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import subprocess
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +52,7 @@ from studies.sweep import run_tasks
 
 ROOT = Path(__file__).resolve().parents[1]
 POLICY_COMMIT = "c36823a"
-"""The policy whose world model the deployed refit replaced (``policies/ugv-default`` at this commit)."""
+"""The policy whose world model the deployed UGV refit replaced (``policies/ugv-default`` at this commit)."""
 REFIT = TrainSpec(
     sim="ugv",
     scenario="1,2,sims/ugv/scenarios/clutter.yaml,sims/ugv/scenarios/movers.yaml",
@@ -64,13 +67,55 @@ REFIT = TrainSpec(
     checkpoint_dtype="float16",
 )
 """The refit of ``policies/ugv-default/README.md`` (seed, init and out filled in per run)."""
+
+
+@dataclass(frozen=True)
+class Refit:
+    """How a simulator's default world model is refitted: the policy (under ``policies/``) at a commit, as --init."""
+
+    policy: str
+    commit: str
+    spec: TrainSpec
+
+
+REFITS = {
+    "ugv": Refit("ugv-default", POLICY_COMMIT, REFIT),
+    "highway": Refit(
+        "highway-default",
+        "1bbe18d",
+        TrainSpec(
+            sim="highway",
+            scenario="train",
+            episodes=300,
+            world_model_only=True,
+            demo_episodes=20,
+            demo_noise=0.3,
+            checkpoint_every=0,
+            checkpoint_dtype="float16",
+        ),
+    ),
+}
+"""Per simulator: the refit (seed, init and out filled in per run). Highway: steps 2 and 3 of
+``policies/highway-default/README.md`` (300 policy episodes of the train split, noisy demonstrations, the checkpoint's
+2 s label and gate), from the deployed checkpoint (1bbe18d, the gate's hysteresis set)."""
 MERGED = "merged"
 """The seed slot of an arm's merged refits (``--merge``) in the measured rows."""
-SCENARIOS = [spec.name for spec in sims.descriptor("ugv").scenarios] + FIELDS["ugv"]
+DEPLOYED = "deployed"
+"""The arm of the committed policy's own rows (``--deployed``)."""
+
+
+def scenarios(sim: str) -> list[str]:
+    """The rows of the calibration bench's gate table on ``sim``: its built-in scenarios and FIELDS."""
+    return [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
+
+
+SCENARIOS = scenarios("ugv")
 """The UGV rows of the calibration bench's gate table (its built-in scenarios and FIELDS)."""
 
 
-def arms() -> dict[str, list[str]]:
+def arms(sim: str = "ugv") -> dict[str, list[str]]:
+    if sim != "ugv":
+        return {"plain": []}
     from sims.ugv.env import scan_layout
 
     old_draw = "gate.calibration_states=2048"  # the deployed refit's τ estimate (before calibration_states)
@@ -81,36 +126,64 @@ def arms() -> dict[str, list[str]]:
     }
 
 
+def command(spec: TrainSpec) -> str:
+    """``sage train`` with the flags of ``spec`` that differ from their defaults."""
+    words = ["sage train", f"--sim {spec.sim}"]
+    for f in dataclasses.fields(TrainSpec):
+        value = getattr(spec, f.name)
+        if f.name == "sim":
+            continue
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        if value == default:
+            continue
+        flag = f.metadata.get("flag", "--" + f.name.replace("_", "-"))
+        if value is True:
+            words.append(flag)
+        elif isinstance(value, list):
+            words.extend(f"{flag} {item}" for item in value)
+        else:
+            words.append(f"{flag} {value}")
+    return " ".join(words)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--arms", nargs="+", default=["plain", "scan"], choices=sorted(arms()))
+    parser.add_argument("--sim", default="ugv", choices=sorted(REFITS), help="whose default world model is refitted")
+    parser.add_argument("--arms", nargs="+", default=["plain", "scan"], help="ugv: plain scan states16k; else plain")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")
-    parser.add_argument("--runs", type=Path, default=ROOT / "runs" / "refit-spread", help="refits are kept here")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "refit_spread")
+    parser.add_argument("--runs", type=Path, help="refits are kept here (default: runs/refit-spread, -<sim> but ugv)")
+    parser.add_argument("--out", type=Path, help="default: docs/refit_spread, _<sim> but ugv")
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
     parser.add_argument(
         "--merge",
         action="store_true",
         help="also merge each arm's refits into one ensemble (sage merge) and drive its gate rows",
     )
+    parser.add_argument("--deployed", action="store_true", help="also the committed policy's own gate rows")
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()
     if len(args.seeds) < 2:
         parser.error("give at least two --seeds: the spread over refits is the point")
-    args.runs = args.runs.resolve()  # Ray workers need not share this working directory
-    init = policy_at_commit(args.runs)
-    settings = arms()
+    settings = arms(args.sim)
+    unknown = [arm for arm in args.arms if arm not in settings]
+    if unknown:
+        parser.error(f"no arm {', '.join(unknown)} on {args.sim}; choose from {', '.join(settings)}")
+    suffix = "" if args.sim == "ugv" else f"-{args.sim}"
+    args.runs = (args.runs or ROOT / "runs" / f"refit-spread{suffix}").resolve()  # Ray workers: another directory
+    args.out = args.out or ROOT / "docs" / f"refit_spread{suffix.replace('-', '_')}"
+    setup = REFITS[args.sim]
+    init = policy_at_commit(args.runs, setup.policy, setup.commit)
     folders = {(arm, seed): args.runs / f"{arm}-s{seed}" for arm in args.arms for seed in args.seeds}
     todo = [(arm, seed) for (arm, seed), folder in folders.items() if not (folder / "checkpoint.pt").is_file()]
     if todo:
         specs = [
-            REFIT.replace(
+            setup.spec.replace(
                 seed=seed,
                 init=str(init),
                 out=str(folders[arm, seed]),
-                overrides=[*REFIT.overrides, *settings[arm]],
+                overrides=[*setup.spec.overrides, *settings[arm]],
             )
             for arm, seed in todo
         ]
@@ -121,8 +194,9 @@ def main() -> None:
             address=args.address,
             cpus=args.cpus,
         )
+    rows_of = scenarios(args.sim)
     cases: list[tuple[str, int | str, str]] = [
-        (arm, seed, scenario) for arm in args.arms for seed in args.seeds for scenario in SCENARIOS
+        (arm, seed, scenario) for arm in args.arms for seed in args.seeds for scenario in rows_of
     ]
     where: dict[tuple[str, int | str], Path] = dict(folders)
     merged_arms = []
@@ -132,12 +206,17 @@ def main() -> None:
             if not all((folder / CALIBRATION_FILE).is_file() for folder in refits):
                 continue  # refits kept from before calibration.npz: nothing to calibrate a merged model on
             where[arm, MERGED] = merged_folder(args.runs, arm, args.seeds, refits)
-            cases.extend((arm, MERGED, scenario) for scenario in SCENARIOS)
+            cases.extend((arm, MERGED, scenario) for scenario in rows_of)
             merged_arms.append(arm)
+    deployed_commit = None
+    if args.deployed:
+        deployed_commit = last_commit(f"policies/{setup.policy}")
+        where[DEPLOYED, DEPLOYED] = policy_at_commit(args.runs, setup.policy, deployed_commit)
+        cases.extend((DEPLOYED, DEPLOYED, scenario) for scenario in rows_of)
     rows = run_tasks(
         gate_row,
         [
-            {"folder": str(where[arm, seed]), "scenario": scenario, "episodes": args.episodes}
+            {"folder": str(where[arm, seed]), "sim": args.sim, "scenario": scenario, "episodes": args.episodes}
             for arm, seed, scenario in cases
         ],
         [f"gate + expert: {arm} seed {seed} on {scenario}" for arm, seed, scenario in cases],
@@ -147,7 +226,7 @@ def main() -> None:
     measured = dict(zip(cases, rows, strict=True))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     older = sorted({arm for (arm, _), folder in folders.items() if predates_calibration_states(folder)})
-    text = report(args, settings, measured, commit.stdout.strip(), older, merged_arms)
+    text = report(args, settings, measured, commit.stdout.strip(), older, merged_arms, deployed_commit)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     (args.out / "rows.json").write_text(
@@ -155,18 +234,26 @@ def main() -> None:
     )
     print("\n".join(text))
     if args.readme is not None:
-        include(args.readme, "refit-spread", args.out / "README.md", "## Calibration of fear")
-        print(f"README section 'refit-spread' written into {args.readme}")
+        block = f"refit-spread{suffix}"
+        include(args.readme, block, args.out / "README.md", "## Calibration of fear")
+        print(f"README section '{block}' written into {args.readme}")
 
 
-def policy_at_commit(runs: Path) -> Path:
-    """``policies/ugv-default`` as it was at :data:`POLICY_COMMIT` (the deployed refit's --init), under ``runs``."""
-    folder = runs / f"ugv-default-{POLICY_COMMIT}"
+def last_commit(path: str) -> str:
+    """The short hash of the last commit that changed ``path``."""
+    out = subprocess.run(["git", "log", "-1", "--format=%h", "--", path], cwd=ROOT, capture_output=True, text=True)
+    return out.stdout.strip()
+
+
+def policy_at_commit(runs: Path, policy: str = "ugv-default", commit: str = POLICY_COMMIT) -> Path:
+    """``policies/<policy>`` as it was at ``commit`` (a refit's --init, or the deployed policy's rows), under
+    ``runs``: gate rows are cached in the folder, which must not be the committed one."""
+    folder = runs / f"{policy}-{commit}"
     if not (folder / "checkpoint.pt").is_file():
         folder.mkdir(parents=True, exist_ok=True)
         for name in ("checkpoint.pt", "config.json"):
             blob = subprocess.run(
-                ["git", "show", f"{POLICY_COMMIT}:policies/ugv-default/{name}"],
+                ["git", "show", f"{commit}:policies/{policy}/{name}"],
                 cwd=ROOT,
                 capture_output=True,
                 check=True,
@@ -205,7 +292,7 @@ def refit(spec: TrainSpec) -> str:
     return str(run_training(spec).out)
 
 
-def gate_row(folder: str, scenario: str, episodes: int) -> dict[str, Any]:
+def gate_row(folder: str, scenario: str, episodes: int, sim: str = "ugv") -> dict[str, Any]:
     """One Ray task: the gate + scripted expert on a scenario (cached in the refit's folder)."""
     from studies.calibrate import gate_with_expert
 
@@ -213,7 +300,7 @@ def gate_row(folder: str, scenario: str, episodes: int) -> dict[str, Any]:
     cache = Path(folder) / f"gate-{shown}-{episodes}.json"
     if cache.is_file():
         return json.loads(cache.read_text())
-    d = sims.descriptor("ugv")
+    d = sims.descriptor(sim)
     path = str(ROOT / scenario) if scenario.endswith(".yaml") else scenario
     started = time.perf_counter()
     point = gate_with_expert(folder, lambda: d.make(path), episodes, warn_steps=max(1, round(1.0 / d.dt)))
@@ -245,29 +332,39 @@ def welch_p(first: list[float], second: list[float]) -> str:
 def report(
     args: argparse.Namespace,
     settings: dict[str, list[str]],
-    measured: dict[tuple[str, int, str], Any],
+    measured: dict[tuple[str, int | str, str], Any],
     commit: str,
     older: list[str],
     merged_arms: list[str] | None = None,
+    deployed_commit: str | None = None,
 ) -> list[str]:
+    sim = getattr(args, "sim", "ugv")
+    setup = REFITS[sim]
     seeds = " ".join(str(s) for s in args.seeds)
     first, others = args.arms[0], args.arms[1:]  # each other arm is compared with the first
     merged_arms = merged_arms or []
     merge = bool(merged_arms)
+    deployed = deployed_commit is not None
     header = (
         "| scenario | "
+        + (f"{setup.policy} as committed: violations | takeover | " if deployed else "")
         + " | ".join(f"{arm}: violations per seed | {arm}: mean ± 95% | {arm}: takeover" for arm in args.arms)
         + "".join(f" | {arm}, merged: violations | {arm}, merged: takeover" for arm in merged_arms)
         + "".join(f" | p, {arm} vs {first}" for arm in others)
         + " |"
     )
+    flags = f"--sim {sim} " if sim != "ugv" else ""
+    if sim == "ugv":
+        each = f"`policies/ugv-default/README.md`'s command with `--seed` set (the policy from {setup.commit})"
+    else:
+        each = f"`{command(setup.spec)} --seed S --init policies/{setup.policy}` (the policy from {setup.commit})"
     lines = [
-        "### The gate's safety over refits of the world model",
+        "### The gate's safety over refits of the world model" + ("" if sim == "ugv" else f" ({sim})"),
         "",
-        f"Generated by `python bench/bench_refit_spread.py --arms {' '.join(args.arms)} --seeds {seeds} "
-        f"--episodes {args.episodes}{' --merge' if getattr(args, 'merge', False) else ''}` at commit {commit}. "
-        "Each refit: `policies/ugv-default/README.md`'s command "
-        f"with `--seed` set (the policy from {POLICY_COMMIT}); arms add "
+        f"Generated by `python bench/bench_refit_spread.py {flags}--arms {' '.join(args.arms)} --seeds {seeds} "
+        f"--episodes {args.episodes}{' --merge' if getattr(args, 'merge', False) else ''}"
+        f"{' --deployed' if deployed else ''}` at commit {commit}. "
+        f"Each refit: {each}; arms add "
         + "; ".join(f"{arm}: {' '.join('--set ' + s for s in settings[arm]) or 'nothing'}" for arm in args.arms)
         + (
             f" ({', '.join(older)}: refits kept from before `gate.calibration_states`, whose 2048 states were drawn "
@@ -277,6 +374,7 @@ def report(
         )
         + f". Gate + scripted expert over {args.episodes} episodes per scenario and refit (the calibration bench's "
         "seeds): episodes with a violation, per seed in the order given"
+        + (f"; as committed: `policies/{setup.policy}` at {deployed_commit}" if deployed else "")
         + (f"; p: Welch's t-test of an arm's mean over seeds against {first}'s" if others else "")
         + (
             f"; merged: the arm's {len(args.seeds)} refits as one ensemble of all their members (`sage merge` of "
@@ -292,12 +390,21 @@ def report(
         ),
         "",
         header,
-        "|---|" + "---|---|---|" * len(args.arms) + "---|---|" * len(merged_arms) + "---|" * len(others),
+        "|---|"
+        + ("---|---|" if deployed else "")
+        + "---|---|---|" * len(args.arms)
+        + "---|---|" * len(merged_arms)
+        + "---|" * len(others),
     ]
     merged_total = dict.fromkeys(merged_arms, 0.0)
+    deployed_total = 0.0
     totals: dict[str, list[float]] = {arm: [0.0] * len(args.seeds) for arm in args.arms}
-    for scenario in SCENARIOS:
+    for scenario in scenarios(sim):
         cells = []
+        if deployed:
+            row = measured[DEPLOYED, DEPLOYED, scenario]
+            deployed_total += row["violations"]
+            cells.append(f"{row['violations']:.0f} | {row['takeover']:.0%}")
         counts: dict[str, list[float]] = {}
         for arm in args.arms:
             counts[arm] = [measured[arm, seed, scenario]["violations"] for seed in args.seeds]
@@ -310,8 +417,9 @@ def report(
             merged_total[arm] += row["violations"]
             cells.append(f"{row['violations']:.0f} | {row['takeover']:.0%}")
         cells.extend(welch_p(counts[first], counts[arm]) for arm in others)
-        lines.append(f"| ugv {Path(scenario).name} | " + " | ".join(cells) + " |")
-    cells = [f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms]
+        lines.append(f"| {sim} {Path(scenario).name} | " + " | ".join(cells) + " |")
+    cells = [f"{deployed_total:.0f} | "] if deployed else []
+    cells.extend(f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms)
     cells.extend(f"{merged_total[arm]:.0f} | " for arm in merged_arms)
     cells.extend(welch_p(totals[first], totals[arm]) for arm in others)
     lines.append("| all rows | " + " | ".join(cells) + " |")
