@@ -109,10 +109,6 @@ def scenarios(sim: str) -> list[str]:
     return [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
 
 
-SCENARIOS = scenarios("ugv")
-"""The UGV rows of the calibration bench's gate table (its built-in scenarios and FIELDS)."""
-
-
 def arms(sim: str = "ugv") -> dict[str, list[str]]:
     if sim != "ugv":
         return {"plain": []}
