@@ -23,7 +23,7 @@ with replacement, those of a rerun without (about the same noise: τ_max's sampl
 rebuilt buffer of plain seed 0, a scratch measurement),
 so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit.
 
-A UGV refit takes about 18 minutes of one core, a highway one about 7; each is a Ray task
+A UGV refit takes about 18 minutes of one core, a highway one about 9-16; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
 resumable). Not a unit test: it takes an hour on two cores.
 """
@@ -95,9 +95,9 @@ REFITS = {
         ),
     ),
 }
-"""Per simulator: the refit (seed, init and out filled in per run). Highway: steps 2 and 3 of
-``policies/highway-default/README.md`` (300 policy episodes of the train split, noisy demonstrations, the checkpoint's
-2 s label and gate), from the deployed checkpoint (1bbe18d, the gate's hysteresis set)."""
+"""Per simulator: the refit (seed, init and out filled in per run). Highway: as steps 2 and 3 of
+``policies/highway-default/README.md`` (300 policy episodes of the train split, the checkpoint's 2 s label and gate),
+with 20 noisy demonstrations where they took 30, from the deployed checkpoint (1bbe18d, the gate's hysteresis set)."""
 MERGED = "merged"
 """The seed slot of an arm's merged refits (``--merge``) in the measured rows."""
 DEPLOYED = "deployed"
@@ -145,7 +145,7 @@ def command(spec: TrainSpec) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--sim", default="ugv", choices=sorted(REFITS), help="whose default world model is refitted")
-    parser.add_argument("--arms", nargs="+", default=["plain", "scan"], help="ugv: plain scan states16k; else plain")
+    parser.add_argument("--arms", nargs="+", help="ugv: plain scan states16k (default: plain scan); else plain")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")
     parser.add_argument("--runs", type=Path, help="refits are kept here (default: runs/refit-spread, -<sim> but ugv)")
@@ -163,6 +163,7 @@ def main() -> None:
     if len(args.seeds) < 2:
         parser.error("give at least two --seeds: the spread over refits is the point")
     settings = arms(args.sim)
+    args.arms = args.arms or (["plain", "scan"] if args.sim == "ugv" else list(settings))
     unknown = [arm for arm in args.arms if arm not in settings]
     if unknown:
         parser.error(f"no arm {', '.join(unknown)} on {args.sim}; choose from {', '.join(settings)}")
