@@ -99,11 +99,18 @@ def main() -> None:
         for policy, sim in sorted({(case[0], case[1]) for case in cases})
         for scenario in [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
     ]
+    # the layouts beyond the built-in scenarios: fear's ranking there too (no operating curve: a calibration's cost)
+    field_cases = [
+        (policy, sim, field)
+        for policy, sim in sorted({(case[0], case[1]) for case in cases})
+        for field in FIELDS.get(sim, [])
+    ]
     calibrations = [
         {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.episodes}
-        | {"curve_episodes": args.curve_episodes}
-        for policy, sim, scenario in cases
+        | {"curve_episodes": args.curve_episodes if (policy, sim, scenario) in cases else 0}
+        for policy, sim, scenario in cases + field_cases
     ]
+    calibrated = cases + field_cases
     gate_rows = [
         {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.gate_episodes}
         for policy, sim, scenario in gate_cases
@@ -115,7 +122,7 @@ def main() -> None:
     results = run_tasks(
         run_case,
         calibrations + gate_rows + compare_rows + lead_rows,
-        [f"{policy} on {sim} {scenario}" for policy, sim, scenario in cases]
+        [f"{policy} on {sim} {scenario}" for policy, sim, scenario in calibrated]
         + [f"gate table: {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases]
         + (
             [f"gate table ({compare}): {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases]
@@ -126,12 +133,12 @@ def main() -> None:
         address=args.address,
         cpus=args.cpus,
     )
-    for (policy, sim, scenario), (report, seconds) in zip(cases, results[: len(cases)], strict=True):
-        figures = write_figures(report, args.out / f"{policy}-{scenario}")
+    for (policy, sim, scenario), (report, seconds) in zip(calibrated, results[: len(calibrated)], strict=True):
+        figures = write_figures(report, args.out / f"{policy}-{Path(scenario).stem}")
         curves += [
             f"![{policy} on {sim} {scenario}]({f.parent.name}/{f.name})" for f in figures if f.stem == "operating_curve"
         ]
-        rows.append(calibration_row(policy, sim, scenario, report, seconds))
+        rows.append(calibration_row(policy, sim, _shown_scenario(scenario), report, seconds))
         print(report.summary(), flush=True)
     text = [
         "# Calibration of the default policies' fear",
@@ -151,6 +158,9 @@ def main() -> None:
         "",
         *notes,
         "",
+        "Rows named by a file (`*.yaml`) are layouts beyond the built-in scenarios that no committed model was trained "
+        "on (`FIELDS`): fear's ranking there, without an operating curve.",
+        "",
         "Figures: `<policy>-<scenario>/reliability.png` and `operating_curve.png`; numbers: `report.json`.",
         "",
         "Fear vs random / curiosity only: the fear curve's points better · tied · worse than the other gating's "
@@ -164,9 +174,9 @@ def main() -> None:
         "",
         " ".join(curves),
     ]
-    first = len(cases) + len(gate_rows)
+    first = len(calibrated) + len(gate_rows)
     last = first + len(compare_rows)
-    text += gate_table(args.gate_episodes, results[len(cases) : first])
+    text += gate_table(args.gate_episodes, results[len(calibrated) : first])
     if compare:
         text += gate_table(args.gate_episodes, results[first:last], compare)
     text += lead_table(lead_episodes, results[last:])
@@ -212,12 +222,11 @@ def run_case(
     folder = ROOT / "policies" / policy
     d = sims.descriptor(sim)
     started = time.perf_counter()
-    if scenario in FIELDS.get(sim, []):
-        scenario = str(ROOT / scenario)  # a Ray worker's working directory need not be the checkout
+    source = str(ROOT / scenario) if scenario in FIELDS.get(sim, []) else scenario  # a Ray worker's cwd may differ
     if curve_episodes is not None:
         report = calibrate_run(
             folder,
-            lambda: d.make(scenario),
+            lambda: d.make(source),
             d.dt,
             sim=sim,
             scenario=scenario,
@@ -225,9 +234,9 @@ def run_case(
             curve_episodes=curve_episodes,
         )
         return report, time.perf_counter() - started
-    shown = Path(scenario).name if scenario.endswith(".yaml") else scenario
+    shown = _shown_scenario(scenario)
     if lead:
-        measured = expert_lead(folder, lambda: d.make(scenario), d.dt, episodes=episodes, leads_s=LEADS_S)
+        measured = expert_lead(folder, lambda: d.make(source), d.dt, episodes=episodes, leads_s=LEADS_S)
         warning = float(np.median(measured.gate_warning_s)) if measured.gate_warning_s else math.nan
         needed = measured.needed_s()
         return (
@@ -240,7 +249,7 @@ def run_case(
             + f" | {time.perf_counter() - started:.0f} s |"
         )
     warn_steps = max(1, round(1.0 / d.dt))
-    point = gate_with_expert(folder, lambda: d.make(scenario), episodes, warn_steps=warn_steps, **(gate or {}))
+    point = gate_with_expert(folder, lambda: d.make(source), episodes, warn_steps=warn_steps, **(gate or {}))
     bad = round(point["violation_rate"] * episodes)
     under = int(point["violations_under_expert"])
     held = point["expert_steps_before_violation"] * d.dt
@@ -297,6 +306,11 @@ def _needed(seconds: float, violations: int) -> str:
     if not math.isfinite(seconds):
         return f"> {max(LEADS_S):g} s"
     return f"≤ {seconds:g} s" if seconds <= min(LEADS_S) else f"{seconds:g} s"
+
+
+def _shown_scenario(scenario: str) -> str:
+    """A scenario as the tables and figure folders name it: a layout file by its file name."""
+    return Path(scenario).name if scenario.endswith(".yaml") else scenario
 
 
 def _shown(value: float, spec: str) -> str:
