@@ -9,6 +9,8 @@ README quotes) and each run's figures, with the commit and the command that prod
 the paper's gate, without the hold's hysteresis that the defaults deploy). Below about 100 ``--episodes`` an AUROC
 near 0.85 is not decided: with 10 violations in 40 highway episodes it moves by about ±0.05.
 
+Fear's calibration (no operating curve) is also measured on the layouts beyond the built-in scenarios (``FIELDS``).
+
 Targets (issue #11): fear AUROC >= 0.85 for "violation within 1 s"; the operating curve above random and
 curiosity-only gating at every takeover rate. Not a unit test: it takes minutes. Each calibration and each row of
 the gate table is a Ray task (:func:`studies.sweep.run_tasks`, one core and one process each, libsumo's rule), on
@@ -94,17 +96,14 @@ def main() -> None:
             cases.append((policy, sim, scenario))
         else:
             notes.append(f"- `{policy}` ({sim} {scenario}): no committed policy, not measured.")
+    defaults = sorted({(case[0], case[1]) for case in cases})
     gate_cases = [
         (policy, sim, scenario)
-        for policy, sim in sorted({(case[0], case[1]) for case in cases})
+        for policy, sim in defaults
         for scenario in [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
     ]
     # the layouts beyond the built-in scenarios: fear's ranking there too (no operating curve: a calibration's cost)
-    field_cases = [
-        (policy, sim, field)
-        for policy, sim in sorted({(case[0], case[1]) for case in cases})
-        for field in FIELDS.get(sim, [])
-    ]
+    field_cases = [(policy, sim, field) for policy, sim in defaults for field in FIELDS.get(sim, [])]
     calibrations = [
         {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.episodes}
         | {"curve_episodes": args.curve_episodes if (policy, sim, scenario) in cases else 0}
@@ -309,7 +308,7 @@ def _needed(seconds: float, violations: int) -> str:
 
 
 def _shown_scenario(scenario: str) -> str:
-    """A scenario as the tables and figure folders name it: a layout file by its file name."""
+    """A scenario as the tables name it: a layout file by its file name."""
     return Path(scenario).name if scenario.endswith(".yaml") else scenario
 
 
