@@ -104,12 +104,12 @@ def main() -> None:
     ]
     # the layouts beyond the built-in scenarios: fear's ranking there too (no operating curve: a calibration's cost)
     field_cases = [(policy, sim, field) for policy, sim in defaults for field in FIELDS.get(sim, [])]
-    calibrations = [
-        {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.episodes}
-        | {"curve_episodes": args.curve_episodes if (policy, sim, scenario) in cases else 0}
-        for policy, sim, scenario in cases + field_cases
-    ]
     calibrated = cases + field_cases
+    calibrations = [
+        {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.episodes, "curve_episodes": curve}
+        for group, curve in ((cases, args.curve_episodes), (field_cases, 0))
+        for policy, sim, scenario in group
+    ]
     gate_rows = [
         {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.gate_episodes}
         for policy, sim, scenario in gate_cases
