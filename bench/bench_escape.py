@@ -4,9 +4,9 @@ For each committed default policy and scenario of the gate table in ``bench/benc
 the policy's own gate and the scripted expert), every episode with a violation is replayed from its seed and every
 steady manoeuvre (a grid over the action space, each action held ``--hold`` seconds) is tried from the start of the
 last takeover before the violation and from ``--before`` seconds before it. A violation no manoeuvre avoids from the
-takeover was out of reach at that warning; one that some manoeuvre avoids was within reach of a driver who knew
-what the others would do (the manoeuvres are tried against the true future). Writes ``docs/escape/README.md`` with
-the commit and the command.
+takeover was probably out of reach at that warning (a manoeuvre that changes course on the way might still have
+escaped); one that some manoeuvre avoids was within reach of a driver who knew what the others would do (the
+manoeuvres are tried against the true future). Writes ``docs/escape/README.md`` with the commit and the command.
 
     .venv/bin/python bench/bench_escape.py [--episodes 100] [--hold 3] [--before 1 2] [--levels 5] \
         [--readme README.md] [--cpus N | --address HOST:PORT]
@@ -118,10 +118,12 @@ def main() -> None:
         "calibration bench's seeds), each violation replayed from its seed with the executed actions; from the "
         "start of the last takeover in the 3 s before it (where there was one) and from a given time before it, "
         f"every steady manoeuvre (a grid of {args.levels} values per action dimension, or every discrete action) "
-        f"held for {args.hold:g} s: the violations that at least one of them avoided. The manoeuvres are tried "
-        "against the true future of the other traffic, which no driver knows: an upper bound on what an expert "
-        "could do from there. Replays that did not reproduce the episode (SUMO's own driver steers while its expert "
-        "drives) are counted apart and left out.",
+        f"held for {args.hold:g} s: the violations that at least one of them avoided. The manoeuvres meet the "
+        "true future of the other traffic, which the expert only predicts: one that escapes shows the violation was "
+        "within reach of a driver who knew it. None escaping is evidence, not proof, that it was out of reach (a "
+        "steady grid is a small set: a manoeuvre that changes course on the way may still escape, so a later start "
+        "can read more avoidable than an earlier one). Replays that did not reproduce the episode (SUMO's own "
+        "driver steers while its expert drives) are counted apart and left out.",
         "",
         "| policy | scenario | episodes with a violation | replay drifted | with a takeover before it (expert "
         "driving) | avoidable from the takeover | "

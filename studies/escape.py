@@ -5,10 +5,11 @@ expert drives: the gate warned, the expert took the wheel and still could not av
 failure (a better driver would have escaped) or the warning's (nothing could be done from there). :func:`escape_check`
 tells the two apart with the simulator itself: each such episode is replayed from its seed with the actions that
 were executed, up to the step where the expert took over (or a given time before the violation), and from there every
-steady manoeuvre of a grid over the action space (each action held) is driven for a few seconds. A violation that no
-manoeuvre avoids from the takeover was out of reach at the warning the gate gave; one that some manoeuvre avoids was
-within reach, though the manoeuvres see the true future (the other traffic as it then moves), which the expert does
-not: an upper bound on what an expert could do.
+steady manoeuvre of a grid over the action space (each action held) is driven for a few seconds. A violation that
+some manoeuvre avoids was within reach from there, for a driver who knew what the others would do (the manoeuvres
+meet the true future of the other traffic, which the expert only predicts). One that none avoids may still have been
+avoidable by a manoeuvre that changes course on the way (a steady grid is a small set): "no escape" is evidence that
+the warning came too late, not a proof.
 
 The replay is exact only where the simulator is deterministic given the seed and the actions; each replay is checked
 against the recorded observations up to its start, and an episode whose replay drifts (SUMO, whose own driver steers
