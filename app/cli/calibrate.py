@@ -2,6 +2,7 @@
 
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve-episodes 20 --out calib/ugv3
 sage calibrate policies/ugv-default --sim ugv --scenario 4 --episodes 20 --expert-lead
+sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --escape
 """
 
 from __future__ import annotations
@@ -34,6 +35,14 @@ def register(app: typer.Typer) -> None:
                 "before it: the warning the expert needs, beside the gate's.",
             ),
         ] = False,
+        escape: Annotated[
+            bool,
+            typer.Option(
+                "--escape",
+                help="Also drive the episodes with the gate and the scripted expert and replay each violation: did "
+                "any steady manoeuvre avoid it from the takeover, or from 1 or 2 s before? (studies/escape.py)",
+            ),
+        ] = False,
         out: Annotated[Path | None, typer.Option(help="Folder for report.json and the PNG figures.")] = None,
     ) -> None:
         """Run the policy with its gate and no expert; report how well fear ranks the steps before a
@@ -43,6 +52,7 @@ def register(app: typer.Typer) -> None:
         import sims
         from studies.calibrate import calibrate_run, write_figures
         from studies.calibrate import expert_lead as measure_lead
+        from studies.escape import escape_check
 
         # batch-1 inference gains nothing from a second thread and loses much when another job holds a core
         # (UGV 4 with a short curve beside a busy core: 35 s wall with torch's default threads, 12.5 s with one)
@@ -67,16 +77,27 @@ def register(app: typer.Typer) -> None:
                 if expert_lead
                 else None
             )
+            escaped = (
+                escape_check(run, lambda: descriptor.make(name), descriptor.dt, episodes=episodes, max_steps=max_steps)
+                if escape
+                else None
+            )
         except (ValueError, FileNotFoundError, LookupError) as exc:
             typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
         typer.echo(report.summary())
         if lead is not None:
             typer.echo(lead.summary())
+        if escaped is not None:
+            typer.echo(escaped.summary())
         if out is not None:
             for path in write_figures(report, out):
                 typer.echo(f"wrote {path}")
             if lead is not None:
                 path = out / "expert_lead.json"
                 path.write_text(json.dumps(asdict(lead) | {"needed_s": lead.needed_s()}, indent=2) + "\n")
+                typer.echo(f"wrote {path}")
+            if escaped is not None:
+                path = out / "escape.json"
+                path.write_text(json.dumps(asdict(escaped) | {"replayed": escaped.replayed}, indent=2) + "\n")
                 typer.echo(f"wrote {path}")

@@ -53,6 +53,23 @@ def test_calibrate_says_how_much_warning_the_expert_needs(tmp_path: Path) -> Non
     assert saved["violations"] == 3 and saved["left"][-1] == 0 and saved["needed_s"] <= 3.0
 
 
+def test_calibrate_replays_the_gated_violations_with_steady_manoeuvres(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        app,
+        ["calibrate", UGV_DEFAULT, "--sim", "ugv", "--scenario", "3", "--episodes", "8", "--max-steps", "100",
+         "--escape", "--out", str(tmp_path)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    saved = json.loads((tmp_path / "escape.json").read_text())
+    # the crossing mover meets the gated policy in some of these episodes; pymunk replays them exactly
+    assert saved["episodes"] == 8 and saved["violations"] > 0 and saved["drifted"] == 0
+    assert saved["replayed"] == saved["violations"] and saved["manoeuvres"] == 25  # 5 x 5 over (v, w)
+    assert 0 <= saved["from_takeover"] <= saved["warned"] <= saved["violations"]
+    # two seconds ahead of the crossing, stopping (or turning away) clears the mover in every one of them
+    assert saved["escapable_before"][-1] == saved["violations"]
+    assert f"{saved['violations']} of 8 episodes with a violation" in result.output
+
+
 def test_calibrate_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
     out = tmp_path / "calib"
     cases = {
