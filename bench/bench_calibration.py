@@ -97,11 +97,7 @@ def main() -> None:
         else:
             notes.append(f"- `{policy}` ({sim} {scenario}): no committed policy, not measured.")
     defaults = sorted({(case[0], case[1]) for case in cases})
-    gate_cases = [
-        (policy, sim, scenario)
-        for policy, sim in defaults
-        for scenario in [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
-    ]
+    table_cases = gate_cases(defaults)
     # the layouts beyond the built-in scenarios: fear's ranking there too (no operating curve: a calibration's cost)
     field_cases = [(policy, sim, field) for policy, sim in defaults for field in FIELDS.get(sim, [])]
     calibrated = cases + field_cases
@@ -112,7 +108,7 @@ def main() -> None:
     ]
     gate_rows = [
         {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.gate_episodes}
-        for policy, sim, scenario in gate_cases
+        for policy, sim, scenario in table_cases
     ]
     compare_rows = [row | {"gate": compare} for row in gate_rows] if compare else []
     lead_episodes = args.lead_episodes or args.gate_episodes
@@ -122,13 +118,13 @@ def main() -> None:
         run_case,
         calibrations + gate_rows + compare_rows + lead_rows,
         [f"{policy} on {sim} {scenario}" for policy, sim, scenario in calibrated]
-        + [f"gate table: {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases]
+        + [f"gate table: {policy} on {sim} {scenario}" for policy, sim, scenario in table_cases]
         + (
-            [f"gate table ({compare}): {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases]
+            [f"gate table ({compare}): {policy} on {sim} {scenario}" for policy, sim, scenario in table_cases]
             if compare
             else []
         )
-        + [f"expert lead: {policy} on {sim} {scenario}" for policy, sim, scenario in gate_cases],
+        + [f"expert lead: {policy} on {sim} {scenario}" for policy, sim, scenario in table_cases],
         address=args.address,
         cpus=args.cpus,
     )
@@ -137,7 +133,7 @@ def main() -> None:
         curves += [
             f"![{policy} on {sim} {scenario}]({f.parent.name}/{f.name})" for f in figures if f.stem == "operating_curve"
         ]
-        rows.append(calibration_row(policy, sim, _shown_scenario(scenario), report, seconds))
+        rows.append(calibration_row(policy, sim, shown_scenario(scenario), report, seconds))
         print(report.summary(), flush=True)
     text = [
         "# Calibration of the default policies' fear",
@@ -221,7 +217,7 @@ def run_case(
     folder = ROOT / "policies" / policy
     d = sims.descriptor(sim)
     started = time.perf_counter()
-    source = str(ROOT / scenario) if scenario in FIELDS.get(sim, []) else scenario  # a Ray worker's cwd may differ
+    source = scenario_source(sim, scenario)
     if curve_episodes is not None:
         report = calibrate_run(
             folder,
@@ -233,7 +229,7 @@ def run_case(
             curve_episodes=curve_episodes,
         )
         return report, time.perf_counter() - started
-    shown = _shown_scenario(scenario)
+    shown = shown_scenario(scenario)
     if lead:
         measured = expert_lead(folder, lambda: d.make(source), d.dt, episodes=episodes, leads_s=LEADS_S)
         warning = float(np.median(measured.gate_warning_s)) if measured.gate_warning_s else math.nan
@@ -307,9 +303,25 @@ def _needed(seconds: float, violations: int) -> str:
     return f"≤ {seconds:g} s" if seconds <= min(LEADS_S) else f"{seconds:g} s"
 
 
-def _shown_scenario(scenario: str) -> str:
+def shown_scenario(scenario: str) -> str:
     """A scenario as the tables name it: a layout file by its file name."""
     return Path(scenario).name if scenario.endswith(".yaml") else scenario
+
+
+def scenario_source(sim: str, scenario: str) -> str:
+    """What the simulator is made from: a layout of ``FIELDS`` by its absolute path (a Ray worker's cwd may differ),
+    a built-in scenario by its name."""
+    return str(ROOT / scenario) if scenario in FIELDS.get(sim, []) else scenario
+
+
+def gate_cases(policies: list[tuple[str, str]]) -> list[tuple[str, str, str]]:
+    """(policy, simulator, scenario) of the gate table: every built-in scenario of each (policy, simulator), then
+    its ``FIELDS``."""
+    return [
+        (policy, sim, scenario)
+        for policy, sim in policies
+        for scenario in [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
+    ]
 
 
 def _shown(value: float, spec: str) -> str:

@@ -24,7 +24,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from bench_calibration import CASES, FIELDS  # the sibling bench (this folder is on the path when run as a script)
+from bench_calibration import (  # the sibling bench (this folder is on the path when run as a script)
+    CASES,
+    gate_cases,
+    scenario_source,
+    shown_scenario,
+)
 
 import sims
 from studies.escape import EscapeReport, escape_check
@@ -40,7 +45,7 @@ def escape_row(
     """One Ray task: the escape check of ``policy`` on a scenario, and its seconds."""
     torch.set_num_threads(1)
     d = sims.descriptor(sim)
-    source = str(ROOT / scenario) if scenario in FIELDS.get(sim, []) else scenario  # a Ray worker's cwd may differ
+    source = scenario_source(sim, scenario)
     started = time.perf_counter()
     report = escape_check(
         ROOT / "policies" / policy,
@@ -55,11 +60,10 @@ def escape_row(
 
 
 def table_row(policy: str, sim: str, scenario: str, report: EscapeReport, seconds: float) -> str:
-    shown = Path(scenario).name if scenario.endswith(".yaml") else scenario
     replayed = report.replayed
     cells = [
         policy,
-        f"{sim} {shown}",
+        f"{sim} {shown_scenario(scenario)}",
         f"{report.violations}/{report.episodes}",
         str(report.drifted) if report.drifted else "0",
         f"{report.warned} ({report.under_expert})",
@@ -83,11 +87,7 @@ def main() -> None:
     args = parser.parse_args()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     defaults = sorted({(policy, sim) for policy, sim, _ in CASES if (ROOT / "policies" / policy).is_dir()})
-    rows = [
-        (policy, sim, scenario)
-        for policy, sim in defaults
-        for scenario in [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
-    ]
+    rows = gate_cases(defaults)
     results = run_tasks(
         escape_row,
         [
