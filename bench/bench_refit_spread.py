@@ -21,7 +21,8 @@ fit, ``GateConfig.calibration_states``, where the deployed refit took 2048). The
 kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their 2048 states were drawn
 with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035 and 0.034 on the
 rebuilt buffer of plain seed 0, a scratch measurement),
-so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit.
+so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit. Highway's arms: ``plain`` and
+``lag5`` (the motion input as the mean change over the last 5 steps, 0.5 s, where plain reads the last step's).
 
 A UGV refit takes about 18 minutes of one core, a highway one about 9-16; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
@@ -110,6 +111,10 @@ def scenarios(sim: str) -> list[str]:
 
 
 def arms(sim: str = "ugv") -> dict[str, list[str]]:
+    if sim == "highway":
+        # lag5: the motion input over the last 5 steps (0.5 s) instead of 1: a cut-in's lateral drift over one
+        # 0.1 s step is a few centimetres of lidar range, under the jitter of a sector's minimum
+        return {"plain": [], "lag5": ["world_model_config.motion_lag=5"]}
     if sim != "ugv":
         return {"plain": []}
     from sims.ugv.env import scan_layout
