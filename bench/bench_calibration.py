@@ -314,14 +314,14 @@ def scenario_source(sim: str, scenario: str) -> str:
     return str(ROOT / scenario) if scenario in FIELDS.get(sim, []) else scenario
 
 
+def table_scenarios(sim: str) -> list[str]:
+    """The gate table's rows on ``sim``: its built-in scenarios, then its ``FIELDS``."""
+    return [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
+
+
 def gate_cases(policies: list[tuple[str, str]]) -> list[tuple[str, str, str]]:
-    """(policy, simulator, scenario) of the gate table: every built-in scenario of each (policy, simulator), then
-    its ``FIELDS``."""
-    return [
-        (policy, sim, scenario)
-        for policy, sim in policies
-        for scenario in [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
-    ]
+    """(policy, simulator, scenario) of the gate table: :func:`table_scenarios` of each (policy, simulator)."""
+    return [(policy, sim, scenario) for policy, sim in policies for scenario in table_scenarios(sim)]
 
 
 def _shown(value: float, spec: str) -> str:

@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_calibration import FIELDS  # the sibling bench (this folder is on the path when run as a script)
+from bench_calibration import table_scenarios  # the sibling bench (this folder is on the path when run as a script)
 from scipy import stats
 
 import sims
@@ -105,11 +105,6 @@ DEPLOYED = "deployed"
 """The arm of the committed policy's own rows (``--deployed``)."""
 
 
-def scenarios(sim: str) -> list[str]:
-    """The rows of the calibration bench's gate table on ``sim``: its built-in scenarios and FIELDS."""
-    return [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
-
-
 def arms(sim: str = "ugv") -> dict[str, list[str]]:
     if sim == "highway":
         # lag5: the motion input over the last 5 steps (0.5 s) instead of 1: a cut-in's lateral drift over one
@@ -150,7 +145,9 @@ def command(spec: TrainSpec) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--sim", default="ugv", choices=sorted(REFITS), help="whose default world model is refitted")
-    parser.add_argument("--arms", nargs="+", help="ugv: plain scan states16k (default: plain scan); else plain")
+    parser.add_argument(
+        "--arms", nargs="+", help="ugv: plain scan states16k (default: plain scan); highway: plain lag5; else plain"
+    )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")
     parser.add_argument("--runs", type=Path, help="refits are kept here (default: runs/refit-spread, -<sim> but ugv)")
@@ -196,7 +193,7 @@ def main() -> None:
             address=args.address,
             cpus=args.cpus,
         )
-    rows_of = scenarios(args.sim)
+    rows_of = table_scenarios(args.sim)
     cases: list[tuple[str, int | str, str]] = [
         (arm, seed, scenario) for arm in args.arms for seed in args.seeds for scenario in rows_of
     ]
@@ -401,7 +398,7 @@ def report(
     merged_total = dict.fromkeys(merged_arms, 0.0)
     deployed_total = 0.0
     totals: dict[str, list[float]] = {arm: [0.0] * len(args.seeds) for arm in args.arms}
-    for scenario in scenarios(sim):
+    for scenario in table_scenarios(sim):
         cells = []
         if deployed:
             row = measured[DEPLOYED, DEPLOYED, scenario]
