@@ -105,20 +105,55 @@ DEPLOYED = "deployed"
 """The arm of the committed policy's own rows (``--deployed``)."""
 
 
-def arms(sim: str = "ugv") -> dict[str, list[str]]:
+@dataclass(frozen=True)
+class Arm:
+    """What an arm changes in the refit: ``--set`` overrides added to the refit's, and other fields of its spec."""
+
+    overrides: list[str] = dataclasses.field(default_factory=list)
+    changes: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """:class:`TrainSpec` fields given other values (e.g. ``refit_gated_share``)."""
+
+    def apply(self, spec: TrainSpec) -> TrainSpec:
+        return spec.replace(overrides=[*spec.overrides, *self.overrides], **self.changes)
+
+    def flags(self, spec: TrainSpec) -> str:
+        """What the arm adds to (or takes from) the refit's command line."""
+        words = [f"--set {item}" for item in self.overrides]
+        changed = self.apply(spec)
+        for name in self.changes:
+            flag = next(f for f in dataclasses.fields(TrainSpec) if f.name == name).metadata.get(
+                "flag", "--" + name.replace("_", "-")
+            )
+            before, after = getattr(spec, name), getattr(changed, name)
+            if isinstance(before, list):
+                words.extend(f"without {flag} {item}" for item in before if item not in after)
+                words.extend(f"{flag} {item}" for item in after if item not in before)
+            else:
+                words.append(f"{flag} {after}")
+        return " ".join(words) or "nothing"
+
+
+def arms(sim: str = "ugv") -> dict[str, Arm]:
     if sim == "highway":
         # lag5: the motion input over the last 5 steps (0.5 s) instead of 1: a cut-in's lateral drift over one
         # 0.1 s step is a few centimetres of lidar range, under the jitter of a sector's minimum
-        return {"plain": [], "lag5": ["world_model_config.motion_lag=5"]}
+        return {"plain": Arm(), "lag5": Arm(["world_model_config.motion_lag=5"])}
     if sim != "ugv":
-        return {"plain": []}
+        return {"plain": Arm()}
     from sims.ugv.env import scan_layout
 
     old_draw = "gate.calibration_states=2048"  # the deployed refit's τ estimate (before calibration_states)
     return {
-        "plain": [old_draw],
-        "scan": [old_draw, *(f"world_model_config.{key}={value}" for key, value in scan_layout().items())],
-        "states16k": ["gate.calibration_states=16384"],
+        "plain": Arm([old_draw]),
+        "scan": Arm([old_draw, *(f"world_model_config.{key}={value}" for key, value in scan_layout().items())]),
+        "states16k": Arm(["gate.calibration_states=16384"]),
+        # half the policy episodes as deployed, the gate handing control to the expert that yields (the blind one
+        # still demonstrates): the hand-backs after its evasion, where UGV 3's policy collides with fear under
+        # 0.02, were never in the data of a refit whose every expert was blind
+        "gated": Arm(
+            ["gate.calibration_states=16384"],
+            {"env": [], "demo_expert": "blind-movers", "refit_gated_share": 0.5},
+        ),
     }
 
 
@@ -146,7 +181,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--sim", default="ugv", choices=sorted(REFITS), help="whose default world model is refitted")
     parser.add_argument(
-        "--arms", nargs="+", help="ugv: plain scan states16k (default: plain scan); highway: plain lag5; else plain"
+        "--arms",
+        nargs="+",
+        help="ugv: plain scan states16k gated (default: plain scan); highway: plain lag5; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")
@@ -178,12 +215,7 @@ def main() -> None:
     todo = [(arm, seed) for (arm, seed), folder in folders.items() if not (folder / "checkpoint.pt").is_file()]
     if todo:
         specs = [
-            setup.spec.replace(
-                seed=seed,
-                init=str(init),
-                out=str(folders[arm, seed]),
-                overrides=[*setup.spec.overrides, *settings[arm]],
-            )
+            settings[arm].apply(setup.spec.replace(seed=seed, init=str(init), out=str(folders[arm, seed])))
             for arm, seed in todo
         ]
         run_tasks(
@@ -330,7 +362,7 @@ def welch_p(first: list[float], second: list[float]) -> str:
 
 def report(
     args: argparse.Namespace,
-    settings: dict[str, list[str]],
+    settings: dict[str, Arm],
     measured: dict[tuple[str, int | str, str], Any],
     commit: str,
     older: list[str],
@@ -364,7 +396,7 @@ def report(
         f"--episodes {args.episodes}{' --merge' if getattr(args, 'merge', False) else ''}"
         f"{' --deployed' if deployed else ''}` at commit {commit}. "
         f"Each refit: {each}; arms add "
-        + "; ".join(f"{arm}: {' '.join('--set ' + s for s in settings[arm]) or 'nothing'}" for arm in args.arms)
+        + "; ".join(f"{arm}: {settings[arm].flags(setup.spec)}" for arm in args.arms)
         + (
             f" ({', '.join(older)}: refits kept from before `gate.calibration_states`, whose 2048 states were drawn "
             "with replacement)"

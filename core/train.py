@@ -101,6 +101,10 @@ class RunConfig:
     expert: str | None = None
     """Run folder or checkpoint whose deterministic policy is the expert (takeovers and demonstrations), or a
     planner's name (:mod:`core.planners`: ``scripted``, ...); None: the simulator's scripted expert."""
+    demo_expert: str | None = None
+    """The demonstrations' expert, by the same names as ``expert`` (None: ``expert``): demonstrations of one
+    behaviour (a UGV expert blind to movers, whose runs into them teach the world model what a collision is) while
+    the takeovers of the same run come from another (the expert that yields)."""
     train_steps: int | None = None
     """Environment steps in total, demonstrations included: the studies' budget, the same for every method
     (an episode that would pass it is cut there). None: ``episodes`` alone bounds the run."""
@@ -211,6 +215,7 @@ class Trainer:
         if run.demo_noise > 0 and self.learner.encodes_actions:
             raise ValueError("--demo-noise perturbs continuous actions; this learner's actions are discrete")
         self.expert = self._make_expert(run.expert)
+        self.demo_expert = self.expert if run.demo_expert is None else self._make_expert(run.demo_expert)
         self.init_parts: list[str] = []
         if run.init:
             self.init_parts = self._warm_start(run.init)
@@ -270,6 +275,7 @@ class Trainer:
                 "init": self.run.init or "",
                 "demo_episodes": self.run.demo_episodes,
                 "expert": self.run.expert or "",
+                "demo_expert": self.run.demo_expert or self.run.expert or "",
                 "steps_done": self.steps_done,
             },
         )
@@ -290,7 +296,7 @@ class Trainer:
         rows: list[dict[str, Any]] = []
         if self.run.demo_episodes == 0 and not self.run.datasets:
             return rows
-        demonstrator = self.expert
+        demonstrator = self.demo_expert
         if self.run.demo_noise > 0 and demonstrator is not None:
             demonstrator = NoisyExpert(demonstrator, self.run.demo_noise, self.low, self.high, self.run.seed)
         runners = [

@@ -59,6 +59,9 @@ class TrainSpec:
     expert: str | None = None
     """Run folder or checkpoint whose policy is the expert, or a planner's name (core.planners: scripted, ...);
     default: the simulator's scripted expert."""
+    demo_expert: str | None = None
+    """The expert of the demonstrations alone, by the same names as --expert (e.g. the UGV's planner blind-movers,
+    demonstrations that run into movers, while takeovers stay with the expert that yields); default: --expert."""
     protocol: str | None = None
     """Study protocol: route-shift (sumo: C1 on route 1, then C2)."""
     c1: int | None = field(default=None, metadata={"flag": "--c1"})

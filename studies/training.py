@@ -143,6 +143,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         checkpoint_dtype=spec.checkpoint_dtype,
         max_episode_steps=spec.max_episode_steps,
         expert=spec.expert,
+        demo_expert=spec.demo_expert,
         train_steps=spec.train_steps,
         datasets=list(spec.dataset),
         world_model_only=spec.world_model_only,

@@ -613,6 +613,19 @@ class UGVExpert:
         return np.stack([v for v, _ in plans]), np.stack([w for _, w in plans])
 
 
+class BlindExpertPolicy:
+    """The scripted expert blind to movers as a planner (:mod:`core.planners`, ``blind-movers``): the same planner
+    and tracker, running into movers. ``sage train --demo-expert blind-movers`` makes the demonstrations that teach a
+    world model what a closing mover means, while takeovers stay with the expert that yields (``--env
+    expert.yield_to_movers=false`` would make both blind)."""
+
+    def __init__(self, env: ExpertView) -> None:
+        self.expert = UGVExpert(getattr(env, "unwrapped", env), yield_to_movers=False)
+
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        return self.expert.act()
+
+
 def _unicycle(
     x: float, y: float, yaw: float, v: np.ndarray, w: np.ndarray, dt: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -344,3 +344,43 @@ def test_sage_takes_over_less_as_it_adapts_and_collides_no_more_than_sac() -> No
     last = np.mean([r["takeover_rate"] for r in sage[-quarter:]])
     assert last < first
     assert sum(r["collision"] for r in sage) <= sum(r["collision"] for r in sac)
+
+
+class _ConstantPlanner:
+    """A planner that always commands the same action (the demonstrations' own expert in the test below)."""
+
+    ACTION = 0.123
+
+    def __init__(self, env: Any) -> None:
+        self.shape = env.action_space.shape
+
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        return np.full(self.shape, self.ACTION, np.float32)
+
+
+def test_demonstrations_come_from_the_demo_expert_and_takeovers_from_the_expert(sage_run, tmp_path: Path) -> None:
+    """``demo_expert``: the demonstrations are driven by that expert (here a planner that always commands 0.123),
+    the takeovers of the same run by the run's own expert (the point world's scripted one)."""
+    from core.planners import register_planner, unregister_planner
+
+    init_out, _ = sage_run
+    cfg = copy.deepcopy(load_agent(init_out).config)
+    cfg.gate.tau_from_data, cfg.gate.tau_min, cfg.gate.tau_max = False, 0.0, 0.0  # the gate fires at every step
+    register_planner("test-constant", _ConstantPlanner, replace=True)
+    try:
+        run = RunConfig(sim="point", scenarios=["static"], episodes=2, seed=5, init=str(init_out), demo_episodes=2,
+                        checkpoint_every=0, world_model_only=True, refit_gated_share=1.0,
+                        demo_expert="test-constant")  # fmt: skip
+        result = train(run, cfg, point_env, tmp_path / "refit", progress=False)
+    finally:
+        unregister_planner("test-constant")
+    buffer = result.learner.buffer
+    demo_steps = sum(int(row["steps"]) for row in result.demo_rows)
+    assert demo_steps > 0 and buffer.size > demo_steps
+    assert np.all(buffer.action[:demo_steps] == np.float32(_ConstantPlanner.ACTION))
+    takeovers = buffer.takeover[demo_steps : buffer.size]
+    assert takeovers.any()
+    expert_actions = buffer.a_expert[demo_steps : buffer.size][takeovers]
+    assert not np.any(np.all(expert_actions == np.float32(_ConstantPlanner.ACTION), axis=1))
+    meta = json.loads((tmp_path / "refit" / "config.json").read_text())
+    assert meta["run"]["demo_expert"] == "test-constant" and meta["run"]["expert"] is None

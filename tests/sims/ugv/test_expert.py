@@ -123,3 +123,27 @@ def test_a_slow_walker_going_the_robots_way_is_passed_not_trailed() -> None:
     passing, trailing = steps(1.0), steps(math.inf)
     assert np.mean(passing) < 0.7 * np.mean(trailing), (passing, trailing)
     assert sum(p < t for p, t in zip(passing, trailing, strict=True)) >= 6, (passing, trailing)
+
+
+def test_the_blind_movers_planner_drives_as_the_expert_of_an_env_blind_to_movers() -> None:
+    """``--demo-expert blind-movers`` gives the demonstrations of ``--env expert.yield_to_movers=false`` while the
+    env's own expert (the takeovers') still yields: the same actions, step for step, on a scenario with a mover."""
+    from core.planners import make_planner
+
+    blind_env = sims.make("ugv", scenario=3, **{"expert.yield_to_movers": False})
+    env = sims.make("ugv", scenario=3)
+    planner = make_planner("blind-movers", env, "ugv")
+    differs_from_own = False
+    for seed in (0, 1):
+        blind_env.reset(seed=seed)
+        env.reset(seed=seed)
+        for _ in range(400):
+            want = blind_env.unwrapped.expert_action()
+            got = planner.act(np.zeros(1), deterministic=True)
+            np.testing.assert_array_equal(got, want)
+            differs_from_own |= not np.array_equal(env.unwrapped.expert_action(), got)
+            done = blind_env.step(want)[2:4]
+            assert env.step(got)[2:4] == done
+            if any(done):
+                break
+    assert differs_from_own, "the env's own expert should yield where the blind one does not"
