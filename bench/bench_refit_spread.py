@@ -6,18 +6,22 @@ Each arm refits a default policy's world model (``--sim``: :data:`REFITS`; on th
 once per seed. Then every refit drives the gate + scripted expert table of ``bench/bench_calibration.py`` (its
 seeds, the simulator's scenarios and fields). The table gives per arm and scenario the episodes with a violation
 for each seed, their mean with a 95% t-interval over seeds, and the mean takeover rate; ``--deployed`` adds the
-committed policy's own rows beside them.
+committed policy's own rows beside them. ``--rows`` takes an arm's rows from an earlier run's ``rows.json`` where its
+refits are not kept (the report says which, and the commit they were measured at).
 
     .venv/bin/python bench/bench_refit_spread.py [--sim ugv] [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
-        [--runs runs/refit-spread] [--merge] [--deployed] [--readme README.md] [--cpus N | --address HOST:PORT]
+        [--runs runs/refit-spread] [--merge] [--deployed] [--rows docs/refit_spread/rows.json] \
+        [--out DIR] [--readme README.md] [--block NAME] [--cpus N | --address HOST:PORT]
 
 ``--merge`` also merges each arm's refits into one ensemble of all their members (``sage merge``: bagging over
 refits, :mod:`core.merge`) and drives its gate rows beside the single refits'. It needs refits that kept their
 calibration states (``calibration.npz``, since 1294db4); an arm whose refits are older is named and left unmerged.
 
 Arms: ``plain`` (the deployed refit's settings), ``scan`` (its motion input with the previous lidar frame turned
-to the current heading, :mod:`core.motion`) and ``states16k`` (κ and the τ bounds from 16384 buffer states at each
-fit, ``GateConfig.calibration_states``, where the deployed refit took 2048). The refits of ``plain`` and ``scan``
+to the current heading, :mod:`core.motion`), ``states16k`` (κ and the τ bounds from 16384 buffer states at each
+fit, ``GateConfig.calibration_states``, where the deployed refit took 2048), and ``gated`` (states16k with half the
+policy episodes driven as deployed, the gate handing control to the expert that yields, while the expert blind to
+movers demonstrates: ``--demo-expert blind-movers --refit-gated-share 0.5``). The refits of ``plain`` and ``scan``
 kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their 2048 states were drawn
 with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035 and 0.034 on the
 rebuilt buffer of plain seed 0, a scratch measurement),
@@ -35,6 +39,7 @@ import argparse
 import dataclasses
 import json
 import math
+import re
 import subprocess
 import time
 from dataclasses import dataclass
@@ -196,6 +201,12 @@ def main() -> None:
         help="also merge each arm's refits into one ensemble (sage merge) and drive its gate rows",
     )
     parser.add_argument("--deployed", action="store_true", help="also the committed policy's own gate rows")
+    parser.add_argument("--block", help="the README block to write (default: refit-spread, -<sim> but ugv)")
+    parser.add_argument(
+        "--rows",
+        type=Path,
+        help="an earlier run's rows.json: an arm whose refits are not kept under --runs takes its rows from there",
+    )
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()
@@ -212,7 +223,19 @@ def main() -> None:
     setup = REFITS[args.sim]
     init = policy_at_commit(args.runs, setup.policy, setup.commit)
     folders = {(arm, seed): args.runs / f"{arm}-s{seed}" for arm in args.arms for seed in args.seeds}
-    todo = [(arm, seed) for (arm, seed), folder in folders.items() if not (folder / "checkpoint.pt").is_file()]
+    rows_of = table_scenarios(args.sim)
+    earlier = earlier_rows(args.rows) if args.rows else {}
+    reused = [
+        arm
+        for arm in args.arms
+        if not any((folders[arm, seed] / "checkpoint.pt").is_file() for seed in args.seeds)
+        and all((arm, seed, scenario) in earlier for seed in args.seeds for scenario in rows_of)
+    ]
+    todo = [
+        (arm, seed)
+        for (arm, seed), folder in folders.items()
+        if arm not in reused and not (folder / "checkpoint.pt").is_file()
+    ]
     if todo:
         specs = [
             settings[arm].apply(setup.spec.replace(seed=seed, init=str(init), out=str(folders[arm, seed])))
@@ -225,14 +248,17 @@ def main() -> None:
             address=args.address,
             cpus=args.cpus,
         )
-    rows_of = table_scenarios(args.sim)
     cases: list[tuple[str, int | str, str]] = [
-        (arm, seed, scenario) for arm in args.arms for seed in args.seeds for scenario in rows_of
+        (arm, seed, scenario) for arm in args.arms if arm not in reused for seed in args.seeds for scenario in rows_of
     ]
     where: dict[tuple[str, int | str], Path] = dict(folders)
     merged_arms = []
     if args.merge:
         for arm in args.arms:
+            if arm in reused:
+                if all((arm, MERGED, scenario) in earlier for scenario in rows_of):
+                    merged_arms.append(arm)
+                continue
             refits = [folders[arm, seed] for seed in args.seeds]
             if not all((folder / CALIBRATION_FILE).is_file() for folder in refits):
                 continue  # refits kept from before calibration.npz: nothing to calibrate a merged model on
@@ -255,9 +281,15 @@ def main() -> None:
         cpus=args.cpus,
     )
     measured = dict(zip(cases, rows, strict=True))
+    measured.update({key: row for key, row in earlier.items() if key[0] in reused})
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    older = sorted({arm for (arm, _), folder in folders.items() if predates_calibration_states(folder)})
+    older = sorted(
+        {arm for (arm, _), folder in folders.items() if arm not in reused and predates_calibration_states(folder)}
+    )
     text = report(args, settings, measured, commit.stdout.strip(), older, merged_arms, deployed_commit)
+    if reused:
+        source = args.rows.resolve().relative_to(ROOT) if args.rows.resolve().is_relative_to(ROOT) else args.rows
+        text[2] += f" Rows of {', '.join(reused)}: from `{source}` (at {earlier_commit(args.rows)}; refits not kept)."
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     (args.out / "rows.json").write_text(
@@ -265,9 +297,21 @@ def main() -> None:
     )
     print("\n".join(text))
     if args.readme is not None:
-        block = f"refit-spread{suffix}"
+        block = args.block or f"refit-spread{suffix}"
         include(args.readme, block, args.out / "README.md", "## Calibration of fear")
         print(f"README section '{block}' written into {args.readme}")
+
+
+def earlier_rows(path: Path) -> dict[tuple[str, int | str, str], dict[str, Any]]:
+    """The rows of an earlier run (its ``rows.json``), by (arm, seed, scenario)."""
+    return {(row["arm"], row["seed"], row["scenario"]): row for row in json.loads(path.read_text())}
+
+
+def earlier_commit(rows: Path) -> str:
+    """The commit an earlier run's report (the README.md beside its rows.json) names, or "an earlier commit"."""
+    readme = rows.parent / "README.md"
+    found = re.search(r"at commit (\w+)", readme.read_text()) if readme.is_file() else None
+    return found.group(1) if found else "an earlier commit"
 
 
 def last_commit(path: str) -> str:
