@@ -384,3 +384,18 @@ def test_demonstrations_come_from_the_demo_expert_and_takeovers_from_the_expert(
     assert not np.any(np.all(expert_actions == np.float32(_ConstantPlanner.ACTION), axis=1))
     meta = json.loads((tmp_path / "refit" / "config.json").read_text())
     assert meta["run"]["demo_expert"] == "test-constant" and meta["run"]["expert"] is None
+
+
+def test_a_planner_for_another_simulator_is_refused_before_the_run(tmp_path: Path) -> None:
+    """An expert (or demonstrations' expert) that cannot drive the run's simulator is a config error at the start,
+    not an error row per episode."""
+    from core.planners import register_planner, unregister_planner
+
+    register_planner("test-elsewhere", _ConstantPlanner, sims=("ugv",), replace=True)
+    try:
+        for field in ("expert", "demo_expert"):
+            run = RunConfig(sim="point", scenarios=["static"], episodes=1, demo_episodes=1, **{field: "test-elsewhere"})
+            with pytest.raises(ValueError, match="drives ugv, not point"):
+                Trainer(run, small("sage"), point_env, tmp_path / field, progress=False)
+    finally:
+        unregister_planner("test-elsewhere")
