@@ -43,7 +43,8 @@ def point_and_planner(monkeypatch: pytest.MonkeyPatch) -> Any:
 
 
 def test_the_registry_names_planners_per_simulator_and_refuses_paths_and_duplicates(point_and_planner: Any) -> None:
-    assert planner_names("point") == ["scripted", "cautious"] and planner_names("ugv") == ["scripted", "teb", "blind-movers"]
+    assert planner_names("point") == ["scripted", "cautious"]
+    assert planner_names("ugv") == ["scripted", "teb", "blind-movers"]
     assert is_planner("cautious") and not is_planner("runs/x")
     with pytest.raises(ValueError, match="already registered"):
         register_planner("cautious", Cautious)
