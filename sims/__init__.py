@@ -29,7 +29,7 @@ SIMULATORS: dict[str, str] = {
 
 PLANNERS: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "teb": ("sims.ugv.teb:TebPlanner", "TEB local planner (sensing only)", ("ugv",)),
-    "blind-movers": ("sims.ugv.expert:BlindExpertPolicy", "scripted expert blind to movers", ("ugv",)),
+    "blind-movers": ("sims.ugv.expert:BlindExpertPolicy", "scripted expert blind to movers (no gate)", ("ugv",)),
 }
 """Planners the simulators bring (:mod:`core.planners`): name -> (``module:factory``, title, simulators). Registered
 when ``sims`` is imported; the module is imported only when one is built."""

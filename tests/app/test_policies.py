@@ -36,7 +36,8 @@ def test_runs_and_their_versions_are_offered_for_their_simulator(tmp_path: Path)
         "runs/ugv-sage @ episode_00050",
         "runs/ugv-sage @ episode_00100",
         "scripted expert (no gate)",
-        "TEB local planner (sensing only)",  # the simulator's own planner (sims.PLANNERS)
+        "TEB local planner (sensing only)",  # the simulator's own planners (sims.PLANNERS)
+        "scripted expert blind to movers (no gate)",
     ]
     assert next(c.label for c in discover([runs], "highway")) == "runs/highway-sac"
 
