@@ -175,6 +175,10 @@ def test_replay_is_per_page_and_the_live_loop_runs_on_for_everyone(fast_server) 
         seen: list[dict[str, Any]] = []
         until(watching, lambda m: seen.append(m) or (m["type"] == "step" and m["t"] >= 0 and len(seen) > 20))
         assert not any(m["type"].startswith("replay") for m in seen)
+        # the step messages seen may have been queued before the count was read: wait for the loop's next steps
+        deadline = time.monotonic() + 10
+        while fast_server.state()["counters"]["steps"] <= steps_before and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert fast_server.state()["counters"]["steps"] > steps_before, "the live loop runs on during a replay"
         until(replaying, lambda m: m["type"] == "step")  # the replaying page's live stream keeps coming too
         replaying.send(json.dumps({"type": "replay_open", "session": sid, "episode": 99}))
