@@ -85,10 +85,15 @@ def planner_entry(name: str) -> PlannerEntry:
 
 def make_planner(name: str, env: gym.Env[Any, Any], sim: str | None = None) -> Policy:
     """Planner ``name`` built for ``env`` (``sim``: refuse a planner that cannot drive that simulator)."""
+    return checked_entry(name, sim).factory(env)
+
+
+def checked_entry(name: str, sim: str | None) -> PlannerEntry:
+    """Planner ``name``'s entry, refusing a planner that cannot drive ``sim``."""
     entry = planner_entry(name)
     if not entry.drives(sim):
         raise ValueError(f"planner {name!r} drives {', '.join(entry.sims or ())}, not {sim}")
-    return entry.factory(env)
+    return entry
 
 
 class PlannerExpert:

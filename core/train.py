@@ -48,7 +48,7 @@ from core.agents import (
 from core.datasets import records
 from core.experts import CostSupervisor, PolicyExpert, ScriptedExpert
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
-from core.planners import PlannerExpert, PlannerFactory, is_planner, planner_entry
+from core.planners import PlannerExpert, PlannerFactory, checked_entry, is_planner
 from core.sage import make_learner
 from core.sage.config import AgentConfig, to_dict, world_model_refit
 from core.sage.fear import CALIBRATION_FILE
@@ -241,9 +241,7 @@ class Trainer:
         if source is None or source == "scripted":
             return ScriptedExpert()
         if is_planner(source):  # a planner that is not a learner (core.planners), built per env
-            entry = planner_entry(source)
-            if not entry.drives(self.run.sim):  # refused here: built in an episode, it would only end that episode
-                raise ValueError(f"planner {source!r} drives {', '.join(entry.sims or ())}, not {self.run.sim}")
+            checked_entry(source, self.run.sim)  # refused here: built in an episode, it would only end that one
             return PlannerExpert(source, self.run.sim)
         expert = load_agent(source)
         if (expert.meta.obs_dim, expert.meta.act_dim) != (self.obs_dim, self.act_dim):
