@@ -188,8 +188,11 @@ class LoadedAgent:
         return self.learner.actor  # type: ignore[attr-defined,no-any-return]
 
     def gate_config(self, **overrides: Any) -> GateConfig:
-        """The run's gate settings with ``overrides`` (GateConfig field names; unknown names are an error)."""
+        """The run's gate settings with ``overrides`` (GateConfig field names; unknown names are an error). An
+        explicit ``hold_steps`` (without ``hold_seconds``) is the hold: it clears the run's ``hold_seconds``."""
         cfg = dataclasses.replace(self.config.gate)
+        if "hold_steps" in overrides and "hold_seconds" not in overrides:
+            overrides = {**overrides, "hold_seconds": None}
         for key, value in overrides.items():
             set_field(cfg, key, value)
         probe = dataclasses.replace(self.config, gate=cfg)
@@ -200,8 +203,8 @@ class LoadedAgent:
         """A fresh :class:`SageGate` on this run's world model and policy (its curiosity average restored).
 
         ``overrides``: any :class:`GateConfig` field (beta, horizon, aggregate, discount, tau_min, tau_max,
-        curiosity_ema, use_curiosity, hold_steps). ``world_model_from``: take the world model of another run
-        (e.g. to gate a plain SAC policy). Raises :class:`NoWorldModelError` when there is none.
+        curiosity_ema, use_curiosity, hold_steps, hold_seconds, release). ``world_model_from``: take the world model
+        of another run (e.g. to gate a plain SAC policy). Raises :class:`NoWorldModelError` when there is none.
         """
         source: LoadedAgent = self
         if world_model_from is not None:

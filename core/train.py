@@ -285,7 +285,7 @@ class Trainer:
         cfg, learner = self.agent_cfg, self.learner
         if cfg.takeover and cfg.takeover_rule == "supervisor":
             # the supervisor steps in on its own judgement (human-guided RL); no gate asks it
-            return NoGate(), CostSupervisor(self.expert, cfg.supervisor_cost, cfg.gate.hold_steps)
+            return NoGate(), CostSupervisor(self.expert, cfg.supervisor_cost, cfg.gate.hold)
         if cfg.takeover:
             return learner.make_gate(), self.expert
         if learner.world_model is not None:

@@ -426,7 +426,7 @@ def operating_curve(
     the scaled gate reached (the firing probability from the rate; the curiosity level from a pilot's curiosity,
     corrected once), so that each fear point has a counterpart at about its own rate."""
     agent = load_agent(run)
-    hold = agent.config.gate.hold_steps
+    hold = agent.config.gate.hold
     curve: dict[str, list[dict[str, float]]] = {"fear (SAGE)": [], "random": [], "curiosity only": []}
     for scale in scales:
         point = _run_gated(agent, make_env, ScaledFearGate(agent.make_gate(), hold, scale), episodes, max_steps)

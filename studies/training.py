@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +96,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     The learner's configuration is the method's preset (on a warm start: the hyperparameters of the run it
     starts from; a world-model-only refit: that run's own configuration) with ``spec.overrides`` applied.
     """
+    import sims
     from core.agents import load_checkpoint
     from core.learners import preset
     from core.sage.config import apply_overrides, from_dict
@@ -109,6 +110,8 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         method, start = base.method, base
     else:
         method, start = spec.method, preset(spec.method, base=base)
+    # the gate's hold may be given in seconds (gate.hold_seconds): the run records the step it is counted in
+    start.gate = replace(start.gate, step_seconds=sims.descriptor(spec.sim).dt)
     agent_cfg = apply_overrides(start, list(spec.overrides))
     env = parse_env_overrides(list(spec.env))
     setup = prepare_training(

@@ -132,13 +132,31 @@ class GateConfig:
     use_curiosity: bool = True
     """False fixes τ at (τ_min + τ_max) / 2, the value ρ = 1/2 gives for typical curiosity (FNI-RL, ablations)."""
     hold_steps: int = 5
-    """k: once the gate fires, expert control is held for this many steps (restarted by every new firing)."""
+    """k: once the gate fires, expert control is held for this many steps (restarted by every new firing), unless
+    ``hold_seconds`` is set."""
+    hold_seconds: float | None = None
+    """The hold as a duration: when set, k = round(hold_seconds / step_seconds), at least 1, in place of
+    ``hold_steps``, so that the expert holds control for the same time on every simulator (5 steps are 0.5 s on
+    the UGV and highway, 2.5 s on SUMO and the pedestrian crossing). None: ``hold_steps``. An explicit
+    ``hold_steps`` override of a loaded run's gate (``make_gate(hold_steps=...)``) clears it."""
+    step_seconds: float | None = None
+    """The simulator's step (s) that ``hold_seconds`` is counted in: every training run writes it from its
+    simulator's descriptor."""
     release: float = 0.0
     """Hysteresis of the hold, in [0, 1]: while the expert holds control, fear above τ_t - release (τ_t - τ_min)
     restarts the hold. 0 (the paper's gate, the default of new runs and of the studies) hands back after
-    ``hold_steps`` steps under τ_t; 1 only after ``hold_steps`` steps under τ_min, the threshold of the most novel
+    the hold's k steps under τ_t; 1 only after k steps under τ_min, the threshold of the most novel
     ground. The committed default policies deploy 1 (README, "Calibration of fear": over 100 episodes a scenario it
     left SUMO's routes 62 -> 38 episodes with a violation and the UGV's within noise, at a few points more takeover)."""
+
+    @property
+    def hold(self) -> int:
+        """k, the steps the expert holds control once the gate fires: ``hold_seconds`` in steps, or ``hold_steps``."""
+        if self.hold_seconds is None:
+            return self.hold_steps
+        if self.step_seconds is None:
+            raise ValueError("gate.hold_seconds needs gate.step_seconds, the simulator's step (a training run sets it)")
+        return max(1, round(self.hold_seconds / self.step_seconds))
 
 
 @dataclass
@@ -206,7 +224,7 @@ class AgentConfig:
     a stand-in that intervenes when the step's safety cost reaches ``supervisor_cost``) as in human-guided RL."""
     supervisor_cost: float = 0.5
     """The headless stand-in supervisor intervenes when a step's safety cost reaches this (or on a violation) and
-    keeps control ``gate.hold_steps`` steps."""
+    keeps control for the gate's hold (``GateConfig.hold``)."""
     intervention_penalty: float = 0.0
     """Intervention-based reward shaping (Multi-Hug RL): subtracted from the reward of the agent's last transition
     before each takeover starts, the action that made the supervisor step in."""
@@ -428,6 +446,16 @@ def validate(cfg: AgentConfig) -> None:
         )
     if cfg.gate.horizon < 1 or cfg.gate.hold_steps < 1:
         raise ValueError("gate.horizon and gate.hold_steps must be >= 1")
+    if cfg.gate.step_seconds is not None and not cfg.gate.step_seconds > 0:
+        raise ValueError(f"gate.step_seconds must be > 0, got {cfg.gate.step_seconds}")
+    if cfg.gate.hold_seconds is not None:
+        if not cfg.gate.hold_seconds > 0:
+            raise ValueError(f"gate.hold_seconds must be > 0, got {cfg.gate.hold_seconds}")
+        if cfg.gate.step_seconds is None:
+            raise ValueError(
+                "gate.hold_seconds needs gate.step_seconds, the simulator's step: a training run sets it from its "
+                "simulator (a run made before it: refit with --episodes 0 --world-model-only), or set both"
+            )
     if not 0.0 < cfg.gamma < 1.0:
         raise ValueError(f"gamma must be in (0, 1), got {cfg.gamma}")
     if cfg.critics < 1 or cfg.world_model_config.members < 1:

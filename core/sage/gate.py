@@ -2,7 +2,8 @@
 
 ``decide``: F^m_t of the policy's intended action a_RL (m-step rollout of the ensemble under the policy,
 :mod:`core.sage.fear`) against τ_t; Ξ_t = 1 when F^m_t > τ_t, and once fired the expert keeps control for
-``hold_steps`` steps (each new firing restarts the count), which avoids frame-by-frame switching. With
+k steps (``GateConfig.hold``: ``hold_steps``, or ``hold_seconds`` in the simulator's steps; each new firing
+restarts the count), which avoids frame-by-frame switching. With
 ``release`` > 0 (off in the paper's gate; the committed default policies deploy 1; README, "Calibration of fear",
 says what it measured), fear over a lower release level (between τ_t and τ_min) restarts the count too while the
 expert holds control: hysteresis, so that control goes back to the policy only once its own plan looks safe again.
@@ -157,7 +158,7 @@ class SageGate:
                 self._horizon_source = ro.cost[..., 0].numpy().copy()
         level = self._level(threshold)
         if value > level:
-            self.hold_remaining = self.cfg.hold_steps
+            self.hold_remaining = self.cfg.hold
         fired = self.hold_remaining > 0
         if fired:
             self.hold_remaining -= 1

@@ -4,8 +4,8 @@ and intervention-based reward shaping, the paper's human-guided UGV baseline.
 The agent is soft actor-critic. A supervisor watches and steps in on its own judgement (``takeover_rule =
 "supervisor"``): at the dashboard that is the person, who takes over with keyboard or gamepad whenever they choose;
 headless, a stand-in (:class:`core.experts.CostSupervisor`) intervenes when the step's safety cost reaches
-``supervisor_cost`` and the expert drives for ``gate.hold_steps`` steps. Nothing here predicts danger: there is no
-world model, fear or gate, which is what sets SAGE apart.
+``supervisor_cost`` and the expert drives for the gate's hold (``GateConfig.hold``). Nothing here predicts danger:
+there is no world model, fear or gate, which is what sets SAGE apart.
 
 From the guidance it learns three ways:
 

@@ -288,6 +288,25 @@ def test_cli_train_eval_compare(point_sim, tmp_path: Path) -> None:
     assert len((tmp_path / "rows.jsonl").read_text().splitlines()) == 4
 
 
+def test_a_hold_in_seconds_is_counted_in_the_steps_of_the_simulator_the_run_trained_on(
+    point_sim, tmp_path: Path
+) -> None:
+    """``--set gate.hold_seconds``: the run records its simulator's step (the point sim's 0.1 s), so the expert
+    holds control 0.3 s = 3 steps there; an explicit ``hold_steps`` of a loaded run's gate is the hold again."""
+    from app.cli import app
+
+    out = tmp_path / "held"
+    args = ["train", "--sim", "point", "--scenario", "static", "--episodes", "1", "--method", "sac", "--quiet"]
+    result = CliRunner().invoke(app, [*args, "--set", "hidden=16", "--set", "gate.hold_seconds=0.3", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    gate = load_agent(out).config.gate
+    assert (gate.step_seconds, gate.hold_seconds, gate.hold, gate.hold_steps) == (0.1, 0.3, 3, 5)
+    assert load_agent(out).gate_config(hold_steps=2).hold == 2
+    assert load_agent(out).gate_config(hold_seconds=1.0).hold == 10
+    result = CliRunner().invoke(app, [*args, "--set", "gate.hold_seconds=0", "--out", str(tmp_path / "zero")])
+    assert result.exit_code == 2 and "hold_seconds" in result.output
+
+
 def test_cli_refuses_bad_input_by_name(point_sim, tmp_path: Path) -> None:
     from app.cli import app
 

@@ -51,6 +51,8 @@ def test_overrides_convert_types_and_name_what_is_wrong() -> None:
         ("gate.release=1.5", "gate.release"),
         ("gate.release=-0.1", "gate.release"),
         ("world_model_config.cost_label_weight=1.5", "cost_label_weight"),
+        ("gate.hold_seconds=1", "step_seconds"),
+        ("gate.step_seconds=0", "step_seconds"),
     ):
         with pytest.raises(ValueError, match=message):
             apply_overrides(for_method("sage"), [bad])

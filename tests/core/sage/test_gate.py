@@ -66,6 +66,18 @@ def test_gate_holds_the_expert_for_k_steps() -> None:
     assert decisions(gate, 7) == [True, True, True, False, False, False, False]
 
 
+def test_a_hold_in_seconds_holds_the_same_time_whatever_the_step() -> None:
+    for step, held in ((0.1, 10), (0.5, 2), (0.3, 3)):
+        cfg = GateConfig(hold_steps=5, hold_seconds=1.0, step_seconds=step)
+        assert cfg.hold == held
+        gate = fitted_gate(5, [0.9] + [0.1] * 12)
+        gate.cfg = cfg
+        assert decisions(gate, 13) == [True] * held + [False] * (13 - held)
+    assert GateConfig(hold_steps=4).hold == 4
+    with pytest.raises(ValueError, match="step_seconds"):
+        _ = GateConfig(hold_seconds=1.0).hold
+
+
 def test_a_new_firing_during_the_hold_restarts_it_and_reset_clears_it() -> None:
     gate = fitted_gate(3, [0.9, 0.1, 0.9, 0.1, 0.1, 0.1, 0.1, 0.9, 0.1])
     assert decisions(gate, 6) == [True, True, True, True, True, False]
