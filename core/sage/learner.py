@@ -145,6 +145,9 @@ class BaseLearner:
         self.info: dict[str, float] = {}
         """Latest training statistics (losses, λ, α, ...), for progress bars and metrics rows."""
         self._gates: list[SageGate] = []
+        self._inherited_gate: tuple[dict[str, float], int] | None = None
+        """A loaded checkpoint's gate state (its curiosity average) and the model version it belongs to: the
+        gates of this run start from it until the world model is refitted."""
 
     # -- what a method provides --------------------------------------------------------------------
     def build_networks(self) -> None:
@@ -367,6 +370,8 @@ class BaseLearner:
         if self.world_model is None:
             raise ValueError(f"method {self.cfg.method!r} trains no world model, so it has no SAGE gate")
         gate = SageGate(self.world_model, self.gate_policy(), cfg or self.cfg.gate, encode=self.gate_encoder())
+        if self._inherited_gate is not None and self._inherited_gate[1] == self.world_model.version:
+            gate.load_state(self._inherited_gate[0])
         self._gates.append(gate)
         return gate
 
@@ -398,6 +403,8 @@ class BaseLearner:
             state["world_model"] = self.world_model.state_dict()
         if self._gates:
             state["gate"] = {k: torch.tensor(v) for k, v in self._gates[-1].state().items()}
+        elif self._inherited_gate is not None and self._inherited_gate[1] == getattr(self.world_model, "version", -1):
+            state["gate"] = {k: torch.tensor(v) for k, v in self._inherited_gate[0].items()}
         optimizers = self.declared_state().optimizers
         if optimizers:  # a warm start continues (Adam's moments and step), rather than restarts
             state["optimizers"] = {name: getattr(self, name).state_dict() for name in optimizers}
@@ -420,6 +427,9 @@ class BaseLearner:
             self.warm = True
         if self.world_model is not None and "world_model" in loaded:
             self._steps_at_last_fit = None  # refit on this run's data once there is enough of it
+            if "gate" in state:
+                saved = {k: float(torch.as_tensor(v)) for k, v in state["gate"].items()}
+                self._inherited_gate = (saved, self.world_model.version)
         return loaded
 
     def _load_optimizers(self, saved: dict[str, Any], strict: bool) -> list[str]:

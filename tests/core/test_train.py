@@ -148,6 +148,31 @@ def test_a_world_model_only_refit_changes_the_model_and_nothing_else(sage_run, t
         Trainer(dataclasses.replace(run, init=None), cfg, point_env, tmp_path / "no-init", progress=False)
 
 
+def test_a_world_model_only_run_of_no_episodes_rewrites_the_config_and_nothing_else(sage_run, tmp_path: Path) -> None:
+    """How a gate setting is deployed on a committed policy (its README's command): every tensor stays, the
+    gate's curiosity average too (a fresh gate would restart it at the model's reference)."""
+    init_out, _ = sage_run
+    before = torch.load(resolve_checkpoint(init_out), weights_only=False)
+    ema = float(before["state"]["gate"]["curiosity_ema"])
+    assert not math.isclose(ema, float(load_agent(init_out).world_model.curiosity_ref), rel_tol=1e-3)
+    cfg = copy.deepcopy(load_agent(init_out).config)
+    cfg.gate.release = 1.0
+    run = RunConfig(sim="point", scenarios=["dynamic"], episodes=0, seed=5, init=str(init_out), checkpoint_every=0,
+                    world_model_only=True)  # fmt: skip
+    train(run, cfg, point_env, tmp_path / "deploy", progress=False)
+    after = torch.load(resolve_checkpoint(tmp_path / "deploy"), weights_only=False)
+    assert after["state"].keys() == before["state"].keys()
+    for part, value in before["state"].items():
+        if part == "optimizers":
+            continue
+        tensors = value if isinstance(value, dict) else {"": value}
+        for name, tensor in tensors.items():
+            if torch.is_tensor(tensor):
+                assert torch.equal(tensor, after["state"][part][name] if name else after["state"][part]), (part, name)
+    assert float(after["state"]["gate"]["curiosity_ema"]) == ema
+    assert load_agent(tmp_path / "deploy").config.gate.release == 1.0
+
+
 def test_a_refit_drives_its_gated_share_of_episodes_as_deployed(sage_run, tmp_path: Path) -> None:
     """``refit_gated_share``: that share of a refit's episodes (of each scenario, spread evenly) runs the policy
     with its gate handing control to the expert, so takeovers and hand-backs reach the model's data; the others
