@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import functools
 import io
 import json
 import logging
@@ -115,6 +116,16 @@ class ServerSettings:
     """Host names besides the loopback ones (and ``host``) that may reach the dashboard (serving on a LAN)."""
     promotion: PromotionConfig = field(default_factory=PromotionConfig)
     """How a fine-tuned version is evaluated before it may drive (:mod:`core.promotion`)."""
+    gate_settings: dict[str, Any] = field(default_factory=dict)
+    """Settings of the gate over each driven policy's own (``sage serve --gate-set``, e.g. a longer hold):
+    :class:`core.sage.config.GateConfig` fields, applied to every policy with a world model that this dashboard
+    loads, fine-tuned versions included."""
+
+    def loader(self) -> PolicyLoader:
+        """The policy loader with :attr:`gate_settings` applied."""
+        if not self.gate_settings:
+            return self.policy_loader
+        return functools.partial(self.policy_loader, gate_overrides=self.gate_settings)
 
     def finetune_settings(self) -> FinetuneSettings | None:
         if not self.finetune or self.sessions is None:
@@ -170,7 +181,7 @@ class Dashboard:
         )
         loop_args: dict[str, Any] = {
             "env_factory": settings.env_factory,
-            "policy_loader": settings.policy_loader,
+            "policy_loader": settings.loader(),
             "console": self.console,
             "publish": self.hub.publish,
             "store": self.store,

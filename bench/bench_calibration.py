@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 import sims
-from core.sage.config import AgentConfig, apply_overrides
+from core.sage.config import parse_gate_settings
 from studies.calibrate import (
     CalibrationReport,
     calibrate_run,
@@ -84,7 +84,6 @@ def main() -> None:
         help="also a second gate table with these GateConfig settings (repeatable), e.g. release=1",
     )
     args = parser.parse_args()
-    compare = gate_settings(args.compare_gate)
     torch.set_num_threads(1)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     rows: list[str] = []
@@ -97,6 +96,7 @@ def main() -> None:
         else:
             notes.append(f"- `{policy}` ({sim} {scenario}): no committed policy, not measured.")
     defaults = sorted({(case[0], case[1]) for case in cases})
+    compare = gate_settings(args.compare_gate, [policy for policy, _ in defaults])
     table_cases = gate_cases(defaults)
     # the layouts beyond the built-in scenarios: fear's ranking there too (no operating curve: a calibration's cost)
     field_cases = [(policy, sim, field) for policy, sim in defaults for field in FIELDS.get(sim, [])]
@@ -191,15 +191,18 @@ def verdict(curve: dict[str, list[dict[str, float]]], against: str) -> str:
     return f"{v['better']} · {v['tied']} · {v['worse']}" + (f" ({v['unmatched']} unmatched)" if v["unmatched"] else "")
 
 
-def gate_settings(items: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` strings as GateConfig settings of the right types, parsed and validated as ``--set gate.KEY=VALUE``
-    is; a wrong one stops the bench before anything runs."""
+def gate_settings(items: list[str], policies: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings as GateConfig settings of the right types, checked against each policy's own gate as
+    ``make_gate`` will apply them; a wrong one stops the bench before anything runs."""
+    from core.agents import load_agent
+
     try:
-        gate = apply_overrides(AgentConfig(), [f"gate.{item}" for item in items]).gate
+        settings = parse_gate_settings(items)
+        for policy in policies:
+            load_agent(ROOT / "policies" / policy).gate_config(**settings)
     except ValueError as exc:
         raise SystemExit(f"--compare-gate: {exc}") from None
-    names = [item.split("=", 1)[0].strip() for item in items]
-    return {name: getattr(gate, name) for name in names}
+    return settings
 
 
 def run_case(

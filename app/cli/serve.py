@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -42,6 +42,14 @@ def register(app: typer.Typer) -> None:
         finetune: Annotated[
             bool, typer.Option(help="Fine-tune a trained policy on the session in a worker process.")
         ] = True,
+        gate_set: Annotated[
+            list[str] | None,
+            typer.Option(
+                "--gate-set",
+                help="A setting of the gate over each policy's own, KEY=VALUE (repeatable), e.g. hold_seconds=2 "
+                "for a longer takeover: any field of core.sage.config.GateConfig.",
+            ),
+        ] = None,
     ) -> None:
         """Serve the live dashboard: the SAGE loop at wall-clock rate, its fear / curiosity / threshold
         charts, keyboard and gamepad takeover, recorded sessions and replays."""
@@ -53,7 +61,7 @@ def register(app: typer.Typer) -> None:
 
         if expert not in EXPERT_MODES:
             _fail(f"--expert must be one of {', '.join(EXPERT_MODES)}, not {expert!r}")
-        _check_startup(sim, scenario, policy)
+        gate_settings = _check_startup(sim, scenario, policy, gate_set or [])
         logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
         settings = ServerSettings(
             host=host,
@@ -67,6 +75,7 @@ def register(app: typer.Typer) -> None:
             start_paused=paused,
             finetune=finetune,
             allow_hosts=list(allow_host or []),
+            gate_settings=gate_settings,
         )
         typer.echo(f"SAGE dashboard on http://{host}:{port}/  (Ctrl+C to stop)")
         uvicorn.run(create_app(settings), host=host, port=port, log_level="warning", ws_max_size=1 << 20)
@@ -78,10 +87,13 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
-def _check_startup(sim: str, scenario: str | None, policy: str | None) -> None:
-    """Refuse a bad simulator, scenario or policy before the server starts (one line each, no traceback)."""
+def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set: list[str]) -> dict[str, Any]:
+    """Refuse a bad simulator, scenario, policy or gate setting before the server starts (one line each, no
+    traceback); returns the gate settings, parsed and checked against the policy the dashboard opens on."""
     import sims
-    from core.agents import load_checkpoint
+    from app.policies import SCRIPTED, default_policy
+    from core.agents import load_agent, load_checkpoint
+    from core.sage.config import parse_gate_settings
 
     try:
         sims.descriptor(sim).scenario_kwargs(scenario)
@@ -92,6 +104,19 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None) -> None:
             load_checkpoint(policy)
         except (OSError, ValueError) as exc:
             _fail(f"policy {policy!r} cannot be loaded: {_first_line(exc)}")
+    try:
+        settings = parse_gate_settings(gate_set)
+    except ValueError as exc:
+        _fail(f"--gate-set: {exc}")
+    opening = policy or default_policy([Path("policies"), Path("runs")], sim)
+    if settings and opening != SCRIPTED and Path(opening).exists():
+        try:
+            agent = load_agent(opening)
+            if agent.has_world_model:
+                agent.gate_config(**settings)
+        except ValueError as exc:
+            _fail(f"--gate-set: {_first_line(exc)}")
+    return settings
 
 
 def _first_line(exc: BaseException) -> str:

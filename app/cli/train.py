@@ -146,6 +146,14 @@ def register(app: typer.Typer) -> None:
             bool, typer.Option(help="Run the SAGE gate (records fear; with --expert it takes over).")
         ] = False,
         expert: Annotated[bool, typer.Option(help="Let the gate hand over to the scripted expert.")] = False,
+        gate_set: Annotated[
+            list[str] | None,
+            typer.Option(
+                "--gate-set",
+                help="A setting of the gate over the run's own, KEY=VALUE (repeatable; with --gate), e.g. "
+                "hold_seconds=2 or release=0: any field of core.sage.config.GateConfig.",
+            ),
+        ] = None,
         save: Annotated[Path | None, typer.Option(help="Also write the rows to this JSON-lines file.")] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
         sim: Annotated[str | None, typer.Option(help="Simulator (default: the run's own; must match it).")] = None,
@@ -161,12 +169,18 @@ def register(app: typer.Typer) -> None:
         --expert, the per-scenario table instead (on highway: test, test-adversarial, train, ...)."""
         seed_list = _ints(seeds) if seeds else [seed]
         run_sim = _run_sim([run], sim)
+        if gate_set and not gate:
+            _fail("--gate-set needs --gate (it sets the gate the run drives with)")
         generic = scenario is not None or gate or expert  # the protocol table runs the policy alone, on its sets
         table = None if generic else _protocol_table(run_sim, [run], episodes, split, mode, seed_list, save, quiet)
         if table is not None:
             typer.echo(table)
             return
-        typer.echo(_evaluate_and_format(run_sim, [run], episodes, scenario, seed_list, gate, expert, save, quiet))
+        typer.echo(
+            _evaluate_and_format(
+                run_sim, [run], episodes, scenario, seed_list, gate, expert, save, quiet, gate_set=gate_set or []
+            )
+        )
 
     @app.command()
     def compare(
@@ -259,6 +273,7 @@ def _evaluate_and_format(
     expert: bool,
     save: Path | None,
     quiet: bool,
+    gate_set: list[str] | None = None,
 ) -> str:
     import functools
 
@@ -268,11 +283,16 @@ def _evaluate_and_format(
     from core.agents import load_agent
     from core.planners import is_planner, make_planner
     from core.report import format_table
+    from core.sage.config import parse_gate_settings
     from core.train import evaluate
 
     torch.set_num_threads(1)
     if expert and not gate:
         _fail("--expert needs --gate (the gate decides when the expert takes over)")
+    try:
+        gate_settings = parse_gate_settings(gate_set or [])
+    except ValueError as exc:
+        _fail(f"--gate-set: {exc}")
     named: dict[str, list[dict[str, Any]]] = {}
     sims_seen: list[str] = []
     all_rows: list[dict[str, Any]] = []
@@ -297,7 +317,12 @@ def _evaluate_and_format(
             scenarios = _scenarios(scenario) if scenario else list(agent.meta.scenarios)
             if gate and not agent.has_world_model:
                 _fail(f"{run} has no world model: no SAGE gate to run (drop --gate)")
-            policy, gate_factory = agent.policy, (agent.make_gate if gate else None)
+            try:
+                agent.gate_config(**gate_settings)
+            except ValueError as exc:
+                _fail(f"--gate-set: {exc}")
+            policy = agent.policy
+            gate_factory = functools.partial(agent.make_gate, **gate_settings) if gate else None
         sims_seen.append(sim)
         results: dict[str, list[dict[str, Any]]] = {}
         for seed in seeds:

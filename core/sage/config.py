@@ -514,6 +514,21 @@ def set_field(cfg: Any, dotted: str, value: Any) -> None:
     setattr(target, name, _convert(value, hint, dotted))
 
 
+def parse_gate_settings(pairs: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings (``--gate-set``) as :class:`GateConfig` settings of the field's type, e.g.
+    ``["hold_seconds=2"]`` -> ``{"hold_seconds": 2.0}``. Unknown names and unreadable values are a ValueError; the
+    settings are validated where they meet a run's gate (:meth:`core.agents.LoadedAgent.gate_config`), since some
+    need the run's own (``hold_seconds`` its ``step_seconds``)."""
+    gate, settings = GateConfig(), {}
+    for pair in pairs:
+        if "=" not in pair:
+            raise ValueError(f"gate setting {pair!r} is not of the form key=value")
+        key, value = (part.strip() for part in pair.split("=", 1))
+        set_field(gate, key, value)
+        settings[key] = getattr(gate, key)
+    return settings
+
+
 def apply_overrides(cfg: AgentConfig, pairs: list[str]) -> AgentConfig:
     """Apply ``key=value`` strings (``--set`` on the command line) and validate the result."""
     for pair in pairs:

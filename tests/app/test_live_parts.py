@@ -224,3 +224,34 @@ def test_the_highway_and_sumo_defaults_are_served_live_with_fear(sim: str, scena
     assert len(steps) == 5
     assert all(0.0 <= m["fear"] <= 1.0 and 0.0 < m["threshold"] < 1.0 for m in steps)
     assert all(m["curiosity"] is not None and len(m["horizon"]["cost"]) == 5 for m in steps)
+
+
+def test_the_dashboards_gate_settings_reach_every_policy_it_loads(tmp_path: Any) -> None:
+    """``sage serve --gate-set hold_seconds=2``: the committed UGV policy's gate (a 1 s hold, 10 steps) holds for
+    2 s there, and the live loop loads its policies through that loader."""
+    from pathlib import Path
+
+    from app.policies import load_policy
+    from app.server import ServerSettings, make_env
+    from tests.app.conftest import start_server, stop_server, toy_settings
+    from tests.app.fakesim import toy_policy_loader
+
+    policy = str(Path(__file__).resolve().parents[2] / "policies" / "ugv-default")
+    env = make_env("ugv", "3")
+    try:
+        assert ServerSettings(policy_loader=load_policy).loader()(policy, env).gate.cfg.hold == 10
+        longer = ServerSettings(policy_loader=load_policy, gate_settings={"hold_seconds": 2.0}).loader()
+        assert longer(policy, env).gate.cfg.hold == 20
+    finally:
+        env.close()
+    seen: list[Any] = []
+
+    def recording(choice: str, env: Any, gate_overrides: Any = None) -> Any:
+        seen.append(gate_overrides)
+        return toy_policy_loader(choice, env)
+
+    live, thread = start_server(toy_settings(tmp_path, policy_loader=recording, gate_settings={"hold_seconds": 2.0}))
+    try:
+        assert seen and all(s == {"hold_seconds": 2.0} for s in seen)
+    finally:
+        stop_server(live, thread)

@@ -64,3 +64,14 @@ def test_json_round_trip() -> None:
     assert again == cfg
     with pytest.raises(ValueError, match="unknown config field"):
         from_dict({**to_dict(cfg), "extra": 1})
+
+
+def test_gate_settings_are_read_as_their_fields_types_and_unknown_ones_refused() -> None:
+    from core.sage.config import parse_gate_settings
+
+    settings = parse_gate_settings(["hold_seconds=2", "release = 0", "use_curiosity=false", "aggregate=max"])
+    assert settings == {"hold_seconds": 2.0, "release": 0.0, "use_curiosity": False, "aggregate": "max"}
+    assert isinstance(settings["hold_seconds"], float)
+    for bad, message in (("nope=1", "nope"), ("hold_seconds", "key=value"), ("release=abc", "release")):
+        with pytest.raises(ValueError, match=message):
+            parse_gate_settings([bad])
