@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -140,11 +140,15 @@ def labels_within(violation: np.ndarray, episode: np.ndarray, steps: int) -> np.
 
 
 def collect(
-    make_env: Callable[[], gym.Env[Any, Any]], run: str | Path, episodes: int, max_steps: int | None = None
+    make_env: Callable[[], gym.Env[Any, Any]],
+    run: str | Path,
+    episodes: int,
+    max_steps: int | None = None,
+    gate_settings: Mapping[str, Any] | None = None,
 ) -> tuple[list[_Step], Any]:
-    """Run the policy with its gate and no expert; record the signals of every step."""
+    """Run the policy with its gate (``gate_settings`` over its own) and no expert; record every step's signals."""
     agent = load_agent(run)
-    gate = agent.make_gate()
+    gate = agent.make_gate(**(gate_settings or {}))
     env = make_env()
     steps: list[_Step] = []
     previous_curiosity = [math.nan]
@@ -179,9 +183,11 @@ def calibrate_run(
     max_steps: int | None = None,
     curve_episodes: int = 0,
     curve_scales: Sequence[float] = (0.15, 0.3, 0.5, 0.7, 1.0, 1.4),
+    gate_settings: Mapping[str, Any] | None = None,
 ) -> CalibrationReport:
-    """Measure how well fear predicts "violation within ``horizon_s``" (see the module docstring)."""
-    steps, agent = collect(make_env, run, episodes, max_steps)
+    """Measure how well fear predicts "violation within ``horizon_s``" (see the module docstring); the gate is
+    the run's own, with ``gate_settings`` (:class:`~core.sage.config.GateConfig` fields) over it."""
+    steps, agent = collect(make_env, run, episodes, max_steps, gate_settings)
     if not steps:
         raise ValueError("no steps were recorded: every episode failed (see the log)")
     h = max(1, round(horizon_s / dt))
@@ -224,7 +230,7 @@ def calibrate_run(
         reliability=reliability(signals["cost"], model_label),
     )
     if curve_episodes > 0:
-        report.curve = operating_curve(run, make_env, curve_episodes, curve_scales, max_steps)
+        report.curve = operating_curve(run, make_env, curve_episodes, curve_scales, max_steps, gate_settings)
     return report
 
 
@@ -420,28 +426,34 @@ def operating_curve(
     episodes: int,
     scales: Sequence[float],
     max_steps: int | None = None,
+    gate_settings: Mapping[str, Any] | None = None,
 ) -> dict[str, list[dict[str, float]]]:
     """Episodes with a violation against the takeover rate for SAGE's gate (τ scaled), random gating and
     curiosity-only gating on the same seeds; random and curiosity-only gating are set to the takeover rates that
     the scaled gate reached (the firing probability from the rate; the curiosity level from a pilot's curiosity,
     corrected once), so that each fear point has a counterpart at about its own rate."""
     agent = load_agent(run)
-    hold = agent.config.gate.hold
+    settings = dict(gate_settings or {})
+    hold = agent.gate_config(**settings).hold
+
+    def make_gate() -> SageGate:
+        return agent.make_gate(**settings)
+
     curve: dict[str, list[dict[str, float]]] = {"fear (SAGE)": [], "random": [], "curiosity only": []}
     for scale in scales:
-        point = _run_gated(agent, make_env, ScaledFearGate(agent.make_gate(), hold, scale), episodes, max_steps)
+        point = _run_gated(agent, make_env, ScaledFearGate(make_gate(), hold, scale), episodes, max_steps)
         curve["fear (SAGE)"].append({"knob": scale, **point})
     rates = sorted(p["takeover_rate"] for p in curve["fear (SAGE)"])
     # curiosity-only gating's level comes from the curiosity met on the same episodes with no gating (a pilot)
-    pilot = CuriosityGate(agent.make_gate(), hold, math.inf)
+    pilot = CuriosityGate(make_gate(), hold, math.inf)
     _run_gated(agent, make_env, pilot, episodes, max_steps)
 
     def random_at(share: float) -> tuple[float, Gate]:
-        return share, RandomGate(agent.make_gate(), hold, share)
+        return share, RandomGate(make_gate(), hold, share)
 
     def curiosity_at(share: float) -> tuple[float, Gate]:
         level = level_for_share(pilot.seen, share)
-        return level, CuriosityGate(agent.make_gate(), hold, level)
+        return level, CuriosityGate(make_gate(), hold, level)
 
     for rate in rates:
         curve["random"].append(_at_rate(rate, hold, random_at, agent, make_env, episodes, max_steps))
@@ -645,6 +657,7 @@ def expert_lead(
     episodes: int = 20,
     leads_s: Sequence[float] = (0.5, 1.0, 1.5, 2.0, 3.0),
     max_steps: int | None = None,
+    gate_settings: Mapping[str, Any] | None = None,
 ) -> LeadReport:
     """The policy drives alone with its gate watching (as in :func:`calibrate_run`) on the evaluation seeds; each
     episode with a violation is then replayed from the same seed with the scripted expert taking over ``lead``
@@ -654,7 +667,8 @@ def expert_lead(
     agent = load_agent(run)
     env = make_env()
     try:
-        watching = Runner(env, agent.policy, agent.make_gate(), None, seed=EVAL_SEED, deterministic=True)
+        gate = agent.make_gate(**(gate_settings or {}))
+        watching = Runner(env, agent.policy, gate, None, seed=EVAL_SEED, deterministic=True)
         window = max(1, round(max(leads_s, default=0.0) / dt))
         first: list[tuple[int, int]] = []  # (episode, step of its first violation)
         warnings: list[float] = []

@@ -3,6 +3,7 @@
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve-episodes 20 --out calib/ugv3
 sage calibrate policies/ugv-default --sim ugv --scenario 4 --episodes 20 --expert-lead
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --escape
+sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve-episodes 20 --gate-set hold_seconds=2
 """
 
 from __future__ import annotations
@@ -43,6 +44,14 @@ def register(app: typer.Typer) -> None:
                 "any steady manoeuvre avoid it from the takeover, or from 1 or 2 s before? (studies/escape.py)",
             ),
         ] = False,
+        gate_set: Annotated[
+            list[str] | None,
+            typer.Option(
+                "--gate-set",
+                help="A setting of the gate over the run's own, KEY=VALUE (repeatable), e.g. hold_seconds=2: any "
+                "field of core.sage.config.GateConfig.",
+            ),
+        ] = None,
         out: Annotated[Path | None, typer.Option(help="Folder for report.json and the PNG figures.")] = None,
     ) -> None:
         """Run the policy with its gate and no expert; report how well fear ranks the steps before a
@@ -50,6 +59,8 @@ def register(app: typer.Typer) -> None:
         import torch
 
         import sims
+        from core.agents import load_agent
+        from core.sage.config import parse_gate_settings
         from studies.calibrate import calibrate_run, write_figures
         from studies.calibrate import expert_lead as measure_lead
         from studies.escape import escape_check
@@ -61,6 +72,8 @@ def register(app: typer.Typer) -> None:
             descriptor = sims.descriptor(sim)
             name = scenario or descriptor.default_scenario
             descriptor.scenario_kwargs(name)
+            settings = parse_gate_settings(gate_set or [])
+            load_agent(run).gate_config(**settings)  # a setting the run's gate refuses stops here, before any episode
             report = calibrate_run(
                 run,
                 lambda: descriptor.make(name),
@@ -71,14 +84,29 @@ def register(app: typer.Typer) -> None:
                 horizon_s=horizon,
                 max_steps=max_steps,
                 curve_episodes=curve_episodes,
+                gate_settings=settings,
             )
             lead = (
-                measure_lead(run, lambda: descriptor.make(name), descriptor.dt, episodes=episodes, max_steps=max_steps)
+                measure_lead(
+                    run,
+                    lambda: descriptor.make(name),
+                    descriptor.dt,
+                    episodes=episodes,
+                    max_steps=max_steps,
+                    gate_settings=settings,
+                )
                 if expert_lead
                 else None
             )
             escaped = (
-                escape_check(run, lambda: descriptor.make(name), descriptor.dt, episodes=episodes, max_steps=max_steps)
+                escape_check(
+                    run,
+                    lambda: descriptor.make(name),
+                    descriptor.dt,
+                    episodes=episodes,
+                    max_steps=max_steps,
+                    **settings,
+                )
                 if escape
                 else None
             )

@@ -76,6 +76,8 @@ def test_calibrate_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
         "ugv scenario '9'": [UGV_DEFAULT, "--sim", "ugv", "--scenario", "9"],
         "no run folder or checkpoint file": [str(tmp_path / "missing"), "--sim", "ugv"],
         "unknown simulator 'warp'": [UGV_DEFAULT, "--sim", "warp"],
+        "unknown config field 'nope'": [UGV_DEFAULT, "--sim", "ugv", "--gate-set", "nope=1"],
+        "gate.release must be in [0, 1]": [UGV_DEFAULT, "--sim", "ugv", "--gate-set", "release=2"],
     }
     for message, args in cases.items():
         result = CliRunner().invoke(app, ["calibrate", *args, "--episodes", "1", "--out", str(out)])

@@ -173,6 +173,23 @@ def test_gate_with_expert_runs_the_gate_with_the_settings_it_is_given(deployed: 
     assert deaf["takeover_rate"] == 0.0 and eager["takeover_rate"] > 0.9
 
 
+def test_calibration_runs_the_gate_with_the_settings_it_is_given(deployed: Path) -> None:  # noqa: F811
+    """``sage calibrate --gate-set``: the watching gate, its operating curve and the lead replay all take them."""
+    from studies.calibrate import expert_lead
+
+    make_env = functools.partial(envs.make, "dynamic")
+    fixed = {"tau_from_data": False, "use_curiosity": False}
+    eager, deaf = fixed | {"tau_min": 0.0, "tau_max": 0.0}, fixed | {"tau_min": 1.0, "tau_max": 1.0}
+    common = dict(dt=0.1, sim="point", scenario="dynamic", episodes=4, curve_episodes=2, curve_scales=(1.0,))
+    asking = calibrate_run(deployed, make_env, gate_settings=eager, **common)
+    silent = calibrate_run(deployed, make_env, gate_settings=deaf, **common)  # fear never exceeds 1
+    assert asking.fire_rate_elsewhere == 1.0 and silent.fire_rate_elsewhere == 0.0
+    assert asking.curve["fear (SAGE)"][0]["takeover_rate"] == 1.0
+    assert silent.curve["fear (SAGE)"][0]["takeover_rate"] == 0.0
+    assert any(expert_lead(deployed, make_env, 0.1, episodes=4, gate_settings=eager).gate_warning_s)
+    assert not any(expert_lead(deployed, make_env, 0.1, episodes=4, gate_settings=deaf).gate_warning_s)
+
+
 def test_curiosity_levels_are_set_to_take_over_the_asked_share_of_steps() -> None:
     from studies.calibrate import firing_share, level_for_share
 
