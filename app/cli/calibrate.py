@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -74,42 +74,24 @@ def register(app: typer.Typer) -> None:
             descriptor.scenario_kwargs(name)
             settings = parse_gate_settings(gate_set or [])
             load_agent(run).gate_config(**settings)  # a setting the run's gate refuses stops here, before any episode
+
+            def make_env() -> Any:
+                return descriptor.make(name)
+
+            common: dict[str, Any] = {"episodes": episodes, "max_steps": max_steps}
             report = calibrate_run(
                 run,
-                lambda: descriptor.make(name),
+                make_env,
                 descriptor.dt,
                 sim=sim,
                 scenario=name,
-                episodes=episodes,
                 horizon_s=horizon,
-                max_steps=max_steps,
                 curve_episodes=curve_episodes,
                 gate_settings=settings,
+                **common,
             )
-            lead = (
-                measure_lead(
-                    run,
-                    lambda: descriptor.make(name),
-                    descriptor.dt,
-                    episodes=episodes,
-                    max_steps=max_steps,
-                    gate_settings=settings,
-                )
-                if expert_lead
-                else None
-            )
-            escaped = (
-                escape_check(
-                    run,
-                    lambda: descriptor.make(name),
-                    descriptor.dt,
-                    episodes=episodes,
-                    max_steps=max_steps,
-                    **settings,
-                )
-                if escape
-                else None
-            )
+            lead = measure_lead(run, make_env, descriptor.dt, gate_settings=settings, **common) if expert_lead else None
+            escaped = escape_check(run, make_env, descriptor.dt, **common, **settings) if escape else None
         except (ValueError, FileNotFoundError, LookupError) as exc:
             typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
