@@ -92,6 +92,7 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
     traceback); returns the gate settings, parsed and checked against the policy the dashboard opens on."""
     import sims
     from app.policies import SCRIPTED, default_policy
+    from app.server import ServerSettings
     from core.agents import load_agent, load_checkpoint
     from core.sage.config import parse_gate_settings
 
@@ -108,7 +109,7 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
         settings = parse_gate_settings(gate_set)
     except ValueError as exc:
         _fail(f"--gate-set: {exc}")
-    opening = policy or default_policy([Path("policies"), Path("runs")], sim)
+    opening = policy or default_policy(ServerSettings().policy_roots, sim)  # where the dashboard will look
     if settings and opening != SCRIPTED and Path(opening).exists():
         try:
             agent = load_agent(opening)
