@@ -200,7 +200,7 @@ class PersonExpert:
 
     def wants_control(self) -> bool:
         if self.mode == "scripted":
-            return False
+            return self.scripted.wants_control()
         snap = self._look()
         return self.acting(snap) or self.latched
 

@@ -11,20 +11,32 @@ import gymnasium as gym
 import numpy as np
 
 from core.loop import Actor, Expert, Policy, StepRecord
-from core.protocol import simulator
+from core.protocol import expert_engaged, simulator
 
 
 class ScriptedExpert:
-    """The simulator's own scripted controller (``env.unwrapped.expert_action()``)."""
+    """The simulator's own scripted controller (``env.unwrapped.expert_action()``).
+
+    Once it has the wheel it keeps it while the simulator says it is engaged in a manoeuvre
+    (:func:`core.protocol.expert_engaged`, e.g. the UGV evading a mover), as a person keeps holding the takeover
+    key: a gate that releases on schedule would otherwise hand a half-finished evasion to the policy.
+    ``finish_manoeuvres=False`` hands back whenever the gate releases."""
+
+    def __init__(self, finish_manoeuvres: bool = True) -> None:
+        self.finish_manoeuvres = finish_manoeuvres
+        self._engaged = False
 
     def reset(self) -> None:
-        pass
+        self._engaged = False
 
     def wants_control(self) -> bool:
-        return False
+        # refreshed at every act(), and a True here always leads to one, so it never outlives the manoeuvre
+        return self._engaged
 
     def act(self, env: gym.Env[Any, Any], obs: np.ndarray) -> tuple[np.ndarray, Actor]:
-        return np.asarray(simulator(env).expert_action()), "expert"
+        action = np.asarray(simulator(env).expert_action())
+        self._engaged = self.finish_manoeuvres and expert_engaged(env)
+        return action, "expert"
 
 
 class PolicyExpert:

@@ -26,6 +26,10 @@ class SimulatorEnv(Protocol):
         """Plain data describing what to draw now (see :mod:`core.scene`). The sim never draws."""
         ...
 
+    # Optional: ``expert_engaged() -> bool``, True while the scripted expert is in the middle of a manoeuvre that
+    # handing control back would cut short (the UGV's evasion of a mover). The scripted expert then keeps the
+    # wheel past the gate's hold, as a person keeps holding the takeover key; see :func:`expert_engaged`.
+
     # ``step``'s info may carry ``executed_action``: the action the simulator really executed when its own driver
     # model acted for the expert (SUMO); the loop then records it as the expert's action (the imitation label).
 
@@ -43,6 +47,13 @@ def simulator(env: gym.Env[Any, Any]) -> SimulatorEnv:
             f"{type(inner).__name__} does not implement the simulator protocol: missing {', '.join(missing)}"
         )
     return inner  # type: ignore[return-value]
+
+
+def expert_engaged(env: gym.Env[Any, Any]) -> bool:
+    """Whether the simulator's scripted expert, at its last action, was in the middle of a manoeuvre it should
+    finish (the optional ``expert_engaged`` of the protocol; False for a simulator without it)."""
+    engaged = getattr(env.unwrapped, "expert_engaged", None)
+    return bool(engaged()) if callable(engaged) else False
 
 
 def is_discrete(env: gym.Env[Any, Any]) -> bool:

@@ -295,6 +295,10 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         """The scripted expert's normalised action (privileged: it knows the movers' scripted paths)."""
         return self.expert.act()
 
+    def expert_engaged(self) -> bool:
+        """True when the expert's last action was an evasion of a mover, which it should be left to finish."""
+        return self.expert.engaged
+
     def metrics(self) -> dict[str, float]:
         """The paper's table row for the current (or just finished) episode; see :mod:`sims.ugv.metrics`."""
         xy = np.column_stack([self._xs, self._ys])

@@ -23,13 +23,14 @@ Privileged: it reads the static layout and the movers' scripted future poses fro
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from sims.ugv.config import UGVConfig
-from sims.ugv.scenario import Layout
+from sims.ugv.scenario import Layout, MoverPlan
 
 if TYPE_CHECKING:
     from sims.ugv.world import World
@@ -298,6 +299,9 @@ class UGVExpert:
         self._stalled = 0
         self._escape: tuple[int, float, float] | None = None  # steps left, v, w
         self._yielded = 0  # steps spent yielding in a row (since the last search for a detour)
+        self.engaged = False
+        """True when the last :meth:`act` was evading a mover (no speed along the path kept clear): a manoeuvre
+        that handing control back would cut short (see :meth:`core.protocol.SimulatorEnv.expert_engaged`)."""
 
     # -- planning --------------------------------------------------------------------------------
     def _ensure_plan(self, x: float, y: float) -> Path | None:
@@ -321,6 +325,7 @@ class UGVExpert:
 
     # -- acting ----------------------------------------------------------------------------------
     def act(self) -> np.ndarray:
+        self.engaged = False
         env = self.env
         cfg = env.config
         robot, ex = cfg.robot, cfg.expert
@@ -543,9 +548,10 @@ class UGVExpert:
 
         The manoeuvres (:meth:`_manoeuvres`): arcs held for ``evade_time``, and turns on the spot for a while
         followed by a straight run, which is how a robot facing the wrong way leaves a mover's sweep; each then
-        stands still. Ranked by the first real contact (the footprint's three circles against the mover's
-        bounding circle: waiting on the spot is not safe just because the margin is kept for longer), then the
-        first breach of the margin, then the narrowest gap."""
+        stands still. Ranked by the first real contact (the footprint's three circles against the mover's own
+        shape, its box or circle: waiting on the spot is not safe just because the margin is kept for longer,
+        and a long box's bounding circle would call every way out a contact), then the first breach of the
+        margin, then the narrowest gap."""
         env, grid = self.env, self._grid
         world = env.world
         assert world is not None and env.layout is not None and grid is not None
@@ -554,7 +560,8 @@ class UGVExpert:
         n = max(1, round(ex.stop_horizon / dt))
         k = world.k
         world.ensure_table(k + n)
-        future = world.mover_poses[:, k + 1 : k + n + 1, 0:2]  # (M, T, 2)
+        poses = world.mover_poses[:, k + 1 : k + n + 1, :]  # (M, T, 3)
+        future = poses[..., 0:2]
         radii = np.array([m.bounding_radius for m in env.layout.movers])[:, None, None]  # (M, 1, 1)
         v, w = self._manoeuvres(n)  # (P, T)
         px, py, heading = _unicycle(x, y, yaw, v, w, dt)  # (P, T) poses after each step
@@ -568,10 +575,8 @@ class UGVExpert:
         # the margin: the bounding circles (what the path's speed caps keep clear of); real contact: the footprint
         margin_gap = np.hypot(px[:, None] - future[None, :, :, 0], py[:, None] - future[None, :, :, 1])
         margin_gap = (margin_gap - radii[None, :, :, 0] - robot.circumradius - ex.mover_margin).min(axis=1)  # (P, T)
-        touch_gap = np.hypot(
-            cx[:, None] - future[None, :, :, None, 0], cy[:, None] - future[None, :, :, None, 1]
-        )  # (P, M, T, 3)
-        touch = ((touch_gap - radii[None] - touching) < 0).any(axis=(1, 3))  # (P, T)
+        touch_gap = mover_distances(cx, cy, poses, env.layout.movers)  # (P, M, T, 3)
+        touch = (touch_gap < touching).any(axis=(1, 3))  # (P, T)
         breach = margin_gap < 0
         first_touch = np.where(touch.any(axis=1), touch.argmax(axis=1), n)
         first_breach = np.where(breach.any(axis=1), breach.argmax(axis=1), n)
@@ -581,6 +586,7 @@ class UGVExpert:
             if not blocked[p]
         }
         self._path = None  # replan from wherever the evasion leads
+        self.engaged = True
         if not keys:
             return 0.0, 0.0
         best = max(keys, key=keys.__getitem__)  # the first of equals, in the order of the manoeuvres
@@ -624,6 +630,23 @@ class BlindExpertPolicy:
 
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
         return self.expert.act()
+
+
+def mover_distances(cx: np.ndarray, cy: np.ndarray, poses: np.ndarray, movers: Sequence[MoverPlan]) -> np.ndarray:
+    """Distances (m, 0 inside) from points (P, T, C) to each mover's shape, a box or a circle, at its pose of
+    the same step ((M, T, 3): x, y, yaw), as (P, M, T, C)."""
+    out = np.empty((cx.shape[0], len(movers), *cx.shape[1:]))
+    for i, mover in enumerate(movers):
+        mx, my, myaw = (poses[i, :, j][None, :, None] for j in range(3))  # (1, T, 1)
+        dx, dy = cx - mx, cy - my
+        if mover.kind == "box":
+            cos, sin = np.cos(myaw), np.sin(myaw)
+            along = np.maximum(np.abs(cos * dx + sin * dy) - mover.length / 2, 0.0)
+            across = np.maximum(np.abs(cos * dy - sin * dx) - mover.width / 2, 0.0)
+            out[:, i] = np.hypot(along, across)
+        else:
+            out[:, i] = np.maximum(np.hypot(dx, dy) - mover.radius, 0.0)
+    return out
 
 
 def _unicycle(

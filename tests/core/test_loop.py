@@ -50,6 +50,28 @@ def test_gate_hands_control_to_expert_and_both_actions_are_recorded() -> None:
     assert summary.mean_curiosity == pytest.approx(0.25)
 
 
+class ManoeuvringLineEnv(LineEnv):
+    """The expert's manoeuvre lasts while x < 3: it says so through the protocol's ``expert_engaged``."""
+
+    def expert_engaged(self) -> bool:
+        return self.x < 3
+
+
+@pytest.mark.parametrize("finish", [True, False])
+def test_the_scripted_expert_finishes_its_manoeuvre_before_handing_back(finish: bool) -> None:
+    """The gate fires at step 1 only; the expert, engaged until x reaches 3, keeps the wheel until then (as a
+    person holds the takeover key) and hands back at once after. Without finishing, it hands back with the gate.
+    A simulator without ``expert_engaged`` (LineEnv) is never held: the first test above."""
+    runner = Runner(ManoeuvringLineEnv(), Still(), FiresAtStep({1, 7}), ScriptedExpert(finish_manoeuvres=finish))
+    records: list[StepRecord] = []
+    runner.step_listeners.append(records.append)
+    runner.run_episode()
+    # the expert moves x by 1 a step and is engaged when it acts from x = 0, 1, 2: its action from x = 3 is its last
+    held = [False, True, True, True, True] if finish else [False, True, False, False, False]
+    assert [r.takeover for r in records] == held + [False] * 2 + [True] + [False] * 2
+    assert records[-1].obs[0] == (4.0 if finish else 1.0) + 1.0
+
+
 def test_without_expert_the_gate_cannot_take_over() -> None:
     runner = Runner(LineEnv(), Still(), FiresAtStep({0, 1, 2}), expert=None)
     summary = runner.run_episode()
