@@ -190,6 +190,21 @@ def test_modes(setup) -> None:
     assert expert.act(env, env._obs())[1] == "person"
 
 
+def test_scripted_mode_finishes_the_scripted_experts_manoeuvre(setup) -> None:
+    """With nobody at the wheel (scripted mode), a manoeuvre the simulator's expert is engaged in keeps control
+    past the gate's hold, as under the headless loop; once it ends, control is the gate's again."""
+    _, _, expert, env = setup
+    expert.mode = "scripted"
+    env.expert_engaged = lambda: True  # type: ignore[attr-defined]
+    assert not expert.wants_control() and expert.act(env, env._obs())[1] == "expert"
+    assert expert.wants_control(), "engaged at its last action: it keeps the wheel"
+    env.expert_engaged = lambda: False  # type: ignore[attr-defined]
+    expert.act(env, env._obs())
+    assert not expert.wants_control()
+    expert.reset()
+    assert not expert.wants_control()
+
+
 def test_control_desk_issues_one_token_at_a_time() -> None:
     desk = ControlDesk()
     first, second = object(), object()
