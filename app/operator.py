@@ -160,6 +160,8 @@ class PersonExpert:
         """The person left mid-takeover: the scripted expert keeps control until they are back."""
         self._latched_at = -float("inf")
         self._holding = False
+        self._scripted_drove = False
+        """The scripted expert (or fallback) produced the last action, not the person."""
         self.last_input: OperatorSnapshot | None = None
         """The operator input behind the latest person action (for latency accounting)."""
         self._previous: np.ndarray | None = None
@@ -174,6 +176,7 @@ class PersonExpert:
     def reset(self) -> None:
         self.latched = False
         self._holding = False
+        self._scripted_drove = False
         self._previous = None
         self._previous_actor = None
         self._ramping = False
@@ -199,18 +202,23 @@ class PersonExpert:
         return snap.answering and snap.held and not self.latched
 
     def wants_control(self) -> bool:
+        # the scripted expert, when it drove last, keeps the wheel while it is mid-manoeuvre (``ScriptedExpert``:
+        # the simulator's ``expert_engaged``), as the person would by holding the key; the person can still take it
+        scripted_engaged = self._scripted_drove and self.scripted.wants_control()
         if self.mode == "scripted":
-            return self.scripted.wants_control()
+            return scripted_engaged
         snap = self._look()
-        return self.acting(snap) or self.latched
+        return self.acting(snap) or self.latched or scripted_engaged
 
     def act(self, env: gym.Env[Any, Any], obs: np.ndarray) -> tuple[np.ndarray, Actor]:
         self.last_input = None
         if self.mode == "scripted":
             action, _ = self.scripted.act(env, obs)
+            self._scripted_drove = True
             return action, "expert"
         snap = self._look()
         if self.acting(snap):
+            self._scripted_drove = False
             if self._request_at is not None:
                 self.latencies.append(self.console.clock() - self._request_at)
                 self._request_at = None
@@ -220,6 +228,7 @@ class PersonExpert:
         if self._request_at is None and self.mode == "person" and not self.latched:
             self._request_at = self.console.clock()  # the gate asked, nobody holds: the page alerts the person
         action, _ = self.scripted.act(env, obs)
+        self._scripted_drove = True
         actor: Actor = "expert" if self.mode == "person_fallback" and not self.latched else "fallback"
         return self._bumpless(np.asarray(action), actor), actor
 

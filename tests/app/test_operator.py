@@ -205,6 +205,21 @@ def test_scripted_mode_finishes_the_scripted_experts_manoeuvre(setup) -> None:
     assert not expert.wants_control()
 
 
+def test_the_fallback_finishes_its_manoeuvre_unless_the_person_takes_the_wheel(setup) -> None:
+    """Nobody holding when the gate asks: the fallback drives, and mid-manoeuvre keeps the wheel past the gate's
+    hold. Once the person has driven, a manoeuvre the fallback was in before is no claim on the wheel."""
+    _, console, expert, env = setup
+    console.connect()
+    send(console, 1.0, held=False)
+    env.expert_engaged = lambda: True  # type: ignore[attr-defined]
+    assert not expert.wants_control() and expert.act(env, env._obs())[1] == "fallback"
+    assert expert.wants_control(), "the fallback is mid-manoeuvre"
+    send(console, 2.0, held=True, throttle=0.3, seq=1)
+    assert expert.wants_control() and expert.act(env, env._obs())[1] == "person"
+    send(console, 3.0, held=False, seq=2)
+    assert not expert.wants_control(), "the person let go: control is the gate's, not the fallback's old manoeuvre"
+
+
 def test_control_desk_issues_one_token_at_a_time() -> None:
     desk = ControlDesk()
     first, second = object(), object()
