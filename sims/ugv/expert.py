@@ -13,8 +13,9 @@ Privileged: it reads the static layout and the movers' scripted future poses fro
    (bounding circles plus a margin) the whole time. If no cap is, it moves at most one step, to where
    standing still stays clear for ``stop_horizon`` seconds (it stops abruptly, as the paper's expert
    does). Failing even that (a takeover that finds the robot in a mover's way), it leaves the path by the
-   manoeuvre (an arc, or a turn on the spot and a straight run) that keeps clear of the movers longest,
-   then replans.
+   manoeuvre (an arc, or a turn on the spot and a straight run) that keeps clear of the movers longest (contact
+   measured to each mover's own box or circle), then replans. While it evades it says it is ``engaged``: the env's
+   ``expert_engaged``, which keeps a takeover going until the evasion is over.
 4. Detours: after yielding for ``detour_after`` seconds, it plans again on the grid with the movers' sweep over
    the next few seconds laid on it as obstacles, and follows that path if a faster speed keeps clear along it
    (the check of 3.): a mover going its way slowly is passed rather than trailed for the rest of the episode.
