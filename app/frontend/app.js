@@ -236,10 +236,13 @@ function renderStep(msg) {
     if (S.role === "operator" && $("sound").checked && performance.now() - lastBeep > 900) { beep(); lastBeep = performance.now(); }
   } else if (msg.takeover) {
     banner.hidden = false; banner.dataset.kind = msg.actor;
-    banner.textContent = {
-      person: "Person in control", fallback: "Scripted fallback in control: operator not answering",
-      expert: "Scripted expert in control",
-    }[msg.actor] || `${msg.actor} in control`;
+    // past the gate's hold (gate_fired false) the scripted expert drives on only to finish a manoeuvre
+    banner.textContent = msg.actor === "expert" && !msg.gate_fired
+      ? "Scripted expert in control: finishing its manoeuvre"
+      : {
+        person: "Person in control", fallback: "Scripted fallback in control: operator not answering",
+        expert: "Scripted expert in control",
+      }[msg.actor] || `${msg.actor} in control`;
   } else {
     banner.hidden = true;
   }

@@ -17,6 +17,7 @@ import pytest
 
 from core.loop import StepRecord
 from tests.app.conftest import LiveServer, start_server, stop_server, toy_settings
+from tests.app.fakesim import ToyRobotEnv
 
 pytestmark = pytest.mark.browser
 
@@ -311,6 +312,41 @@ def test_the_page_alerts_the_operator_when_the_gate_asks_for_a_person(browser: A
             timeout=WAIT_MS,
         )
         page.keyboard.up("Space")
+        page.context.close()
+    finally:
+        stop_server(live, thread)
+
+
+class ManoeuvringToyEnv(ToyRobotEnv):
+    """Its scripted expert is mid-manoeuvre at steps 25..34 of every 40, past the wave gate's firing (20..29)."""
+
+    def expert_engaged(self) -> bool:
+        return 25 <= self.t % 40 < 35
+
+
+def test_the_banner_says_when_the_scripted_expert_drives_on_to_finish_a_manoeuvre(browser: Any, tmp_path: Path) -> None:
+    """Scripted mode: during the gate's firing the banner names the scripted expert; after it, while the expert
+    finishes its manoeuvre (the simulator's ``expert_engaged``), it says why the policy has not got the wheel back."""
+    settings = toy_settings(
+        tmp_path, expert_mode="scripted", env_factory=lambda sim, scenario: ManoeuvringToyEnv(scenario)
+    )
+    live, thread = start_server(settings)
+    try:
+        recorder = Recorder(live)
+        t0 = time.time()
+        page = open_page(browser, live)
+        page.wait_for_function(
+            "sage.lastStep && sage.lastStep.takeover && !sage.lastStep.gate_fired && "
+            "document.getElementById('banner').textContent.includes('finishing its manoeuvre')",
+            timeout=WAIT_MS,
+        )
+        page.wait_for_function(
+            "sage.lastStep && sage.lastStep.gate_fired && "
+            "document.getElementById('banner').textContent === 'Scripted expert in control'",
+            timeout=WAIT_MS,
+        )
+        held = recorder.wait_for(lambda r: r.takeover and not r.gate_fired, since=t0)
+        assert held.actor == "expert" and 30 <= held.t % 40 < 36, (held.t, held.actor)
         page.context.close()
     finally:
         stop_server(live, thread)
