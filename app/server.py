@@ -359,7 +359,7 @@ async def _replay_open(dash: Dashboard, client: Client, msg: m.ReplayOpen) -> st
     except ReplayError as exc:
         return _error(str(exc), op=msg.type)
     dash.replays[client.id] = replay
-    client.offer(dumps(json_safe(replay.opened())))
+    await client.reply(dumps(json_safe(replay.opened())))
     return dumps(json_safe(replay.seek(0)))
 
 
@@ -494,7 +494,7 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         loop = asyncio.get_running_loop()
         options = await loop.run_in_executor(None, dash.options)
         client = dash.hub.add()
-        client.offer(dash.live.welcome(client.id, options))
+        await client.reply(dash.live.welcome(client.id, options))  # first, and never dropped
         sender = asyncio.create_task(Hub.pump(client, websocket.send_text))
         try:
             while True:
@@ -511,7 +511,7 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
                     reply = _error(f"internal error: {type(exc).__name__}: {exc}")
                 if reply is not None:
                     # replies wait for room (a flooding page slows only itself); the stream drops instead
-                    await client.queue.put(reply)
+                    await client.reply(reply)
         finally:
             dash.hub.remove(client)
             dash.replays.pop(client.id, None)
