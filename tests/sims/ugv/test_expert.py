@@ -113,28 +113,9 @@ def test_turning_on_the_spot_before_running_escapes_more_late_takeovers() -> Non
 def test_contact_is_measured_to_the_movers_own_shape() -> None:
     """A long box is touched only near its outline: beside its long side, well inside its bounding circle, a point
     is as far from it as from that side; a rotated box and a circle likewise."""
-    box = MoverPlan(
-        "box",
-        length=2.0,
-        width=0.4,
-        radius=0.0,
-        path=np.zeros((1, 2)),
-        speed=0.0,
-        start_time=0.0,
-        dwell=0.0,
-        loop="once",
-    )
-    disc = MoverPlan(
-        "circle",
-        length=0.0,
-        width=0.0,
-        radius=0.3,
-        path=np.zeros((1, 2)),
-        speed=0.0,
-        start_time=0.0,
-        dwell=0.0,
-        loop="once",
-    )
+    still = {"path": np.zeros((1, 2)), "speed": 0.0, "start_time": 0.0, "dwell": 0.0, "loop": "once"}
+    box = MoverPlan("box", length=2.0, width=0.4, radius=0.0, **still)
+    disc = MoverPlan("circle", length=0.0, width=0.0, radius=0.3, **still)
     poses = np.array([[[0.0, 0.0, 0.0]], [[5.0, 0.0, 0.0]]])  # (M, T=1, 3): the box at the origin, the disc at x=5
     points = np.array([[0.0, 0.5], [1.5, 0.0], [1.3, 0.6], [0.0, 0.1], [5.0, 1.0]])  # (P, 2)
     cx, cy = points[:, 0].reshape(-1, 1, 1), points[:, 1].reshape(-1, 1, 1)  # (P, T=1, C=1)
