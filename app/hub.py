@@ -71,12 +71,10 @@ class Hub:
     def bind(self, loop: asyncio.AbstractEventLoop) -> None:
         self.loop = loop
 
-    def add(self, first: str | None = None) -> Client:
-        """Register a client (call on the asyncio loop). ``first`` is queued before any stream message, as a reply
-        (never dropped)."""
+    def add(self) -> Client:
+        """Register a client (call on the asyncio loop); a welcome queued with :meth:`Client.reply` before the next
+        await comes before any stream message."""
         client = Client(next(self._ids))
-        if first is not None:
-            client._items.append((True, first))
         self.clients[client.id] = client
         return client
 

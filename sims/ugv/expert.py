@@ -302,7 +302,7 @@ class UGVExpert:
         self._yielded = 0  # steps spent yielding in a row (since the last search for a detour)
         self.engaged = False
         """True when the last :meth:`act` was evading a mover (no speed along the path kept clear): a manoeuvre
-        that handing control back would cut short (see :meth:`core.protocol.SimulatorEnv.expert_engaged`)."""
+        that handing control back would cut short (see :func:`core.protocol.expert_engaged`)."""
 
     # -- planning --------------------------------------------------------------------------------
     def _ensure_plan(self, x: float, y: float) -> Path | None:
