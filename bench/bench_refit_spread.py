@@ -25,8 +25,10 @@ movers demonstrates: ``--demo-expert blind-movers --refit-gated-share 0.5``). Th
 kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their 2048 states were drawn
 with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035 and 0.034 on the
 rebuilt buffer of plain seed 0, a scratch measurement),
-so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit. Highway's arms: ``plain`` and
-``lag5`` (the motion input as the mean change over the last 5 steps, 0.5 s, where plain reads the last step's).
+so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit. Highway's arms: ``plain``,
+``lag5`` (the motion input as the mean change over the last 5 steps, 0.5 s, where plain reads the last step's) and
+``approach`` (each beam's approach rate as a further input, :func:`core.motion.approach_rate`: a new model, fitted
+on 600 policy episodes and 40 demonstrations, about what the deployed model's chain of fits saw).
 
 A UGV refit takes about 18 minutes of one core, a highway one about 9-16; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
@@ -142,7 +144,17 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
     if sim == "highway":
         # lag5: the motion input over the last 5 steps (0.5 s) instead of 1: a cut-in's lateral drift over one
         # 0.1 s step is a few centimetres of lidar range, under the jitter of a sector's minimum
-        return {"plain": Arm(), "lag5": Arm(["world_model_config.motion_lag=5"])}
+        from sims.highway.env import approach_layout
+
+        # approach: each beam's approach rate (inverse time to contact) as an input besides its range and change. The
+        # old weights cannot read it, so these refits start a new model; they get about the data the deployed
+        # model's chain of fits had (twice a refit's episodes and demonstrations) where plain warm-starts from it
+        approach = [f"world_model_config.{key}={value}" for key, value in approach_layout().items()]
+        return {
+            "plain": Arm(),
+            "lag5": Arm(["world_model_config.motion_lag=5"]),
+            "approach": Arm(approach, {"episodes": 600, "demo_episodes": 40}),
+        }
     if sim != "ugv":
         return {"plain": Arm()}
     from sims.ugv.env import scan_layout
@@ -188,7 +200,7 @@ def main() -> None:
     parser.add_argument(
         "--arms",
         nargs="+",
-        help="ugv: plain scan states16k gated (default: plain scan); highway: plain lag5; else plain",
+        help="ugv: plain scan states16k gated (default: plain scan); highway: plain lag5 approach; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")

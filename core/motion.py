@@ -91,3 +91,21 @@ def motion_between(previous: np.ndarray, current: np.ndarray, scan: ScanAlignmen
         return cur - prev
     with torch.no_grad():
         return scan.motion(torch.from_numpy(prev), torch.from_numpy(cur)).numpy()
+
+
+APPROACH_RANGE_FLOOR = 0.02
+"""Smallest range the approach rate divides by, in the observation's units (2% of a scan normalised to its reach):
+a beam already touching something reads the largest rate, not a division by zero."""
+
+
+def approach_rate(state: Tensor, motion: Tensor, start: int, stop: int) -> Tensor:
+    """Per range channel in [start, stop) of ``state``: how fast it closes relative to its length,
+    max(0, -Δrange) / range per step, capped at 1 (contact within a step), from the motion input's Δ.
+
+    This is the inverse of a beam's time to contact. A small network reads ranges and their changes on their own
+    scales, where a 4 m/s approach at 7 m and a 4 m/s approach at 40 m differ by nothing in the change; the ratio is
+    what tells them apart, and it is a division, which a few SiLU layers learn poorly from rare violations
+    (measured on highway's held-out adversarial traffic: the violation head's AUROC rose in every one of seven
+    paired fits with this input, by about 0.03; ``README.md``). Any leading shape, (..., D) -> (..., stop - start)."""
+    closing = motion[..., start:stop].neg().clamp_min(0.0)
+    return closing.div(state[..., start:stop].clamp_min(APPROACH_RANGE_FLOOR)).clamp_max(1.0)

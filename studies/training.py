@@ -154,12 +154,20 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         env=env,
     )
     trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)
+    notes = []
+    inherited = base is not None and base.world_model
+    if inherited and trainer.learner.world_model is not None and "world_model" not in trainer.init_parts:
+        # e.g. a refit that adds an input (--set world_model_config.approach_*): the old weights cannot be read
+        notes.append(
+            f"note: the world model of --init {spec.init} does not fit this run's world_model_config (another input "
+            "layout or size); this run fitted a new one on its own data"
+        )
     try:
         setup.start(out)
         result = trainer.train()
     finally:
         trainer.close()
-    return TrainOutcome(result, out, setup, setup.finish(out))
+    return TrainOutcome(result, out, setup, notes + setup.finish(out))
 
 
 def train_once(spec: TrainSpec) -> Path:

@@ -80,6 +80,12 @@ class WorldModelConfig:
     """The observation channel holding the turn over the last step (the UGV's last yaw-rate command)."""
     scan_turn_sectors: float = 0.0
     """Sectors the heading turns by over one step per unit of ``scan_turn_channel`` (UGV: w_max dt / 5°)."""
+    approach_start: int = 0
+    approach_stop: int = 0
+    """With the motion input: observation channels [approach_start, approach_stop) are ranges (a lidar's beams,
+    positive, shorter when nearer), and the model also reads each one's approach rate, max(0, -Δrange) / range
+    per step capped at 1 (:func:`core.motion.approach_rate`: a beam's inverse time to contact). Both 0: off.
+    The policy's observation is unchanged; highway's layout: :func:`sims.highway.env.approach_layout`."""
     violation_steps: int = 5
     """The violation head predicts "a violation at this transition or within the next this-many steps"; the
     fear rollout then looks m steps further along the policy's imagined path."""
@@ -432,6 +438,14 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
     if cfg.world_model_config.motion_lag < 1:
         raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
+    wm = cfg.world_model_config
+    if not 0 <= wm.approach_start <= wm.approach_stop:
+        raise ValueError(
+            "world_model_config.approach_start..approach_stop must be channels 0 <= start <= stop, got "
+            f"{wm.approach_start}..{wm.approach_stop}"
+        )
+    if wm.approach_stop > wm.approach_start and not wm.motion_input:
+        raise ValueError("world_model_config.approach_* (an approach-rate input) needs motion_input=true")
     if cfg.world_model_config.scan_sectors < 0:
         raise ValueError(f"world_model_config.scan_sectors must be >= 0, got {cfg.world_model_config.scan_sectors}")
     if cfg.world_model_config.scan_sectors and (

@@ -45,8 +45,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from core.motion import approach_rate
 from core.sage.config import GateConfig
-from core.sage.world_model import MAX_HORIZON, EnsembleWorldModel, FoldedModel
+from core.sage.world_model import MAX_HORIZON, EnsembleWorldModel, FoldedModel, approach_width
 
 PolicyFn = Callable[[Tensor], Tensor]
 """A deterministic policy on torch states ``(B, D) -> (B, A)`` used inside rollouts. A discrete-action
@@ -94,7 +95,12 @@ def rollout(
         m = (torch.zeros_like(obs) if motion is None else motion).unsqueeze(0).expand(n, batch, d)
     states, actions, costs = [s], [], []
     for k in range(horizon):
-        h = torch.cat([s, a] if m is None else [s, a, m], dim=-1)
+        if m is None:
+            h = torch.cat([s, a], dim=-1)
+        elif model.approach is None:
+            h = torch.cat([s, a, m], dim=-1)
+        else:
+            h = torch.cat([s, a, m, approach_rate(s, m, *model.approach)], dim=-1)
         for weight, bias in model.hidden:
             h = F.silu(torch.baddbmm(bias, h, weight))
         out = torch.baddbmm(model.out_bias, h, model.out_weight)
@@ -364,11 +370,14 @@ class GateKernel:
         self.motion = model.motion
         self.motion_weight = 1.0 / model.motion_lag  # see next_motion
         self.scan = model.scan
-        width = d + act_dim + (d if self.motion else 0)
-        self.x = torch.zeros(m + 1, n, 1, width)  # rows [state, action (, motion)], one block per step
+        self.approach = model.approach
+        motion_end = d + act_dim + (d if self.motion else 0)
+        width = motion_end + approach_width(self.approach)
+        self.x = torch.zeros(m + 1, n, 1, width)  # rows [state, action (, motion (, approach))], one block per step
         self.states = self.x[..., :d]
         self.actions = self.x[..., d : d + act_dim]
-        self.motions = self.x[..., d + act_dim :]
+        self.motions = self.x[..., d + act_dim : motion_end]
+        self.approaches = self.x[..., motion_end:]
         self.outputs = torch.zeros(m, n, 1, d + 1)
         self.hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
         self.policy_buffers = [torch.empty(n, w.shape[0]) for w, _ in actor_layers]
@@ -382,6 +391,7 @@ class GateKernel:
         self.policy_inputs = [self.x[k + 1, :, 0, :d] for k in range(m)]
         self.policy_outputs = [self.x[k + 1, :, 0, d : d + act_dim] for k in range(m - 1)]
         self.motion_steps = [self.motions[k] for k in range(m + 1)]
+        self.approach_steps = [self.approaches[k] for k in range(m + 1)]
         self.deltas = [self.outputs[k, :, :, :d] for k in range(m)]
         self.step_cost = self.outputs[..., d]
         self.inv_members = 1.0 / n
@@ -411,6 +421,7 @@ class GateKernel:
                 self.motion_steps[0].zero_()
             else:
                 self.motion_steps[0].copy_(motion)
+            self._approach(0)
         last = len(self.actor) - 1
         for k in range(self.m):
             h = self._trunk(self.inputs[k], self.hidden)
@@ -423,6 +434,8 @@ class GateKernel:
             elif self.motion:
                 # each member's own predicted change enters its motion (next_motion, in place)
                 torch.lerp(self.motion_steps[k], self.deltas[k], self.motion_weight, out=self.motion_steps[k + 1])
+            if self.approach is not None and k + 1 < self.m:
+                self._approach(k + 1)
             if k + 1 < self.m:
                 x = self.policy_inputs[k]
                 for i, ((bias, weight_t), buf) in enumerate(zip(self.actor, self.policy_buffers, strict=True)):
@@ -448,6 +461,11 @@ class GateKernel:
             sg = float((sigma[:, 0] * self.weights).sum())
         return self.cfg.beta * c + (1.0 - self.cfg.beta) * sg, c, sg
 
+    def _approach(self, k: int) -> None:
+        """Step k's approach rates from its state and motion (a model with the input; no-op otherwise)."""
+        if self.approach is not None:
+            self.approach_steps[k].copy_(approach_rate(self.state_steps[k], self.motion_steps[k], *self.approach))
+
     def last_member_costs(self) -> np.ndarray:
         """(m, N): each member's predicted violation probability at each step of the last rollout (read-only;
         what the dashboard's imagined-horizon chart draws)."""
@@ -471,10 +489,13 @@ class GateKernel:
             self.c_input[:, :, :d].copy_(obs)
             self.c_input[:, :, d : d + a].copy_(action)
             if self.motion:
+                moved = self.c_input[:, :, d + a : 2 * d + a]
                 if motion is None:
-                    self.c_input[:, :, d + a :].zero_()
+                    moved.zero_()
                 else:
-                    self.c_input[:, :, d + a :].copy_(motion)
+                    moved.copy_(motion)
+                if self.approach is not None:
+                    self.c_input[:, :, 2 * d + a :].copy_(approach_rate(self.c_input[..., :d], moved, *self.approach))
             h = self._trunk(self.c_input, self.c_hidden)
             delta = torch.baddbmm(self.delta_b, h, self.delta_w, out=self.c_delta)
         error = delta.mean(0).add_(obs).sub_(next_obs).mul_(self.model.inv_obs_std)

@@ -49,7 +49,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from core.motion import ScanAlignment
+from core.motion import ScanAlignment, approach_rate
 from core.sage.config import WorldModelConfig
 from core.sage.networks import VectorizedLinear
 
@@ -89,6 +89,8 @@ class FoldedModel:
     """Mean one-step curiosity on held-out real transitions at the last fit (the curiosity EMA's start)."""
     scan: ScanAlignment | None = None
     """How the motion input turns the previous scan to the current heading (None: plain differences)."""
+    approach: tuple[int, int] | None = None
+    """Range channels [start, stop) whose approach rate the first layer also reads, after the motion (None: none)."""
 
 
 @dataclass
@@ -121,7 +123,10 @@ class EnsembleWorldModel(nn.Module):
             else None
         )
         """How the motion input turns the previous scan to the current heading (:mod:`core.motion`)."""
-        in_dim, out_dim = obs_dim + act_dim + (obs_dim if self.motion else 0), obs_dim + 1
+        self.approach = _approach_channels(cfg, obs_dim) if self.motion else None
+        """Range channels [start, stop) whose approach rate is an input (:func:`core.motion.approach_rate`)."""
+        in_dim = obs_dim + act_dim + (obs_dim if self.motion else 0) + approach_width(self.approach)
+        out_dim = obs_dim + 1
         dims = [in_dim] + [cfg.hidden] * cfg.layers
         self.hidden_layers = nn.ModuleList(VectorizedLinear(i, o, cfg.members) for i, o in itertools.pairwise(dims))
         self.out = VectorizedLinear(cfg.hidden, 2 * out_dim, cfg.members)
@@ -157,10 +162,14 @@ class EnsembleWorldModel(nn.Module):
         return self.min_logvar + F.softplus(logvar - self.min_logvar)
 
     def inputs(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> Tensor:
-        """The raw model input: (s, a) and, with ``motion_input``, the last change of state (zeros if unknown)."""
+        """The raw model input: (s, a) and, with ``motion_input``, the last change of state (zeros if unknown),
+        then the approach rates of the range channels (``approach_*``)."""
         if not self.motion:
             return torch.cat([obs, action], dim=-1)
-        return torch.cat([obs, action, torch.zeros_like(obs) if motion is None else motion], dim=-1)
+        motion = torch.zeros_like(obs) if motion is None else motion
+        if self.approach is None:
+            return torch.cat([obs, action, motion], dim=-1)
+        return torch.cat([obs, action, motion, approach_rate(obs, motion, *self.approach)], dim=-1)
 
     def normalise_inputs(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> Tensor:
         return (self.inputs(obs, action, motion) - self.in_mean) / self.in_std
@@ -227,10 +236,11 @@ class EnsembleWorldModel(nn.Module):
         if violation_soon is not None:
             label = np.maximum(label, np.clip(violation_soon, 0.0, 1.0))
         label = label.astype(np.float32)
-        parts = [obs, action]
-        if self.motion:
-            parts.append(np.zeros_like(obs) if motion is None else motion)
-        inputs = torch.as_tensor(np.concatenate(parts, axis=1), dtype=torch.float32)
+        inputs = self.inputs(
+            torch.as_tensor(obs, dtype=torch.float32),
+            torch.as_tensor(action, dtype=torch.float32),
+            None if motion is None else torch.as_tensor(motion, dtype=torch.float32),
+        )
         targets = torch.as_tensor(np.concatenate([next_obs - obs, label[:, None]], axis=1), dtype=torch.float32)
         perm = rng.permutation(n)
         n_hold = max(1, min(int(n * cfg.holdout_ratio), cfg.max_holdout))
@@ -313,7 +323,7 @@ class EnsembleWorldModel(nn.Module):
             self.fitted.fill_(True)
             d, a = self.obs_dim, self.act_dim
             hold_obs, hold_action = inputs[hold, :d], inputs[hold, d : d + a]
-            hold_motion = inputs[hold, d + a :] if self.motion else None
+            hold_motion = inputs[hold, d + a : 2 * d + a] if self.motion else None
             hold_next = torch.as_tensor(next_obs[hold], dtype=torch.float32)
             self.curiosity_ref.fill_(float(self.curiosity(hold_obs, hold_action, hold_next, hold_motion).mean()))
         self.touch()
@@ -425,6 +435,7 @@ class EnsembleWorldModel(nn.Module):
                 motion=self.motion,
                 motion_lag=self.motion_lag,
                 scan=self.scan,
+                approach=self.approach,
                 sigma_scale=self.sigma_scale.clone(),
                 curiosity_ref=float(self.curiosity_ref),
             )
@@ -481,6 +492,24 @@ def merge_ensembles(models: Sequence[EnsembleWorldModel]) -> EnsembleWorldModel:
     state["tau_bounds"] = torch.tensor([float("nan"), float("nan")])
     merged.load_state_dict(state)
     return merged
+
+
+def _approach_channels(cfg: WorldModelConfig, obs_dim: int) -> tuple[int, int] | None:
+    """The config's approach channels, checked against the observation (None when off)."""
+    start, stop = int(cfg.approach_start), int(cfg.approach_stop)
+    if stop <= start:
+        return None
+    if not 0 <= start < stop <= obs_dim:
+        raise ValueError(
+            f"world_model_config.approach_start..approach_stop must lie within the {obs_dim} observation channels, "
+            f"got {start}..{stop}"
+        )
+    return (start, stop)
+
+
+def approach_width(approach: tuple[int, int] | None) -> int:
+    """How many approach-rate inputs the first layer reads."""
+    return 0 if approach is None else approach[1] - approach[0]
 
 
 def _torch_generator(rng: np.random.Generator) -> torch.Generator:

@@ -42,6 +42,13 @@ plain ``obs -> action`` function, or ``"expert"`` for the scripted expert."""
 OBS_SIZE = 5 + 6 + DEFAULT.sensor.beams
 
 
+def approach_layout() -> dict[str, int]:
+    """``world_model_config`` fields for a world model that also reads each LiDAR beam's approach rate (its
+    inverse time to contact, :func:`core.motion.approach_rate`): the beams are the observation's last channels,
+    ranges over the sensor's reach."""
+    return {"approach_start": OBS_SIZE - DEFAULT.sensor.beams, "approach_stop": OBS_SIZE}
+
+
 def observe(world: World) -> np.ndarray:
     """The observation of ``world`` (see the module docstring)."""
     cfg = world.cfg

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from core.motion import ScanAlignment, motion_between
+from core.motion import APPROACH_RANGE_FLOOR, ScanAlignment, approach_rate, motion_between
 from core.sage.config import AgentConfig, WorldModelConfig, validate
 
 SECTORS = 36
@@ -117,3 +117,28 @@ def test_fear_of_a_scan_aligned_model_stays_differentiable_through_its_imagined_
     terms = fear(model.folded(), actor.deterministic, obs, action, GateConfig(), motion=obs)
     terms.fear.sum().backward()
     assert action.grad is not None and bool(torch.isfinite(action.grad).all()) and float(action.grad.abs().sum()) > 0
+
+
+def test_approach_rate_is_the_inverse_time_to_contact_of_each_closing_range() -> None:
+    """max(0, -Δrange) / range per step over the chosen channels only, capped at 1; an opening or still beam reads 0,
+    and a beam already at contact reads the cap, not a division by zero."""
+    state = torch.tensor([[9.0, 0.5, 0.5, 0.2, 0.0, 9.0]])
+    motion = torch.tensor([[-5.0, -0.1, 0.1, 0.0, -0.01, -5.0]])
+    rate = approach_rate(state, motion, 1, 5)
+    assert rate.shape == (1, 4)
+    assert rate[0].tolist() == pytest.approx([0.2, 0.0, 0.0, min(0.01 / APPROACH_RANGE_FLOOR, 1.0)])
+    fast = approach_rate(torch.tensor([[0.1]]), torch.tensor([[-0.5]]), 0, 1)
+    assert float(fast) == 1.0
+    batch = approach_rate(torch.rand(3, 2, 6) + 0.1, -torch.rand(3, 2, 6), 2, 6)
+    assert batch.shape == (3, 2, 4) and bool((batch >= 0).all()) and bool((batch <= 1).all())
+
+
+def test_an_approach_layout_that_does_not_fit_is_refused_with_its_field() -> None:
+    from core.sage.world_model import EnsembleWorldModel
+
+    with pytest.raises(ValueError, match=r"approach_start\.\.approach_stop"):
+        EnsembleWorldModel(4, 1, WorldModelConfig(approach_start=2, approach_stop=6))
+    with pytest.raises(ValueError, match="needs motion_input"):
+        validate(AgentConfig(world_model_config=WorldModelConfig(motion_input=False, approach_stop=3)))
+    with pytest.raises(ValueError, match=r"approach_start\.\.approach_stop"):
+        validate(AgentConfig(world_model_config=WorldModelConfig(approach_start=5, approach_stop=3)))

@@ -144,9 +144,21 @@ def test_a_world_model_only_refit_keeps_the_policys_own_config_whatever_method_i
         overrides=["world_model_config.cost_label_weight=0.3"],
         out=str(tmp_path / "refit"),
     )
-    after = load_agent(run_training(refit).out).config
+    outcome = run_training(refit)
+    after = load_agent(outcome.out).config
     assert (after.method, after.imitation, after.world_model) == ("sac", True, True)
     assert after.world_model_config.cost_label_weight == 0.3 and after.updates_per_step == before.updates_per_step
+    assert not any(line.startswith("note:") for line in outcome.lines)
+    # a refit that adds an input to the world model cannot read the old weights: it says so and fits a new one
+    wider = dataclasses.replace(
+        refit,
+        overrides=["world_model_config.approach_start=0", "world_model_config.approach_stop=1"],
+        out=str(tmp_path / "wider"),
+    )
+    outcome = run_training(wider)
+    assert any("does not fit this run's world_model_config" in line for line in outcome.lines), outcome.lines
+    model = load_agent(outcome.out).world_model
+    assert model is not None and bool(model.fitted) and model.approach == (0, 1)
 
 
 def test_a_world_model_only_refit_of_a_discrete_policy_runs_in_a_fresh_process(tmp_path: Path) -> None:

@@ -184,18 +184,25 @@ def test_the_motion_input_makes_a_moving_obstacle_predictable() -> None:
     assert errors[True] < 0.02 < 0.05 < errors[False], errors
 
 
-@pytest.mark.parametrize(("lag", "scan"), [(1, False), (4, False), (1, True)])
-def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: bool) -> None:
+@pytest.mark.parametrize(
+    ("lag", "scan", "approach"),
+    [(1, False, False), (4, False, False), (1, True, False), (1, False, True), (1, True, True)],
+)
+def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: bool, approach: bool) -> None:
     """The gate's preallocated kernel and the batched rollout carry the motion input alike over the imagined steps
     (for a lag k > 1: ((k - 1) m + Δ) / k; with a scan alignment, each imagined step's change with its imagined
-    turn taken out of the scan), so both give the same fear."""
+    turn taken out of the scan; with approach rates, those of each imagined state and motion), so both give the
+    same fear, and the kernel's curiosity is the model's."""
     from core.sage.fear import GateKernel, fear
     from core.sage.networks import Actor
 
     rng = np.random.default_rng(7)
-    layout = {"scan_sectors": 3, "scan_turn_channel": 3, "scan_turn_sectors": 1.5} if scan else {}
+    layout: dict[str, float] = {"scan_sectors": 3, "scan_turn_channel": 3, "scan_turn_sectors": 1.5} if scan else {}
+    if approach:
+        layout |= {"approach_start": 1, "approach_stop": 3}
     model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=50, motion_lag=lag, **layout))
     assert (model.folded().scan is not None) == scan
+    assert (model.folded().approach is not None) == approach
     s, a, nxt, cost = known_system(300, rng)
     model.fit(s, a, nxt, cost, rng, motion=0.05 * rng.standard_normal(s.shape).astype(np.float32))
     actor = Actor(OBS, ACT, 16, 2, -torch.ones(ACT), torch.ones(ACT))
@@ -210,6 +217,41 @@ def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: b
     assert value == pytest.approx(float(reference.fear), abs=1e-5)
     assert cost_hat == pytest.approx(float(reference.cost), abs=1e-5)
     assert without != (value, cost_hat, sigma)  # the motion input changes the prediction
+    nxt_obs = obs + 0.05
+    with torch.inference_mode():
+        fast = kernel.curiosity(obs, act, nxt_obs, motion=motion)
+    with torch.no_grad():
+        assert fast == pytest.approx(float(model.curiosity(obs, act, nxt_obs, motion)), rel=1e-4)
+
+
+def test_approach_rates_tell_a_near_slow_approach_from_a_far_fast_one() -> None:
+    """Danger here is a beam's time to contact, range / closing speed: neither the range nor its change tells it
+    alone. The same data fitted with and without the approach-rate input (``approach_*``, the ratio): only the
+    model that reads it ranks held-out states by the danger ahead (AUROC 0.85-0.87 without, 0.99 with, in four
+    seeds of this set-up)."""
+    from core.metrics import auroc
+
+    def beams(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
+        ranges = rng.uniform(0.05, 1.0, (n, 4)).astype(np.float32)
+        closing = (rng.uniform(0.0, 0.08, (n, 4)) * (rng.random((n, 4)) < 0.5)).astype(np.float32)
+        obs = np.concatenate([rng.normal(size=(n, 2)), ranges], axis=1).astype(np.float32)
+        motion = np.concatenate([rng.normal(0.0, 0.01, (n, 2)), -closing], axis=1).astype(np.float32)
+        soon = (ranges < 5 * closing).any(axis=1).astype(np.float32)  # contact within 5 steps on some beam
+        return obs, rng.uniform(-1, 1, (n, 1)).astype(np.float32), obs + motion, soon, motion
+
+    scores = {}
+    for approach in (False, True):
+        torch.manual_seed(0)
+        rng = np.random.default_rng(0)
+        layout = {"approach_start": 2, "approach_stop": 6} if approach else {}
+        model = EnsembleWorldModel(6, 1, WorldModelConfig(hidden=32, max_updates_per_fit=600, **layout))
+        obs, act, nxt, soon, motion = beams(rng, 3000)
+        model.fit(obs, act, nxt, np.zeros(len(obs), np.float32), rng, violation_soon=soon, motion=motion)
+        obs, act, _, soon, motion = beams(np.random.default_rng(1), 2000)
+        with torch.no_grad():
+            mean, _ = model.predict(torch.as_tensor(obs), torch.as_tensor(act), torch.as_tensor(motion))
+        scores[approach] = auroc(torch.sigmoid(mean[..., -1]).mean(0).numpy(), soon > 0.5)
+    assert scores[True] > 0.95 and scores[True] - scores[False] > 0.05, scores
 
 
 def test_the_dense_cost_joins_the_violation_label_with_its_weight() -> None:
