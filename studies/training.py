@@ -154,7 +154,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         env=env,
     )
     trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)
-    notes = []
+    notes: list[str] = []
     inherited = base is not None and base.world_model
     if inherited and trainer.learner.world_model is not None and "world_model" not in trainer.init_parts:
         # e.g. a refit that adds an input (--set world_model_config.approach_*): the old weights cannot be read
