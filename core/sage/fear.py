@@ -462,7 +462,8 @@ class GateKernel:
         return self.cfg.beta * c + (1.0 - self.cfg.beta) * sg, c, sg
 
     def _approach(self, k: int) -> None:
-        """Step k's approach rates from its state and motion (a model with the input; no-op otherwise)."""
+        """Step k's approach rates from its state and motion (a model with the input; no-op otherwise). Unlike the
+        rest of a step it allocates its temporaries: the input is an option, off in every committed policy."""
         if self.approach is not None:
             self.approach_steps[k].copy_(approach_rate(self.state_steps[k], self.motion_steps[k], *self.approach))
 
