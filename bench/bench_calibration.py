@@ -11,6 +11,10 @@ near 0.85 is not decided: with 10 violations in 40 highway episodes it moves by 
 
 Fear's calibration (no operating curve) is also measured on the layouts beyond the built-in scenarios (``FIELDS``).
 
+The gate table gives each row's 95% Wilson interval and says under it where issue #11's target is met
+(:class:`studies.calibrate.GateTarget`): as read, and where the episodes decide it (the interval wholly under or over
+the target's share); at 100 episodes a row of 2-9 violations is undecided either way.
+
 Targets (issue #11): fear AUROC >= 0.85 for "violation within 1 s"; the operating curve above random and
 curiosity-only gating at every takeover rate. Not a unit test: it takes minutes. Each calibration and each row of
 the gate table is a Ray task (:func:`studies.sweep.run_tasks`, one core and one process each, libsumo's rule), on
@@ -23,6 +27,7 @@ import argparse
 import math
 import subprocess
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,9 +35,11 @@ import numpy as np
 import torch
 
 import sims
+from core.metrics import wilson_interval
 from core.sage.config import parse_gate_settings
 from studies.calibrate import (
     CalibrationReport,
+    GateTarget,
     calibrate_run,
     compare_curves,
     expert_lead,
@@ -248,15 +255,87 @@ def run_case(
         )
     warn_steps = max(1, round(1.0 / d.dt))
     point = gate_with_expert(folder, lambda: d.make(source), episodes, warn_steps=warn_steps, **(gate or {}))
-    bad = round(point["violation_rate"] * episodes)
-    under = int(point["violations_under_expert"])
-    held = point["expert_steps_before_violation"] * d.dt
-    return (
-        f"| {policy} | {sim} {shown} | {bad}/{episodes} | {point['takeover_rate']:.0%} "
-        f"| {under}{f' ({held:.1f} s)' if under else ''} | {int(point['violations_handed_back'])} "
-        f"| {int(point['violations_under_threshold'])} | {int(point['violations_unforeseen'])} "
-        f"| {time.perf_counter() - started:.0f} s |"
+    return GateRow(
+        policy=policy,
+        scenario=f"{sim} {shown}",
+        beyond=scenario in FIELDS.get(sim, []),
+        violations=round(point["violation_rate"] * episodes),
+        episodes=episodes,
+        takeover_rate=point["takeover_rate"],
+        under_expert=int(point["violations_under_expert"]),
+        expert_held_s=point["expert_steps_before_violation"] * d.dt,
+        handed_back=int(point["violations_handed_back"]),
+        under_threshold=int(point["violations_under_threshold"]),
+        unforeseen=int(point["violations_unforeseen"]),
+        seconds=time.perf_counter() - started,
     )
+
+
+@dataclass(frozen=True)
+class GateRow:
+    """One scenario's row of the gate + scripted expert table (:func:`studies.calibrate.gate_with_expert`)."""
+
+    policy: str
+    scenario: str
+    """As the table names it: the simulator, then the scenario."""
+    beyond: bool
+    """A layout of ``FIELDS``, beyond the built-in scenarios (the target is the built-in scenarios')."""
+    violations: int
+    episodes: int
+    takeover_rate: float
+    under_expert: int
+    expert_held_s: float
+    handed_back: int
+    under_threshold: int
+    unforeseen: int
+    seconds: float
+
+    def line(self) -> str:
+        low, high = wilson_interval(self.violations, self.episodes)
+        held = f" ({self.expert_held_s:.1f} s)" if self.under_expert else ""
+        return (
+            f"| {self.policy} | {self.scenario} | {self.violations}/{self.episodes} ({low:.0%}-{high:.0%}) "
+            f"| {self.takeover_rate:.0%} | {self.under_expert}{held} | {self.handed_back} | {self.under_threshold} "
+            f"| {self.unforeseen} | {self.seconds:.0f} s |"
+        )
+
+    def met(self, target: GateTarget) -> bool:
+        return target.met(self.violations, self.episodes, self.takeover_rate)
+
+    def reading(self) -> str:
+        """The row in a sentence's list: scenario, violations and takeover."""
+        return f"{self.scenario} {self.violations}/{self.episodes} at {self.takeover_rate:.1%}"
+
+
+TARGET = GateTarget()
+"""Issue #11's target for the gate table."""
+
+
+def target_summary(rows: list[GateRow], target: GateTarget = TARGET) -> str:
+    """Where the gate table meets issue #11's target, as read and as its episodes can decide it."""
+    built_in = [row for row in rows if not row.beyond]
+    beyond = [row for row in rows if row.beyond]
+    missed = [row for row in built_in if not row.met(target)]
+    decided = {
+        kind: [row for row in built_in if target.decided(row.violations, row.episodes) == kind]
+        for kind in ("under", "over", "undecided")
+    }
+
+    def named(group: list[GateRow]) -> str:
+        return "; ".join(row.reading() for row in group) or "none"
+
+    text = (
+        f"Issue #11's target (a violation in at most {target.violation_share:.0%} of the episodes, at most "
+        f"{target.takeover_rate:.0%} takeover) is met on {len(built_in) - len(missed)} of the {len(built_in)} "
+        f"built-in scenarios as read; missed on: {named(missed)}. By the 95% intervals of the share of episodes "
+        f"with a violation, {len(decided['under'])} lie wholly at or under {target.violation_share:.0%}, "
+        f"{len(decided['over'])} wholly over it ({named(decided['over'])}) and {len(decided['undecided'])} "
+        "are undecided (their interval straddles it)."
+    )
+    if beyond:
+        met = sum(row.met(target) for row in beyond)
+        text += f" The layouts beyond them: {met} of {len(beyond)} as read ({named(beyond)})."
+    return text
 
 
 def lead_table(episodes: int, rows: list[str]) -> list[str]:
@@ -332,7 +411,7 @@ def _shown(value: float, spec: str) -> str:
     return format(value, spec) if math.isfinite(value) else "–"
 
 
-def gate_table(episodes: int, rows: list[str], gate: dict[str, Any] | None = None) -> list[str]:
+def gate_table(episodes: int, rows: list[GateRow], gate: dict[str, Any] | None = None) -> list[str]:
     """Gate + scripted expert at the gate's own threshold on every scenario of each default's simulator
     (issue #11's target: a violation in at most 1 of 20 episodes, at a takeover rate of at most 35%); ``gate``:
     the GateConfig settings the rows ran with over the policies' own."""
@@ -351,10 +430,12 @@ def gate_table(episodes: int, rows: list[str], gate: dict[str, Any] | None = Non
         "Rows named by a file (`*.yaml`) are layouts beyond the built-in scenarios that no committed model was trained "
         "on (`FIELDS` in `bench/bench_calibration.py`).",
         "",
-        "| policy | scenario | episodes with a violation | takeover rate | expert driving (for how long) "
-        "| handed back | fear over τ_min, under τ | unforeseen | time |",
+        "| policy | scenario | episodes with a violation (95% interval) | takeover rate "
+        "| expert driving (for how long) | handed back | fear over τ_min, under τ | unforeseen | time |",
         "|---|---|---|---|---|---|---|---|---|",
-        *rows,
+        *(row.line() for row in rows),
+        "",
+        target_summary(rows),
     ]
 
 

@@ -395,6 +395,32 @@ def _run_gated(
     }
 
 
+@dataclass(frozen=True)
+class GateTarget:
+    """Issue #11's target for the gate with the scripted expert on a scenario: a violation in at most
+    ``violation_share`` of the episodes (1 of 20), at a takeover rate of at most ``takeover_rate``."""
+
+    violation_share: float = 0.05
+    takeover_rate: float = 0.35
+
+    def met(self, violations: int, episodes: int, takeover_rate: float) -> bool:
+        """Whether a measured row meets the target as read (its point estimates)."""
+        if episodes <= 0:
+            raise ValueError("a gate row needs at least one episode")
+        return violations <= self.violation_share * episodes and takeover_rate <= self.takeover_rate
+
+    def decided(self, violations: int, episodes: int) -> str:
+        """What the row's episodes can tell about its violation share: ``"under"`` (the 95% Wilson interval lies
+        at or under the target's share), ``"over"`` (wholly above it) or ``"undecided"`` (it straddles it: more
+        episodes would be needed to say)."""
+        low, high = wilson_interval(violations, episodes)
+        if high <= self.violation_share:
+            return "under"
+        if low > self.violation_share:
+            return "over"
+        return "undecided"
+
+
 def gate_with_expert(
     run: str | Path,
     make_env: Callable[[], gym.Env[Any, Any]],

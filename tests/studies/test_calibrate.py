@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from core.loop import GateDecision
@@ -231,3 +232,20 @@ def test_the_warning_needed_is_the_shortest_lead_that_avoided_every_violation() 
     assert math.isnan(never.needed_s()) and "needs: more" in never.summary()
     calm = LeadReport(episodes=20, violations=0, gate_warning_s=[], leads_s=[0.5], left=[0])
     assert calm.needed_s() == 0.0 and "nothing to avoid" in calm.summary()
+
+
+def test_gate_target_reads_rows_and_says_what_their_episodes_decide() -> None:
+    from studies.calibrate import GateTarget
+
+    target = GateTarget()
+    assert target.met(5, 100, 0.35)
+    assert not target.met(6, 100, 0.20)  # one violation too many
+    assert not target.met(3, 100, 0.36)  # one point of takeover too many
+    # 0/100: the Wilson interval reaches 3.7%, under 5%; 2/100 reaches 7.0%: undecided though met as read
+    assert target.decided(0, 100) == "under"
+    assert target.decided(2, 100) == "undecided"
+    assert target.decided(2, 300) == "under"
+    assert target.decided(15, 100) == "over"
+    assert target.decided(7, 100) == "undecided"
+    with pytest.raises(ValueError, match="episode"):
+        target.met(0, 0, 0.1)
