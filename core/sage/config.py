@@ -114,6 +114,12 @@ class GateConfig:
     """τ_min: the threshold when curiosity is far above its recent average (most ready to ask for help)."""
     tau_max: float = 0.45
     """τ_max: the threshold when curiosity is far below its recent average (familiar ground)."""
+    tau_interpolation: Literal["linear", "geometric"] = "linear"
+    """How ρ places τ between its bounds: ``linear`` is eq:threshold, τ = τ_max - ρ(τ_max - τ_min); ``geometric`` is
+    the same equation on log τ, τ = τ_min^ρ τ_max^(1-ρ), so that a step of ρ moves τ by the same ratio whatever the
+    bounds' spread. Where the fear of familiar states has a long tail (SUMO's bounds lie a factor 10 apart: 0.056 and
+    0.576) the linear mean of the bounds sits above almost all of it, and curiosity that carries no danger (SUMO's
+    AUROC 0.51) leaves τ there; README, "Calibration of fear", compares the two."""
     curiosity_ema: float = 0.02
     """Rate of the exponential moving average of curiosity that ρ compares the current curiosity with."""
     curiosity_sharpness: float = 2.0

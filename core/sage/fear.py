@@ -289,7 +289,8 @@ class CalibrationSample:
 
 
 class CuriosityThreshold:
-    """τ_t = τ_max - ρ(C_t)(τ_max - τ_min), ρ(C) = C / (C + EMA of recent C) (see the module docstring)."""
+    """τ_t = τ_max - ρ(C_t)(τ_max - τ_min), ρ(C) = C / (C + EMA of recent C) (see the module docstring), or its
+    geometric form (``GateConfig.tau_interpolation``)."""
 
     def __init__(self, cfg: GateConfig, reference: float = 1.0, bounds: tuple[float, float] | None = None) -> None:
         self.cfg = cfg
@@ -308,7 +309,13 @@ class CuriosityThreshold:
             self.tau_min, self.tau_max = self.cfg.tau_min, self.cfg.tau_max
 
     def neutral(self) -> float:
-        return self.tau_max - 0.5 * (self.tau_max - self.tau_min)
+        return self.at(0.5)
+
+    def at(self, rho: float) -> float:
+        """τ for ρ in [0, 1]: ``tau_interpolation`` between τ_max (ρ = 0) and τ_min (ρ = 1)."""
+        if self.cfg.tau_interpolation == "geometric" and self.tau_min > 0.0:
+            return self.tau_min**rho * self.tau_max ** (1.0 - rho)
+        return self.tau_max - rho * (self.tau_max - self.tau_min)
 
     def rho(self, curiosity: float) -> float:
         if not math.isfinite(curiosity) or curiosity < 0:
@@ -329,7 +336,7 @@ class CuriosityThreshold:
             alpha = self.cfg.curiosity_smoothing
             self.smoothed = curiosity if self.smoothed is None else (1 - alpha) * self.smoothed + alpha * curiosity
         rho = self.rho(self.smoothed if self.smoothed is not None else curiosity)
-        self.threshold = self.tau_max - rho * (self.tau_max - self.tau_min)
+        self.threshold = self.at(rho)
         if math.isfinite(curiosity):
             self.ema = max((1.0 - self.cfg.curiosity_ema) * self.ema + self.cfg.curiosity_ema * curiosity, 1e-8)
         return self.threshold

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from core.sage.config import GateConfig, WorldModelConfig
+from core.sage.config import GateConfig, WorldModelConfig, set_field
 from core.sage.fear import CuriosityThreshold, GateKernel, calibrate, fear, rollout
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel
@@ -92,6 +92,28 @@ def test_threshold_falls_as_curiosity_rises() -> None:
     assert taus[0] == pytest.approx(0.8) and taus[2] == pytest.approx(0.5)
     assert all(a > b for a, b in itertools.pairwise(taus))
     assert taus[-1] == pytest.approx(0.2, abs=1e-4) and min(taus) >= 0.2
+
+
+def test_geometric_threshold_moves_tau_by_equal_ratios_between_the_same_bounds() -> None:
+    """Bounds a factor 10 apart (SUMO's): the linear τ at typical curiosity sits at their mean, the geometric one
+    at their geometric mean; both run from τ_max to τ_min and fall as curiosity rises."""
+    curiosities = (0.0, 0.5, 1.0, 2.0, 10.0, 1e6)
+    taus = {}
+    for how in ("linear", "geometric"):
+        cfg = GateConfig(tau_min=0.05, tau_max=0.5, curiosity_ema=0.0, curiosity_smoothing=1.0, tau_interpolation=how)
+        threshold = CuriosityThreshold(cfg, reference=1.0)
+        taus[how] = [threshold.update(c) for c in curiosities]
+        assert taus[how][0] == pytest.approx(0.5) and taus[how][-1] == pytest.approx(0.05, rel=1e-3)
+        assert all(a > b for a, b in itertools.pairwise(taus[how]))
+        assert CuriosityThreshold(cfg, reference=1.0).neutral() == pytest.approx(taus[how][2])
+    assert taus["linear"][2] == pytest.approx(0.275)
+    assert taus["geometric"][2] == pytest.approx(0.05**0.5 * 0.5**0.5)
+    # equal steps of ρ, equal ratios of τ: ρ = 0.2 (C = 0.5) and 0.5 (C = 1) are 0.3 apart, as are 0.5 and 0.8
+    ratio_low = taus["geometric"][1] / taus["geometric"][2]
+    ratio_high = taus["geometric"][2] / taus["geometric"][3]
+    assert ratio_low == pytest.approx(ratio_high)
+    with pytest.raises(ValueError, match="tau_interpolation"):
+        set_field(GateConfig(), "tau_interpolation", "cubic")
 
 
 def test_smoothed_curiosity_keeps_tau_from_jumping_step_to_step() -> None:
