@@ -304,6 +304,7 @@ def run_case(
     point = gate_with_expert(folder, lambda: d.make(source), episodes, warn_steps=warn_steps, **(gate or {}))
     return GateRow(
         policy=policy,
+        sim=sim,
         scenario=f"{sim} {shown}",
         beyond=scenario in FIELDS.get(sim, []),
         violations=round(point["violation_rate"] * episodes),
@@ -323,6 +324,7 @@ class GateRow:
     """One scenario's row of the gate + scripted expert table (:func:`studies.calibrate.gate_with_expert`)."""
 
     policy: str
+    sim: str
     scenario: str
     """As the table names it: the simulator, then the scenario."""
     beyond: bool
@@ -443,9 +445,26 @@ def scenario_source(sim: str, scenario: str) -> str:
     return str(ROOT / scenario) if scenario in FIELDS.get(sim, []) else scenario
 
 
+def aliases(sim: str) -> dict[str, str]:
+    """Built-in scenarios of ``sim`` that repeat an earlier one's settings under another name (SUMO's route 1 is the
+    route-shift study's C1), each with the name it repeats: the gate table leaves them out, so that no scenario
+    counts twice towards the target."""
+    first: dict[str, str] = {}
+    repeated: dict[str, str] = {}
+    for spec in sims.descriptor(sim).scenarios:
+        key = repr(sorted(spec.kwargs.items()))
+        if key in first:
+            repeated[spec.name] = first[key]
+        else:
+            first[key] = spec.name
+    return repeated
+
+
 def table_scenarios(sim: str) -> list[str]:
-    """The gate table's rows on ``sim``: its built-in scenarios, then its ``FIELDS``."""
-    return [spec.name for spec in sims.descriptor(sim).scenarios] + FIELDS.get(sim, [])
+    """The gate table's rows on ``sim``: its built-in scenarios (one name for each setting, :func:`aliases`), then
+    its ``FIELDS``."""
+    left_out = aliases(sim)
+    return [spec.name for spec in sims.descriptor(sim).scenarios if spec.name not in left_out] + FIELDS.get(sim, [])
 
 
 def gate_cases(policies: list[tuple[str, str]]) -> list[tuple[str, str, str]]:
@@ -483,7 +502,16 @@ def gate_table(episodes: int, rows: list[GateRow], gate: dict[str, Any] | None =
         *(row.line() for row in rows),
         "",
         target_summary(rows),
+        *alias_note(sorted({row.sim for row in rows})),
     ]
+
+
+def alias_note(simulators: list[str]) -> list[str]:
+    """The line that names the scenarios the gate table leaves out as repeats (none: no line)."""
+    repeats = [f"{sim} {name} (= {kept})" for sim in simulators for name, kept in aliases(sim).items()]
+    if not repeats:
+        return []
+    return ["", "Left out as the same settings under another name: " + ", ".join(repeats) + "."]
 
 
 if __name__ == "__main__":
