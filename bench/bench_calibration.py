@@ -15,7 +15,7 @@ Fear's calibration (no operating curve) is also measured on the layouts beyond t
 
 The gate table gives each row's 95% Wilson interval and says under it where issue #11's target is met
 (:class:`studies.calibrate.GateTarget`): as read, and where the episodes decide it (the interval wholly under or over
-the target's share); at 100 episodes a row of 2-9 violations is undecided either way.
+the target's share); at 100 episodes a row of 1-9 violations is undecided either way.
 
 Targets (issue #11): fear AUROC >= 0.85 for "violation within 1 s"; the operating curve above random and
 curiosity-only gating at every takeover rate. Not a unit test: it takes minutes. Each calibration and each row of

@@ -25,7 +25,7 @@ from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -409,7 +409,7 @@ class GateTarget:
             raise ValueError("a gate row needs at least one episode")
         return violations <= self.violation_share * episodes and takeover_rate <= self.takeover_rate
 
-    def decided(self, violations: int, episodes: int) -> str:
+    def decided(self, violations: int, episodes: int) -> Literal["under", "over", "undecided"]:
         """What the row's episodes can tell about its violation share: ``"under"`` (the 95% Wilson interval lies
         at or under the target's share), ``"over"`` (wholly above it) or ``"undecided"`` (it straddles it: more
         episodes would be needed to say)."""
