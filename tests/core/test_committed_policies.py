@@ -22,15 +22,22 @@ def test_a_committed_policy_carries_a_learning_schedule(checkpoint: Path) -> Non
 
 
 @pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
-def test_a_committed_policy_deploys_its_gate_with_hysteresis(checkpoint: Path) -> None:
+def test_a_committed_policy_deploys_the_gate_its_readme_measured(checkpoint: Path) -> None:
     """The dashboard, ``sage eval --gate`` and the calibration bench build the gate from the checkpoint's config: the
-    defaults deploy the hysteresis (``gate.release=1``) that README, "Calibration of fear", measured, and a refit
-    that rewrote it with the paper's 0 would silently change what a person supervising the robot gets."""
+    defaults deploy the hysteresis (``gate.release=1``), the 1 s hold and the geometric threshold that README,
+    "Calibration of fear", measured; a refit that rewrote them with the paper's defaults would silently change what
+    a person supervising the robot gets."""
     from core.agents import load_agent
 
     gate = load_agent(checkpoint.parent).make_gate()
     assert gate.cfg.release == 1.0
     assert gate.release_level(0.5) == pytest.approx(gate.threshold.tau_min)
+    assert gate.cfg.hold_seconds == 1.0
+    threshold = gate.threshold
+    assert 0.0 < threshold.tau_min < threshold.tau_max
+    # halfway between the bounds by ratio, which the paper's linear form would put at their arithmetic mean
+    assert threshold.at(0.5) == pytest.approx((threshold.tau_min * threshold.tau_max) ** 0.5)
+    assert threshold.at(0.5) < (threshold.tau_min + threshold.tau_max) / 2
 
 
 def test_adapting_from_the_default_ugv_policy_updates_it(tmp_path: Path) -> None:
