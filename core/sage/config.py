@@ -119,7 +119,8 @@ class GateConfig:
     the same equation on log τ, τ = τ_min^ρ τ_max^(1-ρ), so that a step of ρ moves τ by the same ratio whatever the
     bounds' spread. Where the fear of familiar states has a long tail (SUMO's bounds lie a factor 10 apart: 0.056 and
     0.576) the linear mean of the bounds sits above almost all of it, and curiosity that carries no danger (SUMO's
-    AUROC 0.51) leaves τ there; README, "Calibration of fear", compares the two."""
+    AUROC 0.51) leaves τ there; README, "Calibration of fear", compares the two. The committed default policies
+    deploy ``geometric``; new runs and the studies keep the paper's ``linear``."""
     curiosity_ema: float = 0.02
     """Rate of the exponential moving average of curiosity that ρ compares the current curiosity with."""
     curiosity_sharpness: float = 2.0
