@@ -24,6 +24,7 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 
+from core.dotted import replaced
 from core.loop import Policy
 from core.scene import Scene
 from sims.highway.adversary import Event, resample
@@ -124,7 +125,11 @@ def predict_ego_path(
 
 
 class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
-    """Logged highway scenario replay (``mode="normal"``) or CAT-style adversarial variants."""
+    """Logged highway scenario replay (``mode="normal"``) or CAT-style adversarial variants.
+
+    Keyword overrides change the :class:`~sims.highway.config.HighwayConfig` with dotted names, e.g.
+    ``HighwayEnv(split="train", **{"expert.horizon": 1.0})`` (``sage train --env expert.horizon=1.0``).
+    """
 
     metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 - gymnasium's convention
 
@@ -138,6 +143,7 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
         custom_spec: ScenarioSpec | None = None,
         scene_rays: bool | None = None,
         render_mode: str | None = None,
+        **overrides: Any,
     ) -> None:
         if mode not in ("normal", "adversarial"):
             raise ValueError(f"unknown mode {mode!r}; choose normal or adversarial")
@@ -150,7 +156,7 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
         self.scenario_id = None if scenario_id is None else int(scenario_id)
         self.custom_spec = custom_spec
         """A scenario outside the pool (``scenarios.custom_spec``), used instead of the split when given."""
-        self.cfg = config or DEFAULT
+        self.cfg = replaced(config or DEFAULT, overrides, "highway")
         if scene_rays is not None:
             self.cfg = dataclasses.replace(self.cfg, scene_rays=scene_rays)
         self.ego_predictor = ego_predictor

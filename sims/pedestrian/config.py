@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any
+
+from core.dotted import replaced
 
 
 @dataclass(frozen=True)
@@ -76,12 +78,7 @@ def default_config() -> PedestrianConfig:
 
 def with_overrides(config: PedestrianConfig, overrides: dict[str, Any]) -> PedestrianConfig:
     """``config`` with fields replaced; an unknown name is a clear error."""
-    known = {f.name for f in fields(config)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"unknown pedestrian config field(s) {unknown}; known: {sorted(known)}")
-    values = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
-    return replace(config, **values)
+    return replaced(config, overrides, "pedestrian")
 
 
 __all__ = ["PedestrianConfig", "default_config", "with_overrides"]

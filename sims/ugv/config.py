@@ -7,8 +7,10 @@ Values follow the paper's field tests where it gives them (270° lidar in 54 sec
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from typing import Any, Literal
+
+from core.dotted import replaced
 
 
 @dataclass(frozen=True)
@@ -143,17 +145,4 @@ class UGVConfig:
 
     def updated(self, overrides: dict[str, Any]) -> UGVConfig:
         """A copy with dotted overrides applied, e.g. ``{"lidar.backend": "pymunk", "time_limit": 30}``."""
-        config: Any = self
-        for key, value in overrides.items():
-            config = _replace_dotted(config, key, key.split("."), value)
-        return config
-
-
-def _replace_dotted(obj: Any, key: str, path: list[str], value: Any) -> Any:
-    names = {f.name for f in fields(obj)}
-    head = path[0]
-    if head not in names:
-        raise ValueError(f"unknown UGV config field {key!r}: no {head!r} among {', '.join(sorted(names))}")
-    if len(path) == 1:
-        return replace(obj, **{head: value})
-    return replace(obj, **{head: _replace_dotted(getattr(obj, head), key, path[1:], value)})
+        return replaced(self, overrides, "UGV")

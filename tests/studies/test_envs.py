@@ -49,3 +49,20 @@ def test_env_overrides_are_read_as_json_where_they_parse_and_reach_every_env() -
     with pytest.raises(ValueError, match="unknown UGV config field"):
         setup = prepare_training("ugv", scenario="3", env={"expert.yield": False})
         setup.make_env("3")
+
+
+def test_highway_takes_dotted_env_overrides_into_its_world_expert_and_adversary() -> None:
+    """``sage train --sim highway --env expert.horizon=0.5``: the override reaches the config the scripted expert
+    and the CAT adversary read, on every env of the run; a typo is an error, not a silent default."""
+    from studies.training import prepare_training
+
+    setup = prepare_training("highway", scenario="train", env={"expert.horizon": 0.5, "adversary.risk_weight": 2.0})
+    env = setup.make_env("train").unwrapped
+    try:
+        assert env.cfg.expert.horizon == 0.5 and env.expert.cfg.expert.horizon == 0.5
+        assert env.cfg.adversary.risk_weight == 2.0
+        assert env.cfg.dt == 0.1  # the rest stays the default
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match=r"unknown highway config field 'expert\.horizn'"):
+        prepare_training("highway", scenario="train", env={"expert.horizn": 0.5}).make_env("train")
