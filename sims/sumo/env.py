@@ -52,6 +52,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from core.dotted import replaced
 from core.scene import Scene
 from sims.sumo import engine
 from sims.sumo import scene as drawing
@@ -108,10 +109,7 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def __init__(self, config: SumoConfig | None = None, **overrides: Any) -> None:
         super().__init__()
-        unknown = set(overrides) - CONFIG_FIELDS
-        if unknown:
-            raise TypeError(f"unknown SumoEnv option(s): {', '.join(sorted(unknown))}")
-        self.config = replace(config or SumoConfig(), **overrides)
+        self.config = replaced(config or SumoConfig(), overrides, "SUMO")
         self._check_inputs(self.config)
         self.observation_space = gym.spaces.Box(-1.0, 1.0, (OBS_SIZE,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)

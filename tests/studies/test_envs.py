@@ -66,3 +66,13 @@ def test_highway_takes_dotted_env_overrides_into_its_world_expert_and_adversary(
         env.close()
     with pytest.raises(ValueError, match=r"unknown highway config field 'expert\.horizn'"):
         prepare_training("highway", scenario="train", env={"expert.horizn": 0.5}).make_env("train")
+
+
+@pytest.mark.parametrize(
+    ("sim", "label"), [("ugv", "UGV"), ("pedestrian", "pedestrian"), ("sumo", "SUMO"), ("highway", "highway")]
+)
+def test_every_simulator_names_an_unknown_override_and_what_its_config_has(sim: str, label: str) -> None:
+    import sims
+
+    with pytest.raises(ValueError, match=rf"unknown {label} config field 'no_such': no 'no_such' among \w+"):
+        sims.make(sim, no_such=1)
