@@ -28,7 +28,9 @@ rebuilt buffer of plain seed 0, a scratch measurement),
 so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit. Highway's arms: ``plain``,
 ``lag5`` (the motion input as the mean change over the last 5 steps, 0.5 s, where plain reads the last step's) and
 ``approach`` (each beam's approach rate as a further input, :func:`core.motion.approach_rate`: a new model, fitted
-on 600 policy episodes and 40 demonstrations, about what the deployed model's chain of fits saw).
+on 600 policy episodes and 40 demonstrations, about what the deployed model's chain of fits saw) and ``late-brakes``
+(the demonstrations by the expert with its safety forecast cut to 0.2 s, ``--env expert.horizon=0.2``: it brakes
+late behind a braking leader, so they hold the rear-end collisions the test split's adversaries cause).
 
 A UGV refit takes about 18 minutes of one core, a highway one about 9-16; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
@@ -154,6 +156,9 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             "plain": Arm(),
             "lag5": Arm(["world_model_config.motion_lag=5"]),
             "approach": Arm(approach, {"episodes": 600, "demo_episodes": 40}),
+            # late-brakes: the demonstrations by the expert with its safety forecast cut to 0.2 s (IDM alone, so it
+            # brakes late behind a braking leader): collision-rich data, as the UGV's blind-to-movers demonstrations
+            "late-brakes": Arm(changes={"env": ["expert.horizon=0.2"]}),
         }
     if sim != "ugv":
         return {"plain": Arm()}
