@@ -26,11 +26,13 @@ kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_stat
 with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035 and 0.034 on the
 rebuilt buffer of plain seed 0, a scratch measurement),
 so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit. Highway's arms: ``plain``,
-``lag5`` (the motion input as the mean change over the last 5 steps, 0.5 s, where plain reads the last step's) and
+``lag5`` (the motion input as the mean change over the last 5 steps, 0.5 s, where plain reads the last step's),
 ``approach`` (each beam's approach rate as a further input, :func:`core.motion.approach_rate`: a new model, fitted
-on 600 policy episodes and 40 demonstrations, about what the deployed model's chain of fits saw) and ``late-brakes``
+on 600 policy episodes and 40 demonstrations, about what the deployed model's chain of fits saw), ``late-brakes``
 (the demonstrations by the expert with its safety forecast cut to 0.2 s, ``--env expert.horizon=0.2``: it brakes
-late behind a braking leader, so they hold the rear-end collisions the test split's adversaries cause).
+late behind a braking leader, so they hold the rear-end collisions the test split's adversaries cause) and ``label4s``
+(the violation label 4 s long, ``--set world_model_config.violation_steps=40``, where the checkpoint's is 2 s: the
+expert needs a warning about a second ahead, which may come from the short headways before a leader brakes).
 
 A UGV refit takes about 18 minutes of one core, a highway one about 9-16; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
@@ -159,6 +161,11 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             # late-brakes: the demonstrations by the expert with its safety forecast cut to 0.2 s (IDM alone, so it
             # brakes late behind a braking leader): collision-rich data, as the UGV's blind-to-movers demonstrations
             "late-brakes": Arm(changes={"env": ["expert.horizon=0.2"]}),
+            # label4s: the violation label "within the next 40 steps" (4 s) where the checkpoint's is 2 s. Under gate
+            # + expert most adversarial collisions come after a takeover 0.2-0.5 s before them, where the expert needs
+            # about 1 s (bench_escape.py); a label that reaches past the leader's braking may rank the short headways
+            # that precede it
+            "label4s": Arm(["world_model_config.violation_steps=40"]),
         }
     if sim != "ugv":
         return {"plain": Arm()}
@@ -205,7 +212,8 @@ def main() -> None:
     parser.add_argument(
         "--arms",
         nargs="+",
-        help="ugv: plain scan states16k gated (default: plain scan); highway: plain lag5 approach; else plain",
+        help="ugv: plain scan states16k gated (default: plain scan); "
+        "highway: plain lag5 approach late-brakes label4s; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")
