@@ -6,6 +6,12 @@ README quotes) and each run's figures, with the commit and the command that prod
         [--lead-episodes N] [--compare-gate KEY=VALUE ...] [--readme README.md] [--cpus N | --address HOST:PORT]
     .venv/bin/python bench/bench_calibration.py --gate-only --gate-episodes 300 --compare-gate KEY=VALUE ... \
         [--out DIR] [--readme README.md --block NAME]
+    .venv/bin/python bench/bench_calibration.py --curves-only --sims highway --episodes 150 --curve-episodes 300 \
+        [--out DIR] [--readme README.md --block NAME]
+
+``--curves-only`` leaves the gate tables out: the calibration table and operating curves of ``--sims``' cases, e.g. a
+curve at more episodes where 100 a point left the comparison with random gating undecided (a case's curve is one task:
+at 300 episodes a point, highway's takes about an hour of one core).
 
 ``--compare-gate release=0`` adds a second gate table with those GateConfig settings over the policies' own (there:
 the paper's gate, without the hold's hysteresis that the defaults deploy). Below about 100 ``--episodes`` an AUROC
@@ -87,8 +93,27 @@ def main() -> None:
         help="only the gate table, its gate with the --compare-gate settings (a comparison with the deployed gate's "
         "table of the same episodes), written to --out (default docs/calibration_gate) and the README's --block",
     )
-    parser.add_argument("--block", default="calibration-gate", help="the README block of --gate-only")
-    parser.add_argument("--out", type=Path, help="default: docs/calibration (docs/calibration_gate with --gate-only)")
+    parser.add_argument(
+        "--curves-only",
+        action="store_true",
+        help="only the calibration table and its operating curves (no gate tables), written to --out (default "
+        "docs/calibration_curves) and the README's --block: e.g. a case's curve at more --curve-episodes, where 100 "
+        "leave its points undecided",
+    )
+    parser.add_argument(
+        "--sims",
+        nargs="+",
+        help="only the cases (and layouts) of these simulators (default: every default policy's)",
+    )
+    parser.add_argument(
+        "--block", help="the README block of --gate-only or --curves-only (calibration-gate, calibration-curves)"
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="default: docs/calibration (docs/calibration_gate with --gate-only, docs/calibration_curves with "
+        "--curves-only)",
+    )
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's calibration section")
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
@@ -100,6 +125,15 @@ def main() -> None:
         help="also a second gate table with these GateConfig settings (repeatable), e.g. release=1",
     )
     args = parser.parse_args()
+    if args.gate_only and args.curves_only:
+        parser.error("--gate-only and --curves-only leave nothing to run together; give one")
+    if args.sims:
+        unknown = sorted(set(args.sims) - {sim for _, sim, _ in CASES})
+        if unknown:
+            parser.error(
+                f"--sims: no case on {', '.join(unknown)}; choose from {', '.join(sorted({c[1] for c in CASES}))}"
+            )
+    args.block = args.block or ("calibration-curves" if args.curves_only else "calibration-gate")
     torch.set_num_threads(1)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     rows: list[str] = []
@@ -107,6 +141,8 @@ def main() -> None:
     curves: list[str] = []
     cases = []
     for policy, sim, scenario in CASES:
+        if args.sims and sim not in args.sims:
+            continue
         if (ROOT / "policies" / policy / "checkpoint.pt").is_file():
             cases.append((policy, sim, scenario))
         else:
@@ -127,10 +163,12 @@ def main() -> None:
         for policy, sim, scenario in table_cases
     ]
     compare_rows = [row | {"gate": compare} for row in gate_rows] if compare else []
+    if args.curves_only:
+        gate_rows, compare_rows, table_cases = [], [], []
     if args.gate_only:
         gate_only(args, table_cases, compare_rows or gate_rows, compare, commit.strip())
         return
-    args.out = args.out or ROOT / "docs" / "calibration"
+    args.out = args.out or ROOT / "docs" / ("calibration_curves" if args.curves_only else "calibration")
     lead_episodes = args.lead_episodes or args.gate_episodes
     lead_rows = [row | {"lead": True, "episodes": lead_episodes} for row in gate_rows]
     # one batch, so that the gate table's short rows fill the cores beside the long calibrations
@@ -156,12 +194,19 @@ def main() -> None:
         rows.append(calibration_row(policy, sim, shown_scenario(scenario), report, seconds))
         print(report.summary(), flush=True)
     text = [
-        "# Calibration of the default policies' fear",
+        "# Calibration of the default policies' fear"
+        + (
+            f" ({', '.join(args.sims)}: the operating curves at {args.curve_episodes} episodes a point)"
+            if args.curves_only
+            else ""
+        ),
         "",
         f"Generated by `python bench/bench_calibration.py --episodes {args.episodes} --curve-episodes "
-        f"{args.curve_episodes} --gate-episodes {args.gate_episodes}"
-        + (f" --lead-episodes {args.lead_episodes}" if args.lead_episodes else "")
-        + "".join(f" --compare-gate {item}" for item in args.compare_gate)
+        f"{args.curve_episodes}"
+        + (" --curves-only" if args.curves_only else f" --gate-episodes {args.gate_episodes}")
+        + (f" --sims {' '.join(args.sims)}" if args.sims else "")
+        + (f" --lead-episodes {args.lead_episodes}" if args.lead_episodes and not args.curves_only else "")
+        + "".join(f" --compare-gate {item}" for item in args.compare_gate if not args.curves_only)
         + f"` at commit {commit.strip()}. "
         "Label: a violation within 1 s; policies drive with "
         "their gate and no expert (AUROC, firing); the operating curve adds the scripted expert.",
@@ -191,16 +236,18 @@ def main() -> None:
     ]
     first = len(calibrated) + len(gate_rows)
     last = first + len(compare_rows)
-    text += gate_table(args.gate_episodes, results[len(calibrated) : first])
-    if compare:
-        text += gate_table(args.gate_episodes, results[first:last], compare)
-    text += lead_table(lead_episodes, results[last:])
+    if not args.curves_only:
+        text += gate_table(args.gate_episodes, results[len(calibrated) : first])
+        if compare:
+            text += gate_table(args.gate_episodes, results[first:last], compare)
+        text += lead_table(lead_episodes, results[last:])
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     print(f"wrote {args.out / 'README.md'}")
     if args.readme is not None:
-        include(args.readme, "calibration", args.out / "README.md", "## Calibration of fear")
-        print(f"README section 'calibration' written into {args.readme}")
+        block = args.block if args.curves_only else "calibration"
+        include(args.readme, block, args.out / "README.md", "## Calibration of fear")
+        print(f"README section {block!r} written into {args.readme}")
 
 
 def gate_only(
