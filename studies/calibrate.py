@@ -235,7 +235,7 @@ def calibrate_run(
 
 
 # -- the operating curve ------------------------------------------------------------------------------------------
-class _HoldGate:
+class HoldGate:
     """Fires by its own rule and holds control for ``hold`` steps, as the SAGE gate does."""
 
     def __init__(self, inner: Gate, hold: int) -> None:
@@ -265,7 +265,7 @@ class _HoldGate:
         return self.last_curiosity
 
 
-class ScaledFearGate(_HoldGate):
+class ScaledFearGate(HoldGate):
     """SAGE's rule with τ scaled: fire when F > scale · τ; while the expert holds control, keep it while
     F > scale · the SAGE gate's release level (its hysteresis, :meth:`SageGate.release_level`)."""
 
@@ -280,7 +280,7 @@ class ScaledFearGate(_HoldGate):
         return decision.fear > self.scale * level
 
 
-class RandomGate(_HoldGate):
+class RandomGate(HoldGate):
     """Fires with probability ``p`` at each step, whatever the state."""
 
     def __init__(self, inner: Gate, hold: int, p: float, seed: int = 0) -> None:
@@ -291,7 +291,7 @@ class RandomGate(_HoldGate):
         return bool(self.rng.random() < self.p)
 
 
-class CuriosityGate(_HoldGate):
+class CuriosityGate(HoldGate):
     """Fires when the curiosity of the last transition exceeds ``level`` (curiosity alone, no fear); ``seen`` keeps
     every curiosity it observed (an infinite level makes it a pilot that never fires)."""
 
@@ -308,6 +308,27 @@ class CuriosityGate(_HoldGate):
         if math.isfinite(curiosity):
             self.seen.append(curiosity)
         return curiosity
+
+
+class InfoGate(HoldGate):
+    """Fires when ``danger(info)`` holds for the info dict of the last step (a privileged reference gating: what the
+    simulator knows and the policy's world model must infer, e.g. highway's true time to contact and gaps), with the
+    SAGE gate's hold. Feed it the steps: :func:`run_gated`'s ``listeners`` (its :meth:`watch`)."""
+
+    def __init__(self, inner: Gate, hold: int, danger: Callable[[Mapping[str, Any]], bool]) -> None:
+        super().__init__(inner, hold)
+        self.danger = danger
+        self.info: Mapping[str, Any] = {}
+
+    def reset(self) -> None:
+        super().reset()
+        self.info = {}  # an episode's first step has no last step: nothing to read yet
+
+    def watch(self, record: StepRecord) -> None:
+        self.info = record.info
+
+    def rule(self, decision: GateDecision, held: bool) -> bool:
+        return bool(self.info) and bool(self.danger(self.info))
 
 
 def firing_share(rate: float, hold: int) -> float:
@@ -332,14 +353,17 @@ def _tau_min(gate: Gate) -> float:
     return float(getattr(threshold, "tau_min", math.nan))
 
 
-def _run_gated(
+def run_gated(
     agent: Any,
     make_env: Callable[[], gym.Env[Any, Any]],
     gate: Gate,
     episodes: int,
     max_steps: int | None,
     warn_steps: int = 10,
+    listeners: Sequence[Callable[[StepRecord], None]] = (),
 ) -> dict[str, float]:
+    """The policy with ``gate`` and the scripted expert over ``episodes`` (the evaluation seeds): see
+    :func:`gate_with_expert` for what it returns; ``listeners`` also see every step (e.g. :meth:`InfoGate.watch`)."""
     env = make_env()
     tau_min = _tau_min(gate)
     try:
@@ -357,6 +381,7 @@ def _run_gated(
                 first[0] = (bool(r.takeover), streak[0], list(recent))
 
         runner.step_listeners.append(watch)
+        runner.step_listeners.extend(listeners)
         takeovers = steps = 0
         violations: list[tuple[bool, int, list[tuple[float, bool]]]] = []
         for _ in range(episodes):
@@ -443,7 +468,7 @@ def gate_with_expert(
       coming, and no threshold in the gate's range would have fired).
     """
     agent = load_agent(run)
-    return _run_gated(agent, make_env, agent.make_gate(**gate_overrides), episodes, max_steps, warn_steps)
+    return run_gated(agent, make_env, agent.make_gate(**gate_overrides), episodes, max_steps, warn_steps)
 
 
 def operating_curve(
@@ -467,12 +492,12 @@ def operating_curve(
 
     curve: dict[str, list[dict[str, float]]] = {"fear (SAGE)": [], "random": [], "curiosity only": []}
     for scale in scales:
-        point = _run_gated(agent, make_env, ScaledFearGate(make_gate(), hold, scale), episodes, max_steps)
+        point = run_gated(agent, make_env, ScaledFearGate(make_gate(), hold, scale), episodes, max_steps)
         curve["fear (SAGE)"].append({"knob": scale, **point})
     rates = sorted(p["takeover_rate"] for p in curve["fear (SAGE)"])
     # curiosity-only gating's level comes from the curiosity met on the same episodes with no gating (a pilot)
     pilot = CuriosityGate(make_gate(), hold, math.inf)
-    _run_gated(agent, make_env, pilot, episodes, max_steps)
+    run_gated(agent, make_env, pilot, episodes, max_steps)
 
     def random_at(share: float) -> tuple[float, Gate]:
         return share, RandomGate(make_gate(), hold, share)
@@ -505,7 +530,7 @@ def _at_rate(
     tries = []
     for _ in range(2):
         knob, gate = gate_for_share(share)
-        point = {"knob": knob, **_run_gated(agent, make_env, gate, episodes, max_steps)}
+        point = {"knob": knob, **run_gated(agent, make_env, gate, episodes, max_steps)}
         tries.append(point)
         reached = point["takeover_rate"]
         if abs(reached - rate) <= 0.02 or reached <= 0.0:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from pathlib import Path
 
@@ -59,11 +60,11 @@ def test_calibrate_scores_fear_against_what_happened(deployed: Path, tmp_path: P
 
 def test_gate_with_expert_says_who_was_driving_at_each_violation(deployed: Path) -> None:  # noqa: F811
     from core.agents import load_agent
-    from studies.calibrate import RandomGate, _run_gated
+    from studies.calibrate import RandomGate, run_gated
 
     agent = load_agent(deployed)
     make_env = functools.partial(envs.make, "dynamic")
-    never = _run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=0.0), 8, None)
+    never = run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=0.0), 8, None)
     assert never["takeover_rate"] == 0.0 and never["violation_rate"] > 0
     assert never["violations_under_expert"] == 0 and math.isnan(never["expert_steps_before_violation"])
     # with the policy always driving and the gate never firing, each violation was either within the threshold's
@@ -71,7 +72,7 @@ def test_gate_with_expert_says_who_was_driving_at_each_violation(deployed: Path)
     assert never["violations_handed_back"] == 0
     policy_driving = never["violations_under_threshold"] + never["violations_unforeseen"]
     assert policy_driving == round(never["violation_rate"] * 8)
-    always = _run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=1.0), 8, None)
+    always = run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=1.0), 8, None)
     assert always["takeover_rate"] == 1.0
     # the expert drives every step, so every violation happens under it, after it drove the whole episode so far
     assert always["violations_under_expert"] == round(always["violation_rate"] * 8)
@@ -103,12 +104,12 @@ def test_a_violation_the_gate_missed_is_unforeseen_only_when_fear_stayed_under_t
     deployed: Path,  # noqa: F811
 ) -> None:
     from core.agents import load_agent
-    from studies.calibrate import _run_gated
+    from studies.calibrate import run_gated
 
     agent = load_agent(deployed)
     make_env = functools.partial(envs.make, "dynamic")
-    seen = _run_gated(agent, make_env, _SteadyFear(0.5), 6, None)
-    blind = _run_gated(agent, make_env, _SteadyFear(0.1), 6, None)
+    seen = run_gated(agent, make_env, _SteadyFear(0.5), 6, None)
+    blind = run_gated(agent, make_env, _SteadyFear(0.1), 6, None)
     bad = round(seen["violation_rate"] * 6)
     assert bad > 0 and blind["violation_rate"] == seen["violation_rate"]
     assert seen["violations_under_threshold"] == bad and seen["violations_unforeseen"] == 0
@@ -249,3 +250,39 @@ def test_gate_target_reads_rows_and_says_what_their_episodes_decide() -> None:
     assert target.decided(7, 100) == "undecided"
     with pytest.raises(ValueError, match="episode"):
         target.met(0, 0, 0.1)
+
+
+def test_a_privileged_gate_hands_over_on_the_step_after_the_simulator_reports_danger(
+    deployed: Path,  # noqa: F811
+) -> None:
+    from core.agents import load_agent
+    from studies.calibrate import InfoGate, RandomGate, run_gated
+
+    agent = load_agent(deployed)
+    make_env = functools.partial(envs.make, "dynamic")
+    never = run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=0.0), 8, None)
+    blind = InfoGate(agent.make_gate(), 3, lambda info: False)
+    unmoved = run_gated(agent, make_env, blind, 8, None, listeners=[blind.watch])
+    assert unmoved["takeover_rate"] == 0.0 and unmoved["violation_rate"] == never["violation_rate"] > 0
+    # the point world's info reports the obstacle's proximity as a cost: the gate reads the last step's
+    near = InfoGate(agent.make_gate(), 3, lambda info: info["cost"] > 0.0)
+    steps: list[tuple[int, float, bool]] = []
+    gated = run_gated(
+        agent,
+        make_env,
+        near,
+        8,
+        None,
+        listeners=[near.watch, lambda r: steps.append((r.episode, r.info["cost"], r.takeover))],
+    )
+    assert 0.0 < gated["takeover_rate"] < 1.0
+    pairs = [(before, after) for before, after in itertools.pairwise(steps) if before[0] == after[0]]
+    assert any(before[1] > 0 for before, _ in pairs)
+    for (_, cost, held), (_, _, takeover) in pairs:
+        if cost > 0:
+            assert takeover, "danger reported on a step: the expert drives the next"
+        elif takeover and not held:
+            raise AssertionError("a takeover began without danger reported on the step before it")
+    # an episode's first step has no last step to read: never a takeover there
+    firsts = [step for i, step in enumerate(steps) if i == 0 or steps[i - 1][0] != step[0]]
+    assert not any(takeover for _, _, takeover in firsts)
