@@ -30,7 +30,7 @@ from bench_calibration import table_scenarios  # the sibling bench (this folder 
 
 import sims
 from core.metrics import wilson_interval
-from studies.readme import include
+from studies.readme import publish
 from studies.sweep import run_tasks
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -116,12 +116,7 @@ def main() -> None:
             low, high = wilson_interval(bad, args.episodes)
             cells.append(f"{bad}/{args.episodes} ({low:.0%}-{high:.0%}) | {point['takeover_rate']:.1%}")
         lines.append(f"| highway {scenario} | " + " | ".join(cells) + " |")
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "README.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    if args.readme is not None:
-        include(args.readme, "oracle-gate-highway", args.out / "README.md", "## Calibration of fear")
-        print(f"README section 'oracle-gate-highway' written into {args.readme}")
+    publish(lines, args.out, args.readme, "oracle-gate-highway", "## Calibration of fear")
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ from core.replay import ReplayBuffer
 from core.sage.fear import calibrate
 from core.sage.learner import familiar_for_bounds
 from studies.envs import parse_env_overrides
-from studies.readme import include
+from studies.readme import publish
 
 ROOT = Path(__file__).resolve().parents[1]
 CAPACITY = 250_000
@@ -124,12 +124,7 @@ def main() -> None:
     ]
     for size, mean, sd, secs in rows:
         text.append(f"| {size} | {mean[0]:.3f} ± {sd[0]:.3f} | {mean[1]:.3f} ± {sd[1]:.3f} | {secs:.2f} |")
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "README.md").write_text("\n".join(text) + "\n")
-    print("\n".join(text))
-    if args.readme is not None:
-        include(args.readme, "tau-estimate", args.out / "README.md", "## Calibration of fear")
-        print(f"README section 'tau-estimate' written into {args.readme}")
+    publish(text, args.out, args.readme, "tau-estimate", "## Calibration of fear")
 
 
 if __name__ == "__main__":

@@ -52,6 +52,17 @@ def include(readme: Path, key: str, generated: Path, heading: str) -> None:
     replace_block(readme, key, body, heading)
 
 
+def publish(lines: list[str], out: Path, readme: Path | None, key: str, heading: str) -> None:
+    """A bench's report: ``lines`` written to ``out``/README.md and printed, and (``readme`` given) copied into
+    that README's ``key`` block under ``heading``."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "README.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    if readme is not None:
+        include(readme, key, out / "README.md", heading)
+        print(f"README section {key!r} written into {readme}")
+
+
 def replace_block(readme: Path, key: str, body: str, heading: str) -> None:
     """Put ``body`` between ``<!-- key -->`` and ``<!-- /key -->`` in ``readme`` (appended under ``heading``
     when the markers are not there yet)."""

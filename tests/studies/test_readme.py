@@ -39,3 +39,17 @@ def test_a_generated_page_is_included_with_its_links_made_relative_to_the_readme
     assert "old" not in text and "### Calibration, commit abc" in text
     assert "![curve](docs/calibration/p-3/operating_curve.png)" in text and "(https://x.org/a)" in text
     assert text.endswith("<!-- /calibration -->\n\n## Speed\n") and "## Calibration\n" not in text
+
+
+def test_publish_writes_the_report_and_its_readme_block(tmp_path: Path) -> None:
+    from studies.readme import publish
+
+    readme = tmp_path / "README.md"
+    readme.write_text("# Project\n\n## Calibration of fear\n\n<!-- bench -->\nold\n<!-- /bench -->\n\n## After\n")
+    out = tmp_path / "docs" / "bench"
+    publish(["# A bench", "", "| a |", "|---|", "| 1 |"], out, readme, "bench", "## Calibration of fear")
+    assert (out / "README.md").read_text() == "# A bench\n\n| a |\n|---|\n| 1 |\n"
+    text = readme.read_text()
+    assert "old" not in text and "### A bench" in text and text.index("| 1 |") < text.index("## After")
+    publish(["# Again"], out, None, "bench", "## Calibration of fear")
+    assert (out / "README.md").read_text() == "# Again\n" and "### A bench" in readme.read_text()
