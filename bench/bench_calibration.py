@@ -11,7 +11,7 @@ README quotes) and each run's figures, with the commit and the command that prod
 
 ``--curves-only`` leaves the gate tables out: the calibration table and operating curves of ``--sims``' cases, e.g. a
 curve at more episodes where 100 a point left the comparison with random gating undecided (a case's curve is one task:
-at 300 episodes a point, highway's takes about an hour of one core).
+at 300 episodes a point, highway's took 42 minutes of one core, beside other work).
 
 ``--compare-gate release=0`` adds a second gate table with those GateConfig settings over the policies' own (there:
 the paper's gate, without the hold's hysteresis that the defaults deploy). Below about 100 ``--episodes`` an AUROC
