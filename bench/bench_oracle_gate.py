@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import argparse
 import subprocess
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 POLICY = ROOT / "policies" / "highway-default"
 
 
-def danger_rule(ttc: float | None, gap: float | None) -> Any:
+def danger_rule(ttc: float | None, gap: float | None) -> Callable[[Mapping[str, Any]], bool]:
     """The privileged rule: fire when the true time to contact is under ``ttc`` s or the nearest vehicle is within
     ``gap`` m (None: that part left out)."""
 
