@@ -32,7 +32,9 @@ on 600 policy episodes and 40 demonstrations, about what the deployed model's ch
 (the demonstrations by the expert with its safety forecast cut to 0.2 s, ``--env expert.horizon=0.2``: it brakes
 late behind a braking leader, so they hold the rear-end collisions the test split's adversaries cause) and ``label4s``
 (the violation label 4 s long, ``--set world_model_config.violation_steps=40``, where the checkpoint's is 2 s: the
-expert needs a warning about a second ahead, which may come from the short headways before a leader brakes).
+expert needs a warning about a second ahead, which may come from the short headways before a leader brakes),
+``conflict`` and ``conflict-half`` (the violation head's label also the simulator's traffic conflicts, weight 1 or 0.5,
+``world_model_config.conflict_label_weight``: a near miss, time to contact under 3 s or a vehicle within 1.5 m).
 
 A UGV refit takes about 18 minutes of one core, a highway one about 9-16; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
@@ -166,6 +168,11 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             # about 1 s (bench_escape.py); a label that reaches past the leader's braking may rank the short headways
             # that precede it
             "label4s": Arm(["world_model_config.violation_steps=40"]),
+            # conflict: the violation head also learns the simulator's traffic conflicts (time to contact under 3 s or
+            # a vehicle within 1.5 m; bench_oracle_gate.py: a gate on them meets the target), many more positives than
+            # collisions; conflict-half weighs them 0.5, below a real violation ahead
+            "conflict": Arm(["world_model_config.conflict_label_weight=1"]),
+            "conflict-half": Arm(["world_model_config.conflict_label_weight=0.5"]),
         }
     if sim != "ugv":
         return {"plain": Arm()}
@@ -213,7 +220,7 @@ def main() -> None:
         "--arms",
         nargs="+",
         help="ugv: plain scan states16k gated (default: plain scan); "
-        "highway: plain lag5 approach late-brakes label4s; else plain",
+        "highway: plain lag5 approach late-brakes label4s conflict conflict-half; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")

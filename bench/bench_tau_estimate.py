@@ -83,7 +83,9 @@ def main() -> None:
     assert wm is not None
     buffer = learner.buffer
     obs = torch.from_numpy(buffer.arrays()["obs"])
-    familiar = torch.from_numpy(familiar_for_bounds(buffer, wm.cfg.violation_steps, gate.horizon))
+    familiar = torch.from_numpy(
+        familiar_for_bounds(buffer, wm.cfg.violation_steps, gate.horizon, wm.cfg.conflict_label_weight)
+    )
     motion = torch.from_numpy(buffer.previous_deltas(wm.motion_lag, wm.scan)) if wm.motion else None
     drove = time.perf_counter() - started
     rng = np.random.default_rng(args.seed)

@@ -55,6 +55,9 @@ class ReplayBuffer:
         self.cost = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.float32)
         self.violation = np.zeros(capacity, np.float32)
+        self.conflict = np.zeros(capacity, np.float32)
+        """The simulator's traffic conflict flag (``info["conflict"]``: a near miss, e.g. highway's time to contact
+        under 3 s; 0 where the simulator reports none): a label the world model may learn besides violations."""
         self.takeover = np.zeros(capacity, bool)
         self.size = 0
         self.pos = 0
@@ -74,6 +77,7 @@ class ReplayBuffer:
         *,
         cost: float = 0.0,
         violation: bool = False,
+        conflict: float = 0.0,
         takeover: bool = False,
         a_rl: np.ndarray | None = None,
         a_expert: np.ndarray | None = None,
@@ -91,6 +95,7 @@ class ReplayBuffer:
         self.cost[i] = cost
         self.terminated[i] = float(terminated)
         self.violation[i] = float(violation)
+        self.conflict[i] = float(conflict)
         self.takeover[i] = bool(takeover) and a_expert is not None
         self.pos = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
@@ -106,6 +111,7 @@ class ReplayBuffer:
             record.terminated or record.violation,
             cost=record.cost,
             violation=record.violation,
+            conflict=float(record.info.get("conflict", 0.0)),
             takeover=record.takeover,
             a_rl=record.a_rl,
             a_expert=record.a_expert,
@@ -153,6 +159,7 @@ class ReplayBuffer:
             "reward": self.reward[:n],
             "terminated": self.terminated[:n],
             "violation": self.violation[:n],
+            "conflict": self.conflict[:n],
         }
 
     def _chronology(self) -> tuple[np.ndarray, np.ndarray]:

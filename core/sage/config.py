@@ -94,6 +94,13 @@ class WorldModelConfig:
     cost itself as a soft early warning (the UGV's proximity cost), 0 violations alone. Lower weights keep fear on
     a safe close pass (a narrow passage) below the fear before a real violation, which data with violations in it
     can teach."""
+    conflict_label_weight: float = 0.0
+    """Weight w of the simulator's traffic conflict flag (``info["conflict"]``, a near miss: highway's time to
+    contact under 3 s or a vehicle within 1.5 m) in the violation head's label, max(w · conflict, violation soon,
+    ...). 0: violations alone, the paper's ĉ. Above 0, ĉ also predicts conflicts, which precede most collisions
+    and happen far more often, so the head learns the approach to danger from many more positives; fear then means
+    "a violation or a near miss ahead", no longer a violation probability alone. The flag comes from the simulator
+    (privileged) at training time only: the model still reads the observation alone."""
     logvar_bound_weight: float = 0.01
     """Weight of the PETS term ``sum(max_logvar) - sum(min_logvar)`` that keeps the learnable bounds tight."""
 

@@ -49,14 +49,19 @@ SAFE_LABEL = 0.1
 dense proximity cost of 0.3 near a wall is not a state the gate should learn to leave alone)."""
 
 
-def familiar_for_bounds(buffer: ReplayBuffer, violation_steps: int, horizon: int) -> np.ndarray:
+def familiar_for_bounds(
+    buffer: ReplayBuffer, violation_steps: int, horizon: int, conflict_weight: float = 0.0
+) -> np.ndarray:
     """Per stored row (the order of :meth:`ReplayBuffer.arrays`): whether the state counts as safe for the
     threshold bounds, the states whose fear a gate should leave alone: cost below :data:`SAFE_LABEL`, and no
     violation within all that fear looks at, the m = ``horizon`` rollout steps and then the violation label's own
     ``violation_steps``. A state 1.2 s before a collision, where fear should rise, is not familiar; counted as
-    such (the label's window alone ends at 1 s), it lifts τ above the fear that warns of the collision."""
+    such (the label's window alone ends at 1 s), it lifts τ above the fear that warns of the collision. Where the
+    world model also learns conflicts (``conflict_weight``, its ``conflict_label_weight``), a conflict is no
+    familiar state either."""
     ahead = buffer.violation_soon(violation_steps + horizon)
-    return np.maximum(buffer.arrays()["cost"], ahead) < SAFE_LABEL
+    data = buffer.arrays()
+    return np.maximum.reduce([data["cost"], ahead, conflict_weight * data["conflict"]]) < SAFE_LABEL
 
 
 class ActorPolicy:
@@ -309,7 +314,14 @@ class BaseLearner:
         wm = self.world_model
         motion = self.buffer.previous_deltas(wm.motion_lag, wm.scan) if wm.motion else None
         report = self.world_model.fit(
-            data["obs"], data["action"], data["next_obs"], data["cost"], self.rng, violation_soon=labels, motion=motion
+            data["obs"],
+            data["action"],
+            data["next_obs"],
+            data["cost"],
+            self.rng,
+            violation_soon=labels,
+            motion=motion,
+            conflict=data["conflict"],
         )
         self._steps_at_last_fit = self.env_steps
         self.last_fit = report
@@ -318,7 +330,9 @@ class BaseLearner:
         idx = np.arange(n) if n <= wanted else np.sort(self.rng.choice(n, size=wanted, replace=False))
         starts = torch.from_numpy(data["obs"][idx])
         safe = torch.from_numpy(
-            familiar_for_bounds(self.buffer, self.world_model.cfg.violation_steps, self.cfg.gate.horizon)[idx]
+            familiar_for_bounds(
+                self.buffer, wm.cfg.violation_steps, self.cfg.gate.horizon, wm.cfg.conflict_label_weight
+            )[idx]
         )
         start_motion = None if motion is None else torch.from_numpy(motion[idx])
         self.last_calibration = CalibrationSample(

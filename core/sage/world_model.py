@@ -217,12 +217,13 @@ class EnsembleWorldModel(nn.Module):
         rng: np.random.Generator,
         violation_soon: np.ndarray | None = None,
         motion: np.ndarray | None = None,
+        conflict: np.ndarray | None = None,
     ) -> FitReport:
         """Train on real transitions with a held-out split; keep each member's best held-out snapshot.
 
         ``violation_soon``: the classifier's labels (1 when a violation happens within the next
         ``violation_steps``), joined by the clipped ``cost`` times ``cost_label_weight`` as a soft label (a dense
-        cost warns earlier).
+        cost warns earlier) and by the simulator's ``conflict`` flags times ``conflict_label_weight``.
         The normalisers are refitted on this data first, preserving the function the network computes (see the
         module docstring).
         """
@@ -235,6 +236,8 @@ class EnsembleWorldModel(nn.Module):
         label = cfg.cost_label_weight * np.clip(cost, 0.0, 1.0)
         if violation_soon is not None:
             label = np.maximum(label, np.clip(violation_soon, 0.0, 1.0))
+        if conflict is not None and cfg.conflict_label_weight > 0:
+            label = np.maximum(label, cfg.conflict_label_weight * np.clip(conflict, 0.0, 1.0))
         label = label.astype(np.float32)
         inputs = self.inputs(
             torch.as_tensor(obs, dtype=torch.float32),

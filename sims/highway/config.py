@@ -48,6 +48,12 @@ class RewardConfig:
     """Per metre of progress along the route."""
     crash_reward: float = -1.0
     offroad_reward: float = -10.0
+    conflict_ttc: float = 3.0
+    """A step is a traffic conflict (``info["conflict"]``, a near miss; no cost, no reward) when the time to contact
+    with the vehicle ahead is under this [s]: the usual surrogate safety threshold of traffic conflict studies
+    (1.5-3 s; the upper end, since the expert needs about a second to resolve one)."""
+    conflict_gap: float = 1.5
+    """... or when any vehicle's body is within this of the ego's [m] (a cut-in alongside has no time to contact)."""
 
 
 @dataclass(frozen=True)

@@ -306,6 +306,9 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
             "ttc": res.ttc if res else self.cfg.sensor.ttc_cap,
             "gap": res.lead_gap if res else self.cfg.sensor.gap_cap,
             "nearest_gap": res.gap if res else self.cfg.sensor.gap_cap,
+            "conflict": bool(
+                res is not None and (res.ttc < self.cfg.reward.conflict_ttc or res.gap < self.cfg.reward.conflict_gap)
+            ),
             "progress": self.world.progress,
             "scenario_id": self.current_id,
             "mode": self.current_mode,
