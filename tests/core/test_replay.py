@@ -122,3 +122,16 @@ def test_previous_deltas_over_a_lag_are_the_mean_change_since_k_steps_back() -> 
     by_state = dict(zip(buffer.obs[: buffer.size, 0].tolist(), deltas.tolist(), strict=True))
     assert by_state == {0.0: 0.0, 1.0: 1.0, 3.0: 1.5, 6.0: 2.5, 20.0: 0.0, 22.0: 2.0}
     assert buffer.previous_deltas(lag=1)[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 0.0, 2.0]
+
+
+def test_the_simulators_conflict_flag_is_kept_beside_the_violation() -> None:
+    """info["conflict"] (a near miss the simulator reports) is stored per row; a step without one stores 0."""
+    buffer = ReplayBuffer(3, 2, 10)
+    for i in range(4):
+        step = record(i, takeover=False)
+        if i == 2:
+            step.info["conflict"] = True
+        buffer.add_record(step)
+    data = buffer.arrays()
+    assert data["conflict"].tolist() == [0.0, 0.0, 1.0, 0.0]
+    assert data["violation"].sum() == 0 and data["cost"].tolist() == [0.25] * 4

@@ -222,3 +222,17 @@ def test_states_fear_looks_past_to_a_violation_are_not_familiar_for_the_bounds()
     # rows 16-30 reach the violation within 15 steps; rows 16-20 lie beyond the label's own 10-step window
     assert not familiar[16:31].any() and not familiar[5]
     assert familiar[:5].all() and familiar[6:16].all()
+
+
+def test_conflicts_are_not_familiar_for_the_bounds_where_the_model_learns_them() -> None:
+    """With ``conflict_label_weight`` above 0 a conflict is a positive label, so its state is no familiar state for
+    τ's bounds either; with 0 (the paper's ĉ) conflicts change nothing."""
+    from core.replay import ReplayBuffer
+    from core.sage.learner import familiar_for_bounds
+
+    buffer = ReplayBuffer(1, 1, 100)
+    for t in range(20):  # no violation; conflicts at steps 8 and 9
+        buffer.add([t], [0.0], 0.0, [t + 1], False, conflict=float(t in (8, 9)))
+    assert familiar_for_bounds(buffer, violation_steps=10, horizon=5).all()
+    familiar = familiar_for_bounds(buffer, violation_steps=10, horizon=5, conflict_weight=0.5)
+    assert not familiar[8:10].any() and familiar[:8].all() and familiar[10:].all()

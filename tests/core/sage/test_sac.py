@@ -231,6 +231,34 @@ def test_a_larger_buffer_is_calibrated_on_distinct_states(monkeypatch: pytest.Mo
     assert len(starts) == 200 and len(torch.unique(starts, dim=0)) == 200  # drawn without replacement
 
 
+def test_a_refit_learns_the_buffers_conflicts_and_keeps_them_out_of_the_bounds(monkeypatch: pytest.MonkeyPatch) -> None:
+    """fit_world_model hands the buffer's conflict flags to the world model's fit, and with conflict_label_weight
+    above 0 the calibration of τ's bounds leaves the conflict states out of its familiar ones."""
+    import core.sage.learner as learner_module
+
+    learner = filled("sage")
+    wm = learner.world_model
+    assert wm is not None
+    wm.cfg.conflict_label_weight = 0.5
+    n = len(learner.buffer)
+    learner.buffer.conflict[:n] = (np.arange(n) % 7 == 3).astype(np.float32)
+    learner.buffer.cost[:n] = 0.0  # only the conflicts (and the violations ahead) make a state unfamiliar
+    fitted: list[np.ndarray] = []
+    real_fit = wm.fit
+    monkeypatch.setattr(wm, "fit", lambda *a, **k: fitted.append(k["conflict"]) or real_fit(*a, **k))
+    safe: list[torch.Tensor] = []
+    real = learner_module.calibrate
+    monkeypatch.setattr(
+        learner_module,
+        "calibrate",
+        lambda wm, policy, obs, *a, **k: safe.append(k["safe"]) or real(wm, policy, obs, *a, **k),
+    )
+    learner.fit_world_model()
+    assert np.array_equal(fitted[0], learner.buffer.conflict[:n])
+    # the buffer is under calibration_states: the bounds see every state, in the buffer's order
+    assert not safe[0][learner.buffer.conflict[:n] > 0].any() and bool(safe[0].any())
+
+
 # -- baselines -----------------------------------------------------------------------------------------
 def test_td3_updates_critic_every_step_and_actor_every_other() -> None:
     learner = filled("td3")

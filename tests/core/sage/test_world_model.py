@@ -268,3 +268,23 @@ def test_the_dense_cost_joins_the_violation_label_with_its_weight() -> None:
             mean, _ = model.predict(*high)
         predicted[weight] = float(torch.sigmoid(mean[..., OBS]).mean())
     assert predicted[1.0] > 0.6 and predicted[0.0] < 0.1, predicted
+
+
+def test_conflicts_join_the_violation_label_only_with_their_weight() -> None:
+    """conflict_label_weight w: the simulator's conflict flags are a label of weight w (ĉ follows them where no
+    violation ever happens); 0, the default: they are ignored and ĉ stays low."""
+    rng = np.random.default_rng(4)
+    s, a, nxt, _ = known_system(1500, rng)
+    conflict = (s[:, 0] > 0.5).astype(np.float32)  # a near miss on a quarter of the states, never a violation
+    near = torch.as_tensor(s[s[:, 0] > 0.7]), torch.as_tensor(a[s[:, 0] > 0.7])
+    far = torch.as_tensor(s[s[:, 0] < 0.0]), torch.as_tensor(a[s[:, 0] < 0.0])
+    predicted = {}
+    for weight in (1.0, 0.5, 0.0):
+        model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=600, conflict_label_weight=weight))
+        zero = np.zeros(len(s), np.float32)
+        model.fit(s, a, nxt, zero, rng, violation_soon=zero, conflict=conflict)
+        with torch.no_grad():
+            predicted[weight] = [float(torch.sigmoid(model.predict(*x)[0][..., OBS]).mean()) for x in (near, far)]
+    assert predicted[1.0][0] > 0.6 and predicted[1.0][1] < 0.1, predicted
+    assert 0.3 < predicted[0.5][0] < 0.7 and predicted[0.5][1] < 0.1, predicted
+    assert predicted[0.0][0] < 0.1, predicted

@@ -195,3 +195,35 @@ class _Always:
 
     def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
         return 0.0
+
+
+@pytest.mark.parametrize(
+    ("dx", "dy", "speed", "conflict"),
+    [
+        (60.0, 0.0, 30.0, False),  # a leader far ahead and pulling away
+        (30.0, 0.0, 0.0, True),  # a stopped car 30 m ahead at 23 m/s: contact in about a second
+        (0.0, 3.0, None, True),  # a car alongside at the ego's speed, 1 m between the bodies: no contact time
+        (0.0, 4.5, None, False),  # the same one lane further over, 2.5 m between the bodies
+    ],
+)
+def test_a_near_miss_is_a_conflict_with_no_cost(dx: float, dy: float, speed: float | None, conflict: bool) -> None:
+    """info["conflict"]: time to contact under RewardConfig.conflict_ttc or a body within conflict_gap; a label for
+    the world model, never a cost, a violation or the end of the episode."""
+    env = _env()
+    env.reset(seed=0)
+    ego_speed = float(env.world.ego.speed)  # type: ignore[union-attr]
+    _only(env, dx=dx, dy=dy, speed=ego_speed if speed is None else speed)
+    _, _, terminated, _, info = env.step(COAST)
+    assert info["conflict"] is conflict
+    assert info["cost"] == 0.0 and info["violation"] is False and not terminated
+    near = info["ttc"] < DEFAULT.reward.conflict_ttc or info["nearest_gap"] < DEFAULT.reward.conflict_gap
+    assert near is conflict
+
+
+def test_the_conflict_thresholds_come_from_the_config() -> None:
+    """The same stopped car 30 m ahead is no conflict where the config asks for contact within half a second."""
+    env = _env(**{"reward.conflict_ttc": 0.5})
+    env.reset(seed=0)
+    _only(env, dx=30.0, dy=0.0, speed=0.0)
+    _, _, _, _, info = env.step(COAST)
+    assert 0.5 < info["ttc"] < DEFAULT.reward.conflict_ttc and info["conflict"] is False
