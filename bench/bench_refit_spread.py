@@ -239,9 +239,23 @@ def main() -> None:
         type=Path,
         help="an earlier run's rows.json: an arm whose refits are not kept under --runs takes its rows from there",
     )
+    parser.add_argument(
+        "--scales",
+        nargs="+",
+        type=float,
+        default=[],
+        help="also gate rows with τ scaled by each (fear > scale · τ): the arms compared at about equal takeover",
+    )
+    parser.add_argument(
+        "--scale-scenarios",
+        nargs="+",
+        help="the scenarios of the --scales rows (default: the table's; choose arms on the train splits)",
+    )
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()
+    if any(scale <= 0 for scale in args.scales):
+        parser.error("--scales must be positive")
     if len(args.seeds) < 2:
         parser.error("give at least two --seeds: the spread over refits is the point")
     settings = arms(args.sim)
@@ -312,6 +326,37 @@ def main() -> None:
         address=args.address,
         cpus=args.cpus,
     )
+    scale_scenarios = args.scale_scenarios or rows_of
+    unknown_scenarios = [scenario for scenario in scale_scenarios if scenario not in rows_of]
+    if unknown_scenarios:
+        parser.error(f"--scale-scenarios: {', '.join(unknown_scenarios)} not in the table's {', '.join(rows_of)}")
+    scaled_cases = [
+        (arm, seed, scenario, scale)
+        for arm in args.arms
+        if arm not in reused
+        for seed in args.seeds
+        for scenario in scale_scenarios
+        for scale in args.scales
+    ]
+    scaled_rows = (
+        run_tasks(
+            gate_row,
+            [
+                {"folder": str(where[arm, seed]), "sim": args.sim, "scenario": scenario, "episodes": args.episodes}
+                | {"scale": scale}
+                for arm, seed, scenario, scale in scaled_cases
+            ],
+            [
+                f"gate (τ x {scale:g}) + expert: {arm} seed {seed} on {scenario}"
+                for arm, seed, scenario, scale in scaled_cases
+            ],
+            address=args.address,
+            cpus=args.cpus,
+        )
+        if scaled_cases
+        else []
+    )
+    scaled = dict(zip(scaled_cases, scaled_rows, strict=True))
     measured = dict(zip(cases, rows, strict=True))
     measured.update({key: row for key, row in earlier.items() if key[0] in reused})
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
@@ -319,13 +364,19 @@ def main() -> None:
         {arm for (arm, _), folder in folders.items() if arm not in reused and predates_calibration_states(folder)}
     )
     text = report(args, settings, measured, commit.stdout.strip(), older, merged_arms, deployed_commit)
+    if scaled:
+        text += scaled_report(args, measured, scaled)
     if reused:
         source = rows_source(args)
         text[2] += f" Rows of {', '.join(reused)}: from `{source}` (at {earlier_commit(args.rows)}; refits not kept)."
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     (args.out / "rows.json").write_text(
-        json.dumps([{"arm": a, "seed": s, "scenario": sc, **measured[a, s, sc]} for a, s, sc in cases], indent=1)
+        json.dumps(
+            [{"arm": a, "seed": s, "scenario": sc, **measured[a, s, sc]} for a, s, sc in cases]
+            + [{"arm": a, "seed": s, "scenario": sc, "scale": k, **scaled[a, s, sc, k]} for a, s, sc, k in scaled],
+            indent=1,
+        )
     )
     print("\n".join(text))
     if args.readme is not None:
@@ -349,8 +400,10 @@ def rows_flag(args: argparse.Namespace) -> str:
 
 
 def earlier_rows(path: Path) -> dict[tuple[str, int | str, str], dict[str, Any]]:
-    """The rows of an earlier run (its ``rows.json``), by (arm, seed, scenario)."""
-    return {(row["arm"], row["seed"], row["scenario"]): row for row in json.loads(path.read_text())}
+    """The rows of an earlier run (its ``rows.json``), by (arm, seed, scenario); its τ-scaled rows left out."""
+    return {
+        (row["arm"], row["seed"], row["scenario"]): row for row in json.loads(path.read_text()) if "scale" not in row
+    }
 
 
 def earlier_commit(rows: Path) -> str:
@@ -413,18 +466,25 @@ def refit(spec: TrainSpec) -> str:
     return str(run_training(spec).out)
 
 
-def gate_row(folder: str, scenario: str, episodes: int, sim: str = "ugv") -> dict[str, Any]:
-    """One Ray task: the gate + scripted expert on a scenario (cached in the refit's folder)."""
-    from studies.calibrate import gate_with_expert
+def gate_row(folder: str, scenario: str, episodes: int, sim: str = "ugv", scale: float | None = None) -> dict[str, Any]:
+    """One Ray task: the gate + scripted expert on a scenario (cached in the refit's folder); ``scale``: the gate
+    fires where fear exceeds ``scale`` times its τ (:class:`studies.calibrate.ScaledFearGate`, the operating curve's
+    knob), None: the gate as deployed."""
+    from core.agents import load_agent
+    from studies.calibrate import ScaledFearGate, run_gated
 
     shown = Path(scenario).stem
-    cache = Path(folder) / f"gate-{shown}-{episodes}.json"
+    cache = Path(folder) / f"gate-{shown}-{episodes}{'' if scale is None else f'-tau{scale:g}'}.json"
     if cache.is_file():
         return json.loads(cache.read_text())
     d = sims.descriptor(sim)
     path = str(ROOT / scenario) if scenario.endswith(".yaml") else scenario
     started = time.perf_counter()
-    point = gate_with_expert(folder, lambda: d.make(path), episodes, warn_steps=max(1, round(1.0 / d.dt)))
+    agent = load_agent(folder)
+    gate = agent.make_gate()
+    if scale is not None:
+        gate = ScaledFearGate(gate, agent.gate_config().hold, scale)
+    point = run_gated(agent, lambda: d.make(path), gate, episodes, None, warn_steps=max(1, round(1.0 / d.dt)))
     row = {
         "violations": round(point["violation_rate"] * episodes),
         "takeover": float(point["takeover_rate"]),
@@ -544,6 +604,47 @@ def report(
     cells.extend(f"{merged_total[arm]:.0f} | " for arm in merged_arms)
     cells.extend(welch_p(totals[first], totals[arm]) for arm in others)
     lines.append("| all rows | " + " | ".join(cells) + " |")
+    return lines
+
+
+def scaled_report(
+    args: argparse.Namespace,
+    measured: dict[tuple[str, int | str, str], Any],
+    scaled: dict[tuple[str, int | str, str, float], Any],
+) -> list[str]:
+    """The arms at about equal takeover: per scenario and τ scale (1: the gate as deployed, the table above), each
+    arm's episodes with a violation (mean ± 95% over seeds) at its mean takeover rate."""
+    sim = getattr(args, "sim", "ugv")
+    arms_shown = sorted({arm for arm, *_ in scaled}, key=args.arms.index)
+    scenarios = sorted({scenario for _, _, scenario, _ in scaled}, key=table_scenarios(sim).index)
+    scales = sorted({*args.scales, 1.0}, reverse=True)
+    lines = [
+        "",
+        f"#### At about equal takeover: τ scaled (`--scales {' '.join(f'{k:g}' for k in args.scales)}"
+        + (f" --scale-scenarios {' '.join(args.scale_scenarios)}" if args.scale_scenarios else "")
+        + "`)",
+        "",
+        "The gate firing where fear exceeds the scale times its τ (the operating curve's knob, "
+        "`studies.calibrate.ScaledFearGate`; 1: as deployed, the rows above), gate + scripted expert over the same "
+        f"{args.episodes} episodes per refit: episodes with a violation, mean ± 95% over seeds @ mean takeover. An arm "
+        "is better than another where it has fewer violations at no more takeover.",
+        "",
+        "| scenario | τ × | "
+        + " | ".join(args.arms[i] for i in range(len(args.arms)) if args.arms[i] in arms_shown)
+        + " |",
+        "|---|---|" + "---|" * len(arms_shown),
+    ]
+    for scenario in scenarios:
+        for scale in scales:
+            cells = []
+            for arm in arms_shown:
+                rows = [
+                    measured[arm, seed, scenario] if scale == 1.0 else scaled[arm, seed, scenario, scale]
+                    for seed in args.seeds
+                ]
+                takeover = np.mean([row["takeover"] for row in rows])
+                cells.append(f"{interval([row['violations'] for row in rows])} @ {takeover:.0%}")
+            lines.append(f"| {sim} {Path(scenario).name} | {scale:g} | " + " | ".join(cells) + " |")
     return lines
 
 
