@@ -8,6 +8,12 @@ README quotes) and each run's figures, with the commit and the command that prod
         [--out DIR] [--readme README.md --block NAME]
     .venv/bin/python bench/bench_calibration.py --curves-only --sims highway --episodes 150 --curve-episodes 300 \
         [--out DIR] [--readme README.md --block NAME]
+    .venv/bin/python bench/bench_calibration.py --sims highway --episodes 150 --curve-episodes 300 \
+        --gate-episodes 300 [--readme README.md]
+
+``--sims`` alone (no ``--curves-only`` or ``--gate-only``): the whole bench on those simulators' defaults, written to
+``docs/calibration_<sims>`` and the README block ``calibration-<sims>`` (e.g. after a new default policy), so that the
+table of every default (``docs/calibration``, block ``calibration``) is not cut down to them.
 
 ``--curves-only`` leaves the gate tables out: the calibration table and operating curves of ``--sims``' cases, e.g. a
 curve at more episodes where 100 a point left the comparison with random gating undecided (a case's curve is one task:
@@ -133,7 +139,18 @@ def main() -> None:
             parser.error(
                 f"--sims: no case on {', '.join(unknown)}; choose from {', '.join(sorted({c[1] for c in CASES}))}"
             )
-    args.block = args.block or ("calibration-curves" if args.curves_only else "calibration-gate")
+    # the whole bench on some simulators alone (a new default policy measured without rerunning the others') goes
+    # to its own folder and block, so the table of every default stays whole
+    subset = "-".join(args.sims) if args.sims and not (args.curves_only or args.gate_only) else None
+    args.block = args.block or (
+        "calibration-curves"
+        if args.curves_only
+        else "calibration-gate"
+        if args.gate_only
+        else f"calibration-{subset}"
+        if subset
+        else "calibration"
+    )
     torch.set_num_threads(1)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     rows: list[str] = []
@@ -168,7 +185,9 @@ def main() -> None:
     if args.gate_only:
         gate_only(args, table_cases, compare_rows or gate_rows, compare, commit.strip())
         return
-    args.out = args.out or ROOT / "docs" / ("calibration_curves" if args.curves_only else "calibration")
+    args.out = args.out or ROOT / "docs" / (
+        "calibration_curves" if args.curves_only else f"calibration_{subset}" if subset else "calibration"
+    )
     lead_episodes = args.lead_episodes or args.gate_episodes
     lead_rows = [row | {"lead": True, "episodes": lead_episodes} for row in gate_rows]
     # one batch, so that the gate table's short rows fill the cores beside the long calibrations
@@ -198,6 +217,8 @@ def main() -> None:
         + (
             f" ({', '.join(args.sims)}: the operating curves at {args.curve_episodes} episodes a point)"
             if args.curves_only
+            else f" ({', '.join(args.sims)})"
+            if subset
             else ""
         ),
         "",
@@ -245,9 +266,8 @@ def main() -> None:
     (args.out / "README.md").write_text("\n".join(text) + "\n")
     print(f"wrote {args.out / 'README.md'}")
     if args.readme is not None:
-        block = args.block if args.curves_only else "calibration"
-        include(args.readme, block, args.out / "README.md", "## Calibration of fear")
-        print(f"README section {block!r} written into {args.readme}")
+        include(args.readme, args.block, args.out / "README.md", "## Calibration of fear")
+        print(f"README section {args.block!r} written into {args.readme}")
 
 
 def gate_only(
