@@ -70,6 +70,7 @@ def records(source: str, obs_dim: int | None = None, act_dim: int | None = None)
                 truncated=bool(episode["truncated"][t]) or (last and not bool(episode["terminated"][t])),
                 next_obs=next_obs[t].astype(np.float32),
                 wall_time=0.0,
+                info={"conflict": bool(episode["conflict"][t])},
             )
             count += 1
     if count == 0:
@@ -100,6 +101,7 @@ def _session_episodes(path: Path) -> Iterator[dict[str, Any]]:
             "reward": arrays["reward"][idx],
             "cost": np.nan_to_num(arrays["cost"][idx]),
             "violation": arrays["violation"][idx],
+            "conflict": arrays["conflict"][idx],
             "terminated": arrays["terminated"][idx],
             "truncated": arrays["truncated"][idx],
         }
@@ -138,6 +140,7 @@ def _minari_episodes(dataset_id: str) -> Iterator[dict[str, Any]]:
             "reward": np.asarray(episode.rewards, np.float64),
             "cost": np.nan_to_num(info("cost", 0.0)),
             "violation": info("violation", 0.0).astype(bool),
+            "conflict": info("conflict", 0.0).astype(bool),
             "terminated": np.asarray(episode.terminations, bool),
             "truncated": np.asarray(episode.truncations, bool),
         }

@@ -5,7 +5,8 @@ Per episode: ``observations`` (T+1: every step's observation and the last next-o
 to ``infos``, following Minari's convention that ``infos[0]`` belongs to ``reset`` and ``infos[i+1]`` to
 step ``i``: ``takeover`` (bool), ``expert_acted`` (bool: a person or script produced the action),
 ``a_rl`` (the policy's proposal), ``a_expert`` (NaN where no expert acted), ``fear``, ``curiosity``,
-``threshold`` (NaN where the gate computed none), ``cost`` and ``violation``. Scalars are stored with a
+``threshold`` (NaN where the gate computed none), ``cost``, ``violation`` and ``conflict`` (the simulator's
+near-miss flag, a label the world model may learn). Scalars are stored with a
 trailing axis of 1, (T+1, 1), which Minari's arrow storage needs to read them back.
 
 An episode still open when the session stopped (a crash, or the server shut down mid-episode) is
@@ -75,6 +76,7 @@ def episode_buffers(store: SessionStore, session_id: str) -> list[Any]:
             "threshold": _column(arrays["threshold"][idx], np.nan),
             "cost": _column(arrays["cost"][idx], 0.0),
             "violation": _column(arrays["violation"][idx], False),
+            "conflict": _column(arrays["conflict"][idx] > 0, False),
         }
         buffers.append(
             EpisodeBuffer(
@@ -130,7 +132,8 @@ def export_minari(
                 author="sage",
                 description=(
                     f"SAGE session {session_id} on {info.sim} scenario {info.scenario}, policy {info.policy}. "
-                    "infos: takeover, expert_acted, a_rl, a_expert, fear, curiosity, threshold, cost, violation "
+                    "infos: takeover, expert_acted, a_rl, a_expert, fear, curiosity, threshold, cost, violation, "
+                    "conflict "
                     "(infos[0] is the reset row; infos[i+1] belongs to step i)."
                 ),
                 data_format="arrow",

@@ -315,6 +315,9 @@ def ingest(learner: BaseLearner, store: SessionStore, session_id: str, episodes:
                     truncated=bool(arrays["truncated"][i]),
                     next_obs=arrays["next_obs"][i],
                     wall_time=float(arrays["wall_time"][i]),
+                    info={
+                        "conflict": bool(arrays["conflict"][i])
+                    },  # the world model's near-miss label, if it learns it
                 )
             )
             out.steps += 1

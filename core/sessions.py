@@ -87,6 +87,7 @@ CREATE TABLE IF NOT EXISTS steps (
     next_obs BLOB NOT NULL,
     scene BLOB,
     horizon TEXT,
+    conflict INTEGER,
     PRIMARY KEY (episode, t)
 );
 CREATE INDEX IF NOT EXISTS steps_by_segment ON steps (episode, segment);
@@ -286,21 +287,25 @@ class SessionStore:
         return out
 
     def _step_rows(self, session_id: str, episode: int | None, takeover_only: bool = False) -> list[sqlite3.Row]:
+        """The rows of STEP_COLUMNS and then the simulator's conflict flag (NULL in sessions recorded before it
+        was stored)."""
         where = " AND takeover = 1" if takeover_only else ""
         with self._read(session_id) as conn:
+            columns = f"{STEP_COLUMNS}, " + ("conflict" if _has_column(conn, "steps", "conflict") else "NULL")
             if episode is None:
-                sql = f"SELECT {STEP_COLUMNS} FROM steps WHERE 1{where} ORDER BY episode, t"
+                sql = f"SELECT {columns} FROM steps WHERE 1{where} ORDER BY episode, t"
                 return conn.execute(sql).fetchall()
             if conn.execute("SELECT 1 FROM episodes WHERE episode = ?", (episode,)).fetchone() is None:
                 raise SessionError(f"session {session_id!r} has no episode {episode}")
-            sql = f"SELECT {STEP_COLUMNS} FROM steps WHERE episode = ?{where} ORDER BY t"
+            sql = f"SELECT {columns} FROM steps WHERE episode = ?{where} ORDER BY t"
             return conn.execute(sql, (episode,)).fetchall()
 
     def steps(self, session_id: str, episode: int | None = None, takeover_only: bool = False) -> dict[str, np.ndarray]:
         """An episode's (or the whole session's) steps as column arrays.
 
         Vectors (obs, next_obs, a_rl, a_expert, action) are float32 ``(T, dim)``; ``a_expert`` is NaN
-        where the expert did not act. NaN fear/threshold/curiosity mean the gate computed none.
+        where the expert did not act. NaN fear/threshold/curiosity mean the gate computed none. ``conflict``: the
+        simulator's near-miss flag (``info["conflict"]``), 0 where it reported none or the session predates it.
         ``takeover_only``: just the steps under expert control (the intervention samples fine-tuning uses).
         """
         return steps_to_arrays(self._step_rows(session_id, episode, takeover_only))
@@ -418,12 +423,19 @@ class SessionStore:
         return sink.getvalue().to_pybytes()
 
 
+def _has_column(conn: sqlite3.Connection, table: str, column: str) -> bool:
+    return any(row[1] == column for row in conn.execute(f"PRAGMA table_info({table})").fetchall())
+
+
 def steps_to_arrays(rows: list[sqlite3.Row] | list[tuple[Any, ...]]) -> dict[str, np.ndarray]:
+    """Column arrays of step rows: STEP_COLUMNS' values, then (optionally) the conflict flag."""
     names = [c.strip() for c in STEP_COLUMNS.split(",")]
-    cols: dict[str, list[Any]] = {n: [] for n in names}
+    cols: dict[str, list[Any]] = {n: [] for n in [*names, "conflict"]}
     for row in rows:
-        for n, v in zip(names, tuple(row), strict=True):
+        values = tuple(row)
+        for n, v in zip(names, values[: len(names)], strict=True):
             cols[n].append(v)
+        cols["conflict"].append(values[len(names)] if len(values) > len(names) else None)
 
     def vectors(name: str, like: str | None = None) -> np.ndarray:
         blobs = cols[name]
@@ -455,6 +467,7 @@ def steps_to_arrays(rows: list[sqlite3.Row] | list[tuple[Any, ...]]) -> dict[str
         "reward": floats("reward"),
         "cost": floats("cost"),
         "violation": np.array(cols["violation"], dtype=bool),
+        "conflict": np.array([0.0 if v is None else float(v) for v in cols["conflict"]], dtype=np.float32),
         "terminated": np.array(cols["terminated"], dtype=bool),
         "truncated": np.array(cols["truncated"], dtype=bool),
         "a_rl": vectors("a_rl"),
@@ -550,9 +563,12 @@ class SessionWriter:
             _blob(record.next_obs),
             scene_json,
         )
-        horizon = record.info.get("horizon") if isinstance(record.info, dict) else None
+        info = record.info if isinstance(record.info, dict) else {}
+        horizon = info.get("horizon")
         horizon_json = json.dumps(horizon, separators=(",", ":")) if horizon is not None else None
-        self._queue.put(("step", row, (static_json, horizon_json)))
+        # the simulator's near-miss flag: a label the world model may learn when fine-tuning on this session
+        conflict = int(bool(info["conflict"])) if "conflict" in info else None
+        self._queue.put(("step", row, (static_json, horizon_json, conflict)))
 
     def on_episode(self, summary: EpisodeSummary) -> None:
         if self._closed:
@@ -642,11 +658,12 @@ class SessionWriter:
 
     def _commit(self, conn: sqlite3.Connection, items: list[Any], known_episodes: set[int]) -> None:
         placeholders = ",".join("?" * len(STEP_COLUMNS.split(",")))
+        insert = f"INSERT OR REPLACE INTO steps ({STEP_COLUMNS}, horizon, conflict) VALUES ({placeholders}, ?, ?)"
         with conn:
             for kind, payload, extra in items:
                 if kind == "step":
                     ep = payload[0]
-                    static_json, horizon_json = extra
+                    static_json, horizon_json, conflict = extra
                     if ep not in known_episodes:
                         conn.execute(
                             "INSERT OR IGNORE INTO episodes (episode, started) VALUES (?, ?)", (ep, payload[2])
@@ -655,10 +672,9 @@ class SessionWriter:
                     if static_json is not None:
                         conn.execute("UPDATE episodes SET static_scene = ? WHERE episode = ?", (static_json, ep))
                     scene = payload[-1]
-                    row = (*payload[:-1], zlib.compress(scene.encode(), 3) if scene is not None else None, horizon_json)
-                    conn.execute(
-                        f"INSERT OR REPLACE INTO steps ({STEP_COLUMNS}, horizon) VALUES ({placeholders}, ?)", row
-                    )
+                    scene_blob = zlib.compress(scene.encode(), 3) if scene is not None else None
+                    row = (*payload[:-1], scene_blob, horizon_json, conflict)
+                    conn.execute(insert, row)
                     self.rows_written += 1
                 else:
                     ep = extra

@@ -231,7 +231,7 @@ def test_ingest_keeps_takeover_labels_and_drops_rows_that_are_not_finite(deploye
         o = obs.copy()
         if bad:
             o[2] = math.nan  # a sensor glitch
-        return StepRecord(
+        return StepRecord(  # the last step was a near miss the simulator reported (info["conflict"])
             0,
             t,
             o,
@@ -251,6 +251,7 @@ def test_ingest_keeps_takeover_labels_and_drops_rows_that_are_not_finite(deploye
             done,
             o,
             0.0,
+            {"conflict": done},
         )
 
     for t, (takeover, bad) in enumerate([(False, False), (True, False), (True, True), (False, False)]):
@@ -266,6 +267,8 @@ def test_ingest_keeps_takeover_labels_and_drops_rows_that_are_not_finite(deploye
     got = ingest(learner, store, "glitch", [0])
     assert (got.steps, got.takeovers, got.dropped) == (3, 1, 1)
     assert learner.buffer.takeover_count() == 1 and np.allclose(learner.buffer.a_expert[1], 1.0)
+    # the near miss of step 3 (the buffer's third row, after the glitch was dropped) reaches the world model's label
+    assert learner.buffer.arrays()["conflict"].tolist() == [0.0, 0.0, 1.0]
 
 
 def test_bad_setups_are_refused_by_name(deployed: Path, tmp_path: Path) -> None:

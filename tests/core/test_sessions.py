@@ -245,3 +245,15 @@ def test_the_timeline_marks_a_new_policy_version_at_the_episode_it_took_over(tmp
     writer.close()
     marks = [[e for e in store.events(writer.session_id, ep) if e["kind"] == "version"] for ep in range(3)]
     assert marks == [[{"t": 0, "kind": "version", "version": 0}], [], [{"t": 0, "kind": "version", "version": 1}]]
+
+
+def test_a_session_recorded_before_the_conflict_column_reads_back_with_no_conflicts(tmp_path) -> None:
+    """Sessions written before the simulator's conflict flag was stored stay readable (fine-tuning, export,
+    replay): the flag reads 0 there."""
+    store = SessionStore(tmp_path)
+    sid, records = run_session(store, episodes=1)
+    with sqlite3.connect(store.path(sid)) as conn:
+        conn.execute("ALTER TABLE steps DROP COLUMN conflict")
+    arrays = store.steps(sid)
+    assert len(arrays["t"]) == len(records) and arrays["conflict"].tolist() == [0.0] * len(records)
+    assert store.table(sid).num_rows == len(records)
