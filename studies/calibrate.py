@@ -471,6 +471,131 @@ def gate_with_expert(
     return run_gated(agent, make_env, agent.make_gate(**gate_overrides), episodes, max_steps, warn_steps)
 
 
+DEFAULT_SCALES: tuple[float, ...] = (1.0, 0.7, 0.5, 0.35, 0.25)
+"""Candidate values of ``gate.tau_scale`` for :func:`choose_tau_scale`, about equal ratios apart: none above 1, so that
+the choice only ever lowers τ from the bounds the fear of familiar states set (asks for help earlier). Training
+scenarios where the gate meets the target with room to spare (the UGV's and SUMO's: no violation in 300 episodes
+at 1) say nothing about danger they do not hold, and a τ raised on them would be trusted where they are silent;
+larger scales are there for a user who passes them."""
+
+
+@dataclass
+class ScaleChoice:
+    """What :func:`choose_tau_scale` measured and chose."""
+
+    run: str
+    sim: str
+    scenarios: list[str]
+    episodes: int
+    target: GateTarget
+    rows: list[dict[str, Any]]
+    """One per (scale, scenario) driven: ``scale``, ``scenario``, ``violations`` (episodes with one),
+    ``episodes``, ``takeover_rate``, ``met``."""
+    scale: float
+    """The chosen ``gate.tau_scale``."""
+    met: bool
+    """Whether the chosen scale met the target on every scenario (False: none did; see :func:`choose_tau_scale`)."""
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def summary(self) -> str:
+        t = self.target
+        lines = [
+            f"{self.run} on {self.sim} {', '.join(self.scenarios)}: gate + scripted expert, {self.episodes} episodes "
+            f"per scenario and scale; target: a violation in at most {t.violation_share:.0%} of the episodes at "
+            f"most {t.takeover_rate:.0%} takeover, on every scenario",
+            "",
+            "| tau_scale | scenario | episodes with a violation (95% interval) | takeover rate | target |",
+            "|---|---|---|---|---|",
+        ]
+        for r in self.rows:
+            low, high = wilson_interval(int(r["violations"]), int(r["episodes"]))
+            lines.append(
+                f"| {r['scale']:g} | {r['scenario']} | {r['violations']}/{r['episodes']} ({low:.0%}-{high:.0%}) | "
+                f"{r['takeover_rate']:.1%} | {'met' if r['met'] else 'missed'} |"
+            )
+        lines.append("")
+        if self.met:
+            lines.append(
+                f"chosen: gate.tau_scale={self.scale:g}, the largest scale that met the target on every scenario"
+            )
+        else:
+            lines.append(
+                f"no scale met the target on every scenario; the least bad within the takeover cap: "
+                f"gate.tau_scale={self.scale:g}"
+            )
+        return "\n".join(lines)
+
+
+def choose_tau_scale(
+    run: str | Path,
+    make_envs: Mapping[str, Callable[[], gym.Env[Any, Any]]],
+    episodes: int,
+    scales: Sequence[float] = DEFAULT_SCALES,
+    target: GateTarget = GateTarget(),
+    *,
+    sim: str = "",
+    max_steps: int | None = None,
+    gate_settings: Mapping[str, Any] | None = None,
+    on_row: Callable[[dict[str, Any]], None] | None = None,
+) -> ScaleChoice:
+    """The gate's operating point for a risk target, chosen on the given scenarios (those the policy was trained
+    on: the choice is then judged on others): ``gate.tau_scale`` multiplies τ's bounds, and this drives the policy
+    with its own gate at each candidate scale and the scripted expert, as the product runs, ``episodes`` per
+    scenario on the evaluation seeds.
+
+    From the largest scale down (the least takeover first), the first that meets ``target`` as read on every
+    scenario is chosen and the sweep stops there. Where none does, the scale whose worst scenario has the fewest
+    violations among those within the takeover cap on every scenario (ties: the larger scale), or else the largest
+    scale; ``met`` says which. Scales are absolute values of ``tau_scale``, replacing the run's own. ``on_row``
+    sees each row as it is measured (a sweep of a few hundred episodes takes minutes).
+    """
+    if episodes < 1:
+        raise ValueError("choosing a scale needs at least one episode per scenario")
+    if not make_envs:
+        raise ValueError("choosing a scale needs at least one scenario")
+    candidates = sorted({float(s) for s in scales}, reverse=True)
+    if not candidates or any(not (math.isfinite(s) and s > 0.0) for s in candidates):
+        raise ValueError(f"scales must be finite numbers > 0, got {list(scales)}")
+    agent = load_agent(run)
+    settings = {k: v for k, v in (gate_settings or {}).items() if k != "tau_scale"}
+    agent.gate_config(**settings)  # a setting the gate refuses stops here, before any episode
+    rows: list[dict[str, Any]] = []
+    chosen: float | None = None
+    for scale in candidates:
+        gate_kwargs = {**settings, "tau_scale": scale}
+        for scenario, make_env in make_envs.items():
+            point = run_gated(agent, make_env, agent.make_gate(**gate_kwargs), episodes, max_steps)
+            violations = round(point["violation_rate"] * episodes)
+            rows.append(
+                {
+                    "scale": scale,
+                    "scenario": scenario,
+                    "violations": violations,
+                    "episodes": episodes,
+                    "takeover_rate": point["takeover_rate"],
+                    "met": target.met(violations, episodes, point["takeover_rate"]),
+                }
+            )
+            if on_row is not None:
+                on_row(rows[-1])
+        if all(r["met"] for r in rows if r["scale"] == scale):
+            chosen = scale
+            break
+    met = chosen is not None
+    if chosen is None:
+        within = [
+            s for s in candidates if all(r["takeover_rate"] <= target.takeover_rate for r in rows if r["scale"] == s)
+        ]
+
+        def worst(scale: float) -> float:
+            return max(r["violations"] / r["episodes"] for r in rows if r["scale"] == scale)
+
+        chosen = min(within, key=lambda s: (worst(s), -s)) if within else candidates[0]
+    return ScaleChoice(str(run), sim, list(make_envs), episodes, target, rows, chosen, met)
+
+
 def operating_curve(
     run: str | Path,
     make_env: Callable[[], gym.Env[Any, Any]],

@@ -4,6 +4,11 @@ sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve
 sage calibrate policies/ugv-default --sim ugv --scenario 4 --episodes 20 --expert-lead
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --escape
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve-episodes 20 --gate-set hold_seconds=2
+
+``sage choose-scale``: the gate's operating point for a risk target, chosen on the training scenarios
+(:func:`studies.calibrate.choose_tau_scale`); deploy it with ``--set gate.tau_scale=X`` (a 0-episode run):
+
+sage choose-scale policies/highway-default --sim highway --scenario train --scenario train-adversarial --episodes 100
 """
 
 from __future__ import annotations
@@ -111,3 +116,77 @@ def register(app: typer.Typer) -> None:
                 path = out / "escape.json"
                 path.write_text(json.dumps(asdict(escaped) | {"replayed": escaped.replayed}, indent=2) + "\n")
                 typer.echo(f"wrote {path}")
+
+    @app.command("choose-scale")
+    def choose_scale(
+        run: Annotated[str, typer.Argument(help="Run folder or checkpoint with a world model.")],
+        sim: Annotated[str, typer.Option(help="Simulator.")] = "ugv",
+        scenario: Annotated[
+            list[str] | None,
+            typer.Option(help="A scenario to choose on (repeatable): those the policy was trained on."),
+        ] = None,
+        episodes: Annotated[int, typer.Option(min=1, help="Episodes per scenario and scale.")] = 100,
+        scale: Annotated[
+            list[float] | None,
+            typer.Option(
+                help="A candidate gate.tau_scale (repeatable; default 1, 0.7, 0.5, 0.35, 0.25: only lowers τ)."
+            ),
+        ] = None,
+        violation_share: Annotated[
+            float, typer.Option(min=0.0, max=1.0, help="Target: at most this share of episodes with a violation.")
+        ] = 0.05,
+        takeover: Annotated[float, typer.Option(min=0.0, max=1.0, help="Target: at most this takeover rate.")] = 0.35,
+        max_steps: Annotated[int | None, typer.Option(help="Cut episodes at this many steps.")] = None,
+        gate_set: Annotated[
+            list[str] | None,
+            typer.Option("--gate-set", help="A setting of the gate over the run's own, KEY=VALUE (repeatable)."),
+        ] = None,
+        out: Annotated[Path | None, typer.Option(help="Write the measured rows and the choice here (JSON).")] = None,
+    ) -> None:
+        """Choose gate.tau_scale, the gate's operating point: the largest scale at which the gate with the scripted
+        expert meets the target (violations, takeover) on every given scenario."""
+        import torch
+
+        import sims
+        from core.sage.config import parse_gate_settings
+        from studies.calibrate import DEFAULT_SCALES, GateTarget, choose_tau_scale
+
+        torch.set_num_threads(1)
+        try:
+            if not scenario:
+                raise ValueError("give the scenarios to choose on with --scenario (those the policy was trained on)")
+            descriptor = sims.descriptor(sim)
+            for name in scenario:
+                descriptor.scenario_kwargs(name)
+            settings = parse_gate_settings(gate_set or [])
+
+            def factory(name: str) -> Any:
+                return lambda: descriptor.make(name)
+
+            choice = choose_tau_scale(
+                run,
+                {name: factory(name) for name in scenario},
+                episodes,
+                scale or DEFAULT_SCALES,
+                GateTarget(violation_share, takeover),
+                sim=sim,
+                max_steps=max_steps,
+                gate_settings=settings,
+                on_row=lambda r: typer.echo(
+                    f"tau_scale {r['scale']:g} on {r['scenario']}: {r['violations']}/{r['episodes']} episodes with a "
+                    f"violation, takeover {r['takeover_rate']:.1%}",
+                    err=True,
+                ),
+            )
+        except (ValueError, FileNotFoundError, LookupError) as exc:
+            typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+            raise typer.Exit(code=2) from None
+        typer.echo(choice.summary())
+        typer.echo(
+            f"deploy: sage train --sim {sim} --scenario {scenario[0]} --init {run} --world-model-only --episodes 0 "
+            f"--demo-episodes 0 --set gate.tau_scale={choice.scale:g} --checkpoint-every 0 --out RUN"
+        )
+        if out is not None:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps(choice.as_dict(), indent=2) + "\n")
+            typer.echo(f"wrote {out}")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -140,6 +141,11 @@ class GateConfig:
     """τ_min = this quantile of fear on real states under the policy (most ready to ask: novel ground)."""
     tau_max_quantile: float = 0.99
     """τ_max = this quantile of fear on real states under the policy (familiar ground)."""
+    tau_scale: float = 1.0
+    """Multiplies both bounds in use (from data or the constants above), and so τ and the release level: the
+    gate's operating point on its curve, one number for the user's risk target. 1 is the bounds as measured;
+    ``sage choose-scale`` picks it on the scenarios a policy was trained on, from the gate + scripted expert's
+    violations and takeover rate against a target (:func:`studies.calibrate.choose_tau_scale`)."""
     calibration_states: int = 16384
     """Real states whose fear sets κ and the τ bounds at every world-model fit: drawn from the replay buffer
     without replacement, or all of them when it holds fewer. τ_max is a tail quantile, so its estimate is noisy:
@@ -444,6 +450,8 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"need 0 <= gate.tau_min <= gate.tau_max, got {cfg.gate.tau_min}, {cfg.gate.tau_max}")
     if not 0.0 <= cfg.gate.tau_min_quantile < cfg.gate.tau_max_quantile <= 1.0:
         raise ValueError("need 0 <= gate.tau_min_quantile < gate.tau_max_quantile <= 1")
+    if not (math.isfinite(cfg.gate.tau_scale) and cfg.gate.tau_scale > 0.0):
+        raise ValueError(f"gate.tau_scale must be a finite number > 0, got {cfg.gate.tau_scale}")
     if cfg.gate.calibration_states < 100:
         raise ValueError(f"gate.calibration_states must be >= 100, got {cfg.gate.calibration_states}")
     if not 0.0 < cfg.gate.curiosity_smoothing <= 1.0:

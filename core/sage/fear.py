@@ -302,11 +302,13 @@ class CuriosityThreshold:
         self.threshold = self.neutral()
 
     def set_bounds(self, bounds: tuple[float, float] | None) -> None:
-        """(τ_min, τ_max) measured from data (:func:`calibrate`); None or non-finite keeps the config's."""
+        """(τ_min, τ_max) measured from data (:func:`calibrate`); None or non-finite keeps the config's. Either
+        is multiplied by ``tau_scale``."""
         if bounds is not None and all(math.isfinite(b) for b in bounds) and bounds[1] > bounds[0]:
-            self.tau_min, self.tau_max = float(bounds[0]), float(bounds[1])
+            low, high = float(bounds[0]), float(bounds[1])
         else:
-            self.tau_min, self.tau_max = self.cfg.tau_min, self.cfg.tau_max
+            low, high = self.cfg.tau_min, self.cfg.tau_max
+        self.tau_min, self.tau_max = self.cfg.tau_scale * low, self.cfg.tau_scale * high
 
     def neutral(self) -> float:
         return self.at(0.5)

@@ -84,3 +84,32 @@ def test_calibrate_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
         assert result.exit_code == 2, result.output
         assert message in result.output
     assert not out.exists()
+
+
+def test_choose_scale_prints_the_rows_the_choice_and_how_to_deploy_it(tmp_path: Path) -> None:
+    out = tmp_path / "choice.json"
+    result = CliRunner().invoke(
+        app,
+        ["choose-scale", UGV_DEFAULT, "--sim", "ugv", "--scenario", "4", "--episodes", "2", "--max-steps", "60",
+         "--scale", "0.001", "--scale", "100", "--violation-share", "1", "--out", str(out)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    # every share of violations meets this target: the largest scale (the least takeover) is chosen at once
+    assert "chosen: gate.tau_scale=100," in result.output and "| 0.001 |" not in result.output
+    assert "--set gate.tau_scale=100 " in result.output
+    saved = json.loads(out.read_text())
+    assert saved["scale"] == 100 and saved["met"] and [r["scenario"] for r in saved["rows"]] == ["4"]
+    assert saved["rows"][0]["takeover_rate"] == 0.0  # τ a hundred times its bounds: fear never reaches it
+
+
+def test_choose_scale_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
+    for args, says in (
+        ([], "give the scenarios to choose on"),
+        (["--scenario", "no-such-scenario"], "no-such-scenario"),
+        (["--scenario", "4", "--scale", "-1"], "scales must be"),
+        (["--scenario", "4", "--gate-set", "tau_scale"], "key=value"),
+    ):
+        out = tmp_path / "choice.json"
+        result = CliRunner().invoke(app, ["choose-scale", UGV_DEFAULT, "--sim", "ugv", "--out", str(out), *args])
+        assert result.exit_code == 2 and says in result.output, (args, result.output)
+        assert not out.exists()

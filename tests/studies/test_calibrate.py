@@ -286,3 +286,42 @@ def test_a_privileged_gate_hands_over_on_the_step_after_the_simulator_reports_da
     # an episode's first step has no last step to read: never a takeover there
     firsts = [step for i, step in enumerate(steps) if i == 0 or steps[i - 1][0] != step[0]]
     assert not any(takeover for _, _, takeover in firsts)
+
+
+def test_the_scale_chosen_is_the_largest_that_meets_the_target_on_every_scenario(deployed: Path) -> None:  # noqa: F811
+    """``gate.tau_scale`` as the product runs it: a scale that lifts τ over any fear leaves the policy alone (and its
+    violations), one that sinks it under every fear hands every step to the expert; the choice follows the target."""
+    from studies.calibrate import GateTarget, choose_tau_scale
+
+    make_envs = {"dynamic": functools.partial(envs.make, "dynamic")}
+    fixed = {"tau_from_data": False, "use_curiosity": False, "tau_min": 0.5, "tau_max": 0.5}
+    deaf, eager = 4.0, 1e-6  # τ = 2 (fear never exceeds 1) and τ ≈ 0
+
+    # any violation share will do: the largest scale is chosen and nothing below it is driven
+    easy = choose_tau_scale(deployed, make_envs, 4, (eager, deaf), GateTarget(1.0, 1.0), gate_settings=fixed)
+    assert easy.met and easy.scale == deaf and [r["scale"] for r in easy.rows] == [deaf]
+    assert easy.rows[0]["takeover_rate"] == 0.0 and easy.rows[0]["violations"] > 0
+
+    # no violation allowed: the policy alone misses it, the expert driving throughout does better
+    strict = choose_tau_scale(deployed, make_envs, 4, (deaf, eager), GateTarget(0.0, 1.0), gate_settings=fixed)
+    by_scale = {r["scale"]: r for r in strict.rows}
+    assert by_scale[eager]["takeover_rate"] > 0.9
+    assert by_scale[eager]["violations"] < by_scale[deaf]["violations"]
+    assert strict.scale == eager and strict.met == (by_scale[eager]["violations"] == 0)
+
+    # no takeover allowed and no violation: nothing meets it; the only scale within the cap is the choice
+    none = choose_tau_scale(deployed, make_envs, 4, (deaf, eager), GateTarget(0.0, 0.0), gate_settings=fixed)
+    assert not none.met and none.scale == deaf and len(none.rows) == 2
+    assert "no scale met the target" in none.summary()
+
+
+def test_choosing_a_scale_refuses_bad_input_before_any_episode(deployed: Path) -> None:  # noqa: F811
+    from studies.calibrate import choose_tau_scale
+
+    make_envs = {"dynamic": functools.partial(envs.make, "dynamic")}
+    with pytest.raises(ValueError, match="scales"):
+        choose_tau_scale(deployed, make_envs, 2, (1.0, 0.0))
+    with pytest.raises(ValueError, match="scenario"):
+        choose_tau_scale(deployed, {}, 2)
+    with pytest.raises(ValueError, match="release"):
+        choose_tau_scale(deployed, make_envs, 2, gate_settings={"release": 2.0})

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -236,3 +237,28 @@ def test_conflicts_are_not_familiar_for_the_bounds_where_the_model_learns_them()
     assert familiar_for_bounds(buffer, violation_steps=10, horizon=5).all()
     familiar = familiar_for_bounds(buffer, violation_steps=10, horizon=5, conflict_weight=0.5)
     assert not familiar[8:10].any() and familiar[:8].all() and familiar[10:].all()
+
+
+def test_tau_scale_multiplies_the_bounds_in_use_and_so_every_threshold() -> None:
+    """``gate.tau_scale``: the measured bounds and the constants alike, so τ at any curiosity scales with it."""
+    curiosities = (0.0, 0.5, 1.0, 3.0)
+    for how in ("linear", "geometric"):
+        common = dict(tau_min=0.1, tau_max=0.6, curiosity_ema=0.0, curiosity_smoothing=1.0, tau_interpolation=how)
+        plain = CuriosityThreshold(GateConfig(**common), reference=1.0)
+        half = CuriosityThreshold(GateConfig(tau_scale=0.5, **common), reference=1.0)
+        assert (half.tau_min, half.tau_max) == pytest.approx((0.05, 0.3))
+        assert [half.update(c) for c in curiosities] == pytest.approx([0.5 * plain.update(c) for c in curiosities])
+        measured = CuriosityThreshold(GateConfig(tau_scale=2.0, **common), reference=1.0, bounds=(0.2, 0.4))
+        assert (measured.tau_min, measured.tau_max) == pytest.approx((0.4, 0.8))
+        measured.set_bounds(None)  # no measured bounds: the constants, scaled as well
+        assert (measured.tau_min, measured.tau_max) == pytest.approx((0.2, 1.2))
+
+
+@pytest.mark.parametrize("scale", [0.0, -1.0, math.nan, math.inf])
+def test_a_tau_scale_that_is_not_a_positive_number_is_refused(scale: float) -> None:
+    from core.sage.config import AgentConfig, validate
+
+    cfg = AgentConfig()
+    cfg.gate.tau_scale = scale
+    with pytest.raises(ValueError, match=r"gate\.tau_scale"):
+        validate(cfg)
