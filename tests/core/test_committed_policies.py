@@ -48,3 +48,24 @@ def test_adapting_from_the_default_ugv_policy_updates_it(tmp_path: Path) -> None
     spec = TrainSpec(sim="ugv", scenario="3", method="sac", train_steps=300, init=init, checkpoint_every=0,
                      overrides=["batch_size=32"], out=str(tmp_path / "adapt"))  # fmt: skip
     assert run_training(spec).result.learner.updates > 200
+
+
+@pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
+def test_a_committed_policy_deploys_the_operating_point_it_chose(checkpoint: Path) -> None:
+    """A policy whose gate scale was chosen by ``sage choose-scale`` keeps the choice beside it
+    (``tau_scale_choice.json``): the checkpoint deploys that scale, and the choice met the target on every
+    scenario it was made on; without a choice the bounds are as measured (scale 1)."""
+    import json
+
+    from core.agents import load_agent
+
+    gate = load_agent(checkpoint.parent).make_gate()
+    choice_file = checkpoint.parent / "tau_scale_choice.json"
+    if not choice_file.exists():
+        assert gate.cfg.tau_scale == 1.0
+        return
+    choice = json.loads(choice_file.read_text())
+    assert gate.cfg.tau_scale == pytest.approx(choice["scale"])
+    chosen = [row for row in choice["rows"] if row["scale"] == choice["scale"]]
+    assert choice["met"] and chosen and all(row["met"] for row in chosen)
+    assert sorted(row["scenario"] for row in chosen) == sorted(choice["scenarios"])
