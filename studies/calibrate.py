@@ -473,10 +473,9 @@ def gate_with_expert(
 
 DEFAULT_SCALES: tuple[float, ...] = (1.0, 0.7, 0.5, 0.35, 0.25)
 """Candidate values of ``gate.tau_scale`` for :func:`choose_tau_scale`, about equal ratios apart: none above 1, so that
-the choice only ever lowers τ from the bounds the fear of familiar states set (asks for help earlier). Training
-scenarios where the gate meets the target with room to spare (the UGV's and SUMO's: no violation in 300 episodes
-at 1) say nothing about danger they do not hold, and a τ raised on them would be trusted where they are silent;
-larger scales are there for a user who passes them."""
+the choice only ever lowers τ from the bounds the fear of familiar states set (asks for help earlier). A higher τ
+buys less takeover with safety, judged on a few hundred training episodes that may not hold the danger met later:
+that trade is the user's, who may pass larger scales."""
 
 
 @dataclass
@@ -492,9 +491,9 @@ class ScaleChoice:
     """One per (scale, scenario) driven: ``scale``, ``scenario``, ``violations`` (episodes with one),
     ``episodes``, ``takeover_rate``, ``met``."""
     scale: float
-    """The chosen ``gate.tau_scale``."""
+    """The chosen ``gate.tau_scale``: where none met the target, the run's own, unchanged."""
     met: bool
-    """Whether the chosen scale met the target on every scenario (False: none did; see :func:`choose_tau_scale`)."""
+    """Whether the chosen scale met the target on every scenario (False: none did, and the run's scale stays)."""
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -522,8 +521,8 @@ class ScaleChoice:
             )
         else:
             lines.append(
-                f"no scale met the target on every scenario; the least bad within the takeover cap: "
-                f"gate.tau_scale={self.scale:g}"
+                f"no scale met the target on every scenario: the run's own gate.tau_scale={self.scale:g} stays (the "
+                "rows say what each would give)"
             )
         return "\n".join(lines)
 
@@ -546,10 +545,10 @@ def choose_tau_scale(
     scenario on the evaluation seeds.
 
     From the largest scale down (the least takeover first), the first that meets ``target`` as read on every
-    scenario is chosen and the sweep stops there. Where none does, the scale whose worst scenario has the fewest
-    violations among those within the takeover cap on every scenario (ties: the larger scale), or else the largest
-    scale; ``met`` says which. Scales are absolute values of ``tau_scale``, replacing the run's own. ``on_row``
-    sees each row as it is measured (a sweep of a few hundred episodes takes minutes).
+    scenario is chosen and the sweep stops there. Where none does, nothing is chosen: the run's own scale stays
+    (``met`` False), since a trade between violations and takeover beyond the target is the user's to make, from
+    the rows. Scales are absolute values of ``tau_scale``, replacing the run's own. ``on_row`` sees each row as it
+    is measured (a sweep of a few hundred episodes takes minutes).
     """
     if episodes < 1:
         raise ValueError("choosing a scale needs at least one episode per scenario")
@@ -585,14 +584,7 @@ def choose_tau_scale(
             break
     met = chosen is not None
     if chosen is None:
-        within = [
-            s for s in candidates if all(r["takeover_rate"] <= target.takeover_rate for r in rows if r["scale"] == s)
-        ]
-
-        def worst(scale: float) -> float:
-            return max(r["violations"] / r["episodes"] for r in rows if r["scale"] == scale)
-
-        chosen = min(within, key=lambda s: (worst(s), -s)) if within else candidates[0]
+        chosen = agent.gate_config(**settings).tau_scale
     return ScaleChoice(str(run), sim, list(make_envs), episodes, target, rows, chosen, met)
 
 

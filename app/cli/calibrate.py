@@ -182,10 +182,11 @@ def register(app: typer.Typer) -> None:
             typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
         typer.echo(choice.summary())
-        typer.echo(
-            f"deploy: sage train --sim {sim} --scenario {scenario[0]} --init {run} --world-model-only --episodes 0 "
-            f"--demo-episodes 0 --set gate.tau_scale={choice.scale:g} --checkpoint-every 0 --out RUN"
-        )
+        if choice.met:
+            typer.echo(
+                f"deploy: sage train --sim {sim} --scenario {scenario[0]} --init {run} --world-model-only --episodes 0 "
+                f"--demo-episodes 0 --set gate.tau_scale={choice.scale:g} --checkpoint-every 0 --out RUN"
+            )
         if out is not None:
             out.parent.mkdir(parents=True, exist_ok=True)
             out.write_text(json.dumps(choice.as_dict(), indent=2) + "\n")

@@ -309,10 +309,10 @@ def test_the_scale_chosen_is_the_largest_that_meets_the_target_on_every_scenario
     assert by_scale[eager]["violations"] < by_scale[deaf]["violations"]
     assert strict.scale == eager and strict.met == (by_scale[eager]["violations"] == 0)
 
-    # no takeover allowed and no violation: nothing meets it; the only scale within the cap is the choice
+    # no takeover allowed and no violation: nothing meets it, so nothing is chosen: the run's own scale stays
     none = choose_tau_scale(deployed, make_envs, 4, (deaf, eager), GateTarget(0.0, 0.0), gate_settings=fixed)
-    assert not none.met and none.scale == deaf and len(none.rows) == 2
-    assert "no scale met the target" in none.summary()
+    assert not none.met and none.scale == 1.0 and len(none.rows) == 2
+    assert "gate.tau_scale=1 stays" in none.summary()
 
 
 def test_choosing_a_scale_refuses_bad_input_before_any_episode(deployed: Path) -> None:  # noqa: F811
