@@ -8,7 +8,8 @@ import pytest
 
 from core.agents import load_checkpoint
 
-POLICIES = sorted((Path(__file__).resolve().parents[2] / "policies").glob("*/checkpoint.pt"))
+ROOT = Path(__file__).resolve().parents[2]
+POLICIES = sorted((ROOT / "policies").glob("*/checkpoint.pt"))
 
 
 @pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
@@ -52,20 +53,25 @@ def test_adapting_from_the_default_ugv_policy_updates_it(tmp_path: Path) -> None
 
 @pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
 def test_a_committed_policy_deploys_the_operating_point_it_chose(checkpoint: Path) -> None:
-    """A policy whose gate scale was chosen by ``sage choose-scale`` keeps the choice beside it
-    (``tau_scale_choice.json``): the checkpoint deploys that scale, and the choice met the target on every
-    scenario it was made on; without a choice the bounds are as measured (scale 1)."""
+    """``sage choose-scale`` ran on each default's training scenarios: its rows and choice lie beside the policy
+    (``tau_scale_choice.json``, where it changed the scale) or in ``docs/choose_scale/<policy>.json``. The
+    checkpoint deploys the scale chosen, which met the target on every scenario it was chosen on; where none met,
+    the scale the policy had (1) stays."""
     import json
 
     from core.agents import load_agent
 
+    name = checkpoint.parent.name
+    beside, documented = checkpoint.parent / "tau_scale_choice.json", ROOT / "docs" / "choose_scale" / f"{name}.json"
+    assert beside.exists() != documented.exists(), f"{name}: one record of its scale's choice"
+    choice = json.loads((beside if beside.exists() else documented).read_text())
     gate = load_agent(checkpoint.parent).make_gate()
-    choice_file = checkpoint.parent / "tau_scale_choice.json"
-    if not choice_file.exists():
-        assert gate.cfg.tau_scale == 1.0
-        return
-    choice = json.loads(choice_file.read_text())
     assert gate.cfg.tau_scale == pytest.approx(choice["scale"])
     chosen = [row for row in choice["rows"] if row["scale"] == choice["scale"]]
-    assert choice["met"] and chosen and all(row["met"] for row in chosen)
-    assert sorted(row["scenario"] for row in chosen) == sorted(choice["scenarios"])
+    if choice["met"]:
+        assert chosen and all(row["met"] for row in chosen)
+        assert sorted(row["scenario"] for row in chosen) == sorted(choice["scenarios"])
+    else:
+        assert choice["scale"] == 1.0 and not any(
+            all(r["met"] for r in choice["rows"] if r["scale"] == s) for s in {r["scale"] for r in choice["rows"]}
+        )
