@@ -527,6 +527,30 @@ class ScaleChoice:
         return "\n".join(lines)
 
 
+def scaled_gate_row(
+    run: str | Path,
+    scenario: str,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    episodes: int,
+    gate_kwargs: Mapping[str, Any],
+    target: GateTarget,
+    max_steps: int | None = None,
+) -> dict[str, Any]:
+    """One row of :func:`choose_tau_scale`: the policy with its gate (``gate_kwargs``, ``tau_scale`` among them)
+    and the scripted expert on ``scenario``; a Ray task of its own where the rows run at once."""
+    agent = load_agent(run)
+    point = run_gated(agent, make_env, agent.make_gate(**gate_kwargs), episodes, max_steps)
+    violations = round(point["violation_rate"] * episodes)
+    return {
+        "scale": float(gate_kwargs["tau_scale"]),
+        "scenario": scenario,
+        "violations": violations,
+        "episodes": episodes,
+        "takeover_rate": point["takeover_rate"],
+        "met": target.met(violations, episodes, point["takeover_rate"]),
+    }
+
+
 def choose_tau_scale(
     run: str | Path,
     make_envs: Mapping[str, Callable[[], gym.Env[Any, Any]]],
@@ -538,17 +562,24 @@ def choose_tau_scale(
     max_steps: int | None = None,
     gate_settings: Mapping[str, Any] | None = None,
     on_row: Callable[[dict[str, Any]], None] | None = None,
+    cpus: int | None = None,
+    address: str | None = None,
 ) -> ScaleChoice:
     """The gate's operating point for a risk target, chosen on the given scenarios (those the policy was trained
     on: the choice is then judged on others): ``gate.tau_scale`` multiplies τ's bounds, and this drives the policy
     with its own gate at each candidate scale and the scripted expert, as the product runs, ``episodes`` per
     scenario on the evaluation seeds.
 
-    From the largest scale down (the least takeover first), the first that meets ``target`` as read on every
-    scenario is chosen and the sweep stops there. Where none does, nothing is chosen: the run's own scale stays
-    (``met`` False), since a trade between violations and takeover beyond the target is the user's to make, from
-    the rows. Scales are absolute values of ``tau_scale``, replacing the run's own. ``on_row`` sees each row as it
-    is measured (a sweep of a few hundred episodes takes minutes).
+    The largest scale (the least takeover) that meets ``target`` as read on every scenario is chosen. Where none
+    does, nothing is chosen: the run's own scale stays (``met`` False), since a trade between violations and
+    takeover beyond the target is the user's to make, from the rows. Scales are absolute values of ``tau_scale``,
+    replacing the run's own.
+
+    In this process the scales are driven largest first and the sweep stops at the first that meets the target;
+    ``on_row`` sees each row as it is measured (a sweep of a few hundred episodes takes minutes). With ``cpus`` or
+    ``address`` every (scale, scenario) row runs at once as a Ray task (:func:`studies.sweep.run_tasks`, local Ray
+    on ``cpus`` cores or the cluster at ``address``) and the same rule reads them all; ``on_row`` then sees them at
+    the end.
     """
     if episodes < 1:
         raise ValueError("choosing a scale needs at least one episode per scenario")
@@ -559,33 +590,46 @@ def choose_tau_scale(
         raise ValueError(f"scales must be finite numbers > 0, got {list(scales)}")
     agent = load_agent(run)
     settings = {k: v for k, v in (gate_settings or {}).items() if k != "tau_scale"}
-    agent.gate_config(**settings)  # a setting the gate refuses stops here, before any episode
+    own_scale = agent.gate_config(**settings).tau_scale  # a setting the gate refuses stops here, before any episode
+    calls = [
+        {
+            "run": str(run),
+            "scenario": scenario,
+            "make_env": make_env,
+            "episodes": episodes,
+            "gate_kwargs": {**settings, "tau_scale": scale},
+            "target": target,
+            "max_steps": max_steps,
+        }
+        for scale in candidates
+        for scenario, make_env in make_envs.items()
+    ]
     rows: list[dict[str, Any]] = []
-    chosen: float | None = None
-    for scale in candidates:
-        gate_kwargs = {**settings, "tau_scale": scale}
-        for scenario, make_env in make_envs.items():
-            point = run_gated(agent, make_env, agent.make_gate(**gate_kwargs), episodes, max_steps)
-            violations = round(point["violation_rate"] * episodes)
-            rows.append(
-                {
-                    "scale": scale,
-                    "scenario": scenario,
-                    "violations": violations,
-                    "episodes": episodes,
-                    "takeover_rate": point["takeover_rate"],
-                    "met": target.met(violations, episodes, point["takeover_rate"]),
-                }
-            )
+    if cpus is not None or address is not None:
+        from studies.sweep import run_tasks
+
+        labels = [f"tau_scale {c['gate_kwargs']['tau_scale']:g} on {c['scenario']}" for c in calls]
+        rows = run_tasks(scaled_gate_row, calls, labels, address=address, cpus=cpus)
+        for row in rows:
+            if on_row is not None:
+                on_row(row)
+    else:
+        for call in calls:
+            rows.append(scaled_gate_row(**call))
             if on_row is not None:
                 on_row(rows[-1])
-        if all(r["met"] for r in rows if r["scale"] == scale):
-            chosen = scale
-            break
-    met = chosen is not None
-    if chosen is None:
-        chosen = agent.gate_config(**settings).tau_scale
-    return ScaleChoice(str(run), sim, list(make_envs), episodes, target, rows, chosen, met)
+            scale = rows[-1]["scale"]
+            done = [r for r in rows if r["scale"] == scale]
+            if len(done) == len(make_envs) and all(r["met"] for r in done):
+                break  # the choice is the largest scale that meets the target: none below it can be chosen
+    meeting = [s for s in candidates if _meets_everywhere(rows, s, len(make_envs))]
+    chosen = meeting[0] if meeting else own_scale
+    return ScaleChoice(str(run), sim, list(make_envs), episodes, target, rows, chosen, bool(meeting))
+
+
+def _meets_everywhere(rows: Sequence[Mapping[str, Any]], scale: float, scenarios: int) -> bool:
+    at = [r for r in rows if r["scale"] == scale]
+    return len(at) == scenarios and all(r["met"] for r in at)
 
 
 def operating_curve(

@@ -142,6 +142,13 @@ def register(app: typer.Typer) -> None:
             typer.Option("--gate-set", help="A setting of the gate over the run's own, KEY=VALUE (repeatable)."),
         ] = None,
         out: Annotated[Path | None, typer.Option(help="Write the measured rows and the choice here (JSON).")] = None,
+        cpus: Annotated[
+            int | None,
+            typer.Option(min=1, help="Drive every (scale, scenario) row at once as Ray tasks on this many cores."),
+        ] = None,
+        address: Annotated[
+            str | None, typer.Option(help="... or on the Ray cluster at this address (HOST:PORT).")
+        ] = None,
     ) -> None:
         """Choose gate.tau_scale, the gate's operating point: the largest scale at which the gate with the scripted
         expert meets the target (violations, takeover) on every given scenario."""
@@ -150,6 +157,7 @@ def register(app: typer.Typer) -> None:
         import sims
         from core.sage.config import parse_gate_settings
         from studies.calibrate import DEFAULT_SCALES, GateTarget, choose_tau_scale
+        from studies.sweep import SweepError
 
         torch.set_num_threads(1)
         try:
@@ -177,8 +185,10 @@ def register(app: typer.Typer) -> None:
                     f"violation, takeover {r['takeover_rate']:.1%}",
                     err=True,
                 ),
+                cpus=cpus,
+                address=address,
             )
-        except (ValueError, FileNotFoundError, LookupError) as exc:
+        except (ValueError, FileNotFoundError, LookupError, SweepError) as exc:
             typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
         typer.echo(choice.summary())

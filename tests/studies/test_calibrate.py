@@ -325,3 +325,24 @@ def test_choosing_a_scale_refuses_bad_input_before_any_episode(deployed: Path) -
         choose_tau_scale(deployed, {}, 2)
     with pytest.raises(ValueError, match="release"):
         choose_tau_scale(deployed, make_envs, 2, gate_settings={"release": 2.0})
+
+
+def test_a_scale_sweep_on_ray_measures_every_row_and_chooses_by_the_same_rule(
+    ray_local: None,
+    deployed: Path,  # noqa: F811
+) -> None:
+    """``cpus``/``address``: every (scale, scenario) row at once, each a Ray task in a fresh worker; the rows are the
+    ones this process measures on the same seeds, and the rule reads them as it does here."""
+    from studies.calibrate import GateTarget, choose_tau_scale
+
+    make_envs = {"dynamic": functools.partial(envs.make, "dynamic"), "static": functools.partial(envs.make, "static")}
+    fixed = {"tau_from_data": False, "use_curiosity": False, "tau_min": 0.5, "tau_max": 0.5}
+    scales, target = (4.0, 1e-6), GateTarget(1.0, 0.5)  # any violations; takeover at most half the steps
+    here = choose_tau_scale(deployed, make_envs, 3, scales, target, gate_settings=fixed)
+    there = choose_tau_scale(deployed, make_envs, 3, scales, target, gate_settings=fixed, cpus=2)
+    # here the sweep stops at the largest scale, which meets the target; on Ray every row was driven
+    assert here.met and there.met and here.scale == there.scale == 4.0
+    assert len(here.rows) == 2 and len(there.rows) == 4
+    assert there.rows[:2] == here.rows
+    assert [(r["scale"], r["scenario"]) for r in there.rows[2:]] == [(1e-6, "dynamic"), (1e-6, "static")]
+    assert all(r["takeover_rate"] > 0.9 and not r["met"] for r in there.rows[2:])
