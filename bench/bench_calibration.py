@@ -5,9 +5,9 @@ README quotes) and each run's figures, with the commit and the command that prod
     .venv/bin/python bench/bench_calibration.py [--episodes 20] [--curve-episodes 10] [--gate-episodes 20] \
         [--lead-episodes N] [--compare-gate KEY=VALUE ...] [--readme README.md] [--cpus N | --address HOST:PORT]
     .venv/bin/python bench/bench_calibration.py --gate-only --gate-episodes 300 --compare-gate KEY=VALUE ... \
-        [--out DIR] [--readme README.md --block NAME]
+        [--out DIR] [--readme docs/calibration_history.md --block NAME]
     .venv/bin/python bench/bench_calibration.py --curves-only --sims highway --episodes 150 --curve-episodes 300 \
-        [--out DIR] [--readme README.md --block NAME]
+        [--out DIR] [--readme docs/calibration_history.md --block NAME]
     .venv/bin/python bench/bench_calibration.py --sims highway --episodes 150 --curve-episodes 300 \
         --gate-episodes 300 [--readme README.md]
 

@@ -9,7 +9,7 @@ escaped); one that some manoeuvre avoids was within reach of a driver who knew w
 manoeuvres are tried against the true future). Writes ``docs/escape/README.md`` with the commit and the command.
 
     .venv/bin/python bench/bench_escape.py [--episodes 100] [--hold 3] [--before 1 2] [--levels 5] \
-        [--readme README.md] [--cpus N | --address HOST:PORT]
+        [--readme docs/calibration_history.md] [--cpus N | --address HOST:PORT]
 
 Each row is a Ray task (:func:`studies.sweep.run_tasks`); rows do not depend on how many run at once. Not a unit
 test: it takes minutes.

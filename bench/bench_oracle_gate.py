@@ -8,7 +8,7 @@ where fear does not says the policy, the expert and the hold leave the target wi
 what is missing; one that does not says the target asks more than any warning from these states can give.
 
     .venv/bin/python bench/bench_oracle_gate.py [--episodes 300] [--ttc 3] [--gap 1.5] [--out DIR] \
-        [--readme README.md] [--cpus N | --address HOST:PORT]
+        [--readme docs/calibration_history.md] [--cpus N | --address HOST:PORT]
 
 The thresholds are conventional, not swept here: a time to contact under 3 s is the traffic-conflict literature's
 usual line for a conflict (1.5 s for a serious one); 1.5 m to the nearest vehicle is about half a lane's width

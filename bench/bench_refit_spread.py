@@ -11,7 +11,7 @@ refits are not kept (the report says which, and the commit they were measured at
 
     .venv/bin/python bench/bench_refit_spread.py [--sim ugv] [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
         [--runs runs/refit-spread] [--merge] [--deployed] [--rows docs/refit_spread/rows.json] \
-        [--out DIR] [--readme README.md] [--block NAME] [--cpus N | --address HOST:PORT]
+        [--out DIR] [--readme docs/calibration_history.md] [--block NAME] [--cpus N | --address HOST:PORT]
 
 ``--merge`` also merges each arm's refits into one ensemble of all their members (``sage merge``: bagging over
 refits, :mod:`core.merge`) and drives its gate rows beside the single refits'. It needs refits that kept their

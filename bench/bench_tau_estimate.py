@@ -9,7 +9,7 @@ states for several N: the spread of τ over draws is the sampling noise a single
 time is what one calibration costs. The learner's sample size is ``GateConfig.calibration_states``.
 
     .venv/bin/python bench/bench_tau_estimate.py [--policy policies/ugv-default] [--sim ugv] \
-        [--scenario 1,2,...] [--env KEY=VALUE ...] [--episodes 200] [--draws 30] [--readme README.md]
+        [--scenario 1,2,...] [--env KEY=VALUE ...] [--episodes 200] [--draws 30] [--readme docs/calibration_history.md]
 
 Not a unit test: it takes a few minutes of one core.
 """
