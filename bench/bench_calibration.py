@@ -52,6 +52,7 @@ import sims
 from core.metrics import wilson_interval
 from core.sage.config import parse_gate_settings
 from studies.calibrate import (
+    TAKEOVER_CAUSES,
     CalibrationReport,
     GateTarget,
     calibrate_run,
@@ -378,6 +379,7 @@ def run_case(
         violations=round(point["violation_rate"] * episodes),
         episodes=episodes,
         takeover_rate=point["takeover_rate"],
+        takeover_parts=tuple(point[f"takeover_{cause}"] for cause in TAKEOVER_CAUSES),
         under_expert=int(point["violations_under_expert"]),
         expert_held_s=point["expert_steps_before_violation"] * d.dt,
         handed_back=int(point["violations_handed_back"]),
@@ -400,6 +402,9 @@ class GateRow:
     violations: int
     episodes: int
     takeover_rate: float
+    takeover_parts: tuple[float, ...]
+    """The takeover rate's parts, shares of the steps, by why the expert drove (``TAKEOVER_CAUSES``: fear over τ,
+    the hold, its hysteresis, the expert's own manoeuvre)."""
     under_expert: int
     expert_held_s: float
     handed_back: int
@@ -412,7 +417,8 @@ class GateRow:
         held = f" ({self.expert_held_s:.1f} s)" if self.under_expert else ""
         return (
             f"| {self.policy} | {self.scenario} | {self.violations}/{self.episodes} ({low:.0%}-{high:.0%}) "
-            f"| {self.takeover_rate:.0%} | {self.under_expert}{held} | {self.handed_back} | {self.under_threshold} "
+            f"| {self.takeover_rate:.0%} | {' · '.join(f'{100 * part:.0f}' for part in self.takeover_parts)} "
+            f"| {self.under_expert}{held} | {self.handed_back} | {self.under_threshold} "
             f"| {self.unforeseen} | {self.seconds:.0f} s |"
         )
 
@@ -559,14 +565,18 @@ def gate_table(episodes: int, rows: list[GateRow], gate: dict[str, Any] | None =
         "Each episode's first violation, by who drove and what fear did in the second before it: the expert driving "
         "(the gate warned; for how long it had been driving), or the policy driving after the gate fired and handed "
         "back, with fear over τ_min but under τ (within the threshold's reach: its place is the lever), or with fear "
-        "under τ_min throughout (unforeseen: no threshold in the gate's range would have fired).",
+        "under τ_min throughout (unforeseen: no threshold in the gate's range would have fired). The takeover rate "
+        "by why the expert drove each step: fear over τ (the gate fired), the hold's k steps after a firing, the "
+        "hold restarted by fear over the release level though under τ (the hysteresis, `gate.release`), or the "
+        "expert finishing a manoeuvre past the hold (the UGV's evasions).",
         "",
         "Rows named by a file (`*.yaml`) are layouts beyond the built-in scenarios that no committed model was trained "
         "on (`FIELDS` in `bench/bench_calibration.py`).",
         "",
         "| policy | scenario | episodes with a violation (95% interval) | takeover rate "
+        "| why the expert drove: fear over τ · hold · hysteresis · manoeuvre (% of steps) "
         "| expert driving (for how long) | handed back | fear over τ_min, under τ | unforeseen | time |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
         *(row.line() for row in rows),
         "",
         target_summary(rows),

@@ -353,6 +353,22 @@ def _tau_min(gate: Gate) -> float:
     return float(getattr(threshold, "tau_min", math.nan))
 
 
+TAKEOVER_CAUSES: tuple[str, ...] = ("fear", "hold", "hysteresis", "manoeuvre")
+"""Why the expert drove a step (:func:`run_gated`'s ``takeover_<cause>``, shares of all steps, which add up to the
+takeover rate): ``fear`` over the step's τ (the gate fired), the ``hold`` counting down its k steps after that,
+``hysteresis`` (fear under τ but over the release level restarted the hold: :attr:`GateConfig.release`) or the
+expert's own ``manoeuvre``, kept past the gate's hold (:func:`core.protocol.expert_engaged`)."""
+
+
+def _takeover_cause(record: StepRecord, gate: Gate) -> str:
+    if not record.gate_fired:
+        return "manoeuvre"
+    if record.fear > record.threshold:
+        return "fear"
+    level = getattr(getattr(gate, "detail", None), "level", math.nan)
+    return "hysteresis" if record.fear > level else "hold"
+
+
 def run_gated(
     agent: Any,
     make_env: Callable[[], gym.Env[Any, Any]],
@@ -373,12 +389,15 @@ def run_gated(
         first: list[tuple[bool, int, list[tuple[float, bool]]] | None] = [None]
         streak = [0]
         recent: deque[tuple[float, bool]] = deque(maxlen=max(1, warn_steps))
+        expert_steps = dict.fromkeys(TAKEOVER_CAUSES, 0)
 
         def watch(r: StepRecord) -> None:
             streak[0] = streak[0] + 1 if r.takeover else 0
             recent.append((r.fear, bool(r.gate_fired or r.takeover)))
             if r.violation and first[0] is None:
                 first[0] = (bool(r.takeover), streak[0], list(recent))
+            if r.takeover:
+                expert_steps[_takeover_cause(r, gate)] += 1
 
         runner.step_listeners.append(watch)
         runner.step_listeners.extend(listeners)
@@ -410,6 +429,7 @@ def run_gated(
             unforeseen += 1
     return {
         "takeover_rate": takeovers / max(steps, 1),
+        **{f"takeover_{cause}": n / max(steps, 1) for cause, n in expert_steps.items()},
         "violation_rate": len(violations) / episodes,
         "episodes": float(episodes),
         "violations_under_expert": float(len(under_expert)),
@@ -456,7 +476,8 @@ def gate_with_expert(
 ) -> dict[str, float]:
     """The product as it runs: the policy with its own SAGE gate (its τ, unscaled; ``gate_overrides``: any
     :class:`~core.sage.config.GateConfig` field, e.g. ``release=1.0``) and the scripted expert.
-    Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds, and where each
+    Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds, the takeover
+    rate's parts by why the expert drove (``takeover_<cause>``, :data:`TAKEOVER_CAUSES`), and where each
     episode's first violation comes from:
 
     - ``violations_under_expert``: the expert was driving (the gate warned; the expert could not avoid it from
@@ -494,16 +515,24 @@ class ScaleChoice:
     """The chosen ``gate.tau_scale``: where none met the target, the run's own, unchanged."""
     met: bool
     """Whether the chosen scale met the target on every scenario (False: none did, and the run's scale stays)."""
+    gate_settings: dict[str, Any] = field(default_factory=dict)
+    """The gate settings every row ran with over the run's own (``tau_scale`` apart): a choice holds with them
+    only, so deploying it sets them too (:meth:`deploy_settings`)."""
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def deploy_settings(self) -> dict[str, Any]:
+        """The gate settings to deploy the choice with: those the rows ran with, and the chosen scale."""
+        return {**self.gate_settings, "tau_scale": self.scale}
 
     def summary(self) -> str:
         t = self.target
         lines = [
             f"{self.run} on {self.sim} {', '.join(self.scenarios)}: gate + scripted expert, {self.episodes} episodes "
             f"per scenario and scale; target: a violation in at most {t.violation_share:.0%} of the episodes at "
-            f"most {t.takeover_rate:.0%} takeover, on every scenario",
+            f"most {t.takeover_rate:.0%} takeover, on every scenario"
+            + ("; gate " + ", ".join(f"{k}={v}" for k, v in self.gate_settings.items()) if self.gate_settings else ""),
             "",
             "| tau_scale | scenario | episodes with a violation (95% interval) | takeover rate | target |",
             "|---|---|---|---|---|",
@@ -624,7 +653,7 @@ def choose_tau_scale(
                 break  # the choice is the largest scale that meets the target: none below it can be chosen
     meeting = [s for s in candidates if _meets_everywhere(rows, s, len(make_envs))]
     chosen = meeting[0] if meeting else own_scale
-    return ScaleChoice(str(run), sim, list(make_envs), episodes, target, rows, chosen, bool(meeting))
+    return ScaleChoice(str(run), sim, list(make_envs), episodes, target, rows, chosen, bool(meeting), dict(settings))
 
 
 def _meets_everywhere(rows: Sequence[Mapping[str, Any]], scale: float, scenarios: int) -> bool:

@@ -195,7 +195,12 @@ def register(app: typer.Typer) -> None:
         if choice.met:
             typer.echo(
                 f"deploy: sage train --sim {sim} --scenario {scenario[0]} --init {run} --world-model-only --episodes 0 "
-                f"--demo-episodes 0 --set gate.tau_scale={choice.scale:g} --checkpoint-every 0 --out RUN"
+                f"--demo-episodes 0 "
+                + " ".join(
+                    f"--set gate.{key}={value:g}" if isinstance(value, float) else f"--set gate.{key}={value}"
+                    for key, value in choice.deploy_settings().items()
+                )
+                + " --checkpoint-every 0 --out RUN"
             )
         if out is not None:
             out.parent.mkdir(parents=True, exist_ok=True)

@@ -91,14 +91,17 @@ def test_choose_scale_prints_the_rows_the_choice_and_how_to_deploy_it(tmp_path: 
     result = CliRunner().invoke(
         app,
         ["choose-scale", UGV_DEFAULT, "--sim", "ugv", "--scenario", "4", "--episodes", "2", "--max-steps", "60",
-         "--scale", "0.001", "--scale", "100", "--violation-share", "1", "--out", str(out)],
+         "--scale", "0.001", "--scale", "100", "--violation-share", "1", "--gate-set", "release=0",
+         "--out", str(out)],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     # every share of violations meets this target: the largest scale (the least takeover) is chosen at once
     assert "chosen: gate.tau_scale=100," in result.output and "| 0.001 |" not in result.output
-    assert "--set gate.tau_scale=100 " in result.output
+    # measured with release=0 over the policy's own gate (release=1): deploying the scale alone would not be it
+    assert "--set gate.release=0 --set gate.tau_scale=100 " in result.output
     saved = json.loads(out.read_text())
     assert saved["scale"] == 100 and saved["met"] and [r["scenario"] for r in saved["rows"]] == ["4"]
+    assert saved["gate_settings"] == {"release": 0.0}
     assert saved["rows"][0]["takeover_rate"] == 0.0  # τ a hundred times its bounds: fear never reaches it
 
 

@@ -83,6 +83,81 @@ def test_gate_with_expert_says_who_was_driving_at_each_violation(deployed: Path)
         assert always["expert_steps_before_violation"] >= 1
 
 
+class _ScriptedGate:
+    """A gate that plays one decision per step of each episode from ``script``: (fear, fired), with τ 0.5 and a
+    release level of 0.3 (read from ``detail.level``, as the SAGE gate keeps it)."""
+
+    def __init__(self, script: list[tuple[float, bool]]) -> None:
+        self.script, self.t = script, 0
+        self.detail = type("Detail", (), {"level": 0.3})()
+
+    def reset(self) -> None:
+        self.t = 0
+
+    def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
+        fear, fired = self.script[self.t % len(self.script)]
+        self.t += 1
+        return GateDecision(fear, 0.5, fired)
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
+        return 0.0
+
+
+def test_the_takeover_rate_is_split_by_why_the_expert_drove(deployed: Path) -> None:  # noqa: F811
+    from core.agents import load_agent
+    from studies.calibrate import TAKEOVER_CAUSES, run_gated
+
+    agent = load_agent(deployed)
+    # per 8 steps: 1 over τ, 2 in the hysteresis (under τ, over the release level), 3 of the hold counting down,
+    # 2 with the policy driving
+    script = [
+        (0.9, True),
+        (0.4, True),
+        (0.35, True),
+        (0.1, True),
+        (0.2, True),
+        (0.25, True),
+        (0.1, False),
+        (0.6, False),
+    ]
+    steps: list[int] = []
+    point = run_gated(
+        agent,
+        functools.partial(envs.make, "dynamic"),
+        _ScriptedGate(script),
+        6,
+        None,
+        listeners=[lambda r: steps.append(r.t)],
+    )
+    whole_cycles = sum(1 for t in steps if t % 8 == 7)  # episodes end mid-cycle too: count whole ones, then check
+    assert whole_cycles > 0
+    parts = {cause: point[f"takeover_{cause}"] * len(steps) for cause in TAKEOVER_CAUSES}
+    counts = {
+        "fear": sum(1 for t in steps if t % 8 == 0),
+        "hysteresis": sum(1 for t in steps if t % 8 in (1, 2)),
+        "hold": sum(1 for t in steps if t % 8 in (3, 4, 5)),
+        "manoeuvre": 0,  # the point world's expert never asks to keep the wheel
+    }
+    assert parts == pytest.approx(counts)
+    assert sum(point[f"takeover_{c}"] for c in TAKEOVER_CAUSES) == pytest.approx(point["takeover_rate"])
+
+
+def test_an_expert_that_keeps_the_wheel_counts_as_its_manoeuvre(deployed: Path) -> None:  # noqa: F811
+    from core.agents import load_agent
+    from studies.calibrate import run_gated
+
+    def engaged_env() -> object:
+        env = envs.make("dynamic")
+        env.unwrapped.expert_engaged = lambda: True  # always mid-manoeuvre: once given the wheel, it keeps it
+        return env
+
+    agent = load_agent(deployed)
+    point = run_gated(agent, engaged_env, _ScriptedGate([(0.9, True)] + [(0.1, False)] * 7), 4, None)
+    assert point["takeover_rate"] == pytest.approx(1.0)
+    assert point["takeover_fear"] > 0 and point["takeover_manoeuvre"] > point["takeover_fear"]
+    assert point["takeover_hold"] == point["takeover_hysteresis"] == 0
+
+
 class _SteadyFear:
     """A gate that never fires and reports the same fear at every step, with a τ_min of 0.2."""
 
@@ -301,6 +376,9 @@ def test_the_scale_chosen_is_the_largest_that_meets_the_target_on_every_scenario
     easy = choose_tau_scale(deployed, make_envs, 4, (eager, deaf), GateTarget(1.0, 1.0), gate_settings=fixed)
     assert easy.met and easy.scale == deaf and [r["scale"] for r in easy.rows] == [deaf]
     assert easy.rows[0]["takeover_rate"] == 0.0 and easy.rows[0]["violations"] > 0
+    # the rows ran with these settings over the run's own, so the choice holds with them and deploys them
+    assert easy.gate_settings == fixed and easy.deploy_settings() == {**fixed, "tau_scale": deaf}
+    assert "gate tau_from_data=False" in easy.summary()
 
     # no violation allowed: the policy alone misses it, the expert driving throughout does better
     strict = choose_tau_scale(deployed, make_envs, 4, (deaf, eager), GateTarget(0.0, 1.0), gate_settings=fixed)

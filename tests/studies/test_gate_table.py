@@ -20,6 +20,7 @@ def _row(scenario: str, violations: int, takeover: float, beyond: bool = False) 
         violations=violations,
         episodes=300,
         takeover_rate=takeover,
+        takeover_parts=(takeover, 0.0, 0.0, 0.0),
         under_expert=violations,
         expert_held_s=0.5,
         handed_back=0,
