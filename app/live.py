@@ -43,7 +43,7 @@ from app.messages import ExpertMode
 from app.operator import OperatorConsole, PersonExpert
 from app.policies import LoadedPolicy
 from app.versions import FinetuneSettings, VersionFollower, labelled_loader
-from core.loop import EpisodeSummary, NoGate, Runner, StepRecord
+from core.loop import EpisodeSummary, NoGate, Runner, StepRecord, takeover_cause
 from core.protocol import simulator
 from core.sessions import SessionStore, SessionWriter
 
@@ -352,6 +352,8 @@ class LiveLoop:
         message["session"] = world.session_id
         message["version"] = world.version
         message["request_person"] = bool(record.gate_fired and world.expert.mode == "person")
+        # why the scripted expert has the wheel this step (fear, the hold, its hysteresis, a manoeuvre to finish)
+        message["takeover_cause"] = takeover_cause(record, world.runner.gate) if record.actor == "expert" else None
         operator = self.console.snapshot()
         message["operator_held"] = operator.held and operator.answering
         message["counters"] = {**world.counts(), **world.expert.handover_stats()}

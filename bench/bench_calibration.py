@@ -49,10 +49,10 @@ import numpy as np
 import torch
 
 import sims
+from core.loop import TAKEOVER_CAUSES
 from core.metrics import wilson_interval
 from core.sage.config import parse_gate_settings
 from studies.calibrate import (
-    TAKEOVER_CAUSES,
     CalibrationReport,
     GateTarget,
     calibrate_run,

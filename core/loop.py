@@ -144,6 +144,27 @@ class StepRecord:
         }
 
 
+TakeoverCause = Literal["fear", "hold", "hysteresis", "manoeuvre"]
+TAKEOVER_CAUSES: tuple[TakeoverCause, ...] = ("fear", "hold", "hysteresis", "manoeuvre")
+"""Why the expert drove a step (:func:`takeover_cause`)."""
+
+
+def takeover_cause(record: StepRecord, gate: Gate) -> TakeoverCause | None:
+    """Why the expert drove this step (None: it did not): ``fear`` over the step's τ (the gate fired), the
+    ``hold`` counting down its k steps after that, ``hysteresis`` (fear under τ but over the gate's release level
+    restarted the hold: ``GateConfig.release``, read from the gate's ``detail.level`` where it keeps one) or the
+    expert's own ``manoeuvre``, kept past the gate's hold (:func:`core.protocol.expert_engaged`; at the dashboard, a
+    person holding on). Read right after the step, before the gate decides the next."""
+    if not record.takeover:
+        return None
+    if not record.gate_fired:
+        return "manoeuvre"
+    if record.fear > record.threshold:
+        return "fear"
+    level = getattr(getattr(gate, "detail", None), "level", math.nan)
+    return "hysteresis" if record.fear > level else "hold"
+
+
 @dataclass(frozen=True)
 class EpisodeProgress:
     """The running episode's tallies so far (what :class:`EpisodeSummary` will say when it ends)."""

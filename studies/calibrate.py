@@ -32,7 +32,7 @@ import numpy as np
 
 from core.agents import load_agent
 from core.experts import ScriptedExpert
-from core.loop import Gate, GateDecision, Runner, StepRecord
+from core.loop import TAKEOVER_CAUSES, Gate, GateDecision, Runner, StepRecord, takeover_cause
 from core.metrics import auroc, average_precision, difference_interval, reliability, wilson_interval
 from core.sage.gate import SageGate
 
@@ -353,22 +353,6 @@ def _tau_min(gate: Gate) -> float:
     return float(getattr(threshold, "tau_min", math.nan))
 
 
-TAKEOVER_CAUSES: tuple[str, ...] = ("fear", "hold", "hysteresis", "manoeuvre")
-"""Why the expert drove a step (:func:`run_gated`'s ``takeover_<cause>``, shares of all steps, which add up to the
-takeover rate): ``fear`` over the step's τ (the gate fired), the ``hold`` counting down its k steps after that,
-``hysteresis`` (fear under τ but over the release level restarted the hold: :attr:`GateConfig.release`) or the
-expert's own ``manoeuvre``, kept past the gate's hold (:func:`core.protocol.expert_engaged`)."""
-
-
-def _takeover_cause(record: StepRecord, gate: Gate) -> str:
-    if not record.gate_fired:
-        return "manoeuvre"
-    if record.fear > record.threshold:
-        return "fear"
-    level = getattr(getattr(gate, "detail", None), "level", math.nan)
-    return "hysteresis" if record.fear > level else "hold"
-
-
 def run_gated(
     agent: Any,
     make_env: Callable[[], gym.Env[Any, Any]],
@@ -396,8 +380,9 @@ def run_gated(
             recent.append((r.fear, bool(r.gate_fired or r.takeover)))
             if r.violation and first[0] is None:
                 first[0] = (bool(r.takeover), streak[0], list(recent))
-            if r.takeover:
-                expert_steps[_takeover_cause(r, gate)] += 1
+            cause = takeover_cause(r, gate)
+            if cause is not None:
+                expert_steps[cause] += 1
 
         runner.step_listeners.append(watch)
         runner.step_listeners.extend(listeners)
@@ -477,7 +462,7 @@ def gate_with_expert(
     """The product as it runs: the policy with its own SAGE gate (its τ, unscaled; ``gate_overrides``: any
     :class:`~core.sage.config.GateConfig` field, e.g. ``release=1.0``) and the scripted expert.
     Returns the share of episodes with a violation and the takeover rate, on the evaluation seeds, the takeover
-    rate's parts by why the expert drove (``takeover_<cause>``, :data:`TAKEOVER_CAUSES`), and where each
+    rate's parts by why the expert drove (``takeover_<cause>``: :func:`core.loop.takeover_cause`), and where each
     episode's first violation comes from:
 
     - ``violations_under_expert``: the expert was driving (the gate warned; the expert could not avoid it from

@@ -236,17 +236,24 @@ function renderStep(msg) {
     if (S.role === "operator" && $("sound").checked && performance.now() - lastBeep > 900) { beep(); lastBeep = performance.now(); }
   } else if (msg.takeover) {
     banner.hidden = false; banner.dataset.kind = msg.actor;
-    // past the gate's hold (gate_fired false) the scripted expert drives on only to finish a manoeuvre
-    banner.textContent = msg.actor === "expert" && !msg.gate_fired
-      ? "Scripted expert in control: finishing its manoeuvre"
-      : {
-        person: "Person in control", fallback: "Scripted fallback in control: operator not answering",
-        expert: "Scripted expert in control",
-      }[msg.actor] || `${msg.actor} in control`;
+    const who = {
+      person: "Person in control", fallback: "Scripted fallback in control: operator not answering",
+      expert: "Scripted expert in control",
+    }[msg.actor] || `${msg.actor} in control`;
+    // why the scripted expert still has the wheel (the gate's reason, or past its hold a manoeuvre to finish)
+    const why = msg.actor === "expert" ? TAKEOVER_WHY[msg.takeover_cause] : null;
+    banner.textContent = why ? `${who}: ${why}` : who;
   } else {
     banner.hidden = true;
   }
 }
+
+const TAKEOVER_WHY = {
+  fear: "fear over the threshold",
+  hold: "holding on after the warning",
+  hysteresis: "fear not yet under the release level",
+  manoeuvre: "finishing its manoeuvre",
+};
 
 let labelKeys = "";
 function renderLabels(labels) {

@@ -325,8 +325,9 @@ class ManoeuvringToyEnv(ToyRobotEnv):
 
 
 def test_the_banner_says_when_the_scripted_expert_drives_on_to_finish_a_manoeuvre(browser: Any, tmp_path: Path) -> None:
-    """Scripted mode: during the gate's firing the banner names the scripted expert; after it, while the expert
-    finishes its manoeuvre (the simulator's ``expert_engaged``), it says why the policy has not got the wheel back."""
+    """Scripted mode: during the gate's firing the banner names the scripted expert and why (fear over τ); after
+    it, while the expert finishes its manoeuvre (the simulator's ``expert_engaged``), it says why the policy has not
+    got the wheel back."""
     settings = toy_settings(
         tmp_path, expert_mode="scripted", env_factory=lambda sim, scenario: ManoeuvringToyEnv(scenario)
     )
@@ -340,9 +341,10 @@ def test_the_banner_says_when_the_scripted_expert_drives_on_to_finish_a_manoeuvr
             "document.getElementById('banner').textContent.includes('finishing its manoeuvre')",
             timeout=WAIT_MS,
         )
+        # while the gate fires it says why: the wave gate's fear is over its threshold when it fires
         page.wait_for_function(
-            "sage.lastStep && sage.lastStep.gate_fired && "
-            "document.getElementById('banner').textContent === 'Scripted expert in control'",
+            "sage.lastStep && sage.lastStep.gate_fired && sage.lastStep.takeover_cause === 'fear' && "
+            "document.getElementById('banner').textContent === 'Scripted expert in control: fear over the threshold'",
             timeout=WAIT_MS,
         )
         held = recorder.wait_for(lambda r: r.takeover and not r.gate_fired, since=t0)
