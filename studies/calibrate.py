@@ -495,7 +495,7 @@ class ScaleChoice:
     target: GateTarget
     rows: list[dict[str, Any]]
     """One per (scale, scenario) driven: ``scale``, ``scenario``, ``violations`` (episodes with one),
-    ``episodes``, ``takeover_rate``, ``met``."""
+    ``episodes``, ``takeover_rate`` and its parts by why the expert drove (``takeover_<cause>``), ``met``."""
     scale: float
     """The chosen ``gate.tau_scale``: where none met the target, the run's own, unchanged."""
     met: bool
@@ -519,14 +519,19 @@ class ScaleChoice:
             f"most {t.takeover_rate:.0%} takeover, on every scenario"
             + ("; gate " + ", ".join(f"{k}={v}" for k, v in self.gate_settings.items()) if self.gate_settings else ""),
             "",
-            "| tau_scale | scenario | episodes with a violation (95% interval) | takeover rate | target |",
-            "|---|---|---|---|---|",
+            "| tau_scale | scenario | episodes with a violation (95% interval) | takeover rate "
+            "| why the expert drove: fear over τ · hold · hysteresis · manoeuvre (% of steps) | target |",
+            "|---|---|---|---|---|---|",
         ]
         for r in self.rows:
             low, high = wilson_interval(int(r["violations"]), int(r["episodes"]))
+            # rows saved before the parts were measured have none
+            parts = " · ".join(
+                f"{100 * r[f'takeover_{c}']:.0f}" if f"takeover_{c}" in r else "–" for c in TAKEOVER_CAUSES
+            )
             lines.append(
                 f"| {r['scale']:g} | {r['scenario']} | {r['violations']}/{r['episodes']} ({low:.0%}-{high:.0%}) | "
-                f"{r['takeover_rate']:.1%} | {'met' if r['met'] else 'missed'} |"
+                f"{r['takeover_rate']:.1%} | {parts} | {'met' if r['met'] else 'missed'} |"
             )
         lines.append("")
         if self.met:
@@ -561,6 +566,7 @@ def scaled_gate_row(
         "violations": violations,
         "episodes": episodes,
         "takeover_rate": point["takeover_rate"],
+        **{f"takeover_{cause}": point[f"takeover_{cause}"] for cause in TAKEOVER_CAUSES},
         "met": target.met(violations, episodes, point["takeover_rate"]),
     }
 

@@ -103,6 +103,7 @@ def test_choose_scale_prints_the_rows_the_choice_and_how_to_deploy_it(tmp_path: 
     assert saved["scale"] == 100 and saved["met"] and [r["scenario"] for r in saved["rows"]] == ["4"]
     assert saved["gate_settings"] == {"release": 0.0}
     assert saved["rows"][0]["takeover_rate"] == 0.0  # τ a hundred times its bounds: fear never reaches it
+    assert saved["rows"][0]["takeover_fear"] == 0.0 and "| 0 · 0 · 0 · 0 | met |" in result.output
 
 
 def test_choose_scale_refuses_bad_input_with_one_line(tmp_path: Path) -> None:

@@ -384,6 +384,10 @@ def test_the_scale_chosen_is_the_largest_that_meets_the_target_on_every_scenario
     strict = choose_tau_scale(deployed, make_envs, 4, (deaf, eager), GateTarget(0.0, 1.0), gate_settings=fixed)
     by_scale = {r["scale"]: r for r in strict.rows}
     assert by_scale[eager]["takeover_rate"] > 0.9
+    # τ about 0: the expert drives because fear is over τ, step after step, not because of the hold after it
+    assert by_scale[eager]["takeover_fear"] > 0.9 and by_scale[deaf]["takeover_fear"] == 0.0
+    parts = sum(by_scale[eager][f"takeover_{c}"] for c in ("fear", "hold", "hysteresis", "manoeuvre"))
+    assert parts == pytest.approx(by_scale[eager]["takeover_rate"])
     assert by_scale[eager]["violations"] < by_scale[deaf]["violations"]
     assert strict.scale == eager and strict.met == (by_scale[eager]["violations"] == 0)
 
