@@ -3,16 +3,17 @@
 Takeover steps and segments, return, cost and violations per episode are the :class:`core.loop.Runner`'s own
 tallies (:meth:`~core.loop.Runner.progress`, the same numbers its :class:`~core.loop.EpisodeSummary` reports);
 finished episodes are added up here when they end. Only what the loop does not know is counted from the
-steps: who acted during a takeover (a person, or the fallback when the person was idle).
+steps: who acted during a takeover (a person, or the fallback when the person was idle), and why the scripted
+expert drove.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
-from core.loop import EpisodeProgress, EpisodeSummary, StepRecord
+from core.loop import TAKEOVER_CAUSES, EpisodeProgress, EpisodeSummary, StepRecord, TakeoverCause
 
 
 @dataclass
@@ -23,14 +24,21 @@ class SessionCounters:
     """Finished episodes whose metrics report a collision."""
     person_steps: int = 0
     fallback_steps: int = 0
+    expert_steps_by_cause: dict[str, int] = field(default_factory=lambda: dict.fromkeys(TAKEOVER_CAUSES, 0))
+    """The scripted expert's steps by why it drove (:func:`core.loop.takeover_cause`)."""
+    _seen_steps: int = 0
     _done_steps: int = 0
     _done_takeovers: int = 0
     _done_events: int = 0
     _done_violations: int = 0
 
-    def on_step(self, record: StepRecord) -> None:
+    def on_step(self, record: StepRecord, cause: TakeoverCause | None = None) -> None:
+        """Count a step; ``cause``: why the scripted expert drove it (None: it did not)."""
+        self._seen_steps += 1
         self.person_steps += int(record.actor == "person")
         self.fallback_steps += int(record.actor == "fallback")
+        if cause is not None and record.actor == "expert":
+            self.expert_steps_by_cause[cause] += 1
 
     def on_episode(self, summary: EpisodeSummary, final: EpisodeProgress) -> bool:
         """Add a finished episode (its summary, and the runner's final tallies); returns whether it collided."""
@@ -65,5 +73,10 @@ class SessionCounters:
             "episode_return": current.ret if current is not None else 0.0,
             "episode_cost": current.cost if current is not None else 0.0,
             "takeover_rate": takeovers / steps if steps else 0.0,
+            # shares of every step seen, so that they add up to the scripted expert's part of the takeover rate
+            "expert_share_by_cause": {
+                cause: n / self._seen_steps if self._seen_steps else 0.0
+                for cause, n in self.expert_steps_by_cause.items()
+            },
             "episode_takeover_rate": episode_takeovers / episode_steps if episode_steps else 0.0,
         }

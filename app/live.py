@@ -346,14 +346,15 @@ class LiveLoop:
 
     def _on_step(self, record: StepRecord) -> None:
         world = self.world
-        world.counters.on_step(record)
+        # why the scripted expert has the wheel this step (fear, the hold, its hysteresis, a manoeuvre to finish)
+        cause = takeover_cause(record, world.runner.gate) if record.actor == "expert" else None
+        world.counters.on_step(record, cause)
         message = record.to_message()
         message["type"] = "step"
         message["session"] = world.session_id
         message["version"] = world.version
         message["request_person"] = bool(record.gate_fired and world.expert.mode == "person")
-        # why the scripted expert has the wheel this step (fear, the hold, its hysteresis, a manoeuvre to finish)
-        message["takeover_cause"] = takeover_cause(record, world.runner.gate) if record.actor == "expert" else None
+        message["takeover_cause"] = cause
         operator = self.console.snapshot()
         message["operator_held"] = operator.held and operator.answering
         message["counters"] = {**world.counts(), **world.expert.handover_stats()}

@@ -282,6 +282,10 @@ function renderCounters(c) {
   $("st-steps").textContent = `${c.steps} steps`;
   $("st-events").textContent = c.takeover_events;
   $("st-person").textContent = `person ${c.person_steps} · fallback ${c.fallback_steps}`;
+  const why = c.expert_share_by_cause || {};
+  $("st-why").textContent = "scripted expert drove: " + (Object.values(why).some((v) => v > 0)
+    ? `fear ${pct(why.fear)} · hold ${pct(why.hold)} · hysteresis ${pct(why.hysteresis)} · manoeuvre ${pct(why.manoeuvre)}`
+    : "–");
   // how long the person took to take hold after the gate asked, and the largest action jump at a handover
   const latency = Number.isFinite(c.handover_latency_last) ? `answered in ${Math.round(1000 * c.handover_latency_last)} ms` : "";
   const jump = Number.isFinite(c.handover_jump_max) ? `max handover jump ${Math.round(100 * c.handover_jump_max)}%` : "";

@@ -347,6 +347,10 @@ def test_the_banner_says_when_the_scripted_expert_drives_on_to_finish_a_manoeuvr
             "document.getElementById('banner').textContent === 'Scripted expert in control: fear over the threshold'",
             timeout=WAIT_MS,
         )
+        # the session panel adds up why the scripted expert drove, the manoeuvres past the gate among them
+        page.wait_for_function(
+            "/fear [1-9].* manoeuvre [1-9]/.test(document.getElementById('st-why').textContent)", timeout=WAIT_MS
+        )
         held = recorder.wait_for(lambda r: r.takeover and not r.gate_fired, since=t0)
         assert held.actor == "expert" and 30 <= held.t % 40 < 36, (held.t, held.actor)
         page.context.close()

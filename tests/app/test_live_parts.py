@@ -75,6 +75,40 @@ def test_commands_apply_in_the_loop_and_the_counters_are_the_runners_own_tallies
         loop.stop()
 
 
+def test_each_step_says_why_the_scripted_expert_drove_and_the_counters_add_it_up() -> None:
+    from tests.app.fakesim import WaveGate
+
+    sent: list[dict[str, Any]] = []
+
+    def loader(choice: str, env: Any) -> LoadedPolicy:
+        return LoadedPolicy(Constant(0.5), WaveGate(period=10, fire_from=3, fire_to=6), "constant", {})
+
+    loop = LiveLoop(
+        LiveConfig(sim="toy", policy="constant", expert_mode="scripted"),
+        env_factory=toy_env_factory,
+        policy_loader=loader,
+        console=OperatorConsole(),
+        publish=lambda text: sent.append(json.loads(text)),
+        start_paused=True,
+    )
+    loop.start()
+    try:
+        for _ in range(25):
+            loop.submit(c.StepOnce()).result(10)
+        steps = [s for s in sent if s["type"] == "step"]
+        # the wave gate fires at steps 3-5 of every 10 with fear over its threshold at the first, and keeps no
+        # release level: every step the expert drives is fear or the hold, and only those
+        causes = [s["takeover_cause"] for s in steps]
+        assert all((cause is None) == (not s["takeover"]) for cause, s in zip(causes, steps, strict=True))
+        assert "fear" in causes and set(causes) <= {None, "fear", "hold"}
+        shares = loop.state()["counters"]["expert_share_by_cause"]
+        for cause in ("fear", "hold", "hysteresis", "manoeuvre"):
+            assert shares[cause] == pytest.approx(causes.count(cause) / len(steps))
+        assert sum(shares.values()) == pytest.approx(sum(s["takeover"] for s in steps) / len(steps))
+    finally:
+        loop.stop()
+
+
 def test_the_clock_keeps_the_rate_without_bursts_and_rephases_on_a_takeover() -> None:
     clock = RateClock(0.0)
     assert clock.wait(0.0, onset=False) == 0.0
