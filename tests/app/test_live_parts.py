@@ -14,7 +14,7 @@ from app.clock import RateClock
 from app.live import LiveConfig, LiveLoop
 from app.operator import OperatorConsole
 from app.policies import LoadedPolicy
-from core.loop import NoGate
+from core.loop import Gate, NoGate
 from tests.app.test_live_finetune import Constant, toy_env_factory
 
 
@@ -32,9 +32,11 @@ def test_every_message_class_has_a_handler_and_every_command_a_loop_handler() ->
         registry.dispatch(None, c.Resume())
 
 
-def make_loop(sent: list[dict[str, Any]]) -> LiveLoop:
+def make_loop(sent: list[dict[str, Any]], gate: Gate | None = None) -> LiveLoop:
+    """A paused live loop on the toy simulator: a constant policy, ``gate`` (none: never fires), scripted expert."""
+
     def loader(choice: str, env: Any) -> LoadedPolicy:
-        return LoadedPolicy(Constant(0.5), NoGate(), "constant", {})
+        return LoadedPolicy(Constant(0.5), gate if gate is not None else NoGate(), "constant", {})
 
     return LiveLoop(
         LiveConfig(sim="toy", policy="constant", expert_mode="scripted"),
@@ -79,18 +81,7 @@ def test_each_step_says_why_the_scripted_expert_drove_and_the_counters_add_it_up
     from tests.app.fakesim import WaveGate
 
     sent: list[dict[str, Any]] = []
-
-    def loader(choice: str, env: Any) -> LoadedPolicy:
-        return LoadedPolicy(Constant(0.5), WaveGate(period=10, fire_from=3, fire_to=6), "constant", {})
-
-    loop = LiveLoop(
-        LiveConfig(sim="toy", policy="constant", expert_mode="scripted"),
-        env_factory=toy_env_factory,
-        policy_loader=loader,
-        console=OperatorConsole(),
-        publish=lambda text: sent.append(json.loads(text)),
-        start_paused=True,
-    )
+    loop = make_loop(sent, WaveGate(period=10, fire_from=3, fire_to=6))
     loop.start()
     try:
         for _ in range(25):
