@@ -64,6 +64,11 @@ class AgentMeta:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+FEAR_SHAPE = ("beta", "horizon", "aggregate", "discount", "tau_min_quantile", "tau_max_quantile")
+"""Gate settings that change the fear a model's τ bounds were measured on (or the quantiles they were taken at):
+a gate that sets one over a run's own needs the bounds measured again (``sage recalibrate``)."""
+
+
 # -- writing --------------------------------------------------------------------------------------
 def save_checkpoint(
     path: Path, learner: BaseLearner, meta: AgentMeta, dtype: str = "float32", config: AgentConfig | None = None
@@ -88,6 +93,41 @@ def save_checkpoint(
     torch.save(payload, tmp)
     tmp.replace(path)  # never leave a half-written checkpoint behind
     return path
+
+
+def save_with_world_model(
+    payload: dict[str, Any],
+    out: Path,
+    world_model: EnsembleWorldModel,
+    agent_config: dict[str, Any],
+    provenance: dict[str, Any],
+    dtype: str = "float32",
+) -> Path:
+    """Write a run folder ``out`` (``checkpoint.pt``, ``config.json``) that is the loaded checkpoint ``payload``
+    (:func:`load_checkpoint`) with another world model and learner config, every other tensor as it was: what
+    ``sage merge`` and ``sage recalibrate`` make from a run. ``provenance`` (JSON-ready) goes into the meta's
+    ``extra`` and the top of ``config.json``, which starts from the source run's own when it has one."""
+    if dtype not in ("float32", "float16"):
+        raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
+    source = Path(payload["file"])
+    out.mkdir(parents=True, exist_ok=True)
+    written = dict(payload)
+    written.pop("file", None)
+    state = dict(written["state"])
+    state["world_model"] = {name: value.detach().clone() for name, value in world_model.state_dict().items()}
+    written["state"] = halved(state) if dtype == "float16" else state  # as save_checkpoint writes it
+    written["agent_config"] = agent_config
+    meta = dict(written["meta"])
+    meta["extra"] = {**meta.get("extra", {}), **provenance}
+    written["meta"] = meta
+    tmp = out / (FINAL_CHECKPOINT + ".tmp")
+    torch.save(written, tmp)
+    tmp.replace(out / FINAL_CHECKPOINT)
+    config_path = source.parent / "config.json"
+    config: dict[str, Any] = json.loads(config_path.read_text()) if config_path.is_file() else {}
+    config.update(agent=agent_config, meta=meta, **provenance)
+    (out / "config.json").write_text(json.dumps(config, indent=2, default=str) + "\n")
+    return out / FINAL_CHECKPOINT
 
 
 def _plain(value: Any) -> Any:
@@ -216,10 +256,19 @@ class LoadedAgent:
                 f"run {source.path} (method {source.meta.method}) has no trained world model, so no SAGE gate; "
                 "use core.loop.NoGate, or make_gate(world_model_from=<a run with one>)"
             )
+        cfg = self.gate_config(**overrides)
+        if cfg.tau_from_data:
+            own = source.config.gate
+            moved = [name for name in FEAR_SHAPE if getattr(cfg, name) != getattr(own, name)]
+            if moved:
+                raise ValueError(
+                    f"gate setting {', '.join(f'{n}={getattr(cfg, n)}' for n in moved)} changes fear itself, and the "
+                    f"τ bounds of {source.path} were measured on its fear with "
+                    f"{', '.join(f'{n}={getattr(own, n)}' for n in moved)}: recalibrate them first "
+                    "(sage recalibrate RUN --gate-set ...), or give the bounds (tau_from_data=false, tau_min, tau_max)"
+                )
         learner = self.learner
-        gate = SageGate(
-            source.world_model, learner.gate_policy(), self.gate_config(**overrides), encode=learner.gate_encoder()
-        )
+        gate = SageGate(source.world_model, learner.gate_policy(), cfg, encode=learner.gate_encoder())
         if source is self and self.gate_state:
             gate.load_state(self.gate_state)
         return gate

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from core.agents import FINAL_CHECKPOINT, halved, load_agent, load_checkpoint, resolve_checkpoint
-from core.sage.fear import CALIBRATION_FILE, CalibrationSample, calibrate
+from core.agents import FINAL_CHECKPOINT, load_agent, load_checkpoint, resolve_checkpoint, save_with_world_model
+from core.sage.fear import CALIBRATION_FILE, CalibrationSample
 from core.sage.world_model import merge_ensembles
 
 MERGE_FILE = "merge.json"
@@ -101,43 +101,17 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
     rng = np.random.default_rng(seed)
     index = np.arange(len(sample)) if len(sample) <= wanted else np.sort(rng.choice(len(sample), wanted, replace=False))
     used = sample.subset(index)
-    calibrate(
-        merged,
-        first.learner.rollout_policy,
-        torch.from_numpy(used.obs),
-        gate_cfg.horizon,
-        cfg=gate_cfg,
-        safe=torch.from_numpy(used.familiar),
-        motion=None if used.motion is None else torch.from_numpy(used.motion),
-    )
+    used.calibrate(merged, first.learner.rollout_policy, gate_cfg)
     merged.requires_grad_(False)
     bounds = (float(merged.tau_bounds[0]), float(merged.tau_bounds[1]))
     if not all(np.isfinite(bounds)):
         raise ValueError(
             f"the calibration samples hold {int(used.familiar.sum())} familiar states, too few to set the τ bounds"
         )
-    out.mkdir(parents=True, exist_ok=True)
-    payload = dict(first_payload)
-    payload.pop("file", None)
-    state = dict(payload["state"])
-    state["world_model"] = {name: value.detach().clone() for name, value in merged.state_dict().items()}
-    payload["state"] = halved(state) if dtype == "float16" else state  # as save_checkpoint writes it
-    agent_config = json.loads(json.dumps(payload["agent_config"]))
+    agent_config = json.loads(json.dumps(first_payload["agent_config"]))
     agent_config["world_model_config"]["members"] = merged.members
-    payload["agent_config"] = agent_config
     names = [str(_run_folder(run)) for run in runs]
-    meta = dict(payload["meta"])
-    meta["extra"] = {**meta.get("extra", {}), "merged_from": names}
-    payload["meta"] = meta
-    tmp = out / (FINAL_CHECKPOINT + ".tmp")
-    torch.save(payload, tmp)
-    tmp.replace(out / FINAL_CHECKPOINT)
-    config_path = files[0].parent / "config.json"
-    config: dict[str, Any] = json.loads(config_path.read_text()) if config_path.is_file() else {}
-    config["agent"] = agent_config
-    config["meta"] = meta
-    config["merged_from"] = names
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=str) + "\n")
+    save_with_world_model(first_payload, out, merged, agent_config, {"merged_from": names}, dtype)
     used.save(out / CALIBRATION_FILE)
     result = MergeResult(
         out=out,

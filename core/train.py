@@ -37,6 +37,7 @@ import torch
 
 from core.agents import (
     CHECKPOINT_DIR,
+    FEAR_SHAPE,
     FINAL_CHECKPOINT,
     AgentMeta,
     action_bounds,
@@ -232,6 +233,18 @@ class Trainer:
                 f"--init {path}: its policy takes {meta.obs_dim} observations / {meta.act_dim} actions, "
                 f"this simulator has {self.obs_dim} / {self.act_dim}"
             )
+        run = self.run
+        if run.world_model_only and not (run.episodes or run.demo_episodes or run.train_steps):
+            # no step, so no fit: the init's τ bounds are written as they are, measured on the init's fear
+            own = payload["agent_config"].get("gate", {})
+            gate = self.saved_cfg.gate
+            moved = [n for n in FEAR_SHAPE if n in own and own[n] != getattr(gate, n)]
+            if moved and gate.tau_from_data:
+                raise ValueError(
+                    f"--init {path}: gate {', '.join(f'{n}={getattr(gate, n)}' for n in moved)} changes fear itself, "
+                    "and a run of 0 episodes fits nothing, so its τ bounds would stay those measured on the init's "
+                    f"fear ({', '.join(f'{n}={own[n]}' for n in moved)}): use sage recalibrate {path} --gate-set ..."
+                )
         try:
             return self.learner.load_state_dict(payload["state"], strict=False)
         except RuntimeError as exc:

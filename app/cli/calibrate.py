@@ -206,3 +206,67 @@ def register(app: typer.Typer) -> None:
             out.parent.mkdir(parents=True, exist_ok=True)
             out.write_text(json.dumps(choice.as_dict(), indent=2) + "\n")
             typer.echo(f"wrote {out}")
+
+    @app.command()
+    def recalibrate(
+        run: Annotated[str, typer.Argument(help="Run folder or checkpoint with a world model.")],
+        sim: Annotated[str, typer.Option(help="Simulator.")] = "ugv",
+        scenario: Annotated[
+            list[str] | None,
+            typer.Option(help="A scenario to drive (repeatable): those the policy was trained on."),
+        ] = None,
+        episodes: Annotated[int, typer.Option(min=1, help="Episodes of the policy alone per scenario.")] = 100,
+        gate_set: Annotated[
+            list[str] | None,
+            typer.Option(
+                "--gate-set", help="A gate setting to measure the bounds for, KEY=VALUE (repeatable), e.g. beta=0.8."
+            ),
+        ] = None,
+        choose_beta: Annotated[
+            bool,
+            typer.Option(
+                "--choose-beta",
+                help="Choose β from the same drives: the candidate (0, 0.1, ..., 1) whose fear ranks the steps "
+                "before a violation best (mean AUROC over the scenarios).",
+            ),
+        ] = False,
+        horizon: Annotated[float, typer.Option(help="--choose-beta's label: a violation within this many s.")] = 1.0,
+        max_steps: Annotated[int | None, typer.Option(help="Cut episodes at this many steps.")] = None,
+        checkpoint_dtype: Annotated[str, typer.Option(help="float32, or float16 (half the file).")] = "float32",
+        out: Annotated[Path | None, typer.Option(help="The new run folder.")] = None,
+    ) -> None:
+        """Measure the gate's τ bounds (and κ) again, for other fear settings or a chosen β: the run with its world
+        model's weights unchanged, written to a new folder."""
+        import torch
+
+        import sims
+        from core.sage.config import parse_gate_settings
+        from studies.recalibrate import recalibrate_run
+
+        torch.set_num_threads(1)
+        try:
+            if not scenario:
+                raise ValueError("give the scenarios to drive with --scenario (those the policy was trained on)")
+            if out is None:
+                raise ValueError("give the new run folder with --out")
+            descriptor = sims.descriptor(sim)
+            for name in scenario:
+                descriptor.scenario_kwargs(name)
+            result = recalibrate_run(
+                run,
+                descriptor.make,
+                scenario,
+                episodes,
+                out,
+                descriptor.dt,
+                gate_settings=parse_gate_settings(gate_set or []),
+                choose=choose_beta,
+                label_s=horizon,
+                max_steps=max_steps,
+                dtype=checkpoint_dtype,
+            )
+        except (ValueError, FileNotFoundError, LookupError) as exc:
+            typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+            raise typer.Exit(code=2) from None
+        typer.echo(result.summary())
+        typer.echo(f"wrote {out}")

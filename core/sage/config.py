@@ -111,7 +111,10 @@ class GateConfig:
     """Fear, curiosity, threshold and takeover hold (:mod:`core.sage.fear`, :mod:`core.sage.gate`)."""
 
     beta: float = 0.5
-    """β of eq:fear: weight of the predicted cost ĉ against the normalised uncertainty σ̂ in F = βĉ + (1-β)σ̂."""
+    """β of eq:fear: weight of the predicted cost ĉ against the normalised uncertainty σ̂ in F = βĉ + (1-β)σ̂.
+    The τ bounds are measured on fear at the fit's β: a loaded run's gate may not set another
+    (:data:`core.agents.FEAR_SHAPE`); ``sage recalibrate --gate-set beta=...`` measures them again, and
+    ``--choose-beta`` chooses β on the training scenarios (:mod:`studies.recalibrate`)."""
     horizon: int = 5
     """m, the number of world-model steps rolled out under the current policy for the short-horizon fear."""
     aggregate: Literal["max", "discounted_mean"] = "max"

@@ -263,6 +263,19 @@ class CalibrationSample:
             motion=arrays["motion"].astype(np.float32) if "motion" in arrays else None,
         )
 
+    def calibrate(self, world_model: EnsembleWorldModel, policy: PolicyFn, cfg: GateConfig) -> None:
+        """Set ``world_model``'s κ and τ bounds on these states under ``policy`` (:func:`calibrate`) for the gate
+        ``cfg``: its fear (β, horizon, aggregation) and its quantiles."""
+        calibrate(
+            world_model,
+            policy,
+            torch.from_numpy(self.obs),
+            cfg.horizon,
+            cfg=cfg,
+            safe=torch.from_numpy(self.familiar),
+            motion=None if self.motion is None else torch.from_numpy(self.motion),
+        )
+
     @classmethod
     def concat(cls, samples: list[CalibrationSample]) -> CalibrationSample:
         if not samples:

@@ -39,7 +39,7 @@ from torch import Tensor
 from core.loop import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.config import AgentConfig, GateConfig
-from core.sage.fear import CalibrationSample, PolicyFn, calibrate, rollout, sample_member_transitions
+from core.sage.fear import CalibrationSample, PolicyFn, rollout, sample_member_transitions
 from core.sage.gate import SageGate
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel, FitReport
@@ -62,6 +62,37 @@ def familiar_for_bounds(
     ahead = buffer.violation_soon(violation_steps + horizon)
     data = buffer.arrays()
     return np.maximum.reduce([data["cost"], ahead, conflict_weight * data["conflict"]]) < SAFE_LABEL
+
+
+def calibration_sample(
+    buffer: ReplayBuffer,
+    world_model: EnsembleWorldModel,
+    gate: GateConfig,
+    rng: np.random.Generator,
+    motion: np.ndarray | None = None,
+    states: int | None = None,
+) -> CalibrationSample:
+    """Up to ``states`` distinct rows of the real buffer (all of them when it holds fewer; default
+    ``gate.calibration_states``), each marked familiar or not (:func:`familiar_for_bounds`), with the model's motion
+    input (``motion``: the buffer's :meth:`~core.replay.ReplayBuffer.previous_deltas`, computed here when None and
+    the model reads it): the states a fit sets κ and the τ bounds on (:meth:`CalibrationSample.calibrate`)."""
+    data = buffer.arrays()
+    wanted = gate.calibration_states if states is None else states
+    n = len(buffer)
+    # distinct states, as many as the config allows: τ_max is a tail quantile (see GateConfig)
+    idx = np.arange(n) if n <= wanted else np.sort(rng.choice(n, size=wanted, replace=False))
+    if motion is None and world_model.motion:
+        motion = buffer.previous_deltas(world_model.motion_lag, world_model.scan)
+    familiar = familiar_for_bounds(
+        buffer, world_model.cfg.violation_steps, gate.horizon, world_model.cfg.conflict_label_weight
+    )
+    return CalibrationSample(
+        obs=data["obs"][idx],
+        action=data["action"][idx],
+        next_obs=data["next_obs"][idx],
+        familiar=familiar[idx],
+        motion=None if motion is None else motion[idx],
+    )
 
 
 class ActorPolicy:
@@ -204,14 +235,18 @@ class BaseLearner:
     # -- the loop's listener -----------------------------------------------------------------------
     def store(self, record: StepRecord) -> None:
         """Add one step of the loop to the real buffer, its actions encoded (:meth:`encode_action`)."""
+        self.buffer.add_record(self.encoded(record))
+
+    def encoded(self, record: StepRecord) -> StepRecord:
+        """The step with its actions as the buffers and the world model hold them (:meth:`encode_action`)."""
         if self.model_action_dim != self.act_dim or self.encodes_actions:
-            record = dataclasses.replace(
+            return dataclasses.replace(
                 record,
                 action=self.encode_action(record.action),
                 a_rl=self.encode_action(record.a_rl),
                 a_expert=None if record.a_expert is None else self.encode_action(record.a_expert),
             )
-        self.buffer.add_record(record)
+        return record
 
     encodes_actions = False
     """Whether :meth:`encode_action` changes actions (a discrete learner's one-hot), so :meth:`store` must."""
@@ -325,32 +360,10 @@ class BaseLearner:
         )
         self._steps_at_last_fit = self.env_steps
         self.last_fit = report
-        n, wanted = len(self.buffer), self.cfg.gate.calibration_states
-        # distinct states, as many as the config allows: τ_max is a tail quantile (see GateConfig)
-        idx = np.arange(n) if n <= wanted else np.sort(self.rng.choice(n, size=wanted, replace=False))
-        starts = torch.from_numpy(data["obs"][idx])
-        safe = torch.from_numpy(
-            familiar_for_bounds(
-                self.buffer, wm.cfg.violation_steps, self.cfg.gate.horizon, wm.cfg.conflict_label_weight
-            )[idx]
+        self.last_calibration = calibration_sample(
+            self.buffer, wm, self.cfg.gate, self.rng, motion, self.cfg.gate.calibration_states
         )
-        start_motion = None if motion is None else torch.from_numpy(motion[idx])
-        self.last_calibration = CalibrationSample(
-            obs=data["obs"][idx],
-            action=data["action"][idx],
-            next_obs=data["next_obs"][idx],
-            familiar=safe.numpy(),
-            motion=None if motion is None else motion[idx],
-        )
-        calibrate(
-            self.world_model,
-            self.rollout_policy,
-            starts,
-            self.cfg.gate.horizon,
-            cfg=self.cfg.gate,
-            safe=safe,
-            motion=start_motion,
-        )
+        self.last_calibration.calibrate(wm, self.rollout_policy, self.cfg.gate)
         self.info.update(wm_holdout_nll=report.holdout_nll, wm_holdout_mse=report.holdout_mse, wm_epochs=report.epochs)
         self.virtual_rollout()
         return report

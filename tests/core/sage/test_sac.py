@@ -216,26 +216,28 @@ def test_the_tau_bounds_come_from_every_state_of_a_buffer_smaller_than_the_calib
     assert torch.equal(wm.tau_bounds, fitted[0]) and torch.equal(wm.sigma_scale, fitted[1])
 
 
-def test_a_larger_buffer_is_calibrated_on_distinct_states(monkeypatch: pytest.MonkeyPatch) -> None:
-    import core.sage.learner as learner_module
+def test_a_larger_buffer_is_calibrated_on_distinct_states() -> None:
+    from core.sage.fear import calibrate
 
     learner = filled("sage")
     learner.cfg.gate.calibration_states = 200
-    seen: list[torch.Tensor] = []
-    real = learner_module.calibrate
-    monkeypatch.setattr(
-        learner_module, "calibrate", lambda wm, policy, obs, *a, **k: seen.append(obs) or real(wm, policy, obs, *a, **k)
-    )
     learner.fit_world_model()
-    (starts,) = seen
-    assert len(starts) == 200 and len(torch.unique(starts, dim=0)) == 200  # drawn without replacement
+    sample = learner.last_calibration
+    assert sample is not None and len(sample) == 200
+    assert len(np.unique(sample.obs, axis=0)) == 200  # drawn without replacement
+    # and they are the states the bounds were set on
+    wm = learner.world_model
+    assert wm is not None
+    fitted = wm.tau_bounds.clone()
+    motion = None if sample.motion is None else torch.from_numpy(sample.motion)
+    calibrate(wm, learner.rollout_policy, torch.from_numpy(sample.obs), learner.cfg.gate.horizon, cfg=learner.cfg.gate,
+              safe=torch.from_numpy(sample.familiar), motion=motion)  # fmt: skip
+    assert torch.equal(wm.tau_bounds, fitted)
 
 
 def test_a_refit_learns_the_buffers_conflicts_and_keeps_them_out_of_the_bounds(monkeypatch: pytest.MonkeyPatch) -> None:
     """fit_world_model hands the buffer's conflict flags to the world model's fit, and with conflict_label_weight
     above 0 the calibration of τ's bounds leaves the conflict states out of its familiar ones."""
-    import core.sage.learner as learner_module
-
     learner = filled("sage")
     wm = learner.world_model
     assert wm is not None
@@ -246,17 +248,12 @@ def test_a_refit_learns_the_buffers_conflicts_and_keeps_them_out_of_the_bounds(m
     fitted: list[np.ndarray] = []
     real_fit = wm.fit
     monkeypatch.setattr(wm, "fit", lambda *a, **k: fitted.append(k["conflict"]) or real_fit(*a, **k))
-    safe: list[torch.Tensor] = []
-    real = learner_module.calibrate
-    monkeypatch.setattr(
-        learner_module,
-        "calibrate",
-        lambda wm, policy, obs, *a, **k: safe.append(k["safe"]) or real(wm, policy, obs, *a, **k),
-    )
     learner.fit_world_model()
     assert np.array_equal(fitted[0], learner.buffer.conflict[:n])
     # the buffer is under calibration_states: the bounds see every state, in the buffer's order
-    assert not safe[0][learner.buffer.conflict[:n] > 0].any() and bool(safe[0].any())
+    sample = learner.last_calibration
+    assert sample is not None and np.array_equal(sample.obs, learner.buffer.obs[:n])
+    assert not sample.familiar[learner.buffer.conflict[:n] > 0].any() and bool(sample.familiar.any())
 
 
 # -- baselines -----------------------------------------------------------------------------------------

@@ -1,0 +1,143 @@
+"""``sage recalibrate``: the τ bounds measured again for another fear, β chosen from data, and a gate that would
+read bounds measured on another fear refused."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from core.agents import load_agent, load_checkpoint
+from core.sage.fear import CALIBRATION_FILE, CalibrationSample
+from core.train import RunConfig, train
+from studies.recalibrate import BETA_CANDIDATES, RECALIBRATION_FILE, choose_beta, mean_auroc, recalibrate_run
+from tests.core.test_train import point_env, small
+
+torch.set_num_threads(1)
+DT = 0.1
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small SAGE policy with a world model on the point env."""
+    out = tmp_path_factory.mktemp("recalibrate") / "policy"
+    run = RunConfig(sim="point", scenarios=["static", "dynamic"], episodes=4, seed=3, demo_episodes=3,
+                    checkpoint_every=0)  # fmt: skip
+    train(run, small("sage"), point_env, out, progress=False)
+    return out
+
+
+def test_choose_beta_takes_the_best_mean_ranking_and_breaks_ties_towards_the_runs_own() -> None:
+    scores = {"a": {"0.5": 0.90, "0.7": 0.95, "1.0": 0.93}, "b": {"0.5": 0.90, "0.7": 0.91, "1.0": 0.93}}
+    assert mean_auroc(scores) == pytest.approx({"0.5": 0.90, "0.7": 0.93, "1.0": 0.93})
+    assert choose_beta(scores, current=0.5) == 0.7  # 0.7 and 1.0 tie: the nearer to 0.5
+    assert choose_beta(scores, current=0.9) == 1.0
+    assert choose_beta({"a": {"0.2": 0.8, "0.8": 0.7}}, current=0.8) == 0.2
+
+
+def test_recalibrated_bounds_are_the_fear_quantiles_of_the_drives_states(policy: Path, tmp_path: Path) -> None:
+    """The same drives (fixed seeds) measured for two β: each folder's bounds are what its own sample and fear
+    give, they differ with β, and nothing but κ and the bounds moved in the model."""
+    source = load_agent(policy)
+    outs = {}
+    for beta in (0.5, 0.9):
+        out = tmp_path / f"beta{beta}"
+        result = recalibrate_run(policy, point_env, ["static", "dynamic"], 3, out, DT, gate_settings={"beta": beta})
+        assert result.beta == beta and result.bounds_before == pytest.approx(source.world_model.tau_bounds.tolist())
+        assert result.steps > 0 and set(result.violation_episodes) == {"static", "dynamic"}
+        outs[beta] = out
+        agent = load_agent(out)
+        assert agent.config.gate.beta == beta
+        assert json.loads((out / "config.json").read_text())["agent"]["gate"]["beta"] == beta
+        assert json.loads((out / RECALIBRATION_FILE).read_text())["bounds"] == pytest.approx(result.bounds)
+        model = agent.world_model
+        stored = model.tau_bounds.clone()
+        assert stored.tolist() == pytest.approx(result.bounds, abs=1e-6)
+        CalibrationSample.load(out / CALIBRATION_FILE).calibrate(model, agent.learner.rollout_policy, agent.config.gate)
+        torch.testing.assert_close(model.tau_bounds, stored, atol=1e-5, rtol=0)
+        before, after = source.world_model.state_dict(), agent.world_model.state_dict()
+        moved = {name for name in before if not torch.equal(before[name], after[name])}
+        assert moved <= {"sigma_scale", "tau_bounds"}, moved
+        for name, value in source.learner.actor.state_dict().items():
+            assert torch.equal(value, agent.learner.actor.state_dict()[name]), name
+        assert agent.make_gate() is not None
+    first, second = (CalibrationSample.load(outs[b] / CALIBRATION_FILE) for b in (0.5, 0.9))
+    np.testing.assert_array_equal(first.obs, second.obs)  # the same states ...
+    assert load_agent(outs[0.5]).world_model.tau_bounds.tolist() != pytest.approx(
+        load_agent(outs[0.9]).world_model.tau_bounds.tolist(), abs=1e-4
+    )  # ... another fear, other bounds
+    with pytest.raises(ValueError, match="already holds"):
+        recalibrate_run(policy, point_env, ["static"], 1, outs[0.5], DT)
+
+
+def test_a_gate_that_changes_fear_over_bounds_measured_on_another_is_refused(policy: Path) -> None:
+    agent = load_agent(policy)
+    for setting in ({"beta": 0.8}, {"horizon": 3}, {"aggregate": "discounted_mean"}, {"tau_max_quantile": 0.95}):
+        with pytest.raises(ValueError, match=r"changes fear itself.*sage recalibrate"):
+            agent.make_gate(**setting)
+    # settings that leave fear and its bounds alone still go over the run's own
+    assert agent.make_gate(hold_steps=2, tau_scale=0.5, release=0.5) is not None
+    assert agent.make_gate(beta=0.8, tau_from_data=False, tau_min=0.1, tau_max=0.4) is not None
+
+
+def test_choosing_beta_scores_every_candidate_where_the_policy_met_a_violation(tmp_path: Path) -> None:
+    """On the committed UGV policy's cluttered training field, a few episodes of the policy alone meet
+    collisions: β is the candidate with the best mean ranking of the steps before them, and the folder deploys it."""
+    out = tmp_path / "chosen"
+    clutter = "sims/ugv/scenarios/clutter.yaml"
+    import sims
+
+    descriptor = sims.descriptor("ugv")
+    result = recalibrate_run("policies/ugv-default", descriptor.make, [clutter], 8, out, descriptor.dt, choose=True)
+    assert result.violation_episodes[clutter] > 0 and list(result.beta_auroc) == [clutter]
+    assert list(result.beta_auroc[clutter]) == [str(b) for b in BETA_CANDIDATES]
+    assert result.beta == choose_beta(result.beta_auroc, 0.5) and result.beta_before == 0.5
+    assert load_agent(out).config.gate.beta == result.beta
+    assert load_checkpoint(out)["meta"]["extra"]["recalibrated_from"] == "policies/ugv-default"
+    with pytest.raises(ValueError, match="not both"):
+        recalibrate_run("policies/ugv-default", descriptor.make, [clutter], 1, tmp_path / "x", descriptor.dt,
+                        choose=True, gate_settings={"beta": 0.5})  # fmt: skip
+
+
+def test_sage_recalibrate_reports_what_it_wrote_and_errors_clearly(tmp_path: Path) -> None:
+    from app.cli import app
+
+    runner = CliRunner()
+    out = tmp_path / "ugv"
+    result = runner.invoke(app, ["recalibrate", "policies/ugv-default", "--sim", "ugv", "--scenario", "1",
+                                 "--episodes", "2", "--gate-set", "beta=0.6", "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "β 0.5 -> 0.6" in result.output and load_agent(out).config.gate.beta == 0.6
+    for args, message in (
+        (["--scenario", "1", "--episodes", "1"], "--out"),
+        (["--episodes", "1", "--out", str(tmp_path / "y")], "--scenario"),
+        (["--scenario", "nowhere", "--out", str(tmp_path / "z")], "nowhere"),
+        (["--scenario", "1", "--episodes", "1", "--out", str(out)], "already holds"),
+        (["--scenario", "1", "--gate-set", "beta=2", "--out", str(tmp_path / "w")], "beta"),
+    ):
+        result = runner.invoke(app, ["recalibrate", "policies/ugv-default", "--sim", "ugv", *args])
+        assert result.exit_code == 2 and message in result.output, (args, result.output)
+    assert not any((tmp_path / name).exists() for name in ("y", "z", "w"))
+
+
+def test_a_run_of_no_episodes_keeps_no_fear_its_bounds_were_not_measured_on(policy: Path, tmp_path: Path) -> None:
+    """A 0-episode world-model-only run fits nothing: it may rewrite the hold or the scale, but a β (or horizon)
+    over the init's would keep bounds measured on another fear, so it is refused with the command that does it."""
+    config = load_agent(policy).config
+
+    def zero_run(out: Path, **gate: object) -> None:
+        run = RunConfig(sim="point", scenarios=["static"], episodes=0, seed=3, init=str(policy),
+                        world_model_only=True, checkpoint_every=0)  # fmt: skip
+        train(run, dataclasses.replace(config, gate=dataclasses.replace(config.gate, **gate)), point_env, out,
+              progress=False)  # fmt: skip
+
+    with pytest.raises(ValueError, match="sage recalibrate"):
+        zero_run(tmp_path / "beta", beta=0.8)
+    assert not (tmp_path / "beta" / "checkpoint.pt").exists()
+    zero_run(tmp_path / "hold", hold_steps=2)
+    assert load_agent(tmp_path / "hold").config.gate.hold_steps == 2
