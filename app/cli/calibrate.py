@@ -9,6 +9,13 @@ sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve
 (:func:`studies.calibrate.choose_tau_scale`); deploy it with ``--set gate.tau_scale=X`` (a 0-episode run):
 
 sage choose-scale policies/highway-default --sim highway --scenario train --scenario train-adversarial --episodes 100
+
+``sage recalibrate``: the τ bounds measured again for other fear settings, or for β chosen on the training
+scenarios' drives (:mod:`studies.recalibrate`); a new run folder, the world model's weights unchanged:
+
+sage recalibrate policies/ugv-default --sim ugv --scenario 1 --scenario 2 --gate-set beta=0.8 --out runs/ugv-beta08
+sage recalibrate policies/pedestrian-default --sim pedestrian --scenario crossing --scenario rare --choose-beta \
+    --out runs/pedestrian-beta
 """
 
 from __future__ import annotations
