@@ -69,6 +69,15 @@ FEAR_SHAPE = ("beta", "horizon", "aggregate", "discount", "tau_min_quantile", "t
 a gate that sets one over a run's own needs the bounds measured again (``sage recalibrate``)."""
 
 
+def fear_shape_moved(own: GateConfig | dict[str, Any], new: GateConfig) -> list[str]:
+    """The :data:`FEAR_SHAPE` settings in which ``new`` differs from ``own`` (a run's gate, or its saved dict),
+    when ``new`` takes its bounds from data: those bounds were measured on ``own``'s fear."""
+    if not new.tau_from_data:
+        return []
+    values = own if isinstance(own, dict) else dataclasses.asdict(own)
+    return [name for name in FEAR_SHAPE if name in values and values[name] != getattr(new, name)]
+
+
 # -- writing --------------------------------------------------------------------------------------
 def save_checkpoint(
     path: Path, learner: BaseLearner, meta: AgentMeta, dtype: str = "float32", config: AgentConfig | None = None
@@ -257,16 +266,15 @@ class LoadedAgent:
                 "use core.loop.NoGate, or make_gate(world_model_from=<a run with one>)"
             )
         cfg = self.gate_config(**overrides)
-        if cfg.tau_from_data:
-            own = source.config.gate
-            moved = [name for name in FEAR_SHAPE if getattr(cfg, name) != getattr(own, name)]
-            if moved:
-                raise ValueError(
-                    f"gate setting {', '.join(f'{n}={getattr(cfg, n)}' for n in moved)} changes fear itself, and the "
-                    f"τ bounds of {source.path} were measured on its fear with "
-                    f"{', '.join(f'{n}={getattr(own, n)}' for n in moved)}: recalibrate them first "
-                    "(sage recalibrate RUN --gate-set ...), or give the bounds (tau_from_data=false, tau_min, tau_max)"
-                )
+        own = source.config.gate
+        moved = fear_shape_moved(own, cfg)
+        if moved:
+            raise ValueError(
+                f"gate setting {', '.join(f'{n}={getattr(cfg, n)}' for n in moved)} changes fear itself, and the "
+                f"τ bounds of {source.path} were measured on its fear with "
+                f"{', '.join(f'{n}={getattr(own, n)}' for n in moved)}: recalibrate them first "
+                "(sage recalibrate RUN --gate-set ...), or give the bounds (tau_from_data=false, tau_min, tau_max)"
+            )
         learner = self.learner
         gate = SageGate(source.world_model, learner.gate_policy(), cfg, encode=learner.gate_encoder())
         if source is self and self.gate_state:

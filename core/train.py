@@ -37,10 +37,10 @@ import torch
 
 from core.agents import (
     CHECKPOINT_DIR,
-    FEAR_SHAPE,
     FINAL_CHECKPOINT,
     AgentMeta,
     action_bounds,
+    fear_shape_moved,
     load_agent,
     load_checkpoint,
     meta_of,
@@ -238,8 +238,8 @@ class Trainer:
             # no step, so no fit: the init's τ bounds are written as they are, measured on the init's fear
             own = payload["agent_config"].get("gate", {})
             gate = self.saved_cfg.gate
-            moved = [n for n in FEAR_SHAPE if n in own and own[n] != getattr(gate, n)]
-            if moved and gate.tau_from_data:
+            moved = fear_shape_moved(own, gate)
+            if moved:
                 raise ValueError(
                     f"--init {path}: gate {', '.join(f'{n}={getattr(gate, n)}' for n in moved)} changes fear itself, "
                     "and a run of 0 episodes fits nothing, so its τ bounds would stay those measured on the init's "

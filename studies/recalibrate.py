@@ -30,7 +30,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from core.agents import load_agent, load_checkpoint, resolve_checkpoint, save_with_world_model
+from core.agents import FINAL_CHECKPOINT, load_agent, load_checkpoint, resolve_checkpoint, save_with_world_model
 from core.loop import NoGate, Runner, StepRecord
 from core.metrics import auroc
 from core.replay import ReplayBuffer
@@ -140,7 +140,7 @@ def recalibrate_run(
         raise ValueError("name at least one scenario to drive (those the policy was trained on)")
     out = Path(out)
     file = resolve_checkpoint(run)
-    if (out / file.name).exists() or (out / "checkpoint.pt").exists():
+    if (out / FINAL_CHECKPOINT).exists():
         raise ValueError(f"{out} already holds a checkpoint; choose another out folder")
     agent = load_agent(file)
     if agent.world_model is None or not agent.has_world_model:
@@ -192,7 +192,6 @@ def recalibrate_run(
     sample = calibration_sample(buffer, world_model, gate_cfg, np.random.default_rng(0))
     if int(sample.familiar.sum()) < 20:
         raise ValueError(f"the drives gave {int(sample.familiar.sum())} familiar states, too few to set the τ bounds")
-    world_model.requires_grad_(False)
     sample.calibrate(world_model, learner.rollout_policy, gate_cfg)
     bounds = (float(world_model.tau_bounds[0]), float(world_model.tau_bounds[1]))
     if not all(math.isfinite(b) for b in bounds):

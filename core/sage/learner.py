@@ -70,14 +70,13 @@ def calibration_sample(
     gate: GateConfig,
     rng: np.random.Generator,
     motion: np.ndarray | None = None,
-    states: int | None = None,
 ) -> CalibrationSample:
-    """Up to ``states`` distinct rows of the real buffer (all of them when it holds fewer; default
-    ``gate.calibration_states``), each marked familiar or not (:func:`familiar_for_bounds`), with the model's motion
-    input (``motion``: the buffer's :meth:`~core.replay.ReplayBuffer.previous_deltas`, computed here when None and
-    the model reads it): the states a fit sets κ and the τ bounds on (:meth:`CalibrationSample.calibrate`)."""
+    """Up to ``gate.calibration_states`` distinct rows of the real buffer (all of them when it holds fewer), each
+    marked familiar or not (:func:`familiar_for_bounds`), with the model's motion input (``motion``: the buffer's
+    :meth:`~core.replay.ReplayBuffer.previous_deltas`, computed here when None and the model reads it): the states a
+    fit sets κ and the τ bounds on (:meth:`CalibrationSample.calibrate`)."""
     data = buffer.arrays()
-    wanted = gate.calibration_states if states is None else states
+    wanted = gate.calibration_states
     n = len(buffer)
     # distinct states, as many as the config allows: τ_max is a tail quantile (see GateConfig)
     idx = np.arange(n) if n <= wanted else np.sort(rng.choice(n, size=wanted, replace=False))
@@ -360,9 +359,7 @@ class BaseLearner:
         )
         self._steps_at_last_fit = self.env_steps
         self.last_fit = report
-        self.last_calibration = calibration_sample(
-            self.buffer, wm, self.cfg.gate, self.rng, motion, self.cfg.gate.calibration_states
-        )
+        self.last_calibration = calibration_sample(self.buffer, wm, self.cfg.gate, self.rng, motion)
         self.last_calibration.calibrate(wm, self.rollout_policy, self.cfg.gate)
         self.info.update(wm_holdout_nll=report.holdout_nll, wm_holdout_mse=report.holdout_mse, wm_epochs=report.epochs)
         self.virtual_rollout()
