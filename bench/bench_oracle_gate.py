@@ -1,20 +1,26 @@
-"""How much of highway's gate problem is fear's? The gate + scripted expert table with the deployed fear gate beside
-gates that read what the simulator knows and the world model must infer: the true time to contact with the vehicle
-ahead in the ego's lane footprint and the gap to the nearest vehicle (``info["ttc"]``, ``info["nearest_gap"]``,
-:func:`sims.highway.sensing.interaction_stats`), with the deployed gate's hold (:class:`studies.calibrate.InfoGate`).
+"""How much of the gate's problem is fear's? The gate + scripted expert table with the deployed fear gate beside
+gates that read what the simulator knows and the world model must infer, with the deployed gate's hold
+(:class:`studies.calibrate.InfoGate`):
+
+- highway: the true time to contact with the vehicle ahead in the ego's lane footprint and the gap to the nearest
+  vehicle (``info["ttc"]``, ``info["nearest_gap"]``, :func:`sims.highway.sensing.interaction_stats`);
+- ugv: the true time to contact with a mover holding the last command (the movers on their scripted paths) and the
+  gap to the nearest mover (the same keys with ``conflict.report`` on, :mod:`sims.ugv.interaction`).
 
 A privileged gate that meets issue #11's target (a violation in at most 5% of the episodes, at most 35% takeover)
 where fear does not says the policy, the expert and the hold leave the target within reach, and the warning is
 what is missing; one that does not says the target asks more than any warning from these states can give.
 
-    .venv/bin/python bench/bench_oracle_gate.py [--episodes 300] [--ttc 3] [--gap 1.5] [--out DIR] \
-        [--readme docs/calibration_history.md] [--cpus N | --address HOST:PORT]
+    .venv/bin/python bench/bench_oracle_gate.py [--sim highway|ugv] [--episodes 300] [--ttc S [S ...]] [--gap M] \
+        [--out DIR] [--readme docs/calibration_history.md] [--cpus N | --address HOST:PORT]
 
-The thresholds are conventional, not swept here: a time to contact under 3 s is the traffic-conflict literature's
-usual line for a conflict (1.5 s for a serious one); 1.5 m to the nearest vehicle is about half a lane's width
-beside the ego's own. Rows: the gate table's (``bench/bench_calibration.py``, its seeds, so the deployed rows
-reproduce its table at the same commit). Each row is a Ray task (:func:`studies.sweep.run_tasks`). Not a unit test:
-about 20 minutes of one core at 300 episodes.
+The thresholds are conventional, not swept to fit: on highway a time to contact under 3 s is the traffic-conflict
+literature's usual line for a conflict (1.5 s for a serious one) and 1.5 m to the nearest vehicle about half a
+lane's width beside the ego's own; on the UGV the defaults are the warning the scripted expert needs (1 s, the
+calibration bench's warning table on every built-in UGV scenario) and the label horizon of its world model (2 s),
+and the margin the expert keeps to movers (0.12 m). Rows: the gate table's (``bench/bench_calibration.py``, its
+seeds, so the deployed rows reproduce its table at the same commit). Each row is a Ray task
+(:func:`studies.sweep.run_tasks`). Not a unit test: about 20 minutes of one core at 300 episodes on highway.
 """
 
 from __future__ import annotations
@@ -34,7 +40,11 @@ from studies.readme import publish
 from studies.sweep import run_tasks
 
 ROOT = Path(__file__).resolve().parents[1]
-POLICY = ROOT / "policies" / "highway-default"
+POLICIES = {"highway": ROOT / "policies" / "highway-default", "ugv": ROOT / "policies" / "ugv-default"}
+DEFAULTS: dict[str, tuple[list[float], float]] = {"highway": ([3.0], 1.5), "ugv": ([1.0, 2.0], 0.12)}
+"""Per simulator: the times to contact (s) and the gap (m) of the privileged gates (see the module doc)."""
+ENV_OVERRIDES: dict[str, dict[str, Any]] = {"highway": {}, "ugv": {"conflict.report": True}}
+"""What makes each simulator put the time to contact and the gap in its info."""
 
 
 def danger_rule(ttc: float | None, gap: float | None) -> Callable[[Mapping[str, Any]], bool]:
@@ -47,76 +57,95 @@ def danger_rule(ttc: float | None, gap: float | None) -> Callable[[Mapping[str, 
     return danger
 
 
-def row(scenario: str, episodes: int, ttc: float | None = None, gap: float | None = None) -> dict[str, float]:
-    """One Ray task: gate + scripted expert on a highway scenario, with the deployed fear gate (no ``ttc`` and no
-    ``gap``) or the privileged gate."""
+def row(sim: str, scenario: str, episodes: int, ttc: float | None = None, gap: float | None = None) -> dict[str, float]:
+    """One Ray task: gate + scripted expert on a scenario of ``sim`` with its default policy, with the deployed fear
+    gate (no ``ttc`` and no ``gap``) or the privileged gate."""
     from core.agents import load_agent
     from studies.calibrate import InfoGate, gate_with_expert, run_gated
 
     torch.set_num_threads(1)
-    descriptor = sims.descriptor("highway")
+    descriptor = sims.descriptor(sim)
+    overrides = ENV_OVERRIDES[sim] if ttc is not None or gap is not None else {}
 
     def make_env() -> Any:
-        return descriptor.make(scenario)
+        return descriptor.make(scenario, **overrides)
 
     if ttc is None and gap is None:
-        return gate_with_expert(POLICY, make_env, episodes)
-    agent = load_agent(POLICY)
+        return gate_with_expert(POLICIES[sim], make_env, episodes)
+    agent = load_agent(POLICIES[sim])
     gate = InfoGate(agent.make_gate(), agent.gate_config().hold, danger_rule(ttc, gap))
     return run_gated(agent, make_env, gate, episodes, None, listeners=[gate.watch])
 
 
+def gates(ttcs: list[float], gap: float) -> list[tuple[str, dict[str, float | None]]]:
+    """The table's gatings, named: the deployed fear gate, each time to contact alone, the gap alone, and each time
+    to contact or the gap."""
+    return [
+        ("fear (deployed)", {"ttc": None, "gap": None}),
+        *[(f"time to contact < {ttc:g} s", {"ttc": ttc, "gap": None}) for ttc in ttcs],
+        (f"nearest gap < {gap:g} m", {"ttc": None, "gap": gap}),
+        *[(f"either{f' ({ttc:g} s)' if len(ttcs) > 1 else ''}", {"ttc": ttc, "gap": gap}) for ttc in ttcs],
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--sim", choices=sorted(POLICIES), default="highway", help="whose default policy and scenarios")
     parser.add_argument("--episodes", type=int, default=300, help="episodes per scenario and gate")
-    parser.add_argument("--ttc", type=float, default=3.0, help="the privileged gate's time to contact [s]")
-    parser.add_argument("--gap", type=float, default=1.5, help="the privileged gate's gap to the nearest vehicle [m]")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "oracle_gate_highway")
+    parser.add_argument("--ttc", type=float, nargs="+", help="the privileged gates' times to contact [s]")
+    parser.add_argument("--gap", type=float, help="the privileged gate's gap to the nearest vehicle or mover [m]")
+    parser.add_argument("--out", type=Path, help="the report's folder (default: docs/oracle_gate_<sim>)")
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()
-    if args.episodes < 1 or args.ttc <= 0 or args.gap <= 0:
+    sim = args.sim
+    ttcs = args.ttc or DEFAULTS[sim][0]
+    gap = args.gap if args.gap is not None else DEFAULTS[sim][1]
+    if args.episodes < 1 or gap <= 0 or any(ttc <= 0 for ttc in ttcs):
         parser.error("--episodes, --ttc and --gap must be positive")
-    gates: list[tuple[str, dict[str, float | None]]] = [
-        ("fear (deployed)", {"ttc": None, "gap": None}),
-        (f"time to contact < {args.ttc:g} s", {"ttc": args.ttc, "gap": None}),
-        (f"nearest gap < {args.gap:g} m", {"ttc": None, "gap": args.gap}),
-        ("either", {"ttc": args.ttc, "gap": args.gap}),
-    ]
-    scenarios = table_scenarios("highway")
-    cases = [(scenario, name, rule) for scenario in scenarios for name, rule in gates]
+    named = gates(ttcs, gap)
+    scenarios = table_scenarios(sim)
+    cases = [(scenario, name, rule) for scenario in scenarios for name, rule in named]
     results = run_tasks(
         row,
-        [{"scenario": scenario, "episodes": args.episodes, **rule} for scenario, _, rule in cases],
-        [f"{name} on highway {scenario}" for scenario, name, _ in cases],
+        [{"sim": sim, "scenario": scenario, "episodes": args.episodes, **rule} for scenario, _, rule in cases],
+        [f"{name} on {sim} {scenario}" for scenario, name, _ in cases],
         address=args.address,
         cpus=args.cpus,
     )
     measured = {(scenario, name): result for (scenario, name, _), result in zip(cases, results, strict=True)}
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    header = "| scenario | " + " | ".join(f"{name}: violations | takeover" for name, _ in gates) + " |"
+    header = "| scenario | " + " | ".join(f"{name}: violations | takeover" for name, _ in named) + " |"
+    command = (
+        f"python bench/bench_oracle_gate.py{' --sim ugv' if sim != 'highway' else ''} --episodes {args.episodes} "
+        f"--ttc {' '.join(f'{ttc:g}' for ttc in ttcs)} --gap {gap:g}"
+    )
+    what = {
+        "highway": "Highway's gate beside gates that read the true time to contact and gaps",
+        "ugv": "The UGV's gate beside gates that read the true time to contact with movers and the gap to them",
+    }[sim]
     lines = [
-        "# Highway's gate beside gates that read the true time to contact and gaps",
+        f"# {what}",
         "",
-        f"Generated by `python bench/bench_oracle_gate.py --episodes {args.episodes} --ttc {args.ttc:g} --gap "
-        f"{args.gap:g}` at commit {commit.stdout.strip()}. `policies/highway-default` with the scripted expert, "
-        "the calibration bench's seeds; each gate holds control as the deployed one does once it fires (1 s). "
-        "Violations: episodes with one, with the 95% Wilson interval; takeover: the share of steps the expert "
-        "drove; either: time to contact or gap.",
+        f"Generated by `{command}` at commit {commit.stdout.strip()}. `{POLICIES[sim].relative_to(ROOT)}` with the "
+        "scripted expert, the calibration bench's seeds; each gate holds control as the deployed one does once it "
+        "fires (1 s). Violations: episodes with one, with the 95% Wilson interval; takeover: the share of steps the "
+        "expert drove; either: time to contact or gap.",
         "",
         header,
-        "|---|" + "---|---|" * len(gates),
+        "|---|" + "---|---|" * len(named),
     ]
     for scenario in scenarios:
         cells = []
-        for name, _ in gates:
+        for name, _ in named:
             point = measured[scenario, name]
             bad = round(point["violation_rate"] * args.episodes)
             low, high = wilson_interval(bad, args.episodes)
             cells.append(f"{bad}/{args.episodes} ({low:.0%}-{high:.0%}) | {point['takeover_rate']:.1%}")
-        lines.append(f"| highway {scenario} | " + " | ".join(cells) + " |")
-    publish(lines, args.out, args.readme, "oracle-gate-highway", "## Calibration of fear")
+        lines.append(f"| {sim} {scenario} | " + " | ".join(cells) + " |")
+    out = args.out or ROOT / "docs" / f"oracle_gate_{sim}"
+    publish(lines, out, args.readme, f"oracle-gate-{sim}", "## Calibration of fear")
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ import numpy as np
 from core.scene import Box, Circle, Rays, Scene, Shape
 from sims.ugv.config import UGVConfig
 from sims.ugv.expert import UGVExpert
+from sims.ugv.interaction import interaction_stats
 from sims.ugv.lidar import NumpyLidar, ray_angles
 from sims.ugv.metrics import episode_metrics
 from sims.ugv.scenario import (
@@ -243,7 +244,7 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
         return obs
 
     def _info(self, cost: float) -> dict[str, Any]:
-        return {
+        info: dict[str, Any] = {
             "cost": cost,
             "violation": self._collision,
             "collision": self._collision,
@@ -251,6 +252,28 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
             "timeout": self._timeout,
             "d_goal": self._d_goal,
         }
+        conflict = self.config.conflict
+        if conflict.report:
+            ttc, gap = self.interaction_stats()
+            info.update(ttc=ttc, nearest_gap=gap, conflict=ttc < conflict.ttc or gap < conflict.gap)
+        return info
+
+    def interaction_stats(self) -> tuple[float, float]:
+        """The true time to contact with a mover holding the last command, and the gap to the nearest one now
+        (privileged: :mod:`sims.ugv.interaction`); inf for both on a layout without movers."""
+        world, layout, cfg = self.world, self.layout, self.config
+        if world is None or layout is None or not layout.movers:
+            return math.inf, math.inf
+        steps = max(1, round(cfg.conflict.horizon / cfg.dt))
+        world.ensure_table(world.k + steps)
+        return interaction_stats(
+            self._pose,
+            (self._prev_v, self._prev_w),
+            world.mover_poses[:, world.k : world.k + steps + 1],
+            layout.movers,
+            cfg.robot,
+            cfg.dt,
+        )
 
     # -- episode set-up --------------------------------------------------------------------------
     def _build_world(self) -> tuple[World, Layout]:

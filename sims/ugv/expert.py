@@ -565,7 +565,7 @@ class UGVExpert:
         future = poses[..., 0:2]
         radii = np.array([m.bounding_radius for m in env.layout.movers])[:, None, None]  # (M, 1, 1)
         v, w = self._manoeuvres(n)  # (P, T)
-        px, py, heading = _unicycle(x, y, yaw, v, w, dt)  # (P, T) poses after each step
+        px, py, heading = unicycle_poses(x, y, yaw, v, w, dt)  # (P, T) poses after each step
         touching = math.hypot(robot.length / 6, robot.width / 2)  # the footprint circles' radius
         moving = v > 0
         offsets = np.array([-1.0, 0.0, 1.0]) * (robot.length / 3)
@@ -650,7 +650,7 @@ def mover_distances(cx: np.ndarray, cy: np.ndarray, poses: np.ndarray, movers: S
     return out
 
 
-def _unicycle(
+def unicycle_poses(
     x: float, y: float, yaw: float, v: np.ndarray, w: np.ndarray, dt: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Poses after each step of (v, w) sequences (P, T), each step an exact arc as the world drives it (the
