@@ -21,7 +21,10 @@ Arms: ``plain`` (the deployed refit's settings), ``scan`` (its motion input with
 to the current heading, :mod:`core.motion`), ``states16k`` (κ and the τ bounds from 16384 buffer states at each
 fit, ``GateConfig.calibration_states``, where the deployed refit took 2048), and ``gated`` (states16k with half the
 policy episodes driven as deployed, the gate handing control to the expert that yields, while the expert blind to
-movers demonstrates: ``--demo-expert blind-movers --refit-gated-share 0.5``). The refits of ``plain`` and ``scan``
+movers demonstrates: ``--demo-expert blind-movers --refit-gated-share 0.5``), ``conflict`` and ``conflict1s``
+(states16k with the violation head's label also the near misses with movers, ``info["conflict"]`` of
+``--env conflict.report=true``: holding its command the robot would touch a mover within 2 s, or 1 s, or is within
+0.12 m of one, weight 1, ``world_model_config.conflict_label_weight``). The refits of ``plain`` and ``scan``
 kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their 2048 states were drawn
 with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035 and 0.034 on the
 rebuilt buffer of plain seed 0, a scratch measurement),
@@ -200,6 +203,19 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             ["gate.calibration_states=16384"],
             {"env": [], "demo_expert": "blind-movers", "refit_gated_share": 0.5},
         ),
+        # conflict: the violation head also learns the near misses with movers (sims/ugv/interaction.py: holding its
+        # command the robot would touch a mover within 2 s, the label's own horizon, or is within the expert's 0.12 m
+        # margin of one), as highway's deployed model does; conflict1s: within 1 s, the warning the expert needs (the
+        # calibration bench's warning table), where bench_oracle_gate.py's gate on it asks for a quarter of fear's
+        # takeover on UGV 4
+        "conflict": Arm(
+            ["gate.calibration_states=16384", "world_model_config.conflict_label_weight=1"],
+            {"env": [*REFIT.env, "conflict.report=true"]},
+        ),
+        "conflict1s": Arm(
+            ["gate.calibration_states=16384", "world_model_config.conflict_label_weight=1"],
+            {"env": [*REFIT.env, "conflict.report=true", "conflict.ttc=1"]},
+        ),
     }
 
 
@@ -229,7 +245,7 @@ def main() -> None:
     parser.add_argument(
         "--arms",
         nargs="+",
-        help="ugv: plain scan states16k gated (default: plain scan); "
+        help="ugv: plain scan states16k gated conflict conflict1s (default: plain scan); "
         "highway: plain lag5 approach late-brakes label4s conflict conflict-half; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
