@@ -24,11 +24,12 @@ policy episodes driven as deployed, the gate handing control to the expert that 
 movers demonstrates: ``--demo-expert blind-movers --refit-gated-share 0.5``), ``conflict`` and ``conflict1s``
 (states16k with the violation head's label also the near misses with movers, ``info["conflict"]`` of
 ``--env conflict.report=true``: holding its command the robot would touch a mover within 2 s, or 1 s, or is within
-0.12 m of one, weight 1, ``world_model_config.conflict_label_weight``). The refits of ``plain`` and ``scan``
-kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their 2048 states were drawn
-with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035 and 0.034 on the
-rebuilt buffer of plain seed 0, a scratch measurement),
-so a rerun of ``plain`` no longer reproduces the deployed checkpoint bit for bit. Highway's arms: ``plain``,
+0.12 m of one, weight 1, ``world_model_config.conflict_label_weight``) and ``label1s`` (states16k with the violation
+label 1 s long, ``world_model_config.violation_steps=10``, where the deployed refit's is 2 s). The refits of
+``plain`` and ``scan`` kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their
+2048 states were drawn with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035
+and 0.034 on the rebuilt buffer of plain seed 0, a scratch measurement), so a rerun of ``plain`` no longer reproduces
+the deployed checkpoint bit for bit. Highway's arms: ``plain``,
 ``lag5`` (the motion input as the mean change over the last 5 steps, 0.5 s, where plain reads the last step's),
 ``approach`` (each beam's approach rate as a further input, :func:`core.motion.approach_rate`: a new model, fitted
 on 600 policy episodes and 40 demonstrations, about what the deployed model's chain of fits saw), ``late-brakes``
@@ -216,6 +217,10 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             ["gate.calibration_states=16384", "world_model_config.conflict_label_weight=1"],
             {"env": [*REFIT.env, "conflict.report=true", "conflict.ttc=1"]},
         ),
+        # label1s: the violation label "within the next 10 steps" (1 s, the warning the expert needs) where the
+        # deployed refit's is 2 s: bench_oracle_gate.py's gate on the true time to contact meets UGV 4's target at a
+        # quarter of fear's takeover, and fear's median warning there is 3 s
+        "label1s": Arm(["gate.calibration_states=16384", "world_model_config.violation_steps=10"]),
     }
 
 
@@ -245,7 +250,7 @@ def main() -> None:
     parser.add_argument(
         "--arms",
         nargs="+",
-        help="ugv: plain scan states16k gated conflict conflict1s (default: plain scan); "
+        help="ugv: plain scan states16k gated conflict conflict1s label1s (default: plain scan); "
         "highway: plain lag5 approach late-brakes label4s conflict conflict-half; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
