@@ -25,7 +25,8 @@ movers demonstrates: ``--demo-expert blind-movers --refit-gated-share 0.5``), ``
 (states16k with the violation head's label also the near misses with movers, ``info["conflict"]`` of
 ``--env conflict.report=true``: holding its command the robot would touch a mover within 2 s, or 1 s, or is within
 0.12 m of one, weight 1, ``world_model_config.conflict_label_weight``) and ``label1s`` (states16k with the violation
-label 1 s long, ``world_model_config.violation_steps=10``, where the deployed refit's is 2 s). The refits of
+label 1 s long, ``world_model_config.violation_steps=10``, where the deployed refit's is 2 s; ``label1s-conflict``
+also the near misses of ``conflict``). The refits of
 ``plain`` and ``scan`` kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their
 2048 states were drawn with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035
 and 0.034 on the rebuilt buffer of plain seed 0, a scratch measurement), so a rerun of ``plain`` no longer reproduces
@@ -221,6 +222,16 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
         # deployed refit's is 2 s: bench_oracle_gate.py's gate on the true time to contact meets UGV 4's target at a
         # quarter of fear's takeover, and fear's median warning there is 3 s
         "label1s": Arm(["gate.calibration_states=16384", "world_model_config.violation_steps=10"]),
+        # label1s-conflict: a collision within 1 s, or a near miss by the true time to contact (2 s), which reaches
+        # further ahead where the closing speed is high (head-on) and less far where it is low (a cut-in alongside)
+        "label1s-conflict": Arm(
+            [
+                "gate.calibration_states=16384",
+                "world_model_config.violation_steps=10",
+                "world_model_config.conflict_label_weight=1",
+            ],
+            {"env": [*REFIT.env, "conflict.report=true"]},
+        ),
     }
 
 
@@ -250,7 +261,7 @@ def main() -> None:
     parser.add_argument(
         "--arms",
         nargs="+",
-        help="ugv: plain scan states16k gated conflict conflict1s label1s (default: plain scan); "
+        help="ugv: plain scan states16k gated conflict conflict1s label1s label1s-conflict (default: plain scan); "
         "highway: plain lag5 approach late-brakes label4s conflict conflict-half; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
