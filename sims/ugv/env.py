@@ -11,6 +11,8 @@ Reward: 10 (d_{t-1} - d_t) + 0.5 v - 0.5 |w| - 0.2 |w - w_{t-1}|, -100 on collis
 Cost: min(1, max(0, (1 - m) / 0.5)), m the minimum range (m) in the front cone (the 18 sectors
 within ±45° of the heading, ``cost.front_fov_deg``). Ranges are measured from the robot's centre.
 The episode terminates on collision or at the goal and truncates at the scenario's time limit.
+With ``conflict.report`` on, each step's info also carries the true time to contact with a mover, the gap to the
+nearest one and the near-miss flag (``ttc``, ``nearest_gap``, ``conflict``: :mod:`sims.ugv.interaction`).
 """
 
 from __future__ import annotations
