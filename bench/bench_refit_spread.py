@@ -26,7 +26,8 @@ movers demonstrates: ``--demo-expert blind-movers --refit-gated-share 0.5``), ``
 ``--env conflict.report=true``: holding its command the robot would touch a mover within 2 s, or 1 s, or is within
 0.12 m of one, weight 1, ``world_model_config.conflict_label_weight``) and ``label1s`` (states16k with the violation
 label 1 s long, ``world_model_config.violation_steps=10``, where the deployed refit's is 2 s; ``label1s-conflict``
-also the near misses of ``conflict``). The refits of
+also the near misses of ``conflict``) and ``approach`` (states16k with the scan's motion input and each sector's
+rate of approach as a further input: a new model on the refit's data). The refits of
 ``plain`` and ``scan`` kept under ``runs/refit-spread`` were made at c68b366, before ``calibration_states``: their
 2048 states were drawn with replacement, those of a rerun without (about the same noise: τ_max's sampling sd 0.035
 and 0.034 on the rebuilt buffer of plain seed 0, a scratch measurement), so a rerun of ``plain`` no longer reproduces
@@ -232,6 +233,18 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             ],
             {"env": [*REFIT.env, "conflict.report=true"]},
         ),
+        # approach: each sector's rate of approach (its inverse time to contact, core.motion.approach_rate) as a
+        # further model input, from the previous frame turned to the current heading (scan): the closing speed
+        # that the time-to-contact gate reads. The old weights cannot read it, so these refits fit a new model on
+        # the refit's data
+        "approach": Arm(
+            [
+                "gate.calibration_states=16384",
+                *(f"world_model_config.{key}={value}" for key, value in scan_layout().items()),
+                "world_model_config.approach_start=0",
+                "world_model_config.approach_stop=54",
+            ]
+        ),
     }
 
 
@@ -261,7 +274,8 @@ def main() -> None:
     parser.add_argument(
         "--arms",
         nargs="+",
-        help="ugv: plain scan states16k gated conflict conflict1s label1s label1s-conflict (default: plain scan); "
+        help="ugv: plain scan states16k gated conflict conflict1s label1s label1s-conflict approach "
+        "(default: plain scan); "
         "highway: plain lag5 approach late-brakes label4s conflict conflict-half; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
