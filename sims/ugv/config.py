@@ -137,7 +137,7 @@ class ConflictConfig:
     """How far ahead the time to contact is looked for (s); ``info["ttc"]`` is inf beyond it."""
     report: bool = False
     """Put ``ttc``, ``nearest_gap`` and ``conflict`` in every step's info. Off by default: on a layout with movers
-    it costs more than the rest of the step (the steps take about 2.5 times as long)."""
+    the time to contact (a rollout against every mover) costs more than the rest of the step."""
 
 
 @dataclass(frozen=True)

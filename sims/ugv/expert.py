@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from sims.ugv.config import UGVConfig
+from sims.ugv.config import RobotConfig, UGVConfig
 from sims.ugv.scenario import Layout, MoverPlan
 
 if TYPE_CHECKING:
@@ -432,7 +432,7 @@ class UGVExpert:
         if v > 0:
             candidates += [(0.5 * v, max(-robot.w_max, min(robot.w_max, 2.0 * w))), (0.25 * v, turn)]
         candidates += [(0.0, turn), (0.0, -turn)]
-        radius = math.hypot(robot.length / 6, robot.width / 2)
+        radius = footprint_radius(robot)
         allowed = min(radius + 0.02, self._footprint_clearance(grid, x, y, np.array([yaw])) - 0.005)
         best, best_clearance = candidates[0], -math.inf
         for v_try, w_try in candidates:
@@ -448,11 +448,9 @@ class UGVExpert:
     ) -> float:
         """Least clearance of three circles covering the robot's footprint at the given poses
         (centres at -L/3, 0, L/3 along the heading, radius hypot(L/6, W/2))."""
-        robot = self.env.config.robot
-        offsets = np.array([-1.0, 0.0, 1.0]) * (robot.length / 3)
-        cx = (np.asarray(px, dtype=float).reshape(-1, 1) + offsets * np.cos(heading)[:, None]).ravel()
-        cy = (np.asarray(py, dtype=float).reshape(-1, 1) + offsets * np.sin(heading)[:, None]).ravel()
-        return float(grid.clearance_at(np.column_stack([cx, cy])).min())
+        points = np.asarray(px, dtype=float).reshape(-1), np.asarray(py, dtype=float).reshape(-1)
+        cx, cy = footprint_centres(*points, heading, self.env.config.robot)
+        return float(grid.clearance_at(np.column_stack([cx.ravel(), cy.ravel()])).min())
 
     def _arc_clearance(self, grid: Grid, x: float, y: float, yaw: float, v: float, w: float, horizon: float) -> float:
         """Least footprint clearance while holding (v, w) for ``horizon`` seconds."""
@@ -566,11 +564,9 @@ class UGVExpert:
         radii = np.array([m.bounding_radius for m in env.layout.movers])[:, None, None]  # (M, 1, 1)
         v, w = self._manoeuvres(n)  # (P, T)
         px, py, heading = unicycle_poses(x, y, yaw, v, w, dt)  # (P, T) poses after each step
-        touching = math.hypot(robot.length / 6, robot.width / 2)  # the footprint circles' radius
+        touching = footprint_radius(robot)
         moving = v > 0
-        offsets = np.array([-1.0, 0.0, 1.0]) * (robot.length / 3)
-        cx = px[..., None] + offsets * np.cos(heading)[..., None]  # (P, T, 3)
-        cy = py[..., None] + offsets * np.sin(heading)[..., None]
+        cx, cy = footprint_centres(px, py, heading, robot)  # (P, T, 3)
         walls = grid.clearance_at(np.column_stack([cx.ravel(), cy.ravel()])).reshape(cx.shape).min(axis=2)
         blocked = (moving & (walls < touching)).any(axis=1)  # drives into a static obstacle
         # the margin: the bounding circles (what the path's speed caps keep clear of); real contact: the footprint
@@ -631,6 +627,19 @@ class BlindExpertPolicy:
 
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
         return self.expert.act()
+
+
+def footprint_radius(robot: RobotConfig) -> float:
+    """The radius of the three circles (centres at -L/3, 0, L/3 along the heading) that cover the footprint."""
+    return math.hypot(robot.length / 6, robot.width / 2)
+
+
+def footprint_centres(
+    px: np.ndarray, py: np.ndarray, heading: np.ndarray, robot: RobotConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """x and y of the three footprint circles' centres at poses of any shape S, as S + (3,)."""
+    offsets = np.array([-1.0, 0.0, 1.0]) * (robot.length / 3)
+    return px[..., None] + offsets * np.cos(heading)[..., None], py[..., None] + offsets * np.sin(heading)[..., None]
 
 
 def mover_distances(cx: np.ndarray, cy: np.ndarray, poses: np.ndarray, movers: Sequence[MoverPlan]) -> np.ndarray:

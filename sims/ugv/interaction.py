@@ -16,13 +16,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from sims.ugv.config import RobotConfig
-from sims.ugv.expert import mover_distances, unicycle_poses
+from sims.ugv.expert import footprint_centres, footprint_radius, mover_distances, unicycle_poses
 from sims.ugv.scenario import MoverPlan
-
-
-def footprint_radius(robot: RobotConfig) -> float:
-    """The radius of the three circles (centres at -L/3, 0, L/3 along the heading) that cover the footprint."""
-    return math.hypot(robot.length / 6, robot.width / 2)
 
 
 def interaction_stats(
@@ -45,9 +40,7 @@ def interaction_stats(
     px = np.concatenate([[[x]], px], axis=1)
     py = np.concatenate([[[y]], py], axis=1)
     heading = np.concatenate([[[yaw]], heading], axis=1)
-    offsets = np.array([-1.0, 0.0, 1.0]) * (robot.length / 3)
-    cx = px[..., None] + offsets * np.cos(heading)[..., None]  # (1, 1 + T, 3)
-    cy = py[..., None] + offsets * np.sin(heading)[..., None]
+    cx, cy = footprint_centres(px, py, heading, robot)  # (1, 1 + T, 3)
     gaps = mover_distances(cx, cy, mover_poses, movers)[0].min(axis=(0, 2)) - footprint_radius(robot)  # (1 + T,)
     touching = np.flatnonzero(gaps <= 0.0)
     ttc = float(touching[0]) * dt if len(touching) else math.inf

@@ -9,7 +9,8 @@ import pytest
 
 import sims
 from sims.ugv.config import RobotConfig
-from sims.ugv.interaction import footprint_radius, interaction_stats
+from sims.ugv.expert import footprint_radius
+from sims.ugv.interaction import interaction_stats
 from sims.ugv.scenario import MoverPlan
 
 DT = 0.1
