@@ -10,8 +10,13 @@ committed policy's own rows beside them. ``--rows`` takes an arm's rows from an 
 refits are not kept (the report says which, and the commit they were measured at).
 
     .venv/bin/python bench/bench_refit_spread.py [--sim ugv] [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
-        [--runs runs/refit-spread] [--merge] [--deployed] [--rows docs/refit_spread/rows.json] \
+        [--runs runs/refit-spread] [--merge] [--deployed] [--rank-episodes 150] [--rows docs/refit_spread/rows.json] \
         [--out DIR] [--readme docs/calibration_history.md] [--block NAME] [--cpus N | --address HOST:PORT]
+
+``--rank-episodes N`` adds how well fear ranks the steps before a violation (``sage calibrate``'s first table: the
+policy alone with its gate watching, no expert, N episodes per scenario, "a violation within 1 s"): per arm and
+scenario the AUROC of fear for each refit, its mean with a 95% t-interval, and the share of the other steps on which
+the gate fires (its false alarms, what the takeover pays for).
 
 ``--merge`` also merges each arm's refits into one ensemble of all their members (``sage merge``: bagging over
 refits, :mod:`core.merge`) and drives its gate rows beside the single refits'. It needs refits that kept their
@@ -307,11 +312,20 @@ def main() -> None:
         nargs="+",
         help="the scenarios of the --scales rows (default: the table's; choose arms on the train splits)",
     )
+    parser.add_argument(
+        "--rank-episodes",
+        type=int,
+        default=0,
+        help="also fear's ranking of the steps before a violation (AUROC, the policy alone with its gate watching) "
+        "over this many episodes per scenario and refit (0: none)",
+    )
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()
     if any(scale <= 0 for scale in args.scales):
         parser.error("--scales must be positive")
+    if args.rank_episodes < 0:
+        parser.error("--rank-episodes must be 0 or more")
     if len(args.seeds) < 2:
         parser.error("give at least two --seeds: the spread over refits is the point")
     settings = arms(args.sim)
@@ -413,6 +427,22 @@ def main() -> None:
         else []
     )
     scaled = dict(zip(scaled_cases, scaled_rows, strict=True))
+    rank_cases = [case for case in cases if args.rank_episodes > 0]
+    ranked_rows = (
+        run_tasks(
+            rank_row,
+            [
+                {"folder": str(where[arm, seed]), "sim": args.sim, "scenario": scenario, "episodes": args.rank_episodes}
+                for arm, seed, scenario in rank_cases
+            ],
+            [f"fear's ranking: {arm} seed {seed} on {scenario}" for arm, seed, scenario in rank_cases],
+            address=args.address,
+            cpus=args.cpus,
+        )
+        if rank_cases
+        else []
+    )
+    ranked = dict(zip(rank_cases, ranked_rows, strict=True))
     measured = dict(zip(cases, rows, strict=True))
     measured.update({key: row for key, row in earlier.items() if key[0] in reused})
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
@@ -422,6 +452,8 @@ def main() -> None:
     text = report(args, settings, measured, commit.stdout.strip(), older, merged_arms, deployed_commit)
     if scaled:
         text += scaled_report(args, measured, scaled)
+    if ranked:
+        text += rank_report(args, ranked)
     if reused:
         source = rows_source(args)
         text[2] += f" Rows of {', '.join(reused)}: from `{source}` (at {earlier_commit(args.rows)}; refits not kept)."
@@ -430,7 +462,8 @@ def main() -> None:
     (args.out / "rows.json").write_text(
         json.dumps(
             [{"arm": a, "seed": s, "scenario": sc, **measured[a, s, sc]} for a, s, sc in cases]
-            + [{"arm": a, "seed": s, "scenario": sc, "scale": k, **scaled[a, s, sc, k]} for a, s, sc, k in scaled],
+            + [{"arm": a, "seed": s, "scenario": sc, "scale": k, **scaled[a, s, sc, k]} for a, s, sc, k in scaled]
+            + [{"arm": a, "seed": s, "scenario": sc, "rank": True, **ranked[a, s, sc]} for a, s, sc in ranked],
             indent=1,
         )
     )
@@ -467,9 +500,12 @@ def rows_flag(args: argparse.Namespace) -> str:
 
 
 def earlier_rows(path: Path) -> dict[tuple[str, int | str, str], dict[str, Any]]:
-    """The rows of an earlier run (its ``rows.json``), by (arm, seed, scenario); its τ-scaled rows left out."""
+    """The rows of an earlier run (its ``rows.json``), by (arm, seed, scenario); its τ-scaled and ranking rows left
+    out."""
     return {
-        (row["arm"], row["seed"], row["scenario"]): row for row in json.loads(path.read_text()) if "scale" not in row
+        (row["arm"], row["seed"], row["scenario"]): row
+        for row in json.loads(path.read_text())
+        if "scale" not in row and "rank" not in row
     }
 
 
@@ -563,11 +599,94 @@ def gate_row(folder: str, scenario: str, episodes: int, sim: str = "ugv", scale:
     return row
 
 
-def interval(values: list[float]) -> str:
+def rank_row(folder: str, scenario: str, episodes: int, sim: str = "ugv") -> dict[str, Any]:
+    """One Ray task: how well fear ranks the steps before "a violation within 1 s" with the policy alone and its gate
+    watching (:func:`studies.calibrate.calibrate_run`, ``sage calibrate``'s seeds), cached in the refit's folder.
+    AUROC is NaN where no episode had a violation."""
+    from studies.calibrate import calibrate_run
+
+    shown = Path(scenario).stem
+    cache = Path(folder) / f"rank-{shown}-{episodes}.json"
+    if cache.is_file():
+        return json.loads(cache.read_text())
+    d = sims.descriptor(sim)
+    path = str(ROOT / scenario) if scenario.endswith(".yaml") else scenario
+    started = time.perf_counter()
+    measured = calibrate_run(folder, lambda: d.make(path), d.dt, sim=sim, scenario=shown, episodes=episodes)
+    row = {
+        "auroc": measured.scores["fear"].auroc,
+        "average_precision": measured.scores["fear"].average_precision,
+        "violations": measured.violations,
+        "positives": measured.positives,
+        "fire_before": measured.fire_rate_before_violation,
+        "fire_elsewhere": measured.fire_rate_elsewhere,
+        "seconds": time.perf_counter() - started,
+    }
+    cache.write_text(json.dumps(row))
+    return row
+
+
+def rank_report(args: argparse.Namespace, ranked: dict[tuple[str, int | str, str], Any]) -> list[str]:
+    """Per scenario and arm: fear's AUROC for each refit, its mean ± 95% over seeds, the gate's firing on the steps
+    not before a violation (mean over seeds) and Welch's p against the first arm; the merged and deployed models'
+    own. A scenario where no refit's policy had a violation is named, not tabled."""
+    sim = getattr(args, "sim", "ugv")
+    shown = [arm for arm in args.arms if any(key[0] == arm for key in ranked)]
+    first, others = shown[0], shown[1:]
+    extra = sorted({(arm, seed) for arm, seed, _ in ranked if seed in (MERGED, DEPLOYED)}, key=lambda key: key[0])
+    lines = [
+        "",
+        f"#### Fear's ranking of the steps before a violation (`--rank-episodes {args.rank_episodes}`)",
+        "",
+        f"The policy alone with its gate watching (no expert), {args.rank_episodes} episodes per scenario and refit "
+        "(`sage calibrate`'s seeds); label: a violation within 1 s. Per arm: fear's AUROC for each seed in the order "
+        "given, its mean ± 95% over seeds, and the share of the other steps on which the gate fires (false alarms: "
+        "what the takeover pays for), mean over seeds.",
+        "",
+        "| scenario | "
+        + " | ".join(f"{arm}: AUROC per seed | {arm}: mean ± 95% | {arm}: fires elsewhere" for arm in shown)
+        + "".join(
+            f" | {'committed' if seed == DEPLOYED else f'{arm}, merged'}: AUROC · fires elsewhere"
+            for arm, seed in extra
+        )
+        + "".join(f" | p, {arm} vs {first}" for arm in others)
+        + " |",
+        "|---|" + "---|---|---|" * len(shown) + "---|" * len(extra) + "---|" * len(others),
+    ]
+    quiet = []
+    for scenario in table_scenarios(sim):
+        if not any(key[2] == scenario for key in ranked):
+            continue
+        values = {arm: [ranked[arm, seed, scenario]["auroc"] for seed in args.seeds] for arm in shown}
+        if all(math.isnan(v) for arm in shown for v in values[arm]):
+            quiet.append(f"{sim} {Path(scenario).name}")
+            continue
+        cells = []
+        for arm in shown:
+            known = [v for v in values[arm] if not math.isnan(v)]
+            elsewhere = np.nanmean([ranked[arm, seed, scenario]["fire_elsewhere"] for seed in args.seeds])
+            spread = interval(known, digits=3) if len(known) > 1 else "–"
+            per_seed = " · ".join("–" if math.isnan(v) else f"{v:.2f}" for v in values[arm])
+            cells.append(f"{per_seed} | {spread} | {elsewhere:.0%}")
+        for key in extra:
+            row = ranked[(*key, scenario)]
+            cells.append(
+                ("–" if math.isnan(row["auroc"]) else f"{row['auroc']:.2f}") + f" · {row['fire_elsewhere']:.0%}"
+            )
+        for arm in others:
+            a, b = ([v for v in values[name] if not math.isnan(v)] for name in (first, arm))
+            cells.append(welch_p(a, b) if len(a) > 1 and len(b) > 1 else "–")
+        lines.append(f"| {sim} {Path(scenario).name} | " + " | ".join(cells) + " |")
+    if quiet:
+        lines += ["", f"No violation with the policy alone, so nothing to rank, on: {', '.join(quiet)}."]
+    return lines
+
+
+def interval(values: list[float], digits: int = 1) -> str:
     """mean ± half-width of the 95% t-interval over seeds."""
     mean = float(np.mean(values))
     half = float(stats.t.ppf(0.975, len(values) - 1) * np.std(values, ddof=1) / math.sqrt(len(values)))
-    return f"{mean:.1f} ± {half:.1f}"
+    return f"{mean:.{digits}f} ± {half:.{digits}f}"
 
 
 def welch_p(first: list[float], second: list[float]) -> str:

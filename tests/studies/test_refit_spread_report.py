@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
-from bench_refit_spread import earlier_rows, scaled_report
+from bench_refit_spread import earlier_rows, rank_report, scaled_report
 
 
 def test_the_equal_takeover_table_puts_each_arm_at_each_scale_beside_the_deployed_gate(tmp_path: Path) -> None:
@@ -45,3 +45,34 @@ def test_the_equal_takeover_table_puts_each_arm_at_each_scale_beside_the_deploye
     assert earlier_rows(saved) == {
         ("plain", 5, "x"): {"arm": "plain", "seed": 5, "scenario": "x", "violations": 1, "takeover": 0.1}
     }
+
+
+def test_the_ranking_table_gives_each_arms_auroc_over_seeds_and_names_the_rows_without_a_violation() -> None:
+    args = argparse.Namespace(sim="ugv", arms=["states16k", "approach"], seeds=[0, 1], rank_episodes=150)
+    nan = float("nan")
+
+    def row(auroc: float, elsewhere: float) -> dict[str, float]:
+        return {"auroc": auroc, "fire_elsewhere": elsewhere}
+
+    ranked = {
+        ("states16k", 0, "4"): row(0.80, 0.50),
+        ("states16k", 1, "4"): row(0.90, 0.30),
+        ("approach", 0, "4"): row(0.95, 0.10),
+        ("approach", 1, "4"): row(nan, 0.20),  # that refit's policy never collided: nothing to rank
+        ("deployed", "deployed", "4"): row(0.87, 0.50),
+        ("states16k", 0, "1"): row(nan, 0.05),
+        ("states16k", 1, "1"): row(nan, 0.05),
+        ("approach", 0, "1"): row(nan, 0.05),
+        ("approach", 1, "1"): row(nan, 0.05),
+        ("deployed", "deployed", "1"): row(nan, 0.05),
+    }
+    lines = rank_report(args, ranked)
+    (ugv4,) = [line for line in lines if line.startswith("| ugv 4 |")]
+    cells = [cell.strip() for cell in ugv4.strip("|").split("|")]
+    assert cells[1] == "0.80 · 0.90" and cells[2].startswith("0.850 ±") and cells[3] == "40%"
+    assert cells[4] == "0.95 · –" and cells[5] == "–" and cells[6] == "15%"  # one known AUROC: no interval
+    assert cells[7] == "0.87 · 50%"  # the committed model's own
+    assert cells[8] == "–"  # no p from a single value
+    assert not any(line.startswith("| ugv 1 |") for line in lines)
+    assert lines[-1] == "No violation with the policy alone, so nothing to rank, on: ugv 1."
+    assert "committed: AUROC · fires elsewhere" in next(line for line in lines if line.startswith("| scenario"))
