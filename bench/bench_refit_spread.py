@@ -717,7 +717,7 @@ def report(
         + (f"{setup.policy} as committed: violations | takeover | " if deployed else "")
         + " | ".join(f"{arm}: violations per seed | {arm}: mean ± 95% | {arm}: takeover" for arm in args.arms)
         + "".join(f" | {arm}, merged: violations | {arm}, merged: takeover" for arm in merged_arms)
-        + "".join(f" | p, {arm} vs {first}" for arm in others)
+        + "".join(f" | p, {arm} vs {first}: violations · takeover" for arm in others)
         + " |"
     )
     flags = f"--sim {sim} " if sim != "ugv" else ""
@@ -742,7 +742,11 @@ def report(
         + f". Gate + scripted expert over {args.episodes} episodes per scenario and refit (the calibration bench's "
         "seeds): episodes with a violation, per seed in the order given"
         + (f"; as committed: `policies/{setup.policy}` at {deployed_commit}" if deployed else "")
-        + (f"; p: Welch's t-test of an arm's mean over seeds against {first}'s" if others else "")
+        + (
+            f"; p: Welch's t-test of an arm's mean over seeds against {first}'s, of the violations and of the takeover"
+            if others
+            else ""
+        )
         + (
             f"; merged: the arm's {len(args.seeds)} refits as one ensemble of all their members (`sage merge` of "
             "their folders, κ and τ set on the union of their calibration states"
@@ -773,9 +777,11 @@ def report(
             deployed_total += row["violations"]
             cells.append(f"{row['violations']:.0f} | {row['takeover']:.0%}")
         counts: dict[str, list[float]] = {}
+        takeovers: dict[str, list[float]] = {}
         for arm in args.arms:
             counts[arm] = [measured[arm, seed, scenario]["violations"] for seed in args.seeds]
-            takeover = np.mean([measured[arm, seed, scenario]["takeover"] for seed in args.seeds])
+            takeovers[arm] = [measured[arm, seed, scenario]["takeover"] for seed in args.seeds]
+            takeover = np.mean(takeovers[arm])
             for i, count in enumerate(counts[arm]):
                 totals[arm][i] += count
             cells.append(f"{' · '.join(f'{c:.0f}' for c in counts[arm])} | {interval(counts[arm])} | {takeover:.0%}")
@@ -783,7 +789,9 @@ def report(
             row = measured[arm, MERGED, scenario]
             merged_total[arm] += row["violations"]
             cells.append(f"{row['violations']:.0f} | {row['takeover']:.0%}")
-        cells.extend(welch_p(counts[first], counts[arm]) for arm in others)
+        cells.extend(
+            f"{welch_p(counts[first], counts[arm])} · {welch_p(takeovers[first], takeovers[arm])}" for arm in others
+        )
         lines.append(f"| {sim} {Path(scenario).name} | " + " | ".join(cells) + " |")
     cells = [f"{deployed_total:.0f} | "] if deployed else []
     cells.extend(f"{' · '.join(f'{t:.0f}' for t in totals[arm])} | {interval(totals[arm])} | " for arm in args.arms)

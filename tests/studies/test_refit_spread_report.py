@@ -8,7 +8,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
-from bench_refit_spread import earlier_rows, rank_report, scaled_report
+from bench_calibration import table_scenarios
+from bench_refit_spread import arms, earlier_rows, rank_report, report, scaled_report
 
 
 def test_the_equal_takeover_table_puts_each_arm_at_each_scale_beside_the_deployed_gate(tmp_path: Path) -> None:
@@ -76,3 +77,20 @@ def test_the_ranking_table_gives_each_arms_auroc_over_seeds_and_names_the_rows_w
     assert not any(line.startswith("| ugv 1 |") for line in lines)
     assert lines[-1] == "No violation with the policy alone, so nothing to rank, on: ugv 1."
     assert "committed: AUROC · fires elsewhere" in next(line for line in lines if line.startswith("| scenario"))
+
+
+def test_the_gate_table_tests_each_arms_takeover_as_well_as_its_violations_against_the_first_arm() -> None:
+    args = argparse.Namespace(sim="ugv", arms=["states16k", "approach"], seeds=[0, 1, 2], episodes=100, merge=False)
+    measured = {}
+    for scenario in table_scenarios("ugv"):
+        for seed in args.seeds:
+            measured["states16k", seed, scenario] = {"violations": 5 + seed, "takeover": 0.38 + 0.01 * seed}
+            measured["approach", seed, scenario] = {"violations": 7 - seed, "takeover": 0.28 + 0.01 * seed}
+    lines = report(args, arms("ugv"), measured, "abc1234", [])
+    header = next(line for line in lines if line.startswith("| scenario"))
+    assert header.endswith("| p, approach vs states16k: violations · takeover |")
+    (ugv4,) = [line for line in lines if line.startswith("| ugv 4 |")]
+    violations_p, takeover_p = (float(p) for p in ugv4.strip("| ").split("|")[-1].split(" · "))
+    assert violations_p == 1.0  # the same mean, 6 either way
+    assert takeover_p < 0.001  # 38-40% against 28-30%, the same spread
+    assert "of the violations and of the takeover" in lines[2]
