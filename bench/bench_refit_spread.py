@@ -633,7 +633,9 @@ def rank_report(args: argparse.Namespace, ranked: dict[tuple[str, int | str, str
     sim = getattr(args, "sim", "ugv")
     shown = [arm for arm in args.arms if any(key[0] == arm for key in ranked)]
     first, others = shown[0], shown[1:]
-    extra = sorted({(arm, seed) for arm, seed, _ in ranked if seed in (MERGED, DEPLOYED)}, key=lambda key: key[0])
+    present = {(arm, seed) for arm, seed, _ in ranked}
+    # the committed model first, then each arm's merged refits in the arms' order (as in the gate table)
+    extra = [key for key in [(DEPLOYED, DEPLOYED), *((arm, MERGED) for arm in shown)] if key in present]
     lines = [
         "",
         f"#### Fear's ranking of the steps before a violation (`--rank-episodes {args.rank_episodes}`)",

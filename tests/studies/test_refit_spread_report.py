@@ -61,11 +61,13 @@ def test_the_ranking_table_gives_each_arms_auroc_over_seeds_and_names_the_rows_w
         ("approach", 0, "4"): row(0.95, 0.10),
         ("approach", 1, "4"): row(nan, 0.20),  # that refit's policy never collided: nothing to rank
         ("deployed", "deployed", "4"): row(0.87, 0.50),
+        ("approach", "merged", "4"): row(0.97, 0.18),
         ("states16k", 0, "1"): row(nan, 0.05),
         ("states16k", 1, "1"): row(nan, 0.05),
         ("approach", 0, "1"): row(nan, 0.05),
         ("approach", 1, "1"): row(nan, 0.05),
         ("deployed", "deployed", "1"): row(nan, 0.05),
+        ("approach", "merged", "1"): row(nan, 0.05),
     }
     lines = rank_report(args, ranked)
     (ugv4,) = [line for line in lines if line.startswith("| ugv 4 |")]
@@ -73,10 +75,12 @@ def test_the_ranking_table_gives_each_arms_auroc_over_seeds_and_names_the_rows_w
     assert cells[1] == "0.80 · 0.90" and cells[2].startswith("0.850 ±") and cells[3] == "40%"
     assert cells[4] == "0.95 · –" and cells[5] == "–" and cells[6] == "15%"  # one known AUROC: no interval
     assert cells[7] == "0.87 · 50%"  # the committed model's own
-    assert cells[8] == "–"  # no p from a single value
+    assert cells[8] == "0.97 · 18%"  # then each arm's merged refits
+    assert cells[9] == "–"  # no p from a single value
     assert not any(line.startswith("| ugv 1 |") for line in lines)
     assert lines[-1] == "No violation with the policy alone, so nothing to rank, on: ugv 1."
-    assert "committed: AUROC · fires elsewhere" in next(line for line in lines if line.startswith("| scenario"))
+    header = next(line for line in lines if line.startswith("| scenario"))
+    assert header.index("committed: AUROC") < header.index("approach, merged: AUROC") < header.index("| p, approach")
 
 
 def test_the_gate_table_tests_each_arms_takeover_as_well_as_its_violations_against_the_first_arm() -> None:
