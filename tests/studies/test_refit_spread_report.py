@@ -84,7 +84,9 @@ def test_the_ranking_table_gives_each_arms_auroc_over_seeds_and_names_the_rows_w
 
 
 def test_the_gate_table_tests_each_arms_takeover_as_well_as_its_violations_against_the_first_arm() -> None:
-    args = argparse.Namespace(sim="ugv", arms=["states16k", "approach"], seeds=[0, 1, 2], episodes=100, merge=False)
+    args = argparse.Namespace(
+        sim="ugv", arms=["states16k", "approach"], seeds=[0, 1, 2], episodes=100, merge=False, rank_episodes=150
+    )
     measured = {}
     for scenario in table_scenarios("ugv"):
         for seed in args.seeds:
@@ -97,4 +99,4 @@ def test_the_gate_table_tests_each_arms_takeover_as_well_as_its_violations_again
     violations_p, takeover_p = (float(p) for p in ugv4.strip("| ").split("|")[-1].split(" · "))
     assert violations_p == 1.0  # the same mean, 6 either way
     assert takeover_p < 0.001  # 38-40% against 28-30%, the same spread
-    assert "of the violations and of the takeover" in lines[2]
+    assert "of the violations and of the takeover" in lines[2] and "--rank-episodes 150` at commit abc1234" in lines[2]
