@@ -61,6 +61,7 @@ import math
 import re
 import subprocess
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -386,15 +387,8 @@ def main() -> None:
         deployed_commit = last_commit(f"policies/{setup.policy}")
         where[DEPLOYED, DEPLOYED] = policy_at_commit(args.runs, setup.policy, deployed_commit)
         cases.extend((DEPLOYED, DEPLOYED, scenario) for scenario in rows_of)
-    rows = run_tasks(
-        gate_row,
-        [
-            {"folder": str(where[arm, seed]), "sim": args.sim, "scenario": scenario, "episodes": args.episodes}
-            for arm, seed, scenario in cases
-        ],
-        [f"gate + expert: {arm} seed {seed} on {scenario}" for arm, seed, scenario in cases],
-        address=args.address,
-        cpus=args.cpus,
+    measured = measure(
+        gate_row, cases, args, where, args.episodes, lambda a, s, sc: f"gate + expert: {a} seed {s} on {sc}"
     )
     scale_scenarios = args.scale_scenarios or rows_of
     unknown_scenarios = [scenario for scenario in scale_scenarios if scenario not in rows_of]
@@ -408,42 +402,23 @@ def main() -> None:
         for scenario in scale_scenarios
         for scale in args.scales
     ]
-    scaled_rows = (
-        run_tasks(
-            gate_row,
-            [
-                {"folder": str(where[arm, seed]), "sim": args.sim, "scenario": scenario, "episodes": args.episodes}
-                | {"scale": scale}
-                for arm, seed, scenario, scale in scaled_cases
-            ],
-            [
-                f"gate (τ x {scale:g}) + expert: {arm} seed {seed} on {scenario}"
-                for arm, seed, scenario, scale in scaled_cases
-            ],
-            address=args.address,
-            cpus=args.cpus,
-        )
-        if scaled_cases
-        else []
+    scaled = measure(
+        gate_row,
+        scaled_cases,
+        args,
+        where,
+        args.episodes,
+        lambda a, s, sc, k: f"gate (τ x {k:g}) + expert: {a} seed {s} on {sc}",
+        lambda key: {"scale": key[3]},
     )
-    scaled = dict(zip(scaled_cases, scaled_rows, strict=True))
-    rank_cases = [case for case in cases if args.rank_episodes > 0]
-    ranked_rows = (
-        run_tasks(
-            rank_row,
-            [
-                {"folder": str(where[arm, seed]), "sim": args.sim, "scenario": scenario, "episodes": args.rank_episodes}
-                for arm, seed, scenario in rank_cases
-            ],
-            [f"fear's ranking: {arm} seed {seed} on {scenario}" for arm, seed, scenario in rank_cases],
-            address=args.address,
-            cpus=args.cpus,
-        )
-        if rank_cases
-        else []
+    ranked = measure(
+        rank_row,
+        cases if args.rank_episodes > 0 else [],
+        args,
+        where,
+        args.rank_episodes,
+        lambda a, s, sc: f"fear's ranking: {a} seed {s} on {sc}",
     )
-    ranked = dict(zip(rank_cases, ranked_rows, strict=True))
-    measured = dict(zip(cases, rows, strict=True))
     measured.update({key: row for key, row in earlier.items() if key[0] in reused})
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     older = sorted(
@@ -472,6 +447,33 @@ def main() -> None:
         block = args.block or f"refit-spread{suffix}"
         include(args.readme, block, args.out / "README.md", "## Calibration of fear")
         print(f"README section '{block}' written into {args.readme}")
+
+
+def measure(
+    task: Callable[..., dict[str, Any]],
+    keys: Sequence[tuple[Any, ...]],
+    args: argparse.Namespace,
+    where: dict[tuple[str, int | str], Path],
+    episodes: int,
+    label: Callable[..., str],
+    extra: Callable[[tuple[Any, ...]], dict[str, Any]] = lambda key: {},
+) -> dict[tuple[Any, ...], dict[str, Any]]:
+    """``task`` (a row of :func:`gate_row` or :func:`rank_row`) for each key (arm, seed, scenario, ...) as Ray
+    tasks, by key; ``extra`` gives a key's further arguments."""
+    if not keys:
+        return {}
+    rows = run_tasks(
+        task,
+        [
+            {"folder": str(where[key[0], key[1]]), "sim": args.sim, "scenario": key[2], "episodes": episodes}
+            | extra(key)
+            for key in keys
+        ],
+        [label(*key) for key in keys],
+        address=args.address,
+        cpus=args.cpus,
+    )
+    return dict(zip(keys, rows, strict=True))
 
 
 def rows_source(args: argparse.Namespace) -> str | None:

@@ -20,7 +20,10 @@ from tests.app.conftest import LiveServer, start_server, stop_server, toy_settin
 
 
 def ws(live: LiveServer) -> ClientConnection:
-    return connect(f"ws://127.0.0.1:{live.port}/ws", open_timeout=10, max_size=None)
+    """A client that, like a browser, keeps reading frames whether or not the test reads its messages
+    (``max_queue=None``): a bounded queue stops the reader when full, so a viewer left unread for 20 s on a loaded
+    machine missed its keepalive pongs and was closed (1011) though the server was answering."""
+    return connect(f"ws://127.0.0.1:{live.port}/ws", open_timeout=10, max_size=None, max_queue=None)
 
 
 def until(conn: ClientConnection, pred: Callable[[dict[str, Any]], bool], timeout: float = 10.0) -> dict[str, Any]:
