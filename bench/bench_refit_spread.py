@@ -584,27 +584,24 @@ def gate_row(folder: str, scenario: str, episodes: int, sim: str = "ugv", scale:
     from core.agents import load_agent
     from studies.calibrate import ScaledFearGate, run_gated
 
-    shown = Path(scenario).stem
-    cache = Path(folder) / f"gate-{shown}-{episodes}{'' if scale is None else f'-tau{scale:g}'}.json"
-    if cache.is_file():
-        return json.loads(cache.read_text())
     d = sims.descriptor(sim)
-    path = str(ROOT / scenario) if scenario.endswith(".yaml") else scenario
-    started = time.perf_counter()
-    agent = load_agent(folder)
-    gate = agent.make_gate()
-    if scale is not None:
-        gate = ScaledFearGate(gate, agent.gate_config().hold, scale)
-    point = run_gated(agent, lambda: d.make(path), gate, episodes, None, warn_steps=max(1, round(1.0 / d.dt)))
-    row = {
-        "violations": round(point["violation_rate"] * episodes),
-        "takeover": float(point["takeover_rate"]),
-        "expert_driving": int(point["violations_under_expert"]),
-        "handed_back": int(point["violations_handed_back"]),
-        "seconds": time.perf_counter() - started,
-    }
-    cache.write_text(json.dumps(row))
-    return row
+    path = scenario_path(scenario)
+
+    def drive() -> dict[str, Any]:
+        agent = load_agent(folder)
+        gate = agent.make_gate()
+        if scale is not None:
+            gate = ScaledFearGate(gate, agent.gate_config().hold, scale)
+        point = run_gated(agent, lambda: d.make(path), gate, episodes, None, warn_steps=max(1, round(1.0 / d.dt)))
+        return {
+            "violations": round(point["violation_rate"] * episodes),
+            "takeover": float(point["takeover_rate"]),
+            "expert_driving": int(point["violations_under_expert"]),
+            "handed_back": int(point["violations_handed_back"]),
+        }
+
+    name = f"gate-{Path(scenario).stem}-{episodes}{'' if scale is None else f'-tau{scale:g}'}.json"
+    return cached_row(Path(folder) / name, drive)
 
 
 def rank_row(folder: str, scenario: str, episodes: int, sim: str = "ugv") -> dict[str, Any]:
@@ -614,22 +611,35 @@ def rank_row(folder: str, scenario: str, episodes: int, sim: str = "ugv") -> dic
     from studies.calibrate import calibrate_run
 
     shown = Path(scenario).stem
-    cache = Path(folder) / f"rank-{shown}-{episodes}.json"
+    d = sims.descriptor(sim)
+    path = scenario_path(scenario)
+
+    def rank() -> dict[str, Any]:
+        measured = calibrate_run(folder, lambda: d.make(path), d.dt, sim=sim, scenario=shown, episodes=episodes)
+        return {
+            "auroc": measured.scores["fear"].auroc,
+            "average_precision": measured.scores["fear"].average_precision,
+            "violations": measured.violations,
+            "positives": measured.positives,
+            "fire_before": measured.fire_rate_before_violation,
+            "fire_elsewhere": measured.fire_rate_elsewhere,
+        }
+
+    return cached_row(Path(folder) / f"rank-{shown}-{episodes}.json", rank)
+
+
+def scenario_path(scenario: str) -> str:
+    """A scenario as the simulator's ``make`` takes it: a layout file from the checkout, else a built-in name."""
+    return str(ROOT / scenario) if scenario.endswith(".yaml") else scenario
+
+
+def cached_row(cache: Path, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """A task's row from its cache file in the refit's folder, else computed (with its ``seconds``) and kept there:
+    a rerun of the bench reuses every row it has."""
     if cache.is_file():
         return json.loads(cache.read_text())
-    d = sims.descriptor(sim)
-    path = str(ROOT / scenario) if scenario.endswith(".yaml") else scenario
     started = time.perf_counter()
-    measured = calibrate_run(folder, lambda: d.make(path), d.dt, sim=sim, scenario=shown, episodes=episodes)
-    row = {
-        "auroc": measured.scores["fear"].auroc,
-        "average_precision": measured.scores["fear"].average_precision,
-        "violations": measured.violations,
-        "positives": measured.positives,
-        "fire_before": measured.fire_rate_before_violation,
-        "fire_elsewhere": measured.fire_rate_elsewhere,
-        "seconds": time.perf_counter() - started,
-    }
+    row = compute() | {"seconds": time.perf_counter() - started}
     cache.write_text(json.dumps(row))
     return row
 
