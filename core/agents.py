@@ -64,7 +64,15 @@ class AgentMeta:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-FEAR_SHAPE = ("beta", "horizon", "aggregate", "discount", "tau_min_quantile", "tau_max_quantile")
+FEAR_SHAPE = (
+    "beta",
+    "horizon",
+    "aggregate",
+    "discount",
+    "tau_min_quantile",
+    "tau_max_quantile",
+    "imagined_contact",
+)
 """Gate settings that change the fear a model's τ bounds were measured on (or the quantiles they were taken at):
 a gate that sets one over a run's own needs the bounds measured again (``sage recalibrate``)."""
 
@@ -75,7 +83,10 @@ def fear_shape_moved(own: GateConfig | dict[str, Any], new: GateConfig) -> list[
     if not new.tau_from_data:
         return []
     values = own if isinstance(own, dict) else dataclasses.asdict(own)
-    return [name for name in FEAR_SHAPE if name in values and values[name] != getattr(new, name)]
+    moved = [name for name in FEAR_SHAPE if values.get(name, getattr(GateConfig, name)) != getattr(new, name)]
+    if new.imagined_contact and values.get("contact_floors") != new.contact_floors:
+        moved.append("contact_floors")  # another simulator's floors are another fear
+    return moved
 
 
 # -- writing --------------------------------------------------------------------------------------

@@ -79,6 +79,11 @@ class SimDescriptor:
     """The episode metrics (``metrics()`` keys) that the paper's tables show, in order."""
     safe_action: tuple[float, ...] | int
     """The action that stops or brakes (never cruise): what the loop applies when nobody can drive."""
+    contact_floors: tuple[float, ...] = ()
+    """Where the observation itself shows a violation: channel i at or under ``contact_floors[i]`` (channels [0, n))
+    means the ego touches something (the UGV: a lidar sector's range at or inside the robot's footprint). A training
+    run writes them into its gate (``GateConfig.contact_floors``), for fear's imagined contact. Empty: the
+    observation alone does not show one (a collision on highway or SUMO needs the other vehicle's extent)."""
     live_options: Mapping[str, Any] = field(default_factory=dict)
     """Extra ``make`` keyword arguments for the live server (e.g. SUMO in its own process)."""
     parse_scenario: Callable[[str], dict[str, Any]] | None = None

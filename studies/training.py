@@ -110,8 +110,10 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         method, start = base.method, base
     else:
         method, start = spec.method, preset(spec.method, base=base)
-    # the gate's hold may be given in seconds (gate.hold_seconds): the run records the step it is counted in
-    start.gate = replace(start.gate, step_seconds=sims.descriptor(spec.sim).dt)
+    # the gate's hold may be given in seconds (gate.hold_seconds): the run records the step it is counted in; and
+    # where its simulator's observation shows contact, the floors fear's imagined contact reads
+    descriptor = sims.descriptor(spec.sim)
+    start.gate = replace(start.gate, step_seconds=descriptor.dt, contact_floors=list(descriptor.contact_floors) or None)
     agent_cfg = apply_overrides(start, list(spec.overrides))
     env = parse_env_overrides(list(spec.env))
     setup = prepare_training(

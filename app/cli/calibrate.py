@@ -84,7 +84,7 @@ def register(app: typer.Typer) -> None:
             descriptor = sims.descriptor(sim)
             name = scenario or descriptor.default_scenario
             descriptor.scenario_kwargs(name)
-            settings = parse_gate_settings(gate_set or [])
+            settings = parse_gate_settings(gate_set or [], descriptor.contact_floors)
             load_agent(run).gate_config(**settings)  # a setting the run's gate refuses stops here, before any episode
 
             def make_env() -> Any:
@@ -173,7 +173,7 @@ def register(app: typer.Typer) -> None:
             descriptor = sims.descriptor(sim)
             for name in scenario:
                 descriptor.scenario_kwargs(name)
-            settings = parse_gate_settings(gate_set or [])
+            settings = parse_gate_settings(gate_set or [], descriptor.contact_floors)
 
             def factory(name: str) -> Any:
                 return lambda: descriptor.make(name)
@@ -266,7 +266,7 @@ def register(app: typer.Typer) -> None:
                 episodes,
                 out,
                 descriptor.dt,
-                gate_settings=parse_gate_settings(gate_set or []),
+                gate_settings=parse_gate_settings(gate_set or [], descriptor.contact_floors),
                 choose=choose_beta,
                 label_s=horizon,
                 max_steps=max_steps,

@@ -106,7 +106,7 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
         except (OSError, ValueError) as exc:
             _fail(f"policy {policy!r} cannot be loaded: {_first_line(exc)}")
     try:
-        settings = parse_gate_settings(gate_set)
+        settings = parse_gate_settings(gate_set, sims.descriptor(sim).contact_floors)
     except ValueError as exc:
         _fail(f"--gate-set: {exc}")
     opening = policy or default_policy(ServerSettings().policy_roots, sim)  # where the dashboard will look

@@ -290,7 +290,7 @@ def _evaluate_and_format(
     if expert and not gate:
         _fail("--expert needs --gate (the gate decides when the expert takes over)")
     try:
-        gate_settings = parse_gate_settings(gate_set or [])
+        parse_gate_settings(gate_set or [])  # an unreadable setting stops here, before any run loads
     except ValueError as exc:
         _fail(f"--gate-set: {exc}")
     named: dict[str, list[dict[str, Any]]] = {}
@@ -318,11 +318,13 @@ def _evaluate_and_format(
             if gate and not agent.has_world_model:
                 _fail(f"{run} has no world model: no SAGE gate to run (drop --gate)")
             try:
-                agent.gate_config(**gate_settings)
+                # the run's simulator's contact floors, should the settings switch imagined contact on
+                run_settings = parse_gate_settings(gate_set or [], sims.descriptor(sim).contact_floors)
+                agent.gate_config(**run_settings)
             except ValueError as exc:
                 _fail(f"--gate-set: {exc}")
             policy = agent.policy
-            gate_factory = functools.partial(agent.make_gate, **gate_settings) if gate else None
+            gate_factory = functools.partial(agent.make_gate, **run_settings) if gate else None
         sims_seen.append(sim)
         results: dict[str, list[dict[str, Any]]] = {}
         for seed in seeds:

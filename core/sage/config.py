@@ -14,6 +14,7 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -177,6 +178,21 @@ class GateConfig:
     the hold's k steps under τ_t; 1 only after k steps under τ_min, the threshold of the most novel
     ground. The committed default policies deploy 1 (README, "Calibration of fear": over 100 episodes a scenario it
     left SUMO's routes 62 -> 38 episodes with a violation and the UGV's within noise, at a few points more takeover)."""
+
+    imagined_contact: bool = False
+    """Fear also reads the contact its imagined states show: a member's predicted state at step k whose channel i is
+    at or under ``contact_floors[i]`` (the ego touching something, as the simulator defines a collision: the UGV's
+    lidar range in a sector at or inside the robot's footprint) counts as a violation there, its probability
+    max(sigmoid ℓ, 1). A learned head ranks what it saw in its data: trained where the policy turns away from walls at
+    the last moment, it gave a robot driving straight into a crossing mover 0.002-0.01 while the same members' own
+    predicted ranges fell through the footprint. ĉ stays a violation probability, with the simulator's own definition
+    of a violation applied to the predicted states; σ̂ stays the members' disagreement about the learned danger
+    (:func:`core.sage.fear.with_contact` says why). False: the paper's fear (the learned head alone), the default of
+    new runs and of the studies."""
+    contact_floors: list[float] | None = None
+    """The observation's contact floors (channels [0, n), the observation's units): every training run writes them
+    from its simulator's descriptor (:attr:`core.descriptor.SimDescriptor.contact_floors`; None or empty where the
+    observation alone shows no violation), as it writes ``step_seconds``."""
 
     @property
     def hold(self) -> int:
@@ -495,6 +511,16 @@ def validate(cfg: AgentConfig) -> None:
                 "gate.hold_seconds needs gate.step_seconds, the simulator's step: a training run sets it from its "
                 "simulator (a run made before it: refit with --episodes 0 --world-model-only), or set both"
             )
+    if cfg.gate.contact_floors is not None and not all(
+        isinstance(f, int | float) and math.isfinite(f) and f >= 0 for f in cfg.gate.contact_floors
+    ):
+        raise ValueError(f"gate.contact_floors must be finite numbers >= 0, got {cfg.gate.contact_floors}")
+    if cfg.gate.imagined_contact and not cfg.gate.contact_floors:
+        raise ValueError(
+            "gate.imagined_contact needs gate.contact_floors, where the observation shows contact: a training run sets "
+            "them from its simulator; a run made before them, or a simulator whose observation shows no contact, "
+            "has none (sage recalibrate --gate-set imagined_contact=true --sim SIM fills them from SIM)"
+        )
     if not 0.0 < cfg.gamma < 1.0:
         raise ValueError(f"gamma must be in (0, 1), got {cfg.gamma}")
     if cfg.critics < 1 or cfg.world_model_config.members < 1:
@@ -553,11 +579,13 @@ def set_field(cfg: Any, dotted: str, value: Any) -> None:
     setattr(target, name, _convert(value, hint, dotted))
 
 
-def parse_gate_settings(pairs: list[str]) -> dict[str, Any]:
+def parse_gate_settings(pairs: list[str], contact_floors: Sequence[float] = ()) -> dict[str, Any]:
     """``KEY=VALUE`` strings (``--gate-set``) as :class:`GateConfig` settings of the field's type, e.g.
     ``["hold_seconds=2"]`` -> ``{"hold_seconds": 2.0}``. Unknown names and unreadable values are a ValueError; the
     settings are validated where they meet a run's gate (:meth:`core.agents.LoadedAgent.gate_config`), since some
-    need the run's own (``hold_seconds`` its ``step_seconds``)."""
+    need the run's own (``hold_seconds`` its ``step_seconds``). ``contact_floors``: the simulator's
+    (:attr:`core.descriptor.SimDescriptor.contact_floors`), which ``imagined_contact=true`` brings along unless the
+    pairs set them, so that a run trained before the floors were recorded can switch it on."""
     gate, settings = GateConfig(), {}
     for pair in pairs:
         if "=" not in pair:
@@ -565,6 +593,8 @@ def parse_gate_settings(pairs: list[str]) -> dict[str, Any]:
         key, value = (part.strip() for part in pair.split("=", 1))
         set_field(gate, key, value)
         settings[key] = getattr(gate, key)
+    if settings.get("imagined_contact") and "contact_floors" not in settings and contact_floors:
+        settings["contact_floors"] = [float(f) for f in contact_floors]
     return settings
 
 
@@ -603,6 +633,8 @@ def _convert(value: Any, hint: Any, name: str) -> Any:
         if origin is tuple:
             low, high = (float(v) for v in value.strip("()[] ").split(","))
             return (low, high)
+        if origin is list and args == (float,):
+            return [float(v) for v in value.strip("[] ").split(",") if v.strip()]
         if origin is Literal:
             if value not in args:
                 raise ValueError(value)

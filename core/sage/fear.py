@@ -79,13 +79,47 @@ class Fear:
     """(B,) σ_raw aggregated over the horizon (before the scale and squash)."""
 
 
+def contact_floors(cfg: GateConfig | None) -> Tensor | None:
+    """The floors of ``cfg``'s imagined contact as a tensor (``GateConfig.imagined_contact``), None when off."""
+    if cfg is None or not cfg.imagined_contact:
+        return None
+    if not cfg.contact_floors:
+        raise ValueError(
+            "gate.imagined_contact needs gate.contact_floors (a training run sets them from its simulator)"
+        )
+    return torch.tensor(cfg.contact_floors, dtype=torch.float32)
+
+
+def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None) -> Tensor:
+    """Each member's violation probability at each imagined step, raised to 1 where its predicted state is in
+    contact (some channel i at or under ``floors[i]``): ``probability`` (m, N, B), ``states`` (m, N, B, D) the
+    states those steps led to. Unchanged when ``floors`` is None.
+
+    It enters ĉ (the members' mean) only: σ̂ stays the members' disagreement about the learned danger. Counted in σ̂
+    too, contact would make fear fall as the members come to agree on it: all five in contact give β, two of five
+    nearly 1 (σ̂ saturates), so a certain contact would fire the gate less often than a doubtful one."""
+    if floors is None:
+        return probability
+    if floors.shape[0] > states.shape[-1]:
+        raise ValueError(f"gate.contact_floors has {floors.shape[0]} channels, the observation {states.shape[-1]}")
+    touching = (states[..., : floors.shape[0]] <= floors).any(-1)
+    return torch.maximum(probability, touching.to(probability.dtype))
+
+
 def rollout(
-    model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, horizon: int, motion: Tensor | None = None
+    model: FoldedModel,
+    policy: PolicyFn,
+    obs: Tensor,
+    action: Tensor,
+    horizon: int,
+    motion: Tensor | None = None,
+    contact: Tensor | None = None,
 ) -> Rollout:
     """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
     the last observed change of state (zeros when None), for a model with the motion input; later steps take
     each member's own predicted Δ into their motion (:func:`next_motion`; scan-aligned for a model with a
-    :class:`core.motion.ScanAlignment`)."""
+    :class:`core.motion.ScanAlignment`). ``contact``: the observation's contact floors (:func:`contact_floors`),
+    where an imagined state in contact is a violation (:func:`with_contact`)."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
@@ -117,7 +151,8 @@ def rollout(
     # (x - mean)^2 by hand: Tensor.var over a non-last dim takes a slow path on CPU (milliseconds here)
     spread = (probability - probability.mean(1, keepdim=True)).square().mean(1)
     sigma_raw = spread.clamp_min(1e-12).sqrt()
-    return Rollout(torch.stack(states), torch.stack(actions), probability, sigma_raw)
+    cost = with_contact(probability, torch.stack(states[1:]), contact)
+    return Rollout(torch.stack(states), torch.stack(actions), cost, sigma_raw)
 
 
 def next_motion(motion: Tensor, delta: Tensor, lag: int) -> Tensor:
@@ -168,7 +203,8 @@ def fear(
     the action and the policy unless called under no_grad / inference_mode (the model's folded weights are
     constants, so the world model itself never receives a gradient). ``motion``: see :func:`rollout` (the
     learner's batches pass none: their fear terms then assume no motion)."""
-    return fear_of(model, rollout(model, policy, obs, action, horizon or cfg.horizon, motion), cfg)
+    ro = rollout(model, policy, obs, action, horizon or cfg.horizon, motion, contact_floors(cfg))
+    return fear_of(model, ro, cfg)
 
 
 def calibrate(
@@ -189,7 +225,7 @@ def calibrate(
     fear that precedes a collision)."""
     with torch.no_grad():
         folded = world_model.folded()
-        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON), motion)
+        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON), motion, contact_floors(cfg))
         scale = torch.quantile(ro.sigma_raw, quantile, dim=1).clamp_min(1e-6)
         world_model.sigma_scale[: len(scale)] = scale
         world_model.sigma_scale[len(scale) :] = scale[-1]
@@ -423,6 +459,8 @@ class GateKernel:
         self.c_input = torch.zeros(n, 1, width)
         self.act_dim = act_dim
         self.c_delta = torch.empty(n, 1, d)
+        self.contact = contact_floors(cfg)
+        self.probability = torch.zeros(m, n, 1)
 
     def _trunk(self, x: Tensor, buffers: list[Tensor]) -> Tensor:
         h = x
@@ -475,7 +513,8 @@ class GateKernel:
         # the members' disagreement about the danger of each step (1/N applied once)
         sigma_raw = (probability - mean).square_().sum(1).mul_(self.inv_members).clamp_min_(1e-12).sqrt_()
         sigma = torch.tanh(sigma_raw.div_(self.sigma_divisor))
-        cost = probability.sum(1)
+        self.probability = with_contact(probability, self.states[1:], self.contact)
+        cost = self.probability.sum(1)
         if self.weights is None:
             c, sg = float(cost.max()) * self.inv_members, float(sigma.max())
         else:
@@ -492,7 +531,7 @@ class GateKernel:
     def last_member_costs(self) -> np.ndarray:
         """(m, N): each member's predicted violation probability at each step of the last rollout (read-only;
         what the dashboard's imagined-horizon chart draws)."""
-        return torch.sigmoid(self.step_cost[..., 0]).numpy().copy()
+        return self.probability[..., 0].numpy().copy()
 
     def curiosity(
         self,

@@ -7,6 +7,7 @@ from typing import Any
 
 from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
 from sims.ugv.config import UGVConfig
+from sims.ugv.lidar import footprint_ranges
 from sims.ugv.metrics import METRIC_COLUMNS
 
 
@@ -18,6 +19,14 @@ def _scenario_file(name: str) -> dict[str, Any]:
             raise ValueError(f"scenario file not found: {path}")
         return {"scenario": str(path)}
     raise ValueError("give 1-4 (the paper's field tests) or the path of a scenario .yaml file")
+
+
+def contact_floors(config: UGVConfig | None = None) -> tuple[float, ...]:
+    """The observation's first channels are the lidar sectors' ranges over ``max_range``: a sector at or under the
+    robot's footprint along its rays (:func:`sims.ugv.lidar.footprint_ranges`) has something touching the body."""
+    config = config or UGVConfig()
+    ranges = footprint_ranges(config.lidar, config.robot.length, config.robot.width) / config.lidar.max_range
+    return tuple(float(r) for r in ranges)
 
 
 DESCRIPTOR = SimDescriptor(
@@ -37,5 +46,6 @@ DESCRIPTOR = SimDescriptor(
     input_mapping=InputMapping(throttle_index=0, steer_index=1),
     metric_columns=METRIC_COLUMNS,
     safe_action=(-1.0, 0.0),  # a0 = -1 is v = 0: stand still, no turning
+    contact_floors=contact_floors(),
     parse_scenario=_scenario_file,
 )

@@ -43,6 +43,18 @@ def ray_angles(config: LidarConfig) -> np.ndarray:
     return angles
 
 
+def footprint_ranges(config: LidarConfig, length: float, width: float) -> np.ndarray:
+    """Per sector, the nearest a hit along any of its rays can be without lying inside a ``length`` x ``width`` box
+    centred on the scanner (the robot's body, heading along x): min over the sector's rays of the distance from the
+    centre to the box's edge along the ray (m). A sector reading at or under it has something touching the body,
+    whatever ray it came from, which is the simulator's collision (``SimDescriptor.contact_floors``)."""
+    angles = ray_angles(config).reshape(config.rays_per_sector, config.sectors)  # (ray j, sector s)
+    cos, sin = np.abs(np.cos(angles)), np.abs(np.sin(angles))
+    with np.errstate(divide="ignore"):
+        edge = np.minimum(np.where(cos > 0, length / 2 / cos, np.inf), np.where(sin > 0, width / 2 / sin, np.inf))
+    return edge.min(axis=0)
+
+
 def oriented_box_edges(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
     """(4, 4) rows ax, ay, bx, by of a box's edges, ordered clockwise so that the outside is on the left."""
     c, s = math.cos(yaw), math.sin(yaw)

@@ -141,3 +141,26 @@ def test_a_run_of_no_episodes_keeps_no_fear_its_bounds_were_not_measured_on(poli
     assert not (tmp_path / "beta" / "checkpoint.pt").exists()
     zero_run(tmp_path / "hold", hold_steps=2)
     assert load_agent(tmp_path / "hold").config.gate.hold_steps == 2
+
+
+def test_imagined_contact_is_another_fear_measured_again_with_the_simulators_floors(tmp_path: Path) -> None:
+    """Switching fear's imagined contact on changes fear, so a run's bounds must be measured again for it: refused
+    over the committed UGV policy's own, and ``sage recalibrate --gate-set imagined_contact=true`` brings the UGV's
+    contact floors along and writes a run whose gate has both."""
+    import sims
+    from app.cli import app
+
+    floors = list(sims.descriptor("ugv").contact_floors)
+    agent = load_agent("policies/ugv-default")
+    assert not agent.config.gate.imagined_contact
+    with pytest.raises(ValueError, match=r"changes fear itself.*sage recalibrate"):
+        agent.make_gate(imagined_contact=True, contact_floors=floors)
+    out = tmp_path / "contact"
+    args = ["recalibrate", "policies/ugv-default", "--sim", "ugv", "--scenario", "1", "--episodes", "2"]
+    result = CliRunner().invoke(app, [*args, "--gate-set", "imagined_contact=true", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    recalibrated = load_agent(out)
+    assert recalibrated.config.gate.imagined_contact and recalibrated.config.gate.contact_floors == floors
+    assert recalibrated.make_gate().cfg.imagined_contact
+    with pytest.raises(ValueError, match="contact_floors"):  # another simulator's floors are another fear
+        recalibrated.make_gate(contact_floors=[0.5] * 54)

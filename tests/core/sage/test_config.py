@@ -53,6 +53,8 @@ def test_overrides_convert_types_and_name_what_is_wrong() -> None:
         ("world_model_config.cost_label_weight=1.5", "cost_label_weight"),
         ("gate.hold_seconds=1", "step_seconds"),
         ("gate.step_seconds=0", "step_seconds"),
+        ("gate.imagined_contact=true", "contact_floors"),
+        ("gate.contact_floors=[0.1, -0.2]", "contact_floors"),
     ):
         with pytest.raises(ValueError, match=message):
             apply_overrides(for_method("sage"), [bad])
@@ -75,3 +77,13 @@ def test_gate_settings_are_read_as_their_fields_types_and_unknown_ones_refused()
     for bad, message in (("nope=1", "nope"), ("hold_seconds", "key=value"), ("release=abc", "release")):
         with pytest.raises(ValueError, match=message):
             parse_gate_settings([bad])
+    # imagined contact brings the simulator's floors along, unless the settings give their own
+    assert parse_gate_settings(["imagined_contact=true"], (0.02, 0.03)) == {
+        "imagined_contact": True,
+        "contact_floors": [0.02, 0.03],
+    }
+    assert parse_gate_settings(["imagined_contact=on", "contact_floors=[0.5, 0.25]"], (0.02,))["contact_floors"] == [
+        0.5,
+        0.25,
+    ]
+    assert parse_gate_settings(["imagined_contact=false"], (0.02,)) == {"imagined_contact": False}

@@ -262,3 +262,35 @@ def test_a_tau_scale_that_is_not_a_positive_number_is_refused(scale: float) -> N
     cfg.gate.tau_scale = scale
     with pytest.raises(ValueError, match=r"gate\.tau_scale"):
         validate(cfg)
+
+
+def test_an_imagined_state_in_contact_is_a_violation_and_the_gate_kernel_agrees() -> None:
+    """``imagined_contact``: a member whose predicted state falls to a contact floor has violation probability 1 at
+    that step, whatever its head says; the others keep theirs. ĉ rises with the members' share in contact, σ̂ stays
+    their disagreement about the learned danger, and the fast gate path equals the reference."""
+    model, actor = random_model()
+    obs, action = torch.zeros(1, 6), torch.zeros(1, 2)
+    off = GateConfig()
+    with torch.no_grad():
+        plain = rollout(model.folded(), actor.deterministic, obs, action, off.horizon)
+    first = plain.states[1, :, 0, 0].sort().values  # each member's predicted channel 0 after one step
+    floor = float(first[1] + first[2]) / 2  # two members under it, the others over it (none within rounding of it)
+    on = dataclasses.replace(off, imagined_contact=True, contact_floors=[floor])
+    with torch.no_grad():
+        touched = rollout(model.folded(), actor.deterministic, obs, action, on.horizon, contact=torch.tensor([floor]))
+    in_contact = plain.states[1:, :, :, 0] <= floor
+    assert 0 < int(in_contact[0].sum()) < model.folded().members
+    assert torch.equal(touched.cost, torch.where(in_contact, torch.ones_like(plain.cost), plain.cost))
+    assert torch.equal(touched.sigma_raw, plain.sigma_raw)  # σ̂: the disagreement about the learned danger
+    kernel = GateKernel(model.folded(), actor.deterministic_layers(), actor.action_scale, actor.action_bias, on)
+    with torch.inference_mode():
+        value, cost, sigma = kernel(obs, action)
+        reference = fear(model.folded(), actor.deterministic, obs, action, on)
+        without = fear(model.folded(), actor.deterministic, obs, action, off)
+    assert (value, cost, sigma) == pytest.approx(
+        (float(reference.fear), float(reference.cost), float(reference.sigma)), abs=1e-5
+    )
+    assert float(reference.cost) > float(without.cost)
+    assert np.array_equal(kernel.last_member_costs(), touched.cost[:, :, 0].numpy())
+    with pytest.raises(ValueError, match="contact_floors"):
+        fear(model.folded(), actor.deterministic, obs, action, dataclasses.replace(on, contact_floors=[0.0] * 7))

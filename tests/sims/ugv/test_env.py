@@ -249,3 +249,39 @@ def test_the_scan_layout_takes_the_robots_own_turn_out_of_the_motion_input() -> 
     assert min(plain) > 0.005
     assert np.mean(aligned) < 0.35 * np.mean(plain)
     assert max(a / p for a, p in zip(aligned, plain, strict=True)) < 0.8
+
+
+@pytest.mark.parametrize(
+    ("yaw_deg", "mover_side"),
+    [(0, None), (90, None), (0, "left")],
+)
+def test_the_observation_shows_contact_where_the_simulator_registers_a_collision(
+    write_scenario: Callable[[dict[str, Any]], Path], yaw_deg: float, mover_side: str | None
+) -> None:
+    """The descriptor's contact floors (fear's imagined contact) hold the simulator's own collision: driving into a
+    wall head-on or along the other axis, or a mover hitting the robot's side, the observation of the colliding
+    step has a sector at or under its floor, and none of the earlier ones has (a floor too high would call a close
+    pass contact, one too low would miss the collision)."""
+    floors = np.array(sims.descriptor("ugv").contact_floors)
+    assert floors.shape == (54,)
+    sectors = len(floors)
+    # straight ahead is the bumper, 0.25 m; the rightmost and leftmost sectors (±135°) the body's corner region
+    assert floors[sectors // 2] * 10.0 == pytest.approx(0.25, abs=0.01)
+    assert floors.min() * 10.0 == pytest.approx(0.2, abs=0.01)
+    if mover_side is None:
+        start = {"x": 3.3, "y": 2.0, "yaw_deg": yaw_deg} if yaw_deg == 0 else {"x": 2.0, "y": 3.3, "yaw_deg": yaw_deg}
+        env = UGVEnv(write_scenario(room(start=start, goal={"x": 1, "y": 1, "radius": 0.3})))
+        action = FULL_AHEAD
+    else:
+        mover = {"kind": "box", "path": [[2.0, 3.5], [2.0, 0.5]], "speed": 0.5, "length": 0.6, "width": 0.45}
+        env = UGVEnv(write_scenario(room(start={"x": 2.0, "y": 1.5, "yaw_deg": 0}, movers=[mover])))
+        action = STOP
+    obs, _ = env.reset(seed=0)
+    touching = [bool((obs[:sectors] <= floors).any())]
+    for _ in range(80):
+        obs, _, terminated, _, info = env.step(action)
+        touching.append(bool((obs[:sectors] <= floors).any()))
+        if terminated:
+            break
+    assert info["collision"]
+    assert touching[-1] and not any(touching[:-1])
