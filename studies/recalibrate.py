@@ -30,7 +30,14 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from core.agents import FINAL_CHECKPOINT, load_agent, load_checkpoint, resolve_checkpoint, save_with_world_model
+from core.agents import (
+    FEAR_SHAPE,
+    FINAL_CHECKPOINT,
+    load_agent,
+    load_checkpoint,
+    resolve_checkpoint,
+    save_with_world_model,
+)
 from core.loop import NoGate, Runner, StepRecord
 from core.metrics import auroc
 from core.replay import ReplayBuffer
@@ -134,6 +141,13 @@ def recalibrate_run(
     settings = dict(gate_settings or {})
     if choose and "beta" in settings:
         raise ValueError("give β (--gate-set beta=...) or choose it (--choose-beta), not both")
+    reshaped = sorted(set(settings) & set(FEAR_SHAPE))
+    if choose and reshaped:
+        # β is scored on the parts of the run's own fear, which these settings change
+        raise ValueError(
+            f"--choose-beta scores β on the run's own fear, and {', '.join(reshaped)} change it: measure the bounds "
+            "for them first (sage recalibrate --gate-set ...), then choose β on that run"
+        )
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     if not scenarios:

@@ -102,6 +102,12 @@ def test_choosing_beta_scores_every_candidate_where_the_policy_met_a_violation(t
     with pytest.raises(ValueError, match="not both"):
         recalibrate_run("policies/ugv-default", descriptor.make, [clutter], 1, tmp_path / "x", descriptor.dt,
                         choose=True, gate_settings={"beta": 0.5})  # fmt: skip
+    # β would be scored on the run's own fear, not on the one these settings make
+    with pytest.raises(ValueError, match="imagined_contact change it"):
+        contact = {"imagined_contact": True, "contact_floors": [0.02] * 54}
+        recalibrate_run("policies/ugv-default", descriptor.make, [clutter], 1, tmp_path / "y", descriptor.dt,
+                        choose=True, gate_settings=contact)  # fmt: skip
+    assert not (tmp_path / "y").exists()
 
 
 def test_sage_recalibrate_reports_what_it_wrote_and_errors_clearly(tmp_path: Path) -> None:
