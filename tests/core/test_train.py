@@ -332,6 +332,27 @@ def test_a_hold_in_seconds_is_counted_in_the_steps_of_the_simulator_the_run_trai
     assert result.exit_code == 2 and "hold_seconds" in result.output
 
 
+def test_a_run_records_its_simulators_contact_floors_for_fear_s_imagined_contact(
+    point_sim, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """Every training run writes its simulator's contact floors into its gate, as it writes the step: a run trained
+    with imagined contact on has them, and one on a simulator that declares none cannot switch it on."""
+    import dataclasses
+
+    from app.cli import app
+    from tests.core.sage import envs
+
+    args = ["train", "--sim", "point", "--scenario", "static", "--episodes", "1", "--method", "sac", "--quiet"]
+    args += ["--set", "hidden=16", "--set", "gate.imagined_contact=true"]
+    result = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "none")])
+    assert result.exit_code == 2 and "contact_floors" in result.output
+    monkeypatch.setattr(envs, "DESCRIPTOR", dataclasses.replace(envs.DESCRIPTOR, contact_floors=(0.1, 0.2)))
+    result = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "floors")])
+    assert result.exit_code == 0, result.output
+    gate = load_agent(tmp_path / "floors").config.gate
+    assert gate.imagined_contact and gate.contact_floors == [0.1, 0.2]
+
+
 def test_eval_drives_with_the_gate_settings_it_is_given(point_sim, sage_run, tmp_path: Path) -> None:
     """``sage eval --gate --expert --gate-set``: a threshold pinned at 0 hands every step to the expert, one pinned
     out of reach none; wrong settings are refused by name."""
