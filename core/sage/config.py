@@ -180,15 +180,15 @@ class GateConfig:
     left SUMO's routes 62 -> 38 episodes with a violation and the UGV's within noise, at a few points more takeover)."""
 
     imagined_contact: bool = False
-    """Fear also reads the contact its imagined states show: a member's predicted state at step k whose channel i is
-    at or under ``contact_floors[i]`` (the ego touching something, as the simulator defines a collision: the UGV's
-    lidar range in a sector at or inside the robot's footprint) counts as a violation there, its probability
-    max(sigmoid ℓ, 1). A learned head ranks what it saw in its data: trained where the policy turns away from walls at
-    the last moment, it gave a robot driving straight into a crossing mover 0.002-0.01 while the same members' own
-    predicted ranges fell through the footprint. ĉ stays a violation probability, with the simulator's own definition
-    of a violation applied to the predicted states; σ̂ stays the members' disagreement about the learned danger
-    (:func:`core.sage.fear.with_contact` says why). False: the paper's fear (the learned head alone), the default of
-    new runs and of the studies."""
+    """Fear also reads the contact its imagined states show: a member's predicted state at step k whose channel i is at
+    or under ``contact_floors[i]`` (the ego touching something, as the simulator defines a collision: the UGV's
+    lidar range in a sector at or inside the robot's footprint) counts as a violation there: that member's
+    probability at that step is 1, whatever its head says. A learned head ranks what it saw in its data: trained
+    where the policy turns away from walls at the last moment, it gave a robot driving straight into a crossing
+    mover 0.002-0.01 while the same members' own predicted ranges fell through the footprint. ĉ stays a violation
+    probability, with the simulator's own definition of a violation applied to the predicted states; σ̂ stays the
+    members' disagreement about the learned danger (:func:`core.sage.fear.with_contact` says why). False: the
+    paper's fear (the learned head alone), the default of new runs and of the studies."""
     contact_floors: list[float] | None = None
     """The observation's contact floors (channels [0, n), the observation's units): every training run writes them
     from its simulator's descriptor (:attr:`core.descriptor.SimDescriptor.contact_floors`; None or empty where the

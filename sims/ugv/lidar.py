@@ -44,10 +44,10 @@ def ray_angles(config: LidarConfig) -> np.ndarray:
 
 
 def footprint_ranges(config: LidarConfig, length: float, width: float) -> np.ndarray:
-    """Per sector, the nearest a hit along any of its rays can be without lying inside a ``length`` x ``width`` box
-    centred on the scanner (the robot's body, heading along x): min over the sector's rays of the distance from the
-    centre to the box's edge along the ray (m). A sector reading at or under it has something touching the body,
-    whatever ray it came from, which is the simulator's collision (``SimDescriptor.contact_floors``)."""
+    """Per sector, the smallest distance from the scanner to the edge of a ``length`` x ``width`` box centred on it
+    (the robot's body, heading along x) along any of the sector's rays (m). A sector reading at or under it has
+    something at or inside the body, whichever ray the reading came from: the simulator's collision
+    (``SimDescriptor.contact_floors``)."""
     angles = ray_angles(config).reshape(config.rays_per_sector, config.sectors)  # (ray j, sector s)
     cos, sin = np.abs(np.cos(angles)), np.abs(np.sin(angles))
     with np.errstate(divide="ignore"):
