@@ -90,10 +90,11 @@ def contact_floors(cfg: GateConfig | None) -> Tensor | None:
     return torch.tensor(cfg.contact_floors, dtype=torch.float32)
 
 
-def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None) -> Tensor:
+def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None, closing: Tensor | None = None) -> Tensor:
     """Each member's violation probability at each imagined step, raised to 1 where its predicted state is in
     contact (some channel i at or under ``floors[i]``): ``probability`` (m, N, B), ``states`` (m, N, B, D) the
-    states those steps led to. Unchanged when ``floors`` is None.
+    states those steps led to. Unchanged when ``floors`` is None. ``closing``: where given, a bool (..., B, n) mask of
+    the channels the real last step shows closing (``GateConfig.contact_needs_closing``); contact counts there only.
 
     It enters ĉ (the members' mean) only: σ̂ stays the members' disagreement about the learned danger. Counted in σ̂
     too, contact would make fear fall as the members come to agree on it: all five in contact give β, two of five
@@ -102,8 +103,21 @@ def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None) -> 
         return probability
     if floors.shape[0] > states.shape[-1]:
         raise ValueError(f"gate.contact_floors has {floors.shape[0]} channels, the observation {states.shape[-1]}")
-    touching = (states[..., : floors.shape[0]] <= floors).any(-1)
-    return torch.maximum(probability, touching.to(probability.dtype))
+    touching = states[..., : floors.shape[0]] <= floors
+    if closing is not None:
+        touching = touching & closing
+    return torch.maximum(probability, touching.any(-1).to(probability.dtype))
+
+
+def closing_channels(cfg: GateConfig | None, motion: Tensor | None, floors: Tensor | None) -> Tensor | None:
+    """The channels that may count imagined contact under ``cfg.contact_needs_closing``: those the real last change
+    of state (``motion``, (..., D)) shows falling; none without a motion input. None: every channel may."""
+    if floors is None or cfg is None or not cfg.contact_needs_closing:
+        return None
+    n = floors.shape[0]
+    if motion is None:
+        return torch.zeros(n, dtype=torch.bool)
+    return motion[..., :n] < 0
 
 
 def rollout(
@@ -114,12 +128,14 @@ def rollout(
     horizon: int,
     motion: Tensor | None = None,
     contact: Tensor | None = None,
+    closing: Tensor | None = None,
 ) -> Rollout:
     """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
     the last observed change of state (zeros when None), for a model with the motion input; later steps take
     each member's own predicted Δ into their motion (:func:`next_motion`; scan-aligned for a model with a
     :class:`core.motion.ScanAlignment`). ``contact``: the observation's contact floors (:func:`contact_floors`),
-    where an imagined state in contact is a violation (:func:`with_contact`)."""
+    where an imagined state in contact is a violation (:func:`with_contact`), in the ``closing`` channels only where
+    given ((B, n), :func:`closing_channels`)."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
@@ -151,7 +167,7 @@ def rollout(
     # (x - mean)^2 by hand: Tensor.var over a non-last dim takes a slow path on CPU (milliseconds here)
     spread = (probability - probability.mean(1, keepdim=True)).square().mean(1)
     sigma_raw = spread.clamp_min(1e-12).sqrt()
-    cost = with_contact(probability, torch.stack(states[1:]), contact)
+    cost = with_contact(probability, torch.stack(states[1:]), contact, closing)
     return Rollout(torch.stack(states), torch.stack(actions), cost, sigma_raw)
 
 
@@ -203,8 +219,9 @@ def fear(
     the action and the policy unless called under no_grad / inference_mode (the model's folded weights are
     constants, so the world model itself never receives a gradient). ``motion``: see :func:`rollout` (the
     learner's batches pass none: their fear terms then assume no motion)."""
-    ro = rollout(model, policy, obs, action, horizon or cfg.horizon, motion, contact_floors(cfg))
-    return fear_of(model, ro, cfg)
+    floors = contact_floors(cfg)
+    closing = closing_channels(cfg, motion, floors)
+    return fear_of(model, rollout(model, policy, obs, action, horizon or cfg.horizon, motion, floors, closing), cfg)
 
 
 def calibrate(
@@ -225,7 +242,9 @@ def calibrate(
     fear that precedes a collision)."""
     with torch.no_grad():
         folded = world_model.folded()
-        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON), motion, contact_floors(cfg))
+        floors = contact_floors(cfg)
+        closing = closing_channels(cfg, motion, floors)
+        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON), motion, floors, closing)
         scale = torch.quantile(ro.sigma_raw, quantile, dim=1).clamp_min(1e-6)
         world_model.sigma_scale[: len(scale)] = scale
         world_model.sigma_scale[len(scale) :] = scale[-1]
@@ -460,6 +479,7 @@ class GateKernel:
         self.act_dim = act_dim
         self.c_delta = torch.empty(n, 1, d)
         self.contact = contact_floors(cfg)
+        self.needs_closing = self.contact is not None and cfg.contact_needs_closing
         self.probability = torch.zeros(m, n, 1)
 
     def _trunk(self, x: Tensor, buffers: list[Tensor]) -> Tensor:
@@ -513,7 +533,10 @@ class GateKernel:
         # the members' disagreement about the danger of each step (1/N applied once)
         sigma_raw = (probability - mean).square_().sum(1).mul_(self.inv_members).clamp_min_(1e-12).sqrt_()
         sigma = torch.tanh(sigma_raw.div_(self.sigma_divisor))
-        self.probability = with_contact(probability, self.states[1:], self.contact)
+        closing = None
+        if self.needs_closing:  # the real last step's change, as every member's first motion input holds it
+            closing = closing_channels(self.cfg, motion, self.contact)
+        self.probability = with_contact(probability, self.states[1:], self.contact, closing)
         cost = self.probability.sum(1)
         if self.weights is None:
             c, sg = float(cost.max()) * self.inv_members, float(sigma.max())

@@ -60,6 +60,15 @@ def test_overrides_convert_types_and_name_what_is_wrong() -> None:
             apply_overrides(for_method("sage"), [bad])
 
 
+def test_contact_that_needs_the_scan_closing_needs_the_motion_input() -> None:
+    with pytest.raises(ValueError, match="motion_input"):
+        apply_overrides(
+            for_method("sage"), ["world_model_config.motion_input=false", "gate.contact_needs_closing=true"]
+        )
+    cfg = apply_overrides(for_method("sage"), ["gate.contact_needs_closing=true"])
+    assert cfg.gate.contact_needs_closing and not cfg.gate.imagined_contact  # inert until contact is on
+
+
 def test_json_round_trip() -> None:
     cfg = apply_overrides(for_method("fni-rl"), ["reward_bounds=-1,1", "gate.beta=0.3"])
     again = from_dict(json.loads(json.dumps(to_dict(cfg))))

@@ -294,3 +294,32 @@ def test_an_imagined_state_in_contact_is_a_violation_and_the_gate_kernel_agrees(
     assert np.array_equal(kernel.last_member_costs(), touched.cost[:, :, 0].numpy())
     with pytest.raises(ValueError, match="contact_floors"):
         fear(model.folded(), actor.deterministic, obs, action, dataclasses.replace(on, contact_floors=[0.0] * 7))
+
+
+def test_imagined_contact_can_require_the_real_scan_to_be_closing_there() -> None:
+    """``contact_needs_closing``: a member's imagined contact in a channel counts only where the real last step shows
+    that channel falling; with it rising (or no motion given) the same imagined states count no contact, and the
+    fast gate path agrees with the reference either way."""
+    model, actor = random_model()
+    obs, action = torch.zeros(1, 6), torch.zeros(1, 2)
+    with torch.no_grad():
+        plain = rollout(model.folded(), actor.deterministic, obs, action, 5)
+    first = plain.states[1, :, 0, 0].sort().values
+    floor = float(first[1] + first[2]) / 2
+    cfg = GateConfig(imagined_contact=True, contact_floors=[floor], contact_needs_closing=True)
+    kernel = GateKernel(model.folded(), actor.deterministic_layers(), actor.action_scale, actor.action_bias, cfg)
+    costs = {}
+    for name, change in (("closing", -0.1), ("opening", 0.1), ("no motion", None)):
+        motion = None if change is None else torch.full((1, 6), change)
+        with torch.inference_mode():
+            value, cost, _ = kernel(obs, action, motion)
+            reference = fear(model.folded(), actor.deterministic, obs, action, cfg, motion=motion)
+        assert (value, cost) == pytest.approx((float(reference.fear), float(reference.cost)), abs=1e-5)
+        costs[name] = cost
+    with torch.inference_mode():
+        unrestricted = fear(model.folded(), actor.deterministic, obs, action, dataclasses.replace(cfg,
+                            contact_needs_closing=False), motion=torch.full((1, 6), -0.1))  # fmt: skip
+        untouched = fear(model.folded(), actor.deterministic, obs, action, GateConfig(), motion=torch.full((1, 6), 0.1))
+    assert costs["closing"] == pytest.approx(float(unrestricted.cost), abs=1e-6)
+    assert costs["opening"] == pytest.approx(float(untouched.cost), abs=1e-6)
+    assert costs["opening"] < costs["closing"] and costs["no motion"] < costs["closing"]
