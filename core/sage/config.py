@@ -191,10 +191,11 @@ class GateConfig:
     paper's fear (the learned head alone), the default of new runs and of the studies."""
     contact_needs_closing: bool = False
     """With ``imagined_contact``: a member's imagined contact in channel i counts only where the real last step shows
-    channel i closing (the motion input's change below 0), so that the imagined robot driving into a wall the real one
-    is not approaching does not count. Measured on the UGV's training drives, the imagined contacts on states with no
-    violation ahead lay mostly where the scan was not closing (README, "Calibration of fear"). Needs the world model's
-    motion input; where fear is computed without it (the learner's batches), no contact counts."""
+    channel i closing (the motion input's change below 0), so that the imagined robot driving into a wall the real
+    one is not approaching does not count. On the UGV's training drives it keeps the imagined contact of nearly
+    every state before a violation and drops it from about one in eight of the states with none ahead
+    (docs/calibration_history.md, "Imagined contact"). Needs the world model's motion input; where fear is computed
+    without it (the learner's batches), no contact counts."""
     contact_floors: list[float] | None = None
     """The observation's contact floors (channels [0, n), the observation's units): every training run writes them
     from its simulator's descriptor (:attr:`core.descriptor.SimDescriptor.contact_floors`; None or empty where the
