@@ -109,6 +109,12 @@ def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None, clo
     return torch.maximum(probability, touching.any(-1).to(probability.dtype))
 
 
+def contact_terms(cfg: GateConfig | None, motion: Tensor | None) -> tuple[Tensor | None, Tensor | None]:
+    """``rollout``'s ``contact`` and ``closing`` for the gate ``cfg``, given the real last change of state."""
+    floors = contact_floors(cfg)
+    return floors, closing_channels(cfg, motion, floors)
+
+
 def closing_channels(cfg: GateConfig | None, motion: Tensor | None, floors: Tensor | None) -> Tensor | None:
     """The channels that may count imagined contact under ``cfg.contact_needs_closing``: those the real last change
     of state (``motion``, (..., D)) shows falling; none without a motion input. None: every channel may."""
@@ -219,9 +225,8 @@ def fear(
     the action and the policy unless called under no_grad / inference_mode (the model's folded weights are
     constants, so the world model itself never receives a gradient). ``motion``: see :func:`rollout` (the
     learner's batches pass none: their fear terms then assume no motion)."""
-    floors = contact_floors(cfg)
-    closing = closing_channels(cfg, motion, floors)
-    return fear_of(model, rollout(model, policy, obs, action, horizon or cfg.horizon, motion, floors, closing), cfg)
+    ro = rollout(model, policy, obs, action, horizon or cfg.horizon, motion, *contact_terms(cfg, motion))
+    return fear_of(model, ro, cfg)
 
 
 def calibrate(
@@ -242,9 +247,7 @@ def calibrate(
     fear that precedes a collision)."""
     with torch.no_grad():
         folded = world_model.folded()
-        floors = contact_floors(cfg)
-        closing = closing_channels(cfg, motion, floors)
-        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON), motion, floors, closing)
+        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON), motion, *contact_terms(cfg, motion))
         scale = torch.quantile(ro.sigma_raw, quantile, dim=1).clamp_min(1e-6)
         world_model.sigma_scale[: len(scale)] = scale
         world_model.sigma_scale[len(scale) :] = scale[-1]
@@ -479,7 +482,6 @@ class GateKernel:
         self.act_dim = act_dim
         self.c_delta = torch.empty(n, 1, d)
         self.contact = contact_floors(cfg)
-        self.needs_closing = self.contact is not None and cfg.contact_needs_closing
         self.probability = torch.zeros(m, n, 1)
 
     def _trunk(self, x: Tensor, buffers: list[Tensor]) -> Tensor:
@@ -533,9 +535,7 @@ class GateKernel:
         # the members' disagreement about the danger of each step (1/N applied once)
         sigma_raw = (probability - mean).square_().sum(1).mul_(self.inv_members).clamp_min_(1e-12).sqrt_()
         sigma = torch.tanh(sigma_raw.div_(self.sigma_divisor))
-        closing = None
-        if self.needs_closing:  # the real last step's change, as every member's first motion input holds it
-            closing = closing_channels(self.cfg, motion, self.contact)
+        closing = closing_channels(self.cfg, motion, self.contact)  # None unless contact needs closing
         self.probability = with_contact(probability, self.states[1:], self.contact, closing)
         cost = self.probability.sum(1)
         if self.weights is None:

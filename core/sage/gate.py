@@ -28,15 +28,7 @@ import torch
 from core.loop import GateDecision
 from core.motion import motion_between
 from core.sage.config import GateConfig
-from core.sage.fear import (
-    CuriosityThreshold,
-    GateKernel,
-    PolicyFn,
-    closing_channels,
-    contact_floors,
-    fear_of,
-    rollout,
-)
+from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, contact_terms, fear_of, rollout
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel
 
@@ -160,9 +152,7 @@ class SageGate:
                 self._horizon_source = kernel
             else:
                 folded = self.world_model.folded()
-                floors = contact_floors(self.cfg)
-                closing = closing_channels(self.cfg, motion, floors)
-                ro = rollout(folded, self.policy, o, a, self.cfg.horizon, motion, floors, closing)
+                ro = rollout(folded, self.policy, o, a, self.cfg.horizon, motion, *contact_terms(self.cfg, motion))
                 terms = fear_of(folded, ro, self.cfg)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
                 self._horizon_source = ro.cost[..., 0].numpy().copy()

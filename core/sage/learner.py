@@ -39,7 +39,7 @@ from torch import Tensor
 from core.loop import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.config import AgentConfig, GateConfig
-from core.sage.fear import CalibrationSample, PolicyFn, contact_floors, rollout, sample_member_transitions
+from core.sage.fear import CalibrationSample, PolicyFn, contact_terms, rollout, sample_member_transitions
 from core.sage.gate import SageGate
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel, FitReport
@@ -384,7 +384,8 @@ class BaseLearner:
                 starts,
                 self.rollout_policy(starts),
                 self.cfg.gate.horizon,
-                contact=contact_floors(self.cfg.gate),
+                None,
+                *contact_terms(self.cfg.gate, None),  # no motion here: contact that needs closing counts none
             )
         self.virtual.add_batch(*sample_member_transitions(ro, self.rng))
         self._steps_at_last_rollout = self.env_steps
