@@ -88,6 +88,24 @@ class WorldModelConfig:
     positive, shorter when nearer), and the model also reads each one's approach rate, max(0, -Δrange) / range
     per step capped at 1 (:func:`core.motion.approach_rate`: a beam's inverse time to contact). Both 0: off.
     The policy's observation is unchanged; highway's layout: :func:`sims.highway.env.approach_layout`."""
+    ego_sectors: int = 0
+    """The first this-many observation channels are a range scan (in units of its reach) whose change under the
+    robot's own motion is computed, not learned: the model predicts the residual over that geometric step
+    (:class:`core.motion.EgoScanStep`). 0: off, the model learns the whole change. The fields below describe the
+    scan and how the action moves the robot; the UGV's: :func:`sims.ugv.env.ego_motion_layout`."""
+    ego_scan_start: float = 0.0
+    """Bearing where sector 0 begins (rad from the heading, bearings increasing to the left)."""
+    ego_sector_width: float = 0.0
+    """Each sector's width (rad)."""
+    ego_rays_per_sector: int = 1
+    """Rays per sector, evenly spaced from the sector's start; a sector reads the nearest of them."""
+    ego_forward_channel: int = 0
+    ego_forward_scale: float = 0.0
+    ego_forward_offset: float = 0.0
+    """Distance driven over one step, in the scan's range units: action[ego_forward_channel] * scale + offset."""
+    ego_turn_channel: int = 1
+    ego_turn_scale: float = 0.0
+    """Turn of the heading over one step (rad, positive to the left): action[ego_turn_channel] * scale."""
     violation_steps: int = 5
     """The violation head predicts "a violation at this transition or within the next this-many steps"; the
     fear rollout then looks m steps further along the policy's imagined path."""
@@ -494,6 +512,8 @@ def validate(cfg: AgentConfig) -> None:
         )
     if wm.approach_stop > wm.approach_start and not wm.motion_input:
         raise ValueError("world_model_config.approach_* (an approach-rate input) needs motion_input=true")
+    if wm.ego_sectors < 0:
+        raise ValueError(f"world_model_config.ego_sectors must be >= 0, got {wm.ego_sectors}")
     if cfg.world_model_config.scan_sectors < 0:
         raise ValueError(f"world_model_config.scan_sectors must be >= 0, got {cfg.world_model_config.scan_sectors}")
     if cfg.world_model_config.scan_sectors and (

@@ -160,9 +160,12 @@ def rollout(
         for weight, bias in model.hidden:
             h = F.silu(torch.baddbmm(bias, h, weight))
         out = torch.baddbmm(model.out_bias, h, model.out_weight)
-        s_next = s + out[..., :d]
+        s_next = model.base(s, a) + out[..., :d]
         if m is not None and k + 1 < horizon:  # the last imagined state's motion feeds no further step
-            m = next_motion(m, out[..., :d], model.motion_lag) if model.scan is None else model.scan.motion(s, s_next)
+            if model.scan is not None:
+                m = model.scan.motion(s, s_next)
+            else:
+                m = next_motion(m, out[..., :d] if model.ego is None else s_next - s, model.motion_lag)
         s = s_next
         states.append(s)
         actions.append(a)
@@ -451,6 +454,7 @@ class GateKernel:
         self.motion_weight = 1.0 / model.motion_lag  # see next_motion
         self.scan = model.scan
         self.approach = model.approach
+        self.ego = model.ego
         motion_end = d + act_dim + (d if self.motion else 0)
         width = motion_end + approach_width(self.approach)
         self.x = torch.zeros(m + 1, n, 1, width)  # rows [state, action (, motion (, approach))], one block per step
@@ -508,14 +512,18 @@ class GateKernel:
         for k in range(self.m):
             h = self._trunk(self.inputs[k], self.hidden)
             torch.baddbmm(self.out_b, h, self.out_w, out=self.output_steps[k])
-            torch.add(states[k], self.deltas[k], out=states[k + 1])
+            if self.ego is None:
+                torch.add(states[k], self.deltas[k], out=states[k + 1])
+            else:  # the residual over the scan moved by the action (allocates: an option, off by default)
+                torch.add(self.ego.apply(states[k], self.action_steps[k]), self.deltas[k], out=states[k + 1])
             if self.scan is not None:
                 if k + 1 < self.m:  # the last imagined state's motion feeds no further step
                     # the imagined step's change, with the imagined turn taken out of the scan (core.motion)
                     self.motion_steps[k + 1].copy_(self.scan.motion(states[k], states[k + 1]))
             elif self.motion:
                 # each member's own predicted change enters its motion (next_motion, in place)
-                torch.lerp(self.motion_steps[k], self.deltas[k], self.motion_weight, out=self.motion_steps[k + 1])
+                change = self.deltas[k] if self.ego is None else states[k + 1] - states[k]
+                torch.lerp(self.motion_steps[k], change, self.motion_weight, out=self.motion_steps[k + 1])
             if self.approach is not None and k + 1 < self.m:
                 self._approach(k + 1)
             if k + 1 < self.m:
@@ -583,7 +591,8 @@ class GateKernel:
                     self.c_input[:, :, 2 * d + a :].copy_(approach_rate(self.c_input[..., :d], moved, *self.approach))
             h = self._trunk(self.c_input, self.c_hidden)
             delta = torch.baddbmm(self.delta_b, h, self.delta_w, out=self.c_delta)
-        error = delta.mean(0).add_(obs).sub_(next_obs).mul_(self.model.inv_obs_std)
+        base = obs if self.ego is None else self.ego.apply(obs, action)
+        error = delta.mean(0).add_(base).sub_(next_obs).mul_(self.model.inv_obs_std)
         return float(error.norm())
 
 

@@ -229,13 +229,14 @@ def curiosity_folded(
     next_obs: torch.Tensor,
     motion: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """C on the folded weights (no normalisation arithmetic): ||(s + mean_n Δ_n - s') / std(s)||₂."""
+    """C on the folded weights (no normalisation arithmetic): ||(s + mean_n Δ_n - s') / std(s)||₂ (s moved by the
+    model's ego step, where it has one)."""
     fm = world_model.folded()
     h = world_model.inputs(obs, action, motion).unsqueeze(0).expand(fm.members, obs.shape[0], -1)
     for weight, bias in fm.hidden:
         h = torch.nn.functional.silu(torch.baddbmm(bias, h, weight))
     delta = torch.baddbmm(fm.out_bias[..., : fm.obs_dim], h, fm.out_weight[..., : fm.obs_dim]).mean(0)
-    return ((obs + delta - next_obs) * fm.inv_obs_std).norm(dim=-1)
+    return ((fm.base(obs, action) + delta - next_obs) * fm.inv_obs_std).norm(dim=-1)
 
 
 class AlwaysGate:

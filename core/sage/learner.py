@@ -442,8 +442,8 @@ class BaseLearner:
         loaded: list[str] = []
         for name, module in self._modules_for_state().items():
             if name in state:
-                if not strict and name == "world_model" and not _same_shapes(module, state[name]):
-                    continue  # a warm start from a model of another input layout (no motion input): refit it
+                if not strict and isinstance(module, EnsembleWorldModel) and not module.reads(state[name]):
+                    continue  # a warm start from a model of another input layout or ego step: refit it
                 module.load_state_dict(state[name])
                 loaded.append(name)
             elif strict:
@@ -519,11 +519,3 @@ class ActorLearner(BaseLearner):
             loss.backward()
             optimizer.step()
         return float(loss.detach())
-
-
-def _same_shapes(module: torch.nn.Module, state: dict[str, Any]) -> bool:
-    """Whether ``state`` fits ``module`` tensor for tensor (names and shapes)."""
-    own = module.state_dict()
-    return all(k in state and tuple(state[k].shape) == tuple(v.shape) for k, v in own.items() if k in state) and all(
-        k in own for k in state
-    )

@@ -49,7 +49,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from core.motion import ScanAlignment, approach_rate
+from core.motion import EgoScanStep, ScanAlignment, approach_rate
 from core.sage.config import WorldModelConfig
 from core.sage.networks import VectorizedLinear
 
@@ -91,6 +91,12 @@ class FoldedModel:
     """How the motion input turns the previous scan to the current heading (None: plain differences)."""
     approach: tuple[int, int] | None = None
     """Range channels [start, stop) whose approach rate the first layer also reads, after the motion (None: none)."""
+    ego: EgoScanStep | None = None
+    """The geometric step the predicted Δ is a residual over (None: Δ is the whole change)."""
+
+    def base(self, state: Tensor, action: Tensor) -> Tensor:
+        """What the predicted Δ is added to: the state, or with an ego step the state moved by it."""
+        return state if self.ego is None else self.ego.apply(state, action)
 
 
 @dataclass
@@ -125,6 +131,8 @@ class EnsembleWorldModel(nn.Module):
         """How the motion input turns the previous scan to the current heading (:mod:`core.motion`)."""
         self.approach = _approach_channels(cfg, obs_dim) if self.motion else None
         """Range channels [start, stop) whose approach rate is an input (:func:`core.motion.approach_rate`)."""
+        self.ego = EgoScanStep.of(cfg, obs_dim, act_dim)
+        """The geometric step of the scan under the robot's own motion; Δ is learned over it (None: no step)."""
         in_dim = obs_dim + act_dim + (obs_dim if self.motion else 0) + approach_width(self.approach)
         out_dim = obs_dim + 1
         dims = [in_dim] + [cfg.hidden] * cfg.layers
@@ -142,6 +150,9 @@ class EnsembleWorldModel(nn.Module):
         self.register_buffer("pos_weight", torch.tensor(1.0))
         """Class-balancing weight of the last fit (n_neg / n_pos); log of it is taken out of the cost logit."""
         self.register_buffer("tau_bounds", torch.tensor([float("nan"), float("nan")]))
+        self.register_buffer("ego_geometry", self.ego.geometry() if self.ego is not None else torch.zeros(0))
+        """The ego step's numbers (empty without one): a warm start from weights learned over another step, or over
+        none, does not fit (:meth:`reads`) and is refitted."""
         """(τ_min, τ_max) from the fear of familiar states at the last calibration (NaN: use the config's)."""
         self.version = 0
         self._folded: tuple[int, FoldedModel] | None = None
@@ -244,7 +255,9 @@ class EnsembleWorldModel(nn.Module):
             torch.as_tensor(action, dtype=torch.float32),
             None if motion is None else torch.as_tensor(motion, dtype=torch.float32),
         )
-        targets = torch.as_tensor(np.concatenate([next_obs - obs, label[:, None]], axis=1), dtype=torch.float32)
+        with torch.no_grad():
+            base = self.base(inputs[:, : self.obs_dim], inputs[:, self.obs_dim : self.obs_dim + self.act_dim]).numpy()
+        targets = torch.as_tensor(np.concatenate([next_obs - base, label[:, None]], axis=1), dtype=torch.float32)
         perm = rng.permutation(n)
         n_hold = max(1, min(int(n * cfg.holdout_ratio), cfg.max_holdout))
         hold, train = perm[:n_hold], perm[n_hold:]
@@ -376,10 +389,14 @@ class EnsembleWorldModel(nn.Module):
         layers = [f"hidden_layers.{i}" for i in range(len(self.hidden_layers))] + ["out"]
         return [f"{layer}.{kind}" for layer in layers for kind in ("weight", "bias")]
 
+    def base(self, obs: Tensor, action: Tensor) -> Tensor:
+        """What the predicted Δ is added to: the state, or with an ego step the state moved by it."""
+        return obs if self.ego is None else self.ego.apply(obs, action)
+
     def curiosity(self, obs: Tensor, action: Tensor, next_obs: Tensor, motion: Tensor | None = None) -> Tensor:
         """C = ||ŝ_{t+1} - s_{t+1}||₂ on normalised states, ŝ the ensemble-mean prediction (eq:curiosity)."""
         mean, _ = self.predict(obs, action, motion)
-        predicted = obs + mean[..., : self.obs_dim].mean(0)
+        predicted = self.base(obs, action) + mean[..., : self.obs_dim].mean(0)
         return ((predicted - next_obs) / self.in_std[: self.obs_dim]).norm(dim=-1)
 
     # -- inference weights -----------------------------------------------------------------------
@@ -387,7 +404,22 @@ class EnsembleWorldModel(nn.Module):
         """Mark the weights as changed (invalidates :meth:`folded`)."""
         self.version += 1
 
+    def reads(self, state_dict: dict[str, Tensor]) -> bool:
+        """Whether a saved state fits this model tensor for tensor (names and shapes) and was learned over the same
+        ego step (a state from before the step was an option learned over none)."""
+        own = self.state_dict()
+        saved_geometry = state_dict.get("ego_geometry", torch.zeros(0))
+        if saved_geometry.shape != self.ego_geometry.shape or not torch.equal(
+            saved_geometry.to(self.ego_geometry.dtype), self.ego_geometry
+        ):
+            return False
+        return all(tuple(state_dict[k].shape) == tuple(v.shape) for k, v in own.items() if k in state_dict) and all(
+            k in own for k in state_dict
+        )
+
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):  # type: ignore[no-untyped-def]
+        if "ego_geometry" not in state_dict:  # saved before the ego step was an option: learned over none
+            state_dict = {**state_dict, "ego_geometry": torch.zeros(0)}
         if "pos_weight" not in state_dict and "out.bias" in state_dict:
             # a checkpoint from before the violation classifier: its cost column was a Gaussian regression, which
             # means nothing as a logit. Keep its dynamics and uncertainty; its ĉ says "no violation known" until
@@ -439,6 +471,7 @@ class EnsembleWorldModel(nn.Module):
                 motion_lag=self.motion_lag,
                 scan=self.scan,
                 approach=self.approach,
+                ego=self.ego,
                 sigma_scale=self.sigma_scale.clone(),
                 curiosity_ref=float(self.curiosity_ref),
             )

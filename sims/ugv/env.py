@@ -65,6 +65,28 @@ def scan_layout(config: UGVConfig | None = None) -> dict[str, Any]:
     }
 
 
+def ego_motion_layout(config: UGVConfig | None = None) -> dict[str, Any]:
+    """``world_model_config`` fields for a world model that computes the scan's change under the robot's own motion
+    and learns the residual (:class:`core.motion.EgoScanStep`): 54 sectors over the front 270° (rightmost first),
+    two rays each (:func:`sims.ugv.lidar.ray_angles`), ranges over ``max_range``; the action's first channel
+    drives v = (a0 + 1) / 2 v_max, its second turns at w = a1 w_max, each for one step of dt."""
+    config = config or UGVConfig()
+    lidar = config.lidar
+    sector_width = math.radians(lidar.fov_deg) / SECTORS
+    reach = config.robot.v_max * config.dt / lidar.max_range
+    return {
+        "ego_sectors": SECTORS,
+        "ego_scan_start": -math.radians(lidar.fov_deg) / 2,
+        "ego_sector_width": sector_width,
+        "ego_rays_per_sector": lidar.rays_per_sector,
+        "ego_forward_channel": 0,
+        "ego_forward_scale": 0.5 * reach,
+        "ego_forward_offset": 0.5 * reach,
+        "ego_turn_channel": 1,
+        "ego_turn_scale": config.robot.w_max * config.dt,
+    }
+
+
 COLORS = {
     "wall": "#4a4f57",
     "box": "#8a8f98",

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from core.motion import APPROACH_RANGE_FLOOR, ScanAlignment, approach_rate, motion_between
+from core.motion import APPROACH_RANGE_FLOOR, EgoScanStep, ScanAlignment, approach_rate, motion_between
 from core.sage.config import AgentConfig, WorldModelConfig, validate
 
 SECTORS = 36
@@ -142,3 +142,126 @@ def test_an_approach_layout_that_does_not_fit_is_refused_with_its_field() -> Non
         validate(AgentConfig(world_model_config=WorldModelConfig(motion_input=False, approach_stop=3)))
     with pytest.raises(ValueError, match=r"approach_start\.\.approach_stop"):
         validate(AgentConfig(world_model_config=WorldModelConfig(approach_start=5, approach_stop=3)))
+
+
+def ego_step(sectors: int = 36) -> EgoScanStep:
+    """36 sectors of 5° from -90°, one ray each at its start; a0 in [-1, 1] drives 0 to 0.02 range units a step,
+    a1 turns by up to 0.1 rad."""
+    step = EgoScanStep.of(
+        WorldModelConfig(
+            ego_sectors=sectors,
+            ego_scan_start=-sectors / 2 * float(WIDTH),
+            ego_sector_width=float(WIDTH),
+            ego_forward_scale=0.01,
+            ego_forward_offset=0.01,
+            ego_turn_scale=0.1,
+        ),
+        sectors + 2,
+        2,
+    )
+    assert step is not None
+    return step
+
+
+RAYS = -np.pi / 2 + np.arange(SECTORS) * WIDTH
+"""The bearing of each sector's ray in :func:`ego_step`."""
+
+
+def with_tail(ranges: np.ndarray) -> torch.Tensor:
+    return torch.as_tensor(np.concatenate([ranges, [0.3, -0.2]]).astype(np.float32))[None]
+
+
+def test_the_ego_step_reads_a_wall_ahead_from_where_the_robot_drove() -> None:
+    """Driving straight at full speed (0.02) towards a wall 0.5 ahead: every ray facing it reads the wall from 0.48;
+    standing still changes nothing; the channels after the scan are never touched."""
+    step = ego_step()
+    wall = np.where(np.abs(RAYS) < 0.6, 0.5 / np.cos(RAYS), 1.0)
+    obs = with_tail(wall)
+    moved = step.apply(obs, torch.tensor([[1.0, 0.0]]))[0].numpy()
+    facing = np.abs(RAYS) < 0.5
+    assert moved[:SECTORS][facing] == pytest.approx(0.48 / np.cos(RAYS[facing]), rel=1e-4)
+    assert (moved[:SECTORS][np.abs(RAYS) > 0.7] == 1.0).all()
+    assert moved[SECTORS:] == pytest.approx(obs[0, SECTORS:].numpy())
+    standing = step.apply(obs, torch.tensor([[-1.0, 0.0]]))  # a0 = -1: no distance, no turn
+    assert torch.allclose(standing, obs)
+
+
+def test_driving_along_a_wall_reads_the_same_wall() -> None:
+    """A wall parallel to the heading at 0.4 to the right: driving along it, every ray still reads it where it did
+    (a cloud of moved points would read each point's own range, off by up to the distance driven)."""
+    step = ego_step()
+    right = RAYS < -0.2
+    wall = np.where(right, np.minimum(0.4 / np.maximum(np.abs(np.sin(RAYS)), 0.1), 1.0), 1.0)
+    moved = step.apply(with_tail(wall), torch.tensor([[1.0, 0.0]]))[0, :SECTORS].numpy()
+    assert moved[right] == pytest.approx(wall[right], abs=1e-5)
+
+
+@pytest.mark.parametrize("sectors_turned", [1, 2, -3])
+def test_a_turn_by_whole_sectors_slides_the_scan_the_other_way(sectors_turned: int) -> None:
+    """Turning left by k sector widths on the spot: each ray reads what the ray k sectors to its left read; the k
+    sectors the turn brings in from outside the field of view keep their ranges (nothing is known there)."""
+    step = ego_step()
+    ranges = scene(0.0)[:SECTORS]
+    turn = sectors_turned * float(WIDTH) / 0.1
+    moved = step.apply(with_tail(ranges), torch.tensor([[-1.0, turn]]))[0, :SECTORS].numpy()
+    k = sectors_turned
+    if k > 0:
+        assert moved[: SECTORS - k] == pytest.approx(ranges[k:], rel=1e-4)
+        assert moved[SECTORS - k :] == pytest.approx(ranges[SECTORS - k :])
+    else:
+        assert moved[-k:] == pytest.approx(ranges[: SECTORS + k], rel=1e-4)
+        assert moved[:-k] == pytest.approx(ranges[:-k])
+
+
+def test_an_objects_edge_slides_into_the_sector_behind_it() -> None:
+    """A box 0.3 away at 45° to the right, open space behind: driving forward, its rear edge moves back by about half
+    a sector, into the sector that read nothing; a post (one return) in front of a wall hides the wall's part."""
+    step = ego_step()
+    ranges = np.ones(SECTORS, np.float32)
+    ranges[9:12] = 0.3  # sectors at -45°, -40°, -35°
+    moved = step.apply(with_tail(ranges), torch.tensor([[1.0, 0.0]]))[0, :SECTORS].numpy()
+    x, y = 0.3 * np.cos(RAYS[9]) - 0.02, 0.3 * np.sin(RAYS[9])
+    assert np.floor((np.arctan2(y, x) - RAYS[0]) / WIDTH) == 8
+    assert moved[8] == pytest.approx(np.hypot(x, y), rel=1e-5)
+    assert (moved[:8] == 1.0).all() and (moved[13:] == 1.0).all()
+    wall = np.where(np.abs(RAYS) < 0.6, 0.8 / np.cos(RAYS), 1.0).astype(np.float32)
+    wall[18] = 0.3  # a post straight ahead, turned to by a whole sector
+    moved = step.apply(with_tail(wall), torch.tensor([[-1.0, float(WIDTH) / 0.1]]))[0, :SECTORS].numpy()
+    assert moved[17] == pytest.approx(0.3, rel=1e-4)
+    assert moved[16] == pytest.approx(wall[17], rel=1e-4) and moved[18] == pytest.approx(wall[19], rel=1e-4)
+
+
+def test_the_ego_step_config_is_checked() -> None:
+    assert EgoScanStep.of(WorldModelConfig(), 10, 2) is None
+    with pytest.raises(ValueError, match="ego_sectors"):
+        EgoScanStep.of(WorldModelConfig(ego_sectors=12), 10, 2)
+    with pytest.raises(ValueError, match="ego_sector_width > 0"):
+        EgoScanStep.of(WorldModelConfig(ego_sectors=4), 10, 2)
+    with pytest.raises(ValueError, match="ego_rays_per_sector"):
+        EgoScanStep.of(WorldModelConfig(ego_sectors=4, ego_sector_width=0.1, ego_rays_per_sector=0), 10, 2)
+    with pytest.raises(ValueError, match="ego_turn_channel"):
+        EgoScanStep.of(WorldModelConfig(ego_sectors=4, ego_sector_width=0.1, ego_turn_channel=2), 10, 2)
+    with pytest.raises(ValueError, match="ego_sectors must be >= 0"):
+        validate(AgentConfig(world_model_config=WorldModelConfig(ego_sectors=-1)))
+
+
+def test_the_ego_step_moves_any_batch_shape_and_passes_gradients_to_the_action() -> None:
+    """The gate rolls (members, batch, D) states, the learner differentiates fear by the action: both shapes agree
+    row for row, in chunks or not, and the action gets a gradient where the step moved a surface."""
+    from core import motion
+
+    step = ego_step()
+    rng = np.random.default_rng(0)
+    states = torch.as_tensor(np.concatenate([rng.uniform(0.2, 1.0, (3, 5, SECTORS)), np.zeros((3, 5, 2))], -1))
+    actions = torch.as_tensor(rng.uniform(-1, 1, (3, 5, 2)), dtype=torch.float64)
+    whole = step.apply(states, actions)
+    rows = torch.stack([step.apply(states[i, j][None], actions[i, j][None])[0] for i in range(3) for j in range(5)])
+    assert torch.allclose(whole.reshape(15, -1), rows)
+    chunk, motion.EGO_CHUNK = motion.EGO_CHUNK, 4
+    try:
+        assert torch.allclose(step.apply(states, actions), whole)
+    finally:
+        motion.EGO_CHUNK = chunk
+    action = actions[0, :1].clone().requires_grad_(True)
+    step.apply(states[0, :1], action)[..., :SECTORS].sum().backward()
+    assert action.grad is not None and torch.isfinite(action.grad).all() and action.grad.abs().sum() > 0

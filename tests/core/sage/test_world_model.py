@@ -184,25 +184,49 @@ def test_the_motion_input_makes_a_moving_obstacle_predictable() -> None:
     assert errors[True] < 0.02 < 0.05 < errors[False], errors
 
 
+EGO = {
+    "ego_sectors": 3,
+    "ego_scan_start": -0.3,
+    "ego_sector_width": 0.2,
+    "ego_forward_scale": 0.05,
+    "ego_turn_scale": 0.2,
+}
+"""An ego step over the known system's first three channels (read as ranges; the step is geometry, any values do)."""
+
+
 @pytest.mark.parametrize(
-    ("lag", "scan", "approach"),
-    [(1, False, False), (4, False, False), (1, True, False), (1, False, True), (1, True, True)],
+    ("lag", "scan", "approach", "ego"),
+    [
+        (1, False, False, False),
+        (4, False, False, False),
+        (1, True, False, False),
+        (1, False, True, False),
+        (1, True, True, False),
+        (1, False, False, True),
+        (3, False, True, True),
+        (1, True, False, True),
+    ],
 )
-def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: bool, approach: bool) -> None:
+def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: bool, approach: bool, ego: bool) -> None:
     """The gate's preallocated kernel and the batched rollout carry the motion input alike over the imagined steps
     (for a lag k > 1: ((k - 1) m + Δ) / k; with a scan alignment, each imagined step's change with its imagined
-    turn taken out of the scan; with approach rates, those of each imagined state and motion), so both give the
-    same fear, and the kernel's curiosity is the model's."""
+    turn taken out of the scan; with approach rates, those of each imagined state and motion; with an ego step, Δ
+    added to the state moved by each imagined action), so both give the same fear, and the kernel's curiosity is
+    the model's and the folded one's."""
     from core.sage.fear import GateKernel, fear
+    from core.sage.gate import curiosity_folded
     from core.sage.networks import Actor
 
     rng = np.random.default_rng(7)
     layout: dict[str, float] = {"scan_sectors": 3, "scan_turn_channel": 3, "scan_turn_sectors": 1.5} if scan else {}
     if approach:
         layout |= {"approach_start": 1, "approach_stop": 3}
+    if ego:
+        layout |= EGO
     model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=50, motion_lag=lag, **layout))
     assert (model.folded().scan is not None) == scan
     assert (model.folded().approach is not None) == approach
+    assert (model.folded().ego is not None) == ego
     s, a, nxt, cost = known_system(300, rng)
     model.fit(s, a, nxt, cost, rng, motion=0.05 * rng.standard_normal(s.shape).astype(np.float32))
     actor = Actor(OBS, ACT, 16, 2, -torch.ones(ACT), torch.ones(ACT))
@@ -222,6 +246,64 @@ def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: b
         fast = kernel.curiosity(obs, act, nxt_obs, motion=motion)
     with torch.no_grad():
         assert fast == pytest.approx(float(model.curiosity(obs, act, nxt_obs, motion)), rel=1e-4)
+        assert fast == pytest.approx(float(curiosity_folded(model, obs, act, nxt_obs, motion)[0]), rel=1e-4)
+    if ego:  # the curiosity reads Δ over the moved state: with the ego step left out it would differ
+        with torch.no_grad():
+            mean, _ = model.predict(obs, act, motion)
+            plain = ((obs + mean[..., :OBS].mean(0) - nxt_obs) / model.in_std[:OBS]).norm()
+        assert abs(float(plain) - fast) > 1e-3
+
+
+def test_a_world_model_over_the_ego_step_learns_a_static_scan_it_cannot_fit_alone() -> None:
+    """A static world's next scan is the ego step of the current one: with the step the model learns a residual of
+    zero and predicts the next scan almost exactly; the same fit without it must learn the re-binning of moved
+    points and errs several times more."""
+    from core.motion import EgoScanStep
+
+    cfg = {
+        "ego_sectors": 8,
+        "ego_scan_start": -1.2,
+        "ego_sector_width": 0.3,
+        "ego_forward_scale": 0.03,
+        "ego_forward_offset": 0.03,
+        "ego_turn_scale": 0.3,
+    }
+    step = EgoScanStep.of(WorldModelConfig(**cfg), 9, 2)
+    assert step is not None
+
+    def scans(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
+        obs = np.concatenate([rng.uniform(0.1, 1.0, (n, 8)), rng.uniform(-1, 1, (n, 1))], axis=1).astype(np.float32)
+        act = rng.uniform(-1, 1, (n, 2)).astype(np.float32)
+        with torch.no_grad():
+            nxt = step.apply(torch.as_tensor(obs), torch.as_tensor(act)).numpy()
+        return obs, act, nxt, np.zeros(n, np.float32)
+
+    errors = {}
+    for ego in (False, True):
+        torch.manual_seed(0)
+        rng = np.random.default_rng(0)
+        model = EnsembleWorldModel(9, 2, WorldModelConfig(hidden=32, max_updates_per_fit=400, **(cfg if ego else {})))
+        model.fit(*scans(rng, 2000), rng)
+        obs, act, nxt, _ = scans(np.random.default_rng(1), 500)
+        with torch.no_grad():
+            mean, _ = model.predict(torch.as_tensor(obs), torch.as_tensor(act))
+            predicted = model.base(torch.as_tensor(obs), torch.as_tensor(act)) + mean[..., :9].mean(0)
+        errors[ego] = float((predicted - torch.as_tensor(nxt)).abs().mean())
+    assert errors[True] < 0.2 * errors[False], errors
+
+
+def test_a_model_reads_only_weights_learned_over_its_own_ego_step() -> None:
+    """A warm start keeps a world model only if it was learned over the same step (the residual means something
+    else over another step, or over none); a checkpoint from before the option was learned over none."""
+    plain = EnsembleWorldModel(OBS, ACT, WorldModelConfig())
+    ego = EnsembleWorldModel(OBS, ACT, WorldModelConfig(**EGO))
+    other = EnsembleWorldModel(OBS, ACT, WorldModelConfig(**{**EGO, "ego_turn_scale": 0.3}))
+    before_the_option = {k: v for k, v in plain.state_dict().items() if k != "ego_geometry"}
+    assert plain.reads(plain.state_dict()) and plain.reads(before_the_option)
+    assert ego.reads(EnsembleWorldModel(OBS, ACT, WorldModelConfig(**EGO)).state_dict())
+    assert not ego.reads(plain.state_dict()) and not ego.reads(before_the_option)
+    assert not ego.reads(other.state_dict()) and not plain.reads(ego.state_dict())
+    plain.load_state_dict(before_the_option)  # an old checkpoint still loads
 
 
 def test_approach_rates_tell_a_near_slow_approach_from_a_far_fast_one() -> None:
