@@ -198,7 +198,7 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
         }
     if sim != "ugv":
         return {"plain": Arm()}
-    from sims.ugv.env import scan_layout
+    from sims.ugv.env import ego_motion_layout, scan_layout
 
     old_draw = "gate.calibration_states=2048"  # the deployed refit's τ estimate (before calibration_states)
     return {
@@ -249,6 +249,15 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
                 *(f"world_model_config.{key}={value}" for key, value in scan_layout().items()),
                 "world_model_config.approach_start=0",
                 "world_model_config.approach_stop=54",
+            ]
+        ),
+        # ego: the scan's change under the robot's own motion computed (core.motion.EgoScanStep), the model learning
+        # the residual: one-step range errors near obstacles of 0.1-0.5 m let the imagined robot drive through walls
+        # the real one turns away from. The old weights learned the whole change, so these refits fit a new model
+        "ego": Arm(
+            [
+                "gate.calibration_states=16384",
+                *(f"world_model_config.{key}={value}" for key, value in ego_motion_layout().items()),
             ]
         ),
     }

@@ -159,10 +159,11 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     notes: list[str] = []
     inherited = base is not None and base.world_model
     if inherited and trainer.learner.world_model is not None and "world_model" not in trainer.init_parts:
-        # e.g. a refit that adds an input (--set world_model_config.approach_*): the old weights cannot be read
+        # e.g. a refit that adds an input (--set world_model_config.approach_*) or learns over an ego step (ego_*):
+        # the old weights cannot be read
         notes.append(
             f"note: the world model of --init {spec.init} does not fit this run's world_model_config (another input "
-            "layout or size); this run fitted a new one on its own data"
+            "layout, size or ego step); this run fitted a new one on its own data"
         )
     try:
         setup.start(out)

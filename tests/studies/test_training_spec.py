@@ -159,6 +159,16 @@ def test_a_world_model_only_refit_keeps_the_policys_own_config_whatever_method_i
     assert any("does not fit this run's world_model_config" in line for line in outcome.lines), outcome.lines
     model = load_agent(outcome.out).world_model
     assert model is not None and bool(model.fitted) and model.approach == (0, 1)
+    # so does one whose model learns the residual over an ego step: the old weights learned the whole change
+    ego = dataclasses.replace(
+        refit,
+        overrides=["world_model_config.ego_sectors=2", "world_model_config.ego_sector_width=0.5"],
+        out=str(tmp_path / "ego"),
+    )
+    outcome = run_training(ego)
+    assert any("does not fit this run's world_model_config" in line for line in outcome.lines), outcome.lines
+    model = load_agent(outcome.out).world_model
+    assert model is not None and bool(model.fitted) and model.ego is not None and model.ego.sectors == 2
 
 
 def test_a_world_model_only_refit_of_a_discrete_policy_runs_in_a_fresh_process(tmp_path: Path) -> None:
