@@ -160,8 +160,10 @@ def _plain(value: Any) -> Any:
 
 
 def halved(state: Any) -> Any:
-    """A checkpoint state with every floating tensor in float16 (``load_checkpoint`` widens them again)."""
-    return _map_tensors(state, lambda t: t.half() if t.is_floating_point() else t)
+    """A checkpoint state with every float32 tensor in float16 (``load_checkpoint`` widens them again). Float64
+    tensors are descriptions, not weights (a world model's ego step geometry, which a warm start compares exactly),
+    and stay as they are."""
+    return _map_tensors(state, lambda t: t.half() if t.dtype == torch.float32 else t)
 
 
 def _map_tensors(value: Any, fn: Any) -> Any:

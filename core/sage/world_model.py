@@ -409,8 +409,9 @@ class EnsembleWorldModel(nn.Module):
         ego step (a state from before the step was an option learned over none)."""
         own = self.state_dict()
         saved_geometry = state_dict.get("ego_geometry", torch.zeros(0))
-        if saved_geometry.shape != self.ego_geometry.shape or not torch.equal(
-            saved_geometry.to(self.ego_geometry.dtype), self.ego_geometry
+        # a checkpoint is read back in float32 (core.agents.load_checkpoint): equal to float32's precision
+        if saved_geometry.shape != self.ego_geometry.shape or not torch.allclose(
+            saved_geometry.double(), self.ego_geometry.double(), rtol=1e-6, atol=1e-9
         ):
             return False
         return all(tuple(state_dict[k].shape) == tuple(v.shape) for k, v in own.items() if k in state_dict) and all(

@@ -304,6 +304,13 @@ def test_a_model_reads_only_weights_learned_over_its_own_ego_step() -> None:
     assert not ego.reads(plain.state_dict()) and not ego.reads(before_the_option)
     assert not ego.reads(other.state_dict()) and not plain.reads(ego.state_dict())
     plain.load_state_dict(before_the_option)  # an old checkpoint still loads
+    # a committed policy's file halves the weights, and load_checkpoint reads every tensor back as float32: the step's
+    # numbers survive both, so a warm start from it keeps its model
+    from core.agents import halved
+
+    read_back = {k: v.float() if v.is_floating_point() else v for k, v in halved(ego.state_dict()).items()}
+    assert read_back["out.weight"].dtype == torch.float32 and ego.reads(read_back)
+    assert halved(ego.state_dict())["ego_geometry"].dtype == torch.float64
 
 
 def test_approach_rates_tell_a_near_slow_approach_from_a_far_fast_one() -> None:
