@@ -409,9 +409,10 @@ class EnsembleWorldModel(nn.Module):
         ego step (a state from before the step was an option learned over none)."""
         own = self.state_dict()
         saved_geometry = state_dict.get("ego_geometry", torch.zeros(0))
-        # a checkpoint is read back in float32 (core.agents.load_checkpoint): equal to float32's precision
+        # a checkpoint is read back in float32 (core.agents.load_checkpoint), and a file halved to float16 before
+        # its float64 tensors were kept holds the numbers to float16's precision: equal to that
         if saved_geometry.shape != self.ego_geometry.shape or not torch.allclose(
-            saved_geometry.double(), self.ego_geometry.double(), rtol=1e-6, atol=1e-9
+            saved_geometry.double(), self.ego_geometry.double(), rtol=1e-3, atol=1e-6
         ):
             return False
         return all(tuple(state_dict[k].shape) == tuple(v.shape) for k, v in own.items() if k in state_dict) and all(
@@ -437,6 +438,8 @@ class EnsembleWorldModel(nn.Module):
             state_dict["pos_weight"] = torch.tensor(1.0)
             state_dict["tau_bounds"] = torch.tensor([float("nan"), float("nan")])
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
+        if self.ego is not None:  # the config's numbers, exact, whatever precision the file kept
+            self.ego_geometry.copy_(self.ego.geometry())
         self.touch()
         return result
 

@@ -311,6 +311,10 @@ def test_a_model_reads_only_weights_learned_over_its_own_ego_step() -> None:
     read_back = {k: v.float() if v.is_floating_point() else v for k, v in halved(ego.state_dict()).items()}
     assert read_back["out.weight"].dtype == torch.float32 and ego.reads(read_back)
     assert halved(ego.state_dict())["ego_geometry"].dtype == torch.float64
+    rounded = {**read_back, "ego_geometry": ego.ego_geometry.half().float()}  # a file halved whole
+    assert ego.reads(rounded)
+    ego.load_state_dict(rounded)
+    assert torch.equal(ego.ego_geometry, EnsembleWorldModel(OBS, ACT, WorldModelConfig(**EGO)).ego_geometry)
 
 
 def test_approach_rates_tell_a_near_slow_approach_from_a_far_fast_one() -> None:
