@@ -136,11 +136,15 @@ class EgoScanStep:
     that change is geometry. :meth:`apply` places each sector's return (a range short of the scan's reach) at the
     mean bearing of the sector's rays, joins neighbouring returns of one surface into segments (:data:`GRAZING_DEG`),
     moves them by the arc the action commands over one step (a chord of length v dt sinc(w dt / 2) along the heading
-    turned by w dt / 2, then a turn by -w dt into the new heading), and casts the sectors' rays from the new pose
-    against them: a sector reads its nearest hit over its rays, or the nearest moved return that belongs to no
-    segment (a post, an object's edge) landing in it. A sector nothing reaches keeps its range. Moving along a wall
-    then reads the same wall, and turning slides the scan by the turn. The world model predicts the residual over
-    this step, so movers, what comes into view and the channels after the scan stay learned.
+    turned by w dt / 2, then a turn by -w dt into the new heading), and casts the sectors' rays at them from both
+    poses. A sector the surface covers from both takes its reading plus the change between the two casts (the
+    placement of a return within its sector errs alike in both and cancels); one it newly covers, the cast. The end
+    of a surface, or a return on none (an object's edge, a post), lands in the sector its bearing falls in, the nearest
+    counting. A sector nothing reaches keeps its range. Moving along a wall then reads the same wall, turning slides
+    the scan by the turn, and passing an obstacle its edge slides into the sector behind. On the same drives this step
+    alone errs 0.022 m on average on those sectors (median 0.0015 m, 99th percentile 0.10 m; a scratch measurement in
+    the issue's notes). The world model predicts the residual over it, so movers, what comes into view and the
+    channels after the scan stay learned.
     """
 
     sectors: int
