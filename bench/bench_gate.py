@@ -6,7 +6,10 @@ Sizes are the UGV's: 58 observations, 2 actions, the default world model (5 x 2 
 (2 x 128). The world model is fitted briefly on synthetic transitions (the weights' values do not change
 the cost). Both variants are timed in interleaved rounds in the same run; the median of all steps is printed.
 
-    .venv/bin/python bench/bench_gate.py [--steps 3000] [--members 10 25]
+    .venv/bin/python bench/bench_gate.py [--steps 3000] [--members 10 25] [--ego]
+
+``--ego`` also times the gate whose world model learns over the UGV's ego step (``WorldModelConfig.ego_*``,
+:class:`core.motion.EgoScanStep`: the scan moved geometrically at every imagined step and in the curiosity).
 """
 
 from __future__ import annotations
@@ -80,13 +83,18 @@ class LoopGate:
         return float(((obs + delta - next_obs) * self.fm.inv_obs_std).norm())
 
 
-def setup(members: int = 5) -> tuple[EnsembleWorldModel, Actor, np.ndarray, np.ndarray]:
+def setup(members: int = 5, ego: bool = False) -> tuple[EnsembleWorldModel, Actor, np.ndarray, np.ndarray]:
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
     obs = rng.random((2000, OBS_DIM)).astype(np.float32)
     act = rng.uniform(-1, 1, (2000, ACT_DIM)).astype(np.float32)
     nxt = (obs + 0.01 * rng.standard_normal(obs.shape)).astype(np.float32)
-    model = EnsembleWorldModel(OBS_DIM, ACT_DIM, WorldModelConfig(members=members, max_updates_per_fit=100))
+    layout: dict[str, float] = {}
+    if ego:
+        from sims.ugv.env import ego_motion_layout
+
+        layout = ego_motion_layout()
+    model = EnsembleWorldModel(OBS_DIM, ACT_DIM, WorldModelConfig(members=members, max_updates_per_fit=100, **layout))
     model.fit(obs, act, nxt, rng.random(2000).astype(np.float32), rng)
     actor = Actor(OBS_DIM, ACT_DIM, 128, 2, -torch.ones(ACT_DIM), torch.ones(ACT_DIM))
     return model, actor, obs, nxt
@@ -103,6 +111,7 @@ def main() -> None:
         default=[],
         help="also time the batched gate with ensembles of these sizes (a merged ensemble, sage merge)",
     )
+    parser.add_argument("--ego", action="store_true", help="also time the gate over the UGV's ego step")
     args = parser.parse_args()
     torch.set_num_threads(1)
     model, actor, observations, next_observations = setup()
@@ -110,14 +119,16 @@ def main() -> None:
     gate = SageGate(model, actor, cfg)
     policy = ActorPolicy(actor)
     loop = LoopGate(model, actor, cfg)
-    larger = {n: SageGate(setup(n)[0], actor, cfg) for n in args.members}
+    larger: dict[str, SageGate] = {f"batched, N={n}": SageGate(setup(n)[0], actor, cfg) for n in args.members}
+    if args.ego:
+        larger["batched, ego step"] = SageGate(setup(ego=True)[0], actor, cfg)
 
-    def sized_step(n: int) -> Callable[[int], float]:
+    def other_step(name: str) -> Callable[[int], float]:
         def step(i: int) -> float:
             obs = observations[i % len(observations)]
             action = policy.act(obs, deterministic=True)
-            decision = larger[n].decide(obs, action)
-            larger[n].observe(obs, action, next_observations[i % len(observations)])
+            decision = larger[name].decide(obs, action)
+            larger[name].observe(obs, action, next_observations[i % len(observations)])
             return decision.fear
 
         return step
@@ -143,7 +154,7 @@ def main() -> None:
     for i in range(20):  # same numbers, and warm caches
         assert abs(batched_step(i) - loop_step(i)) < 1e-4
     steps: dict[str, Callable[[int], float]] = {"batched (SageGate)": batched_step, "loop over members": loop_step}
-    steps.update({f"batched, N={n}": sized_step(n) for n in args.members})
+    steps.update({name: other_step(name) for name in larger})
     names = tuple(steps)
     wall: dict[str, list[float]] = {name: [] for name in names}
     cpu: dict[str, list[float]] = {name: [] for name in names}
@@ -169,6 +180,9 @@ def main() -> None:
     for n in args.members:
         ratio = statistics.median(cpu[f"batched, N={n}"]) / statistics.median(cpu[names[0]])
         print(f"batched N={n} / N={model.members} (CPU medians): {ratio:.2f}x")
+    if args.ego:
+        ratio = statistics.median(cpu["batched, ego step"]) / statistics.median(cpu[names[0]])
+        print(f"ego step / without (CPU medians): {ratio:.2f}x")
     verdict = "OK" if batched_cpu <= TARGET_MS else "ABOVE TARGET"
     print(
         f"target: median <= {TARGET_MS} ms on one core: CPU {batched_cpu:.3f} ms {verdict}; wall {batched_wall:.3f} ms"
