@@ -149,26 +149,19 @@ def test_a_world_model_only_refit_keeps_the_policys_own_config_whatever_method_i
     assert (after.method, after.imitation, after.world_model) == ("sac", True, True)
     assert after.world_model_config.cost_label_weight == 0.3 and after.updates_per_step == before.updates_per_step
     assert not any(line.startswith("note:") for line in outcome.lines)
-    # a refit that adds an input to the world model cannot read the old weights: it says so and fits a new one
-    wider = dataclasses.replace(
-        refit,
-        overrides=["world_model_config.approach_start=0", "world_model_config.approach_stop=1"],
-        out=str(tmp_path / "wider"),
-    )
-    outcome = run_training(wider)
-    assert any("does not fit this run's world_model_config" in line for line in outcome.lines), outcome.lines
-    model = load_agent(outcome.out).world_model
-    assert model is not None and bool(model.fitted) and model.approach == (0, 1)
-    # so does one whose model learns the residual over an ego step: the old weights learned the whole change
-    ego = dataclasses.replace(
-        refit,
-        overrides=["world_model_config.ego_sectors=2", "world_model_config.ego_sector_width=0.5"],
-        out=str(tmp_path / "ego"),
-    )
-    outcome = run_training(ego)
-    assert any("does not fit this run's world_model_config" in line for line in outcome.lines), outcome.lines
-    model = load_agent(outcome.out).world_model
-    assert model is not None and bool(model.fitted) and model.ego is not None and model.ego.sectors == 2
+    # a refit that adds an input to the world model, or whose model learns the residual over an ego step, cannot read
+    # the old weights (they learned the whole change from fewer inputs): it says so and fits a new one
+    changes = {
+        "wider": (["world_model_config.approach_start=0", "world_model_config.approach_stop=1"], "approach", (0, 1)),
+        "ego": (["world_model_config.ego_sectors=2", "world_model_config.ego_sector_width=0.5"], "ego", 2),
+    }
+    for name, (overrides, part, expected) in changes.items():
+        outcome = run_training(dataclasses.replace(refit, overrides=overrides, out=str(tmp_path / name)))
+        assert any("does not fit this run's world_model_config" in line for line in outcome.lines), outcome.lines
+        model = load_agent(outcome.out).world_model
+        assert model is not None and bool(model.fitted)
+        value = getattr(model, part)
+        assert (value.sectors if part == "ego" else value) == expected
 
 
 def test_a_world_model_only_refit_of_a_discrete_policy_runs_in_a_fresh_process(tmp_path: Path) -> None:
