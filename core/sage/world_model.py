@@ -150,10 +150,10 @@ class EnsembleWorldModel(nn.Module):
         self.register_buffer("pos_weight", torch.tensor(1.0))
         """Class-balancing weight of the last fit (n_neg / n_pos); log of it is taken out of the cost logit."""
         self.register_buffer("tau_bounds", torch.tensor([float("nan"), float("nan")]))
+        """(τ_min, τ_max) from the fear of familiar states at the last calibration (NaN: use the config's)."""
         self.register_buffer("ego_geometry", self.ego.geometry() if self.ego is not None else torch.zeros(0))
         """The ego step's numbers (empty without one): a warm start from weights learned over another step, or over
         none, does not fit (:meth:`reads`) and is refitted."""
-        """(τ_min, τ_max) from the fear of familiar states at the last calibration (NaN: use the config's)."""
         self.version = 0
         self._folded: tuple[int, FoldedModel] | None = None
         self._optimizer: torch.optim.Optimizer | None = None
