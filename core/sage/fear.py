@@ -487,6 +487,8 @@ class GateKernel:
         self.c_delta = torch.empty(n, 1, d)
         self.contact = contact_floors(cfg)
         self.probability = torch.zeros(m, n, 1)
+        self.first_base: Tensor | None = None
+        """The last call's (s, a) moved by the ego step, (1, D) (a model with one)."""
 
     def _trunk(self, x: Tensor, buffers: list[Tensor]) -> Tensor:
         h = x
@@ -515,7 +517,10 @@ class GateKernel:
             if self.ego is None:
                 torch.add(states[k], self.deltas[k], out=states[k + 1])
             else:  # the residual over the scan moved by the action (allocates: an option, off by default)
-                torch.add(self.ego.apply(states[k], self.action_steps[k]), self.deltas[k], out=states[k + 1])
+                base = self.ego.apply(states[k], self.action_steps[k])
+                if k == 0:
+                    self.first_base = base[0]  # every member's: the curiosity of this (s, a) reads it again
+                torch.add(base, self.deltas[k], out=states[k + 1])
             if self.scan is not None:
                 if k + 1 < self.m:  # the last imagined state's motion feeds no further step
                     # the imagined step's change, with the imagined turn taken out of the scan (core.motion)
@@ -591,7 +596,12 @@ class GateKernel:
                     self.c_input[:, :, 2 * d + a :].copy_(approach_rate(self.c_input[..., :d], moved, *self.approach))
             h = self._trunk(self.c_input, self.c_hidden)
             delta = torch.baddbmm(self.delta_b, h, self.delta_w, out=self.c_delta)
-        base = obs if self.ego is None else self.ego.apply(obs, action)
+        if self.ego is None:
+            base = obs
+        elif reuse_first_step and self.first_base is not None:
+            base = self.first_base
+        else:
+            base = self.ego.apply(obs, action)
         error = delta.mean(0).add_(base).sub_(next_obs).mul_(self.model.inv_obs_std)
         return float(error.norm())
 

@@ -244,6 +244,10 @@ def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: b
     nxt_obs = obs + 0.05
     with torch.inference_mode():
         fast = kernel.curiosity(obs, act, nxt_obs, motion=motion)
+        kernel(obs, act, motion)  # the gate's common case: the curiosity of the (s, a) the last rollout started from
+        assert kernel.curiosity(obs, act, nxt_obs, reuse_first_step=True, motion=motion) == pytest.approx(
+            fast, rel=1e-5
+        )
     with torch.no_grad():
         assert fast == pytest.approx(float(model.curiosity(obs, act, nxt_obs, motion)), rel=1e-4)
         assert fast == pytest.approx(float(curiosity_folded(model, obs, act, nxt_obs, motion)[0]), rel=1e-4)
