@@ -487,8 +487,16 @@ class GateKernel:
         self.c_delta = torch.empty(n, 1, d)
         self.contact = contact_floors(cfg)
         self.probability = torch.zeros(m, n, 1)
-        self.first_base: Tensor | None = None
-        """The last call's (s, a) moved by the ego step, (1, D) (a model with one)."""
+        self.first_base = torch.zeros(1, 1, d)
+        """The last call's (s, a) moved by the ego step (a model with one)."""
+        self.base = torch.zeros(n, 1, d)
+        self.moves: list[Callable[[], None]] = []
+        if self.ego is not None:
+            # every member starts from the same (s, a): one row, which the curiosity of that (s, a) reads again
+            self.moves.append(self.ego.bound(self.states[0, :1], self.actions[0, :1], self.first_base))
+            self.moves += [self.ego.bound(self.states[k], self.actions[k], self.base) for k in range(1, m)]
+            for move in self.moves:  # a first call compiles (seconds on a fresh install): when the gate is built
+                move()
 
     def _trunk(self, x: Tensor, buffers: list[Tensor]) -> Tensor:
         h = x
@@ -516,11 +524,9 @@ class GateKernel:
             torch.baddbmm(self.out_b, h, self.out_w, out=self.output_steps[k])
             if self.ego is None:
                 torch.add(states[k], self.deltas[k], out=states[k + 1])
-            else:  # the residual over the scan moved by the action (allocates: an option, off by default)
-                base = self.ego.apply(states[k], self.action_steps[k])
-                if k == 0:
-                    self.first_base = base[0]  # every member's: the curiosity of this (s, a) reads it again
-                torch.add(base, self.deltas[k], out=states[k + 1])
+            else:  # the residual over the scan moved by the action
+                self.moves[k]()
+                torch.add(self.first_base if k == 0 else self.base, self.deltas[k], out=states[k + 1])
             if self.scan is not None:
                 if k + 1 < self.m:  # the last imagined state's motion feeds no further step
                     # the imagined step's change, with the imagined turn taken out of the scan (core.motion)
@@ -598,8 +604,8 @@ class GateKernel:
             delta = torch.baddbmm(self.delta_b, h, self.delta_w, out=self.c_delta)
         if self.ego is None:
             base = obs
-        elif reuse_first_step and self.first_base is not None:
-            base = self.first_base
+        elif reuse_first_step:
+            base = self.first_base[0]
         else:
             base = self.ego.apply(obs, action)
         error = delta.mean(0).add_(base).sub_(next_obs).mul_(self.model.inv_obs_std)

@@ -202,7 +202,7 @@ def test_a_turn_by_whole_sectors_slides_the_scan_the_other_way(sectors_turned: i
     sectors the turn brings in from outside the field of view keep their ranges (nothing is known there)."""
     step = ego_step()
     ranges = scene(0.0)[:SECTORS]
-    turn = sectors_turned * float(WIDTH) / 0.1
+    turn = (sectors_turned - 1e-4) * float(WIDTH) / 0.1  # a hair short: returns land clear of sector boundaries
     moved = step.apply(with_tail(ranges), torch.tensor([[-1.0, turn]]))[0, :SECTORS].numpy()
     k = sectors_turned
     if k > 0:
@@ -226,7 +226,7 @@ def test_an_objects_edge_slides_into_the_sector_behind_it() -> None:
     assert (moved[:8] == 1.0).all() and (moved[13:] == 1.0).all()
     wall = np.where(np.abs(RAYS) < 0.6, 0.8 / np.cos(RAYS), 1.0).astype(np.float32)
     wall[18] = 0.3  # a post straight ahead, turned to by a whole sector
-    moved = step.apply(with_tail(wall), torch.tensor([[-1.0, float(WIDTH) / 0.1]]))[0, :SECTORS].numpy()
+    moved = step.apply(with_tail(wall), torch.tensor([[-1.0, (1 - 1e-4) * float(WIDTH) / 0.1]]))[0, :SECTORS].numpy()
     assert moved[17] == pytest.approx(0.3, rel=1e-4)
     assert moved[16] == pytest.approx(wall[17], rel=1e-4) and moved[18] == pytest.approx(wall[19], rel=1e-4)
 
@@ -258,10 +258,62 @@ def test_the_ego_step_moves_any_batch_shape_and_passes_gradients_to_the_action()
     rows = torch.stack([step.apply(states[i, j][None], actions[i, j][None])[0] for i in range(3) for j in range(5)])
     assert torch.allclose(whole.reshape(15, -1), rows)
     chunk, motion.EGO_CHUNK = motion.EGO_CHUNK, 4
-    try:
-        assert torch.allclose(step.apply(states, actions), whole)
+    try:  # an input that asks for a gradient takes the tensor version, in chunks of EGO_CHUNK rows
+        assert torch.allclose(step.apply(states.clone().requires_grad_(True), actions), whole)
     finally:
         motion.EGO_CHUNK = chunk
     action = actions[0, :1].clone().requires_grad_(True)
     step.apply(states[0, :1], action)[..., :SECTORS].sum().backward()
     assert action.grad is not None and torch.isfinite(action.grad).all() and action.grad.abs().sum() > 0
+
+
+def random_scenes(rng: np.random.Generator, rows: int, sectors: int) -> np.ndarray:
+    """Scans of walls at random distances and angles, boxes, posts and open space, ranges in (0, 1]."""
+    bearing = np.linspace(-2.0, 2.0, sectors)
+    distance = rng.uniform(0.05, 0.9, (rows, 1)) / np.maximum(np.cos(bearing - rng.uniform(-1.5, 1.5, (rows, 1))), 0.05)
+    scans = np.minimum(distance, 1.0)
+    boxes = rng.random((rows, sectors)) < 0.1
+    scans = np.where(boxes, rng.uniform(0.05, 1.0, (rows, sectors)), scans)
+    return np.where(rng.random((rows, sectors)) < 0.15, 1.0, scans)
+
+
+@pytest.mark.parametrize("layout", ["test", "ugv"])
+def test_the_compiled_step_is_the_tensor_step(layout: str) -> None:
+    """Calls that need no gradient take the compiled loop (core._ego_kernel): on walls, boxes, posts and open space,
+    driven by every action and beyond, it gives the tensor version's ranges in float64, and from float32 inputs the
+    float64 result rounded; the channels after the scan pass through."""
+    from sims.ugv.env import ego_motion_layout
+
+    if layout == "ugv":
+        step = EgoScanStep.of(WorldModelConfig(**ego_motion_layout()), 58, 2)
+        assert step is not None and step.rays == 2
+    else:
+        step = ego_step()
+    rng = np.random.default_rng(1)
+    scans = random_scenes(rng, 3000, step.sectors)
+    states = torch.as_tensor(np.concatenate([scans, rng.normal(size=(3000, 4))], -1))
+    actions = torch.as_tensor(rng.uniform(-1.5, 1.5, (3000, 2)))
+    compiled = step.apply(states, actions)
+    tensor = step.apply(states.clone().requires_grad_(True), actions).detach()
+    assert torch.equal(compiled[:, step.sectors :], states[:, step.sectors :])
+    assert (compiled != states).any(dim=1).float().mean() > 0.9  # the scenes do move
+    torch.testing.assert_close(compiled, tensor, rtol=0.0, atol=1e-12)
+    single = step.apply(states.float(), actions.float())
+    assert single.dtype == torch.float32
+    assert torch.equal(single, step.apply(states.float().double(), actions.float().double()).float())
+
+
+def test_a_bound_step_reads_its_buffers_when_called() -> None:
+    """The gate kernel binds its rollout's strided buffers once: each call moves what they hold then, into its
+    output, as apply does."""
+    step = ego_step()
+    rng = np.random.default_rng(2)
+    buffer = torch.zeros(3, 1, SECTORS + 2 + 2 + 5)  # rows [state, action, other] as the gate lays them out
+    state, action = buffer[..., : SECTORS + 2], buffer[..., SECTORS + 2 : SECTORS + 4]
+    out = torch.full((3, 1, SECTORS + 2), -1.0)
+    move = step.bound(state, action, out)
+    for _ in range(3):
+        state[..., :SECTORS] = torch.as_tensor(random_scenes(rng, 3, SECTORS)[:, None], dtype=torch.float32)
+        action.uniform_(-1.0, 1.0)
+        move()
+        assert torch.equal(out, step.apply(state, action))
