@@ -150,20 +150,30 @@ def test_a_run_of_no_episodes_keeps_no_fear_its_bounds_were_not_measured_on(poli
 
 
 def test_imagined_contact_is_another_fear_measured_again_with_the_simulators_floors(tmp_path: Path) -> None:
-    """Switching fear's imagined contact on changes fear, so a run's bounds must be measured again for it: refused
-    over the committed UGV policy's own, and ``sage recalibrate --gate-set imagined_contact=true`` brings the UGV's
-    contact floors along and writes a run whose gate has both."""
+    """Switching fear's imagined contact on or off changes fear, so a run's bounds must be measured again for it:
+    refused over a run's own bounds (the committed UGV policy has it on), and ``sage recalibrate --gate-set
+    imagined_contact=false`` / ``=true`` writes a run without it / with it and the UGV's contact floors."""
     import sims
     from app.cli import app
 
     floors = list(sims.descriptor("ugv").contact_floors)
-    agent = load_agent("policies/ugv-default")
-    assert not agent.config.gate.imagined_contact
+    committed = load_agent("policies/ugv-default")
+    assert committed.config.gate.imagined_contact and committed.config.gate.contact_floors == floors
+    with pytest.raises(ValueError, match=r"changes fear itself.*sage recalibrate"):
+        committed.make_gate(imagined_contact=False)
+    without = tmp_path / "without"
+    args = ["--sim", "ugv", "--scenario", "1", "--episodes", "2"]
+    switch_off = ["--gate-set", "imagined_contact=false", "--out", str(without)]
+    result = CliRunner().invoke(app, ["recalibrate", "policies/ugv-default", *args, *switch_off])
+    assert result.exit_code == 0, result.output
+    agent = load_agent(without)
+    assert not agent.config.gate.imagined_contact and not agent.make_gate().cfg.imagined_contact
     with pytest.raises(ValueError, match=r"changes fear itself.*sage recalibrate"):
         agent.make_gate(imagined_contact=True, contact_floors=floors)
     out = tmp_path / "contact"
-    args = ["recalibrate", "policies/ugv-default", "--sim", "ugv", "--scenario", "1", "--episodes", "2"]
-    result = CliRunner().invoke(app, [*args, "--gate-set", "imagined_contact=true", "--out", str(out)])
+    result = CliRunner().invoke(
+        app, ["recalibrate", str(without), *args, "--gate-set", "imagined_contact=true", "--out", str(out)]
+    )
     assert result.exit_code == 0, result.output
     recalibrated = load_agent(out)
     assert recalibrated.config.gate.imagined_contact and recalibrated.config.gate.contact_floors == floors
