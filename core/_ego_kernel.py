@@ -121,10 +121,14 @@ def _scan_rows(
             if not joined[j]:
                 continue
             ax, ay, ex, ey = x[j], y[j], x[j + 1] - x[j], y[j + 1] - y[j]
-            lo, hi = min(bearing[j], bearing[j + 1]), max(bearing[j], bearing[j + 1])
-            if hi - lo <= math.pi:  # the arc between the ends' bearings (else it wraps behind the robot: all rays)
-                first = max(0, math.floor((lo - start) / spacing) - 1)
-                last = min(s * k - 1, math.ceil((hi - start) / spacing) + 1)
+            # the ends' bearings from the first ray on, in [0, 2 pi): the arc between them, or both ways past the
+            # first ray's bearing (the arc is under pi: a segment does not pass through the robot)
+            a = (bearing[j] - start) % (2.0 * math.pi)
+            e = (bearing[j + 1] - start) % (2.0 * math.pi)
+            lo, hi = min(a, e), max(a, e)
+            if hi - lo <= math.pi:
+                first = max(0, math.floor(lo / spacing) - 1)
+                last = min(s * k - 1, math.ceil(hi / spacing) + 1)
             else:
                 first, last = 0, s * k - 1
             for ray in range(first, last + 1):

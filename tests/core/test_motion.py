@@ -277,7 +277,7 @@ def random_scenes(rng: np.random.Generator, rows: int, sectors: int) -> np.ndarr
     return np.where(rng.random((rows, sectors)) < 0.15, 1.0, scans)
 
 
-@pytest.mark.parametrize("layout", ["test", "ugv"])
+@pytest.mark.parametrize("layout", ["test", "ugv", "full turn"])
 def test_the_compiled_step_is_the_tensor_step(layout: str) -> None:
     """Calls that need no gradient take the compiled loop (core._ego_kernel): on walls, boxes, posts and open space,
     driven by every action and beyond, it gives the tensor version's ranges in float64, and from float32 inputs the
@@ -287,6 +287,10 @@ def test_the_compiled_step_is_the_tensor_step(layout: str) -> None:
     if layout == "ugv":
         step = EgoScanStep.of(WorldModelConfig(**ego_motion_layout()), 58, 2)
         assert step is not None and step.rays == 2
+    elif layout == "full turn":  # 72 sectors all round from behind the robot, 3 rays each: surfaces wrap at the back
+        full = {"ego_sectors": 72, "ego_scan_start": 3.0, "ego_sector_width": 2 * np.pi / 72, "ego_rays_per_sector": 3}
+        step = EgoScanStep.of(WorldModelConfig(**full, ego_forward_scale=0.02, ego_turn_scale=0.2), 76, 2)
+        assert step is not None
     else:
         step = ego_step()
     rng = np.random.default_rng(1)
