@@ -18,25 +18,6 @@ import numba
 import numpy as np
 
 
-def scan(
-    states: np.ndarray,
-    actions: np.ndarray,
-    out: np.ndarray,
-    directions: np.ndarray,
-    segments: np.ndarray,
-    numbers: np.ndarray,
-    channels: np.ndarray,
-) -> None:
-    """Writes into ``out`` (B, D) the (B, D) ``states`` with their first S channels, ranges, moved by the (B, A)
-    ``actions`` (any float dtype and strides; ``out`` must not overlap ``states``). Packed in few arrays because a
-    call's cost grows with its arguments: ``directions`` (S, 2 + 2 rays) float64, each sector's return bearing's
-    cosine and sine, then its rays' cosines and sines; ``segments`` (S, 2 window + 2) int64, the segments (index of
-    their first return) each sector's rays are tested against after the step, then the two where the robot is;
-    ``numbers`` float64: start, width, forward scale and offset, turn scale, joint ratio; ``channels`` int64: the
-    action's forward and turn channels."""
-    _scan_rows(states, actions, out, directions, segments, numbers, channels)
-
-
 @numba.njit(cache=True, nogil=True, inline="always")
 def _meet(ax: float, ay: float, ex: float, ey: float, ux: float, uy: float) -> float:
     """Where the ray u meets the segment A -> A + E (inf: it does not); the arithmetic of ``core.motion._cast``."""
@@ -68,7 +49,7 @@ def _cast(
 
 
 @numba.njit(cache=True, nogil=True)
-def _scan_rows(
+def scan(
     states: np.ndarray,
     actions: np.ndarray,
     out: np.ndarray,
@@ -77,6 +58,13 @@ def _scan_rows(
     numbers: np.ndarray,
     channels: np.ndarray,
 ) -> None:
+    """Writes into ``out`` (B, D) the (B, D) ``states`` with their first S channels, ranges, moved by the (B, A)
+    ``actions`` (any float dtype and strides; ``out`` must not overlap ``states``). Packed in few arrays because a
+    call's cost grows with its arguments: ``directions`` (S, 2 + 2 rays) float64, each sector's return bearing's
+    cosine and sine, then its rays' cosines and sines; ``segments`` (S, 2 window + 2) int64, the segments (index of
+    their first return) each sector's rays are tested against after the step, then the two where the robot is;
+    ``numbers`` float64: start, width, forward scale and offset, turn scale, joint ratio; ``channels`` int64: the
+    action's forward and turn channels."""
     k = (directions.shape[1] - 2) // 2
     cos, sin, ray_cos, ray_sin = directions[:, 0], directions[:, 1], directions[:, 2 : 2 + k], directions[:, 2 + k :]
     last_candidate, own = segments.shape[1] - 3, segments[:, -2:]
