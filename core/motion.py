@@ -213,16 +213,16 @@ class EgoScanStep:
     def apply(self, state: Tensor, action: Tensor) -> Tensor:
         """The state with its scan moved by the action's motion (any leading shape, (..., D) and (..., A)); the
         channels after the scan are unchanged. Differentiable almost everywhere in the action."""
-        s = self.sectors
-        lead = state.shape[:-1]
-        ranges = state[..., :s].reshape(-1, s)
-        actions = action.expand(*lead, action.shape[-1]).reshape(-1, action.shape[-1])
-        if len(ranges) == 0:
+        if state.numel() == 0:
             return state.clone()
         if not (torch.is_grad_enabled() and (state.requires_grad or action.requires_grad)):
             out = torch.empty(state.shape, dtype=state.dtype)
             self.apply_into(state, action, out)
             return out
+        s = self.sectors
+        lead = state.shape[:-1]
+        ranges = state[..., :s].reshape(-1, s)
+        actions = action.expand(*lead, action.shape[-1]).reshape(-1, action.shape[-1])
         parts = [
             self._scan(ranges[i : i + EGO_CHUNK], actions[i : i + EGO_CHUNK]) for i in range(0, len(ranges), EGO_CHUNK)
         ]
@@ -232,7 +232,6 @@ class EgoScanStep:
     def apply_into(self, state: Tensor, action: Tensor, out: Tensor) -> None:
         """:meth:`apply` without a gradient, written into ``out`` (the shape of ``state``, a separate tensor whose
         rows can be viewed as (-1, D)): compiled (``core._ego_kernel``), a tenth of the cost on a gate's few rows."""
-
         self.bound(state.detach(), action.detach().expand(*state.shape[:-1], action.shape[-1]), out)()
 
     def bound(self, state: Tensor, action: Tensor, out: Tensor) -> Callable[[], None]:
