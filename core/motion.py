@@ -234,15 +234,19 @@ class EgoScanStep:
         rows can be viewed as (-1, D)): compiled (``core._ego_kernel``), a tenth of the cost on a gate's few rows."""
         self.bound(state.detach(), action.detach().expand(*state.shape[:-1], action.shape[-1]), out)()
 
-    def bound(self, state: Tensor, action: Tensor, out: Tensor) -> Callable[[], None]:
+    def bound(self, state: Tensor, action: Tensor, out: Tensor, *, views: bool = False) -> Callable[[], None]:
         """A call that does :meth:`apply_into` for what ``state`` and ``action`` hold when it is made: numpy views of
         the three tensors taken once (``state`` and ``action`` of the same leading shape, viewed or copied as rows;
         a copy is read as it was now), so that a loop over preallocated buffers (the gate kernel's rollout) pays
-        only the compiled call."""
+        only the compiled call. ``views``: a ValueError where the rows could only be copied (a loop whose buffers
+        change between calls would read stale rows)."""
         from core import _ego_kernel  # numba's import and compilation are paid by the first call
 
         d, a = state.shape[-1], action.shape[-1]
-        arrays = (state.reshape(-1, d).numpy(), action.reshape(-1, a).numpy(), out.view(-1, d).numpy())
+        rows = state.reshape(-1, d), action.reshape(-1, a)
+        if views and any(r.data_ptr() != t.data_ptr() for r, t in zip(rows, (state, action), strict=True)):
+            raise ValueError("the ego step's bound rows must be views of the buffers it reads")
+        arrays = (rows[0].numpy(), rows[1].numpy(), out.view(-1, d).numpy())
         geometry = _kernel_geometry(self)
         scan = _ego_kernel.scan
         return lambda: scan(*arrays, *geometry)

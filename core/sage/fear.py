@@ -493,8 +493,8 @@ class GateKernel:
         self.moves: list[Callable[[], None]] = []
         if self.ego is not None:
             # every member starts from the same (s, a): one row, which the curiosity of that (s, a) reads again
-            self.moves.append(self.ego.bound(self.states[0, :1], self.actions[0, :1], self.first_base))
-            self.moves += [self.ego.bound(self.states[k], self.actions[k], self.base) for k in range(1, m)]
+            self.moves.append(self.ego.bound(self.states[0, :1], self.actions[0, :1], self.first_base, views=True))
+            self.moves += [self.ego.bound(self.states[k], self.actions[k], self.base, views=True) for k in range(1, m)]
             for move in self.moves:  # a first call compiles (seconds on a fresh install): when the gate is built
                 move()
 

@@ -321,3 +321,13 @@ def test_a_bound_step_reads_its_buffers_when_called() -> None:
         action.uniform_(-1.0, 1.0)
         move()
         assert torch.equal(out, step.apply(state, action))
+
+
+def test_a_bound_step_that_must_read_views_refuses_rows_it_could_only_copy() -> None:
+    """Every other row of a buffer cannot be viewed as rows: a loop bound to a copy would read stale states."""
+    step = ego_step()
+    buffer = torch.zeros(4, 3, SECTORS + 2)
+    state, action = buffer[:, ::2], torch.zeros(4, 2, 2)
+    with pytest.raises(ValueError, match="views of the buffers"):
+        step.bound(state, action, torch.zeros(4, 2, SECTORS + 2), views=True)
+    step.bound(buffer[:, 1:2], action[:, :1], torch.zeros(4, 1, SECTORS + 2), views=True)()  # one row of each: views
