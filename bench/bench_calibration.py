@@ -16,8 +16,10 @@ README quotes) and each run's figures, with the commit and the command that prod
 table of every default (``docs/calibration``, block ``calibration``) is not cut down to them.
 
 ``--curves-only`` leaves the gate tables out: the calibration table and operating curves of ``--sims``' cases, e.g. a
-curve at more episodes where 100 a point left the comparison with random gating undecided (a case's curve is one task:
-at 300 episodes a point, highway's took 42 minutes of one core, beside other work).
+curve at more episodes where 100 a point left the comparison with random gating undecided. Each point of a curve is a
+task of its own (:class:`studies.calibrate.CurvePlan`): the fear points, the curiosity pilot and the expert alone
+first, beside the calibrations and gate rows; then random and curiosity-only gating at the rates the fear points
+reached (at 300 episodes a point, highway's whole curve took 42 minutes of one core as one task).
 
 ``--compare-gate release=0`` adds a second gate table with those GateConfig settings over the policies' own (there:
 the paper's gate, without the hold's hysteresis that the defaults deploy). Below about 100 ``--episodes`` an AUROC
@@ -30,9 +32,10 @@ The gate table gives each row's 95% Wilson interval and says under it where issu
 the target's share); at 100 episodes a row of 1-9 violations is undecided either way.
 
 Targets (issue #11): fear AUROC >= 0.85 for "violation within 1 s"; the operating curve above random and
-curiosity-only gating at every takeover rate. Not a unit test: it takes minutes. Each calibration and each row of
-the gate table is a Ray task (:func:`studies.sweep.run_tasks`, one core and one process each, libsumo's rule), on
-this machine's cores or a Ray cluster's; the results do not depend on how many run at once (fixed seeds per task).
+curiosity-only gating at every takeover rate. Not a unit test: it takes minutes. Each calibration, each point of an
+operating curve and each row of the gate table is a Ray task (:func:`studies.sweep.run_tasks`, one core and one
+process each, libsumo's rule), on this machine's cores or a Ray cluster's; the results do not depend on how many run
+at once (fixed seeds per task).
 """
 
 from __future__ import annotations
@@ -53,10 +56,13 @@ from core.loop import TAKEOVER_CAUSES
 from core.metrics import wilson_interval
 from core.sage.config import parse_gate_settings
 from studies.calibrate import (
+    EXPERT_ALONE,
     CalibrationReport,
+    CurvePlan,
     GateTarget,
     calibrate_run,
     compare_curves,
+    curve_point,
     expert_lead,
     gate_with_expert,
     write_figures,
@@ -172,9 +178,15 @@ def main() -> None:
     field_cases = [(policy, sim, field) for policy, sim in defaults for field in FIELDS.get(sim, [])]
     calibrated = cases + field_cases
     calibrations = [
-        {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.episodes, "curve_episodes": curve}
-        for group, curve in ((cases, args.curve_episodes), (field_cases, 0))
-        for policy, sim, scenario in group
+        {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.episodes, "curve_episodes": 0}
+        for policy, sim, scenario in calibrated
+    ]
+    plan = CurvePlan()
+    curved = cases if args.curve_episodes > 0 else []
+    first_calls = [
+        {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.curve_episodes, "call": call}
+        for policy, sim, scenario in curved
+        for call in plan.first()
     ]
     gate_rows = [
         {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.gate_episodes}
@@ -193,8 +205,8 @@ def main() -> None:
     lead_rows = [row | {"lead": True, "episodes": lead_episodes} for row in gate_rows]
     # one batch, so that the gate table's short rows fill the cores beside the long calibrations
     results = run_tasks(
-        run_case,
-        calibrations + gate_rows + compare_rows + lead_rows,
+        run_task,
+        calibrations + gate_rows + compare_rows + lead_rows + first_calls,
         [f"{policy} on {sim} {scenario}" for policy, sim, scenario in calibrated]
         + [f"gate table: {policy} on {sim} {scenario}" for policy, sim, scenario in table_cases]
         + (
@@ -202,11 +214,16 @@ def main() -> None:
             if compare
             else []
         )
-        + [f"expert lead: {policy} on {sim} {scenario}" for policy, sim, scenario in table_cases],
+        + [f"expert lead: {policy} on {sim} {scenario}" for policy, sim, scenario in table_cases]
+        + [f"curve point {task['call']['kind']}: {task['policy']} on {task['scenario']}" for task in first_calls],
         address=args.address,
         cpus=args.cpus,
     )
+    firsts = results[len(results) - len(first_calls) :]
+    results = results[: len(results) - len(first_calls)]
+    curve_seconds = attach_curves(args, plan, curved, calibrated, results[: len(calibrated)], firsts)
     for (policy, sim, scenario), (report, seconds) in zip(calibrated, results[: len(calibrated)], strict=True):
+        seconds += curve_seconds.get((policy, sim, scenario), 0.0)
         figures = write_figures(report, args.out / f"{policy}-{Path(scenario).stem}")
         curves += [
             f"![{policy} on {sim} {scenario}]({f.parent.name}/{f.name})" for f in figures if f.stem == "operating_curve"
@@ -234,8 +251,9 @@ def main() -> None:
         "their gate and no expert (AUROC, firing); the operating curve adds the scripted expert.",
         "",
         "| policy | scenario | AUROC fear | ĉ | σ̂ | curiosity | firing before violation / elsewhere "
-        "| violations warned | fewest violations (at takeover) | fear vs random | fear vs curiosity only | time |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| violations warned | fewest violations (at takeover) | fear vs random | fear vs curiosity only "
+        "| expert alone | time |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         "",
         *notes,
@@ -249,7 +267,9 @@ def main() -> None:
         "point nearest in takeover rate (within 5 points; the rest unmatched), better or worse where the 95% "
         "interval of the difference in the share of episodes with a violation (Newcombe's hybrid score interval) "
         "excludes 0. The target, above random at every takeover rate, is all better. Where neither gating has a "
-        "violation at a takeover rate, the point is tied: no curve can lie above another there.",
+        "violation at a takeover rate, the point is tied: no curve can lie above another there. Expert alone: the "
+        "scripted expert driving every step of the curve's episodes, the level every gating tends towards as it hands "
+        "the expert more of the steps (the dotted line of the figures).",
         "",
         "Operating curves (episodes with a violation against the takeover rate, the gate's τ scaled; random and "
         "curiosity-only gating at equal takeover rates; bars: 95% Wilson intervals):",
@@ -326,6 +346,65 @@ def gate_settings(items: list[str], policies: list[str]) -> dict[str, Any]:
     except ValueError as exc:
         raise SystemExit(f"--compare-gate: {exc}") from None
     return settings
+
+
+def run_task(**kwargs: Any) -> Any:
+    """One Ray task of the bench: a point of an operating curve (``call``, :func:`curve_case`) or a case's
+    calibration or table row (:func:`run_case`)."""
+    return curve_case(**kwargs) if "call" in kwargs else run_case(**kwargs)
+
+
+def curve_case(policy: str, sim: str, scenario: str, episodes: int, call: dict[str, Any]) -> tuple[Any, float]:
+    """One call of a :class:`~studies.calibrate.CurvePlan` for ``policy`` on a scenario, as ``(result, seconds)``."""
+    d = sims.descriptor(sim)
+    source = scenario_source(sim, scenario)
+    started = time.perf_counter()
+    result = curve_point(ROOT / "policies" / policy, lambda: d.make(source), episodes, call)
+    return result, time.perf_counter() - started
+
+
+def attach_curves(
+    args: argparse.Namespace,
+    plan: CurvePlan,
+    curved: list[tuple[str, str, str]],
+    calibrated: list[tuple[str, str, str]],
+    calibrations: list[tuple[CalibrationReport, float]],
+    firsts: list[tuple[Any, float]],
+) -> dict[tuple[str, str, str], float]:
+    """The curves' second stage (random and curiosity-only gating at the fear points' rates, one task a point), then
+    each curve into its case's report; returns each case's seconds of curve work (all its tasks, added up)."""
+    per_case = len(plan.first())
+    stage_one = {case: firsts[i * per_case : (i + 1) * per_case] for i, case in enumerate(curved)}
+    second_calls = {case: plan.second([result for result, _ in stage_one[case]]) for case in curved}
+    tasks = [
+        {"policy": policy, "sim": sim, "scenario": scenario, "episodes": args.curve_episodes, "call": call}
+        for policy, sim, scenario in curved
+        for call in second_calls[(policy, sim, scenario)]
+    ]
+    seconds = (
+        run_tasks(
+            curve_case,
+            tasks,
+            [
+                f"curve point {task['call']['kind']} at {task['call']['rate']:.0%}: {task['policy']} on "
+                f"{task['scenario']}"
+                for task in tasks
+            ],
+            address=args.address,
+            cpus=args.cpus,
+        )
+        if tasks
+        else []
+    )
+    spent: dict[tuple[str, str, str], float] = {}
+    start = 0
+    reports = dict(zip(calibrated, (report for report, _ in calibrations), strict=True))
+    for case in curved:
+        done = seconds[start : start + len(second_calls[case])]
+        start += len(done)
+        reports[case].curve = plan.curve([r for r, _ in stage_one[case]], [r for r, _ in done])
+        spent[case] = sum(t for _, t in stage_one[case]) + sum(t for _, t in done)
+    return spent
 
 
 def run_case(
@@ -494,8 +573,19 @@ def calibration_row(policy: str, sim: str, scenario: str, report: CalibrationRep
         f"| {_shown(report.violations_warned, '.0%')} | "
         + (f"{best['violation_rate']:.0%} at {best['takeover_rate']:.0%}" if best else "–")
         + f" | {verdict(report.curve, 'random')} | {verdict(report.curve, 'curiosity only')}"
+        + f" | {_alone(report.curve)}"
         + f" | {seconds:.0f} s |"
     )
+
+
+def _alone(curve: dict[str, list[dict[str, float]]]) -> str:
+    """The scripted expert alone on the curve's episodes: episodes with a violation, as a share and a count."""
+    points = curve.get(EXPERT_ALONE)
+    if not points:
+        return "–"
+    n = int(points[0]["episodes"])
+    violations = round(points[0]["violation_rate"] * n)
+    return f"{violations / n:.1%} ({violations}/{n})"
 
 
 def _needed(seconds: float, violations: int) -> str:

@@ -39,6 +39,9 @@ from core.sage.gate import SageGate
 EVAL_SEED = 3_000_000
 """Calibration episodes use seeds apart from training (episode i: EVAL_SEED + i)."""
 
+CURVE_SCALES = (0.15, 0.3, 0.5, 0.7, 1.0, 1.4)
+"""The scales on τ that the fear curve sweeps."""
+
 
 @dataclass
 class SignalScore:
@@ -182,7 +185,7 @@ def calibrate_run(
     horizon_s: float = 1.0,
     max_steps: int | None = None,
     curve_episodes: int = 0,
-    curve_scales: Sequence[float] = (0.15, 0.3, 0.5, 0.7, 1.0, 1.4),
+    curve_scales: Sequence[float] = CURVE_SCALES,
     gate_settings: Mapping[str, Any] | None = None,
 ) -> CalibrationReport:
     """Measure how well fear predicts "violation within ``horizon_s``" (see the module docstring); the gate is
@@ -652,47 +655,120 @@ def _meets_everywhere(rows: Sequence[Mapping[str, Any]], scale: float, scenarios
     return len(at) == scenarios and all(r["met"] for r in at)
 
 
-def operating_curve(
+EXPERT_ALONE = "expert alone"
+"""The curve's floor: the scripted expert driving every step of the same episodes (takeover rate 1). Every gating
+that hands it more of the steps tends towards it; where the points of two gatings both lie near it, neither can lie
+clearly above the other."""
+
+CurveCall = dict[str, Any]
+"""One point's work: ``kind`` (``fear``, ``pilot``, ``random``, ``curiosity only`` or :data:`EXPERT_ALONE`) and its
+``knob`` (τ's scale), ``rate`` (the takeover rate to match) and ``pilot`` (curiosities met with no gating)."""
+
+
+@dataclass(frozen=True)
+class CurvePlan:
+    """The operating curve as independent pieces of work, so that a caller can run each on its own core (Ray tasks:
+    ``bench/bench_calibration.py``): first the fear points, the curiosity pilot and the expert alone (:meth:`first`),
+    then random and curiosity-only gating at the takeover rates the fear points reached (:meth:`second`). Run each
+    call with :func:`curve_point`; :meth:`curve` puts the results together. :func:`operating_curve` runs them in
+    turn."""
+
+    scales: Sequence[float] = CURVE_SCALES
+
+    def first(self) -> list[CurveCall]:
+        return [{"kind": "fear", "knob": s} for s in self.scales] + [{"kind": "pilot"}, {"kind": EXPERT_ALONE}]
+
+    def second(self, first: Sequence[Any]) -> list[CurveCall]:
+        fear, pilot, _ = self._split(first)
+        rates = sorted(p["takeover_rate"] for p in fear)
+        return [
+            {"kind": kind, "rate": rate} | ({"pilot": pilot} if kind == "curiosity only" else {})
+            for rate in rates
+            for kind in ("random", "curiosity only")
+        ]
+
+    def curve(self, first: Sequence[Any], second: Sequence[Any]) -> dict[str, list[dict[str, float]]]:
+        fear, _, alone = self._split(first)
+        calls = self.second(first)
+        curve: dict[str, list[dict[str, float]]] = {"fear (SAGE)": list(fear), "random": [], "curiosity only": []}
+        for call, point in zip(calls, second, strict=True):
+            curve[call["kind"]].append(point)
+        for points in curve.values():
+            points.sort(key=lambda q: q["takeover_rate"])
+        curve[EXPERT_ALONE] = [alone]
+        return curve
+
+    def _split(self, first: Sequence[Any]) -> tuple[list[dict[str, float]], list[float], dict[str, float]]:
+        if len(first) != len(self.scales) + 2:
+            raise ValueError(f"{len(first)} results for the {len(self.scales) + 2} calls of the curve's first stage")
+        return list(first[: len(self.scales)]), list(first[-2]), first[-1]
+
+
+def curve_point(
     run: str | Path,
     make_env: Callable[[], gym.Env[Any, Any]],
     episodes: int,
-    scales: Sequence[float],
+    call: CurveCall,
     max_steps: int | None = None,
     gate_settings: Mapping[str, Any] | None = None,
-) -> dict[str, list[dict[str, float]]]:
-    """Episodes with a violation against the takeover rate for SAGE's gate (τ scaled), random gating and
-    curiosity-only gating on the same seeds; random and curiosity-only gating are set to the takeover rates that
-    the scaled gate reached (the firing probability from the rate; the curiosity level from a pilot's curiosity,
-    corrected once), so that each fear point has a counterpart at about its own rate."""
+) -> Any:
+    """One call of a :class:`CurvePlan` on the curve's episodes (the evaluation seeds): a point (``fear``, ``random``,
+    ``curiosity only``, :data:`EXPERT_ALONE`) as :func:`gate_with_expert` returns it with its ``knob``, or (``pilot``)
+    the curiosities met with no gating."""
     agent = load_agent(run)
     settings = dict(gate_settings or {})
     hold = agent.gate_config(**settings).hold
+    kind = call["kind"]
 
     def make_gate() -> SageGate:
         return agent.make_gate(**settings)
 
-    curve: dict[str, list[dict[str, float]]] = {"fear (SAGE)": [], "random": [], "curiosity only": []}
-    for scale in scales:
-        point = run_gated(agent, make_env, ScaledFearGate(make_gate(), hold, scale), episodes, max_steps)
-        curve["fear (SAGE)"].append({"knob": scale, **point})
-    rates = sorted(p["takeover_rate"] for p in curve["fear (SAGE)"])
-    # curiosity-only gating's level comes from the curiosity met on the same episodes with no gating (a pilot)
-    pilot = CuriosityGate(make_gate(), hold, math.inf)
-    run_gated(agent, make_env, pilot, episodes, max_steps)
+    if kind == "fear":
+        gate = ScaledFearGate(make_gate(), hold, float(call["knob"]))
+        return {"knob": float(call["knob"]), **run_gated(agent, make_env, gate, episodes, max_steps)}
+    if kind == "pilot":
+        pilot = CuriosityGate(make_gate(), hold, math.inf)
+        run_gated(agent, make_env, pilot, episodes, max_steps)
+        return pilot.seen
+    if kind == EXPERT_ALONE:
+        return {"knob": 1.0, **run_gated(agent, make_env, RandomGate(make_gate(), hold, 1.0), episodes, max_steps)}
+    if kind == "random":
 
-    def random_at(share: float) -> tuple[float, Gate]:
-        return share, RandomGate(make_gate(), hold, share)
+        def gate_for_share(share: float) -> tuple[float, Gate]:
+            return share, RandomGate(make_gate(), hold, share)
 
-    def curiosity_at(share: float) -> tuple[float, Gate]:
-        level = level_for_share(pilot.seen, share)
-        return level, CuriosityGate(make_gate(), hold, level)
+    elif kind == "curiosity only":
+        seen = call["pilot"]
 
-    for rate in rates:
-        curve["random"].append(_at_rate(rate, hold, random_at, agent, make_env, episodes, max_steps))
-        curve["curiosity only"].append(_at_rate(rate, hold, curiosity_at, agent, make_env, episodes, max_steps))
-    for points in curve.values():
-        points.sort(key=lambda q: q["takeover_rate"])
-    return curve
+        def gate_for_share(share: float) -> tuple[float, Gate]:
+            level = level_for_share(seen, share)
+            return level, CuriosityGate(make_gate(), hold, level)
+
+    else:
+        raise ValueError(f"unknown curve call {kind!r}: fear, pilot, random, curiosity only or {EXPERT_ALONE}")
+    return _at_rate(float(call["rate"]), hold, gate_for_share, agent, make_env, episodes, max_steps)
+
+
+def operating_curve(
+    run: str | Path,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    episodes: int,
+    scales: Sequence[float] = CURVE_SCALES,
+    max_steps: int | None = None,
+    gate_settings: Mapping[str, Any] | None = None,
+) -> dict[str, list[dict[str, float]]]:
+    """Episodes with a violation against the takeover rate for SAGE's gate (τ scaled), random gating and
+    curiosity-only gating on the same seeds, and the scripted expert alone (:data:`EXPERT_ALONE`); random and
+    curiosity-only gating are set to the takeover rates that the scaled gate reached (the firing probability from the
+    rate; the curiosity level from a pilot's curiosity, corrected once), so that each fear point has a counterpart at
+    about its own rate. The points one after another; :class:`CurvePlan` for them on several cores."""
+    plan = CurvePlan(scales)
+
+    def points(calls: list[CurveCall]) -> list[Any]:
+        return [curve_point(run, make_env, episodes, call, max_steps, gate_settings) for call in calls]
+
+    first = points(plan.first())
+    return plan.curve(first, points(plan.second(first)))
 
 
 def _at_rate(
@@ -786,8 +862,13 @@ def write_figures(report: CalibrationReport, out: Path) -> list[Path]:
     written.append(out / "reliability.png")
     if report.curve:
         fig, ax = plt.subplots(figsize=(5.2, 4.2), dpi=120)
-        colours = {"fear (SAGE)": "#d62728", "random": "#7f7f7f", "curiosity only": "#1f77b4"}
+        colours = {"fear (SAGE)": "#d62728", "random": "#7f7f7f", "curiosity only": "#1f77b4", EXPERT_ALONE: "#000"}
         for name, points in report.curve.items():
+            if name == EXPERT_ALONE and points:
+                # the floor every gating tends towards as it hands the expert more of the steps: a level, not a curve
+                y = points[0]["violation_rate"]
+                ax.axhline(y, color=colours[name], lw=0.8, ls=":", label=f"scripted expert alone ({y:.1%})")
+                continue
             xs = [p["takeover_rate"] for p in points]
             ys = [p["violation_rate"] for p in points]
             bounds = [violation_interval(p) for p in points]

@@ -28,13 +28,13 @@ def test_calibrate_prints_the_report_and_writes_its_figures(tmp_path: Path) -> N
     assert result.exit_code == 0, result.output
     # the scenario-4 cut-in meets the policy within 120 steps: the label has positives, so fear gets a score
     assert "| fear |" in result.output and "label: violation within 1 s (10 steps)" in result.output
-    for gating in ("fear (SAGE)", "random", "curiosity only"):
+    for gating in ("fear (SAGE)", "random", "curiosity only", "expert alone"):
         assert f"operating curve {gating}" in result.output
     assert {p.name for p in out.iterdir()} == {"report.json", "reliability.png", "operating_curve.png"}
     report = json.loads((out / "report.json").read_text())
     assert report["sim"] == "ugv" and report["scenario"] == "4"
     assert 0.0 <= report["scores"]["fear"]["auroc"] <= 1.0
-    assert [len(points) for points in report["curve"].values()] == [6, 6, 6]
+    assert [len(points) for points in report["curve"].values()] == [6, 6, 6, 1]
 
 
 def test_calibrate_says_how_much_warning_the_expert_needs(tmp_path: Path) -> None:
