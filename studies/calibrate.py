@@ -187,9 +187,12 @@ def calibrate_run(
     curve_episodes: int = 0,
     curve_scales: Sequence[float] = CURVE_SCALES,
     gate_settings: Mapping[str, Any] | None = None,
+    curve_cpus: int | None = None,
+    curve_address: str | None = None,
 ) -> CalibrationReport:
     """Measure how well fear predicts "violation within ``horizon_s``" (see the module docstring); the gate is
-    the run's own, with ``gate_settings`` (:class:`~core.sage.config.GateConfig` fields) over it."""
+    the run's own, with ``gate_settings`` (:class:`~core.sage.config.GateConfig` fields) over it; the operating curve's
+    points run as Ray tasks with ``curve_cpus`` or ``curve_address`` (:func:`operating_curve`)."""
     steps, agent = collect(make_env, run, episodes, max_steps, gate_settings)
     if not steps:
         raise ValueError("no steps were recorded: every episode failed (see the log)")
@@ -233,7 +236,16 @@ def calibrate_run(
         reliability=reliability(signals["cost"], model_label),
     )
     if curve_episodes > 0:
-        report.curve = operating_curve(run, make_env, curve_episodes, curve_scales, max_steps, gate_settings)
+        report.curve = operating_curve(
+            run,
+            make_env,
+            curve_episodes,
+            curve_scales,
+            max_steps,
+            gate_settings,
+            cpus=curve_cpus,
+            address=curve_address,
+        )
     return report
 
 
@@ -756,16 +768,28 @@ def operating_curve(
     scales: Sequence[float] = CURVE_SCALES,
     max_steps: int | None = None,
     gate_settings: Mapping[str, Any] | None = None,
+    *,
+    cpus: int | None = None,
+    address: str | None = None,
 ) -> dict[str, list[dict[str, float]]]:
     """Episodes with a violation against the takeover rate for SAGE's gate (τ scaled), random gating and
     curiosity-only gating on the same seeds, and the scripted expert alone (:data:`EXPERT_ALONE`); random and
     curiosity-only gating are set to the takeover rates that the scaled gate reached (the firing probability from the
     rate; the curiosity level from a pilot's curiosity, corrected once), so that each fear point has a counterpart at
-    about its own rate. The points one after another; :class:`CurvePlan` for them on several cores."""
+    about its own rate. The points one after another in this process, or with ``cpus`` or ``address`` each stage's
+    points at once as Ray tasks (:func:`studies.sweep.run_tasks`: local Ray on ``cpus`` cores or the cluster at
+    ``address``; ``make_env`` must then pickle), with the same seeds and so the same points."""
     plan = CurvePlan(scales)
 
     def points(calls: list[CurveCall]) -> list[Any]:
-        return [curve_point(run, make_env, episodes, call, max_steps, gate_settings) for call in calls]
+        if cpus is None and address is None:
+            return [curve_point(run, make_env, episodes, call, max_steps, gate_settings) for call in calls]
+        from studies.sweep import run_tasks
+
+        common = {"run": str(run), "make_env": make_env, "episodes": episodes, "max_steps": max_steps}
+        tasks = [common | {"call": call, "gate_settings": dict(gate_settings or {})} for call in calls]
+        labels = [f"curve point {c['kind']}" + (f" at {c['rate']:.0%}" if "rate" in c else "") for c in calls]
+        return run_tasks(curve_point, tasks, labels, address=address, cpus=cpus)
 
     first = points(plan.first())
     return plan.curve(first, points(plan.second(first)))

@@ -1,6 +1,7 @@
 """``sage calibrate``: does the policy's fear predict danger? (:mod:`studies.calibrate`)
 
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve-episodes 20 --out calib/ugv3
+sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 150 --curve-episodes 300 --cpus 16
 sage calibrate policies/ugv-default --sim ugv --scenario 4 --episodes 20 --expert-lead
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --escape
 sage calibrate policies/ugv-default --sim ugv --scenario 3 --episodes 20 --curve-episodes 20 --gate-set hold_seconds=2
@@ -65,6 +66,13 @@ def register(app: typer.Typer) -> None:
             ),
         ] = None,
         out: Annotated[Path | None, typer.Option(help="Folder for report.json and the PNG figures.")] = None,
+        cpus: Annotated[
+            int | None,
+            typer.Option(min=1, help="Drive the operating curve's points at once as Ray tasks on this many cores."),
+        ] = None,
+        address: Annotated[
+            str | None, typer.Option(help="... or on the Ray cluster at this address (HOST:PORT).")
+        ] = None,
     ) -> None:
         """Run the policy with its gate and no expert; report how well fear ranks the steps before a
         violation (AUROC, average precision), the gate's firing, a reliability diagram and the operating curve."""
@@ -76,6 +84,7 @@ def register(app: typer.Typer) -> None:
         from studies.calibrate import calibrate_run, write_figures
         from studies.calibrate import expert_lead as measure_lead
         from studies.escape import escape_check
+        from studies.sweep import SweepError
 
         # batch-1 inference gains nothing from a second thread and loses much when another job holds a core
         # (UGV 4 with a short curve beside a busy core: 35 s wall with torch's default threads, 12.5 s with one)
@@ -100,11 +109,13 @@ def register(app: typer.Typer) -> None:
                 horizon_s=horizon,
                 curve_episodes=curve_episodes,
                 gate_settings=settings,
+                curve_cpus=cpus,
+                curve_address=address,
                 **common,
             )
             lead = measure_lead(run, make_env, descriptor.dt, gate_settings=settings, **common) if expert_lead else None
             escaped = escape_check(run, make_env, descriptor.dt, **common, **settings) if escape else None
-        except (ValueError, FileNotFoundError, LookupError) as exc:
+        except (ValueError, FileNotFoundError, LookupError, SweepError) as exc:
             typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
         typer.echo(report.summary())

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 import torch
 from typer.testing import CliRunner
 
@@ -117,3 +118,22 @@ def test_choose_scale_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
         result = CliRunner().invoke(app, ["choose-scale", UGV_DEFAULT, "--sim", "ugv", "--out", str(out), *args])
         assert result.exit_code == 2 and says in result.output, (args, result.output)
         assert not out.exists()
+
+
+def test_calibrate_hands_the_curve_to_ray_when_given_cores(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--cpus`` / ``--address`` reach the curve (its points as Ray tasks: tests/studies/test_calibrate.py)."""
+    import studies.calibrate
+
+    seen: dict[str, object] = {}
+
+    def spy(*args: object, **kwargs: object) -> object:
+        seen.update(kwargs)
+        raise ValueError("stopped by the test")
+
+    monkeypatch.setattr(studies.calibrate, "calibrate_run", spy)
+    for flags, cpus, address in ((["--cpus", "3"], 3, None), (["--address", "head:6379"], None, "head:6379")):
+        result = CliRunner().invoke(
+            app, ["calibrate", UGV_DEFAULT, "--sim", "ugv", "--scenario", "4", "--curve-episodes", "5", *flags]
+        )
+        assert result.exit_code == 2 and "error: stopped by the test" in result.output
+        assert seen["curve_cpus"] == cpus and seen["curve_address"] == address and seen["curve_episodes"] == 5

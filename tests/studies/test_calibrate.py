@@ -414,22 +414,24 @@ def test_the_curves_points_run_apart_on_ray_give_the_curve_run_in_turn(
     deployed: Path,  # noqa: F811
 ) -> None:
     """Each point of a :class:`CurvePlan` stands alone (its own agent, gate and seeds): run as Ray tasks in fresh
-    workers, two at a time, they give the curve that :func:`operating_curve` measures one after another here, with
-    the scripted expert alone as its floor."""
+    workers, two at a time, or here in another order, they give the curve that :func:`operating_curve` measures one
+    after another, with the scripted expert alone as its floor."""
     from studies.calibrate import EXPERT_ALONE, CurvePlan, curve_point, operating_curve
-    from studies.sweep import run_tasks
 
     make_env = functools.partial(envs.make, "dynamic")
     scales = (0.5, 2.0)
     in_turn = operating_curve(deployed, make_env, 3, scales)
+    on_ray = operating_curve(deployed, make_env, 3, scales, cpus=2)
     plan = CurvePlan(scales)
     common = {"run": deployed, "make_env": make_env, "episodes": 3}
-    first = run_tasks(curve_point, [common | {"call": call} for call in plan.first()], cpus=2)
-    second = run_tasks(curve_point, [common | {"call": call} for call in plan.second(first)], cpus=2)
+    first = [curve_point(**common, call=call) for call in reversed(plan.first())][::-1]
 
     def shown(curve: dict[str, list[dict[str, float]]]) -> dict[str, list[dict[str, float | None]]]:
         return {k: [{f: None if math.isnan(v) else v for f, v in p.items()} for p in ps] for k, ps in curve.items()}
 
+    assert shown(on_ray) == shown(in_turn)
+    # the first stage's points in another order: each stands alone
+    second = [curve_point(**common, call=call) for call in plan.second(first)]
     assert shown(plan.curve(first, second)) == shown(in_turn)
     assert [len(points) for points in in_turn.values()] == [2, 2, 2, 1]
     alone = in_turn[EXPERT_ALONE][0]
