@@ -6,7 +6,11 @@ the frozen 5-member world model, the dual step, value-weighted imitation on inte
 batches from real and virtual buffers). The methods run in interleaved rounds so that a busy machine
 slows them alike; the printed ratios come from the same run.
 
-    .venv/bin/python bench/bench_sac.py [--rounds 5] [--updates 200]
+    .venv/bin/python bench/bench_sac.py [--rounds 5] [--updates 200] [--ego]
+
+``--ego`` adds SAGE-SAC over the ego step (the UGV default's world model, ``sims.ugv.env.ego_motion_layout``): there
+the actor loss's fear term sends gradients through the step's tensor version (the gate and targets use its compiled
+one).
 """
 
 from __future__ import annotations
@@ -47,9 +51,13 @@ def fill(learner: BaseLearner, n: int, rng: np.random.Generator, takeover_every:
         )
 
 
-def ours(method: str, rng: np.random.Generator, **overrides: object) -> BaseLearner:
+def ours(
+    method: str, rng: np.random.Generator, world_model: dict[str, Any] | None = None, **overrides: object
+) -> BaseLearner:
     cfg = for_method(method, hidden=HIDDEN, batch_size=BATCH, critics=2, **overrides)
     cfg.world_model_config.max_updates_per_fit = 200
+    for key, value in (world_model or {}).items():
+        setattr(cfg.world_model_config, key, value)
     learner = make_learner(cfg, OBS_DIM, ACT_DIM, seed=0)
     fill(learner, 20_000, rng)
     learner.warm = True
@@ -109,6 +117,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--updates", type=int, default=200)
+    parser.add_argument(
+        "--ego",
+        action="store_true",
+        help="also SAGE-SAC over the ego step (the UGV default's world model: the actor's fear term takes the step's "
+        "tensor path, with gradients; sims.ugv.env.ego_motion_layout)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     rng = np.random.default_rng(0)
@@ -121,6 +135,12 @@ def main() -> None:
         "our SAC, no clip": sac_unclipped.update,
         "SB3 SAC": lambda: reference.train(gradient_steps=1, batch_size=BATCH),
     }
+    if args.ego:
+        from sims.ugv.env import ego_motion_layout
+
+        ego = ours("sage", rng, world_model=ego_motion_layout())
+        assert ego.world_model_ready() and ego.world_model is not None and ego.world_model.ego is not None
+        contenders["SAGE-SAC, ego step"] = ego.update
     for fn in contenders.values():  # warm-up
         rate(fn, 20)
     rates: dict[str, list[float]] = {name: [] for name in contenders}
@@ -136,6 +156,11 @@ def main() -> None:
         f"our SAC updates per second / SB3 SAC:       {median['our SAC'] / median['SB3 SAC']:.2f}x"
         f"  (without gradient clipping, as SB3: {median['our SAC, no clip'] / median['SB3 SAC']:.2f}x)"
     )
+    if args.ego:
+        print(
+            "SAGE-SAC over the ego step / SAGE-SAC update time: "
+            f"{median['SAGE-SAC'] / median['SAGE-SAC, ego step']:.2f}x"
+        )
     print(f"load average while measuring: {', '.join(f'{x:.2f}' for x in _loadavg())}")
 
 

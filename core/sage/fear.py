@@ -160,7 +160,9 @@ def rollout(
         for weight, bias in model.hidden:
             h = F.silu(torch.baddbmm(bias, h, weight))
         out = torch.baddbmm(model.out_bias, h, model.out_weight)
-        s_next = model.base(s, a) + out[..., :d]
+        # every member starts from the same state and action: the first step's base (an ego step's scan) once
+        base = model.base(obs, action).expand(n, batch, d) if k == 0 else model.base(s, a)
+        s_next = base + out[..., :d]
         if m is not None and k + 1 < horizon:  # the last imagined state's motion feeds no further step
             if model.scan is not None:
                 m = model.scan.motion(s, s_next)

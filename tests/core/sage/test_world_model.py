@@ -258,6 +258,42 @@ def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: b
         assert abs(float(plain) - fast) > 1e-3
 
 
+def test_the_rollout_moves_each_state_by_the_ego_step_once_for_all_members(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The members start from the same state and action, so the first imagined step's ego step runs on each row
+    once (the actor loss's fear sends gradients through its tensor version, the costly one), and the rollout is the
+    one that moves every member's copy, gradients included; later steps, where the members part, move each."""
+    from core.motion import EgoScanStep
+    from core.sage.fear import fear
+
+    rng = np.random.default_rng(3)
+    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(max_updates_per_fit=50, **EGO))
+    s, a, nxt, cost = known_system(200, rng)
+    model.fit(s, a, nxt, cost, rng)
+    folded, cfg, batch = model.folded(), GateConfig(), 6
+    obs = torch.as_tensor(s[:batch])
+    rows: list[int] = []
+    apply = EgoScanStep.apply
+
+    def counted(step: EgoScanStep, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        rows.append(state[..., 0].numel())
+        return apply(step, state, action)
+
+    monkeypatch.setattr(EgoScanStep, "apply", counted)
+    act = torch.as_tensor(a[:batch]).requires_grad_(True)
+    value = fear(folded, lambda x: torch.zeros(x.shape[0], ACT), obs, act, cfg, horizon=2).fear.sum()
+    (grad,) = torch.autograd.grad(value, act)
+    assert rows == [batch, folded.members * batch]
+    # each member's copy moved on its own, as before: the same states, fear and gradient
+    act_each = torch.as_tensor(a[:batch]).requires_grad_(True)
+    expanded = act_each.unsqueeze(0).expand(folded.members, batch, ACT)
+    first = apply(folded.ego, obs.unsqueeze(0).expand(folded.members, batch, OBS), expanded)
+    assert folded.ego is not None and torch.equal(first[0], apply(folded.ego, obs, act_each))
+    (grad_each,) = torch.autograd.grad(first.sum(), act_each)
+    (grad_once,) = torch.autograd.grad(apply(folded.ego, obs, act_each).expand_as(first).sum(), act_each)
+    # (float sums in another order: the same up to rounding)
+    assert torch.allclose(grad_each, grad_once, rtol=1e-4, atol=1e-6) and grad.abs().sum() > 0
+
+
 def test_a_world_model_over_the_ego_step_learns_a_static_scan_it_cannot_fit_alone() -> None:
     """A static world's next scan is the ego step of the current one: with the step the model learns a residual of
     zero and predicts the next scan almost exactly; the same fit without it must learn the re-binning of moved
