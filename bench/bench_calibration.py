@@ -269,7 +269,8 @@ def main() -> None:
         "excludes 0. The target, above random at every takeover rate, is all better. Where neither gating has a "
         "violation at a takeover rate, the point is tied: no curve can lie above another there. Expert alone: the "
         "scripted expert driving every step of the curve's episodes, the level every gating tends towards as it hands "
-        "the expert more of the steps (the dotted line of the figures).",
+        "the expert more of the steps (the dotted line of the figures). Time: seconds of one core, the case's "
+        "calibration and every point of its curve added up.",
         "",
         "Operating curves (episodes with a violation against the takeover rate, the gate's τ scaled; random and "
         "curiosity-only gating at equal takeover rates; bars: 95% Wilson intervals):",
