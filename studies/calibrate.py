@@ -908,7 +908,10 @@ def write_figures(report: CalibrationReport, out: Path) -> list[Path]:
         ax.set_xlabel("takeover rate (share of steps under the expert)")
         ax.set_ylabel("episodes with a violation (95% Wilson interval)")
         ax.set_xlim(0, 1)
-        ax.set_ylim(-0.02, 1.02)
+        # up to the highest interval's top, so that curves of a few percent are told apart
+        tops = [violation_interval(p)[1] for points in report.curve.values() for p in points]
+        top = min(1.0, 1.15 * max((t for t in tops if math.isfinite(t)), default=1.0)) + 0.02
+        ax.set_ylim(-0.02 * top, top)
         ax.set_title(f"{report.sim} {report.scenario}: the gate's operating curve", fontsize=10)
         ax.legend(fontsize=8)
         fig.tight_layout()
