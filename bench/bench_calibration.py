@@ -382,7 +382,7 @@ def attach_curves(
         for policy, sim, scenario in curved
         for call in second_calls[(policy, sim, scenario)]
     ]
-    seconds = (
+    second_stage = (
         run_tasks(
             curve_case,
             tasks,
@@ -401,7 +401,7 @@ def attach_curves(
     start = 0
     reports = dict(zip(calibrated, (report for report, _ in calibrations), strict=True))
     for case in curved:
-        done = seconds[start : start + len(second_calls[case])]
+        done = second_stage[start : start + len(second_calls[case])]
         start += len(done)
         reports[case].curve = plan.curve([r for r, _ in stage_one[case]], [r for r, _ in done])
         spent[case] = sum(t for _, t in stage_one[case]) + sum(t for _, t in done)
