@@ -109,6 +109,12 @@ class ExpertConfig:
     """MOBIL decisions at most this often [s]."""
     margin_long: float = 2.0
     """Extra clearance along the road in the safety check [m]."""
+    alongside_time: float = 1.0
+    """Defensive driving: the longest the expert rides alongside a vehicle in a neighbouring lane (within
+    ``margin_long`` of overlapping it along the road) before it drops back [s]; a vehicle beside can cut in with
+    less warning than braking needs. 0 turns the rule off."""
+    alongside_speed_gap: float = 2.0
+    """How much slower than the vehicle beside the expert then aims to drive, so that it falls back [m/s]."""
     margin_lat: float = 0.4
     """Extra clearance across the road in the safety check [m]."""
     lateral_time: float = 0.6

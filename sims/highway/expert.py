@@ -10,6 +10,9 @@ Each step:
    a second at its current lateral velocity.
 2. MOBIL, at most once per ``lane_change_interval``, for a discretionary lane change (incentive and
    safety for the new follower).
+   Defensive driving: riding alongside a vehicle in a neighbouring lane that would stay beside the ego for more
+   than ``alongside_time``, it aims to drive ``alongside_speed_gap`` slower than that vehicle (braking at most
+   ``comfort_brake``) and so drops back; beside the ego, a cut-in leaves no gap that braking could open in time.
 3. Forecast: the nominal command and alternatives (target lane ∈ current, left, right; acceleration ∈
    nominal, 0, -2, -4, -max brake, +max accel) are rolled over ``horizon`` against every vehicle moving
    at constant acceleration and lateral velocity. The nominal command is used when it stays clear;
@@ -86,6 +89,33 @@ class HighwayExpert:
             return self._idm(v, v0, np.inf, v)
         gap = tr.x[lead] - world.ego.position[0] - (tr.length[lead] + self.cfg.ego.length) / 2
         return self._idm(v, v0, gap, tr.speed[lead] * np.cos(tr.heading[lead]))
+
+    def _alongside_accel(self, world: World, current: int, vy: np.ndarray) -> float:
+        """The acceleration that drops the ego back from the vehicles riding alongside it in a neighbouring lane
+        for longer than ``alongside_time`` (inf where there is none)."""
+        e = self.cfg.expert
+        if e.alongside_time <= 0:
+            return np.inf
+        tr = world.traffic
+        ex, v = world.ego.position[0], world.ego.speed
+        dx = tr.x - ex
+        zone = (tr.length + self.cfg.ego.length) / 2 + e.margin_long
+        v_other = tr.speed * np.cos(tr.heading)
+        closing = v_other - v
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # how long each one stays within the zone beside the ego at the present speeds
+            stays = np.where(
+                closing > 0.1, (zone - dx) / closing, np.where(closing < -0.1, (dx + zone) / -closing, np.inf)
+            )
+        accel = np.inf
+        for lane in (current - 1, current + 1):
+            if not 0 <= lane < world.layout.lanes:
+                continue
+            beside = self._occupies(world, lane, vy) & (np.abs(dx) < zone) & (stays > e.alongside_time)
+            for i in np.flatnonzero(beside):
+                target = v_other[i] - e.alongside_speed_gap
+                accel = min(accel, max((target - v) / e.alongside_time, -e.comfort_brake))
+        return accel
 
     def _mobil(self, world: World, current: int, vy: np.ndarray) -> int:
         e = self.cfg.expert
@@ -192,6 +222,7 @@ class HighwayExpert:
         a_nom = self._lane_accel(world, current, vy)
         if target != current:
             a_nom = min(a_nom, self._lane_accel(world, target, vy))
+        a_nom = min(a_nom, self._alongside_accel(world, current, vy))
         lim = cfg.ego
         a_nom = float(np.clip(a_nom, -lim.max_brake, lim.max_accel))
 

@@ -49,3 +49,30 @@ def test_expert_takes_over_mid_episode_from_wherever_the_agent_left_the_car() ->
         done = terminated or truncated
     assert info["success"] and not info["crashed"] and not info["offroad"]
     assert abs(inner.world.ego.heading) < 0.05
+
+
+def _beside(dx: float, closing: float, alongside_time: float) -> tuple[float, str]:
+    """The expert's normalised acceleration and choice with one vehicle ``dx`` m ahead of the ego (centre to
+    centre) in the lane to its left, ``closing`` m/s faster than it, every other vehicle far away."""
+    env = sims.make("highway", scenario_id=FEW_TEST_IDS[0], **{"expert.alongside_time": alongside_time})
+    env.reset(seed=0)
+    world = env.unwrapped.world
+    lay, tr = world.layout, world.traffic
+    ex, ey, _, ev = world.ego_state
+    lane = int(lay.lane_of(ey))
+    left = lane - 1 if lane > 0 else lane + 1
+    tr.x[:] = ex + 1000.0 + 30.0 * np.arange(tr.x.size)
+    tr.x[0], tr.y[0], tr.heading[0], tr.speed[0], tr.accel[0] = ex + dx, lay.lane_y(left), 0.0, ev + closing, 0.0
+    action = env.unwrapped.expert_action()
+    return float(action[1]), env.unwrapped.expert.last_choice
+
+
+def test_expert_drops_back_from_a_vehicle_riding_alongside() -> None:
+    """Defensive driving (``expert.alongside_time``): a vehicle beside the ego at its speed could cut in with no gap
+    to brake into, so the expert slows down to fall behind it; one that is passing, or a lane away from overlapping,
+    changes nothing, and with the rule off the expert keeps its speed beside it."""
+    level, choice = _beside(dx=1.0, closing=0.0, alongside_time=1.0)
+    assert level < -0.1 and choice == "nominal"  # IDM's own command, not the safety check's emergency
+    assert _beside(dx=1.0, closing=0.0, alongside_time=0.0)[0] > -0.05
+    assert _beside(dx=1.0, closing=8.0, alongside_time=1.0)[0] > -0.05  # it clears the ego within the second
+    assert _beside(dx=20.0, closing=0.0, alongside_time=1.0)[0] > -0.05  # far ahead in its own lane
