@@ -17,14 +17,15 @@ def test_the_highway_study_has_the_papers_rows_beside() -> None:
 
 
 def test_every_method_gets_the_same_demonstrations_within_the_same_step_budget(tmp_path: Path) -> None:
-    config = {"seed": 1, "train_steps": 400, "eval_episodes": 1, "demo_episodes": 2, "runs_dir": str(tmp_path)}
+    # two demonstrations take 300-400 steps; the budget leaves room for the two training episodes a curve needs
+    config = {"seed": 1, "train_steps": 700, "eval_episodes": 1, "demo_episodes": 2, "runs_dir": str(tmp_path)}
     results = {method: trial({**config, "method": method}) for method in ("sac", "sage")}
     demos = {}
     for method in ("sac", "sage"):
         lines = (tmp_path / f"{method}-s1" / "metrics.jsonl").read_text().splitlines()
         rows = [json.loads(line) for line in lines]
         demos[method] = [(r["steps"], round(r["return"], 6)) for r in rows if r["phase"] == "demo"]
-        assert sum(r["steps"] for r in rows) == 400 and any(r["phase"] == "train" for r in rows)
+        assert sum(r["steps"] for r in rows) == 700 and any(r["phase"] == "train" for r in rows)
     assert demos["sac"] == demos["sage"] and len(demos["sac"]) == 2
     table_rows = _unpack({"method": "sac", "seed": 1, **results["sac"]}, ("split", "condition"), METRICS)
     assert sorted((r["split"], r["condition"]) for r in table_rows) == sorted(
