@@ -69,7 +69,7 @@ def _beside(dx: float, closing: float, alongside_time: float) -> tuple[float, st
 
 def test_expert_drops_back_from_a_vehicle_riding_alongside() -> None:
     """Defensive driving (``expert.alongside_time``): a vehicle beside the ego at its speed could cut in with no gap
-    to brake into, so the expert slows down to fall behind it; one that is passing, or a lane away from overlapping,
+    to brake into, so the expert slows down to fall behind it; one that is passing, or one far ahead of the ego,
     changes nothing, and with the rule off the expert keeps its speed beside it."""
     level, choice = _beside(dx=1.0, closing=0.0, alongside_time=1.0)
     assert level < -0.1 and choice == "nominal"  # IDM's own command, not the safety check's emergency
