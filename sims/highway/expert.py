@@ -107,15 +107,15 @@ class HighwayExpert:
             stays = np.where(
                 closing > 0.1, (zone - dx) / closing, np.where(closing < -0.1, (dx + zone) / -closing, np.inf)
             )
-        accel = np.inf
+        neighbouring = np.zeros(dx.shape, dtype=bool)
         for lane in (current - 1, current + 1):
-            if not 0 <= lane < world.layout.lanes:
-                continue
-            beside = self._occupies(world, lane, vy) & (np.abs(dx) < zone) & (stays > e.alongside_time)
-            for i in np.flatnonzero(beside):
-                target = v_other[i] - e.alongside_speed_gap
-                accel = min(accel, max((target - v) / e.alongside_time, -e.comfort_brake))
-        return accel
+            if 0 <= lane < world.layout.lanes:
+                neighbouring |= self._occupies(world, lane, vy)
+        beside = neighbouring & (np.abs(dx) < zone) & (stays > e.alongside_time)
+        if not beside.any():
+            return np.inf
+        target = float(v_other[beside].min()) - e.alongside_speed_gap  # the slowest of them sets the pace
+        return max((target - v) / e.alongside_time, -e.comfort_brake)
 
     def _mobil(self, world: World, current: int, vy: np.ndarray) -> int:
         e = self.cfg.expert
