@@ -177,15 +177,27 @@ class ReplayBuffer:
     def violation_soon(self, steps: int) -> np.ndarray:
         """Per stored row (in the order of :meth:`arrays`): 1 when a violation happens at this transition or
         within the next ``steps - 1`` transitions of the same episode, else 0."""
+        return self.flag_soon(self.violation[: self.size] > 0.5, steps)
+
+    def conflict_soon(self, steps: int) -> np.ndarray:
+        """:meth:`violation_soon` for the simulator's traffic conflict flag (``info["conflict"]``): 1 when a
+        conflict is reported at this transition or within the next ``steps - 1`` of the same episode."""
+        return self.flag_soon(self.conflict[: self.size] > 0.5, steps)
+
+    def flag_soon(self, flag: np.ndarray, steps: int) -> np.ndarray:
+        """Per stored row (the order of :meth:`arrays`): 1 when ``flag`` (one bool per stored row, in storage
+        order) is set at this row or within the next ``steps - 1`` rows of the same episode, else 0."""
         n = self.size
+        if len(flag) != n:
+            raise ValueError(f"flag_soon: {len(flag)} flags for {n} stored rows")
         if n == 0:
             return np.zeros(0, np.float32)
         order, continues = self._chronology()
-        violated = self.violation[order] > 0.5
+        flagged = np.asarray(flag, dtype=bool)[order]
         episode = np.concatenate([[0], np.cumsum(~continues[:-1])])  # a new episode after each break
         index = np.arange(n)
-        # the first violation at or after each row (n when none), then: same episode and close enough
-        following = np.minimum.accumulate(np.where(violated, index, n)[::-1])[::-1]
+        # the first flagged row at or after each row (n when none), then: same episode and close enough
+        following = np.minimum.accumulate(np.where(flagged, index, n)[::-1])[::-1]
         hit = following < n
         near = hit & (following - index < max(int(steps), 1))
         near[hit] &= episode[following[hit]] == episode[hit]

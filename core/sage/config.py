@@ -121,6 +121,11 @@ class WorldModelConfig:
     and happen far more often, so the head learns the approach to danger from many more positives; fear then means
     "a violation or a near miss ahead", no longer a violation probability alone. The flag comes from the simulator
     (privileged) at training time only: the model still reads the observation alone."""
+    conflict_steps: int = 1
+    """The conflict part of the label looks this many steps ahead, as ``violation_steps`` does for violations: 1
+    when a conflict is reported at this transition or within the next ``conflict_steps - 1``. 1 (a conflict at
+    this step) warns as far ahead as the fear rollout looks; a conflict is itself the last seconds before a
+    collision, so a warning of the conflict comes earlier than one of the collision."""
     logvar_bound_weight: float = 0.01
     """Weight of the PETS term ``sum(max_logvar) - sum(min_logvar)`` that keeps the learnable bounds tight."""
 
@@ -505,6 +510,8 @@ def validate(cfg: AgentConfig) -> None:
     if cfg.world_model_config.motion_lag < 1:
         raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
     wm = cfg.world_model_config
+    if wm.conflict_steps < 1:
+        raise ValueError(f"world_model_config.conflict_steps must be >= 1, got {wm.conflict_steps}")
     if not 0 <= wm.approach_start <= wm.approach_stop:
         raise ValueError(
             "world_model_config.approach_start..approach_stop must be channels 0 <= start <= stop, got "

@@ -50,7 +50,7 @@ dense proximity cost of 0.3 near a wall is not a state the gate should learn to 
 
 
 def familiar_for_bounds(
-    buffer: ReplayBuffer, violation_steps: int, horizon: int, conflict_weight: float = 0.0
+    buffer: ReplayBuffer, violation_steps: int, horizon: int, conflict_weight: float = 0.0, conflict_steps: int = 1
 ) -> np.ndarray:
     """Per stored row (the order of :meth:`ReplayBuffer.arrays`): whether the state counts as safe for the
     threshold bounds, the states whose fear a gate should leave alone: cost below :data:`SAFE_LABEL`, and no
@@ -58,10 +58,11 @@ def familiar_for_bounds(
     ``violation_steps``. A state 1.2 s before a collision, where fear should rise, is not familiar; counted as
     such (the label's window alone ends at 1 s), it lifts τ above the fear that warns of the collision. Where the
     world model also learns conflicts (``conflict_weight``, its ``conflict_label_weight``), a conflict is no
-    familiar state either."""
+    familiar state either, nor one the label marks as ``conflict_steps`` before a conflict."""
     ahead = buffer.violation_soon(violation_steps + horizon)
     data = buffer.arrays()
-    return np.maximum.reduce([data["cost"], ahead, conflict_weight * data["conflict"]]) < SAFE_LABEL
+    conflict = buffer.conflict_soon(conflict_steps) if conflict_weight > 0 else data["conflict"]
+    return np.maximum.reduce([data["cost"], ahead, conflict_weight * conflict]) < SAFE_LABEL
 
 
 def calibration_sample(
@@ -82,8 +83,9 @@ def calibration_sample(
     idx = np.arange(n) if n <= wanted else np.sort(rng.choice(n, size=wanted, replace=False))
     if motion is None and world_model.motion:
         motion = buffer.previous_deltas(world_model.motion_lag, world_model.scan)
+    wm = world_model.cfg
     familiar = familiar_for_bounds(
-        buffer, world_model.cfg.violation_steps, gate.horizon, world_model.cfg.conflict_label_weight
+        buffer, wm.violation_steps, gate.horizon, wm.conflict_label_weight, wm.conflict_steps
     )
     return CalibrationSample(
         obs=data["obs"][idx],
@@ -355,7 +357,7 @@ class BaseLearner:
             self.rng,
             violation_soon=labels,
             motion=motion,
-            conflict=data["conflict"],
+            conflict=self.buffer.conflict_soon(wm.cfg.conflict_steps),
         )
         self._steps_at_last_fit = self.env_steps
         self.last_fit = report

@@ -135,3 +135,19 @@ def test_the_simulators_conflict_flag_is_kept_beside_the_violation() -> None:
     data = buffer.arrays()
     assert data["conflict"].tolist() == [0.0, 0.0, 1.0, 0.0]
     assert data["violation"].sum() == 0 and data["cost"].tolist() == [0.25] * 4
+
+
+def test_conflicts_ahead_are_marked_back_to_their_episodes_start_through_the_ring() -> None:
+    """conflict_soon(k): 1 where a conflict is reported at this row or within the next k - 1 rows of the same episode;
+    a conflict in the next episode marks nothing before it, and the ring's order is the episodes' own."""
+    buffer = ReplayBuffer(1, 1, capacity=6)
+    # episode A: 0 -> 1 -> 2 -> 3 (a conflict on its last row); episode B: 10 -> 11 -> 12 (one on its first)
+    rows = [(0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (3.0, 1.0), (10.0, 1.0), (11.0, 0.0)]
+    for s, conflict in rows:
+        buffer.add(np.array([s]), np.zeros(1), 0.0, np.array([s + 1.0]), False, conflict=conflict)
+    buffer.add(np.array([12.0]), np.zeros(1), 0.0, np.array([13.0]), False)  # overwrites the row of state 0
+    by_state = dict(zip(buffer.obs[: buffer.size, 0].tolist(), buffer.conflict_soon(2).tolist(), strict=True))
+    assert by_state == {1.0: 0.0, 2.0: 1.0, 3.0: 1.0, 10.0: 1.0, 11.0: 0.0, 12.0: 0.0}
+    assert buffer.conflict_soon(1).tolist() == buffer.conflict[: buffer.size].tolist()
+    with pytest.raises(ValueError, match="flag_soon"):
+        buffer.flag_soon(np.zeros(2, bool), 3)

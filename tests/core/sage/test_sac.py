@@ -256,6 +256,28 @@ def test_a_refit_learns_the_buffers_conflicts_and_keeps_them_out_of_the_bounds(m
     assert not sample.familiar[learner.buffer.conflict[:n] > 0].any() and bool(sample.familiar.any())
 
 
+def test_a_refit_with_conflict_steps_learns_the_conflicts_ahead(monkeypatch: pytest.MonkeyPatch) -> None:
+    """world_model_config.conflict_steps k: the fit's conflict label is "a conflict within the next k steps" of the
+    buffer (ReplayBuffer.conflict_soon), and those states are not familiar to τ's bounds either."""
+    learner = filled("sage")
+    wm = learner.world_model
+    assert wm is not None
+    wm.cfg.conflict_label_weight = 1.0
+    wm.cfg.conflict_steps = 3
+    n = len(learner.buffer)
+    learner.buffer.conflict[:n] = (np.arange(n) % 11 == 5).astype(np.float32)
+    learner.buffer.cost[:n] = 0.0
+    fitted: list[np.ndarray] = []
+    real_fit = wm.fit
+    monkeypatch.setattr(wm, "fit", lambda *a, **k: fitted.append(k["conflict"]) or real_fit(*a, **k))
+    learner.fit_world_model()
+    ahead = learner.buffer.conflict_soon(3)
+    assert np.array_equal(fitted[0], ahead)
+    assert ahead.sum() > learner.buffer.conflict[:n].sum()  # the steps before each conflict are labelled too
+    sample = learner.last_calibration
+    assert sample is not None and not sample.familiar[ahead > 0].any() and bool(sample.familiar.any())
+
+
 # -- baselines -----------------------------------------------------------------------------------------
 def test_td3_updates_critic_every_step_and_actor_every_other() -> None:
     learner = filled("td3")
