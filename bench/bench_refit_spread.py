@@ -45,7 +45,8 @@ late behind a braking leader, so they hold the rear-end collisions the test spli
 (the violation label 4 s long, ``--set world_model_config.violation_steps=40``, where the checkpoint's is 2 s: the
 expert needs a warning about a second ahead, which may come from the short headways before a leader brakes),
 ``conflict`` and ``conflict-half`` (the violation head's label also the simulator's traffic conflicts, weight 1 or 0.5,
-``world_model_config.conflict_label_weight``: a near miss, time to contact under 3 s or a vehicle within 1.5 m).
+``world_model_config.conflict_label_weight``: a near miss, time to contact under 3 s or a vehicle within 1.5 m) and
+``conflict-ahead`` (weight 1, the label a conflict within the next second, ``world_model_config.conflict_steps=10``).
 
 A UGV refit takes about 18 minutes of one core, a highway one about 9-16; each is a Ray task
 (:func:`studies.sweep.run_tasks`) and is kept under ``--runs`` (a rerun reuses finished refits and their rows:
@@ -195,6 +196,12 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             # collisions; conflict-half weighs them 0.5, below a real violation ahead
             "conflict": Arm(["world_model_config.conflict_label_weight=1"]),
             "conflict-half": Arm(["world_model_config.conflict_label_weight=0.5"]),
+            # conflict-ahead: a conflict within the next second (10 steps) where conflict labels the conflict's own
+            # steps: under gate + expert on the adversarial splits the expert is handed most cut-ins about a second
+            # before contact, which is about when the conflict itself begins
+            "conflict-ahead": Arm(
+                ["world_model_config.conflict_label_weight=1", "world_model_config.conflict_steps=10"]
+            ),
         }
     if sim != "ugv":
         return {"plain": Arm()}
@@ -291,7 +298,7 @@ def main() -> None:
         nargs="+",
         help="ugv: plain scan states16k gated conflict conflict1s label1s label1s-conflict approach "
         "(default: plain scan); "
-        "highway: plain lag5 approach late-brakes label4s conflict conflict-half; else plain",
+        "highway: plain lag5 approach late-brakes label4s conflict conflict-half conflict-ahead; else plain",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")

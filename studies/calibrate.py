@@ -389,12 +389,24 @@ def run_gated(
         streak = [0]
         recent: deque[tuple[float, bool]] = deque(maxlen=max(1, warn_steps))
         expert_steps = dict.fromkeys(TAKEOVER_CAUSES, 0)
+        # fear over the threshold the gate compares it with (τ, times the curve's scale for a scaled fear gate) over
+        # the last 2 · warn_steps steps, and its peak over those before the expert's present streak began
+        scale = float(getattr(gate, "scale", 1.0))
+        ratios: deque[float] = deque(maxlen=2 * max(1, warn_steps))
+        peak_before_streak = [math.nan]
+        peaks: list[float] = []
 
         def watch(r: StepRecord) -> None:
             streak[0] = streak[0] + 1 if r.takeover else 0
+            if streak[0] == 1:
+                peak_before_streak[0] = max((v for v in ratios if math.isfinite(v)), default=math.nan)
+            level = scale * r.threshold
+            ratios.append(r.fear / level if math.isfinite(r.fear) and math.isfinite(level) and level > 0 else math.nan)
             recent.append((r.fear, bool(r.gate_fired or r.takeover)))
             if r.violation and first[0] is None:
                 first[0] = (bool(r.takeover), streak[0], list(recent))
+                if r.takeover:
+                    peaks.append(peak_before_streak[0])
             cause = takeover_cause(r, gate)
             if cause is not None:
                 expert_steps[cause] += 1
@@ -406,6 +418,7 @@ def run_gated(
         for _ in range(episodes):
             first[0], streak[0] = None, 0
             recent.clear()
+            ratios.clear()
             summary = runner.run_episode(max_steps=max_steps)
             if first[0] is not None:
                 violations.append(first[0])
@@ -434,6 +447,7 @@ def run_gated(
         "episodes": float(episodes),
         "violations_under_expert": float(len(under_expert)),
         "expert_steps_before_violation": float(np.mean(under_expert)) if under_expert else float("nan"),
+        "fear_before_handoff": float(np.nanmedian(peaks)) if any(math.isfinite(p) for p in peaks) else float("nan"),
         "violations_handed_back": float(handed_back),
         "violations_under_threshold": float(under_threshold),
         "violations_unforeseen": float(unforeseen),
@@ -482,6 +496,10 @@ def gate_with_expert(
 
     - ``violations_under_expert``: the expert was driving (the gate warned; the expert could not avoid it from
       there), and for how many steps it had been driving by then (``expert_steps_before_violation``, their mean);
+      ``fear_before_handoff``: over those, the median of fear's peak over the threshold it was compared with (τ; for
+      a :class:`ScaledFearGate`, τ times its scale) in the ``2 · warn_steps`` steps before the expert's last takeover
+      began. Well under 1: fear rose suddenly, and a lower threshold would have handed over little earlier; near 1:
+      it hovered just under the threshold, which a lower one would have caught sooner;
     - with the policy driving, judged on the last ``warn_steps`` steps up to the violation (1 s by default at
       10 Hz): ``violations_handed_back`` (the gate had fired and its hold ran out), ``violations_under_threshold``
       (it had not, but fear reached τ_min, the lowest threshold curiosity can set: the threshold's place was the

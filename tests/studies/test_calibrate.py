@@ -158,6 +158,29 @@ def test_an_expert_that_keeps_the_wheel_counts_as_its_manoeuvre(deployed: Path) 
     assert point["takeover_hold"] == point["takeover_hysteresis"] == 0
 
 
+def test_fear_before_a_late_handoff_is_read_against_the_threshold(deployed: Path) -> None:  # noqa: F811
+    """fear_before_handoff: for the violations with the expert driving, fear's peak over τ in the steps before the
+    expert's last takeover began (median); NaN where the expert drove at no violation."""
+    from core.agents import load_agent
+    from studies.calibrate import RandomGate, run_gated
+
+    def make_env() -> object:
+        env = envs.make("dynamic")
+        inner = env.unwrapped
+        # an expert blind to the obstacle, heading straight for the goal: it meets the obstacle as the policy does
+        inner.expert_action = lambda: (lambda d: (d / np.linalg.norm(d)).astype(np.float32))(envs.GOAL - inner.pos)
+        return env
+
+    agent = load_agent(deployed)
+    # fear steady at 0.1 or 0.4 of τ = 0.5 while the gate hands the expert 5 of every 8 steps whatever fear says
+    low = run_gated(agent, make_env, _ScriptedGate([(0.05, False)] * 3 + [(0.05, True)] * 5), 8, None)
+    high = run_gated(agent, make_env, _ScriptedGate([(0.2, False)] * 3 + [(0.2, True)] * 5), 8, None)
+    assert low["violations_under_expert"] > 0 and high["violations_under_expert"] > 0
+    assert low["fear_before_handoff"] == pytest.approx(0.1) and high["fear_before_handoff"] == pytest.approx(0.4)
+    never = run_gated(agent, make_env, RandomGate(agent.make_gate(), hold=1, p=0.0), 4, None)
+    assert never["violations_under_expert"] == 0 and math.isnan(never["fear_before_handoff"])
+
+
 class _SteadyFear:
     """A gate that never fires and reports the same fear at every step, with a τ_min of 0.2."""
 
