@@ -74,6 +74,9 @@ class CalibrationReport:
     """Mean time from the first firing in that window to the violation (warned violations only)."""
     reliability: list[tuple[float, float, int]] = field(default_factory=list)
     curve: dict[str, list[dict[str, float]]] = field(default_factory=dict)
+    early_warning: list[dict[str, float]] = field(default_factory=list)
+    """How early fear warns, whatever τ: per firing share (:func:`early_warning`), the share of violations it warned of
+    :data:`EARLY_LEAD_S` to twice that ahead at a threshold crossed on that share of the steps far from any."""
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -96,6 +99,13 @@ class CalibrationReport:
             f"violations preceded by a firing within {self.horizon_s:g} s: {_pct(self.violations_warned)}, "
             f"mean lead time {_fmt(self.mean_lead_time_s)} s",
         ]
+        if self.early_warning:
+            lead = self.early_warning[0]["lead_s"]
+            pairs = ", ".join(f"{w['firing']:.0%} → {_pct(w['warned'])}" for w in self.early_warning)
+            lines.append(
+                f"violations fear warned of {lead:g}-{2 * lead:g} s ahead at equal firing (share of the steps more "
+                f"than {2 * lead:g} s from a violation over the threshold → violations warned): {pairs}"
+            )
         for name, points in self.curve.items():
             pairs = ", ".join(f"{p['takeover_rate']:.0%}→{p['violation_rate']:.0%}" for p in points)
             lines.append(f"operating curve {name} (takeover → episodes with a violation): {pairs}")
@@ -140,6 +150,48 @@ def labels_within(violation: np.ndarray, episode: np.ndarray, steps: int) -> np.
             next_violation = i
         out[i] = next_violation >= 0 and next_violation - i < steps
     return out
+
+
+EARLY_LEAD_S = 1.5
+""":func:`early_warning`'s lead [s]: a warning this far ahead, or up to twice that, counts as early (the scripted
+highway expert avoided, by a steady manoeuvre, every collision of a replayed handful from 2 s before the takeover and
+few from the takeover itself, ``docs/calibration_history.md``)."""
+EARLY_FIRING = (0.2, 0.3, 0.45, 0.55)
+"""The firing shares :func:`early_warning` compares at."""
+
+
+def early_warning(
+    fear: np.ndarray,
+    violation: np.ndarray,
+    episode: np.ndarray,
+    dt: float,
+    lead_s: float = EARLY_LEAD_S,
+    firing: Sequence[float] = EARLY_FIRING,
+) -> list[dict[str, float]]:
+    """How early a signal warns of the violations, compared at equal firing rather than at a gate's own τ (two world
+    models' fears on different scales compare fairly): for each share f of ``firing``, the threshold that ``fear``
+    exceeds on f of the steps more than 2 · ``lead_s`` from a violation (their (1 - f) quantile), and the share of
+    violation steps at which fear exceeded it on some step ``lead_s`` to 2 · ``lead_s`` before, within the episode."""
+    lead = max(1, round(lead_s / dt))
+    far = ~labels_within(violation, episode, 2 * lead)
+    hits = np.flatnonzero(violation)
+    rows = []
+    for share in firing:
+        threshold = float(np.quantile(fear[far], 1.0 - share)) if far.any() else math.nan
+        warned = 0
+        for i in hits:
+            window = np.arange(max(0, i - 2 * lead), i - lead + 1)
+            window = window[episode[window] == episode[i]]
+            warned += bool((fear[window] > threshold).any())
+        rows.append(
+            {
+                "firing": float(share),
+                "lead_s": float(lead_s),
+                "threshold": threshold,
+                "warned": warned / len(hits) if len(hits) else math.nan,
+            }
+        )
+    return rows
 
 
 def collect(
@@ -234,6 +286,7 @@ def calibrate_run(
         violations_warned=warned / len(violation_idx) if len(violation_idx) else math.nan,
         mean_lead_time_s=float(np.mean(leads)) if leads else math.nan,
         reliability=reliability(signals["cost"], model_label),
+        early_warning=early_warning(signals["fear"], violation, episode, dt),
     )
     if curve_episodes > 0:
         report.curve = operating_curve(

@@ -27,6 +27,26 @@ def test_labels_mark_the_steps_before_a_violation_within_the_episode() -> None:
     assert labels_within(violation, episode, 5).tolist() == [1, 1, 1, 1, 1, 1, 1, 0, 0, 0]
 
 
+def test_early_warning_counts_the_violations_fear_rose_before_in_time_at_equal_firing() -> None:
+    from studies.calibrate import early_warning
+
+    episode = np.repeat([0, 1, 2], 100)
+    violation = np.zeros(300, bool)
+    violation[[60, 160]] = True
+    fear = np.full(300, 0.1)
+    fear[200:] = np.linspace(0.0, 0.5, 100)  # an episode without a violation: ordinary fear, graded
+    fear[35:40] = 0.9  # episode 0: fear rose 2.1-2.5 s before its violation (dt 0.1)
+    fear[155:161] = 0.9  # episode 1: only in the last half second
+    fear[95:100] = 0.9  # the end of episode 0, before episode 1's: never a warning of it
+    rows = early_warning(fear, violation, episode, dt=0.1, lead_s=1.5, firing=(0.05, 0.5))
+    assert [r["warned"] for r in rows] == [0.5, 0.5]
+    # the thresholds are fear's quantiles over the steps far from a violation: more firing, a lower threshold
+    assert rows[0]["threshold"] > rows[1]["threshold"] and rows[1]["threshold"] < 0.3
+    # a 0.5-1 s window finds episode 1's late rise and misses episode 0's early one; a 3-6 s one neither
+    assert early_warning(fear, violation, episode, dt=0.1, lead_s=0.5, firing=(0.05,))[0]["warned"] == 0.5
+    assert early_warning(fear, violation, episode, dt=0.1, lead_s=3.0, firing=(0.05,))[0]["warned"] == 0.0
+
+
 def test_calibrate_scores_fear_against_what_happened(deployed: Path, tmp_path: Path) -> None:  # noqa: F811
     report = calibrate_run(
         deployed,
@@ -47,6 +67,8 @@ def test_calibrate_scores_fear_against_what_happened(deployed: Path, tmp_path: P
         assert 0.0 <= score.auroc <= 1.0 and 0.0 < score.average_precision <= 1.0
     assert 0.0 <= report.fire_rate_elsewhere <= 1.0 and not math.isnan(report.fire_rate_before_violation)
     assert sum(n for _, _, n in report.reliability) == report.steps
+    assert [w["firing"] for w in report.early_warning] == [0.2, 0.3, 0.45, 0.55]
+    assert all(0.0 <= w["warned"] <= 1.0 for w in report.early_warning)
     sage = report.curve["fear (SAGE)"]
     assert len(sage) == 3 and len(report.curve["random"]) == 3 and len(report.curve["curiosity only"]) == 3
     # a lower threshold scale hands over more
