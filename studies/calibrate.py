@@ -173,7 +173,8 @@ def early_warning(
     exceeds on f of the steps more than 2 · ``lead_s`` from a violation (their (1 - f) quantile), and the share of
     violation steps at which fear exceeded it on some step ``lead_s`` to 2 · ``lead_s`` before, within the episode."""
     lead = max(1, round(lead_s / dt))
-    far = ~labels_within(violation, episode, 2 * lead)
+    # steps where the gate computed no fear (NaN) neither set a threshold nor warn
+    far = ~labels_within(violation, episode, 2 * lead) & np.isfinite(fear)
     hits = np.flatnonzero(violation)
     rows = []
     for share in firing:
@@ -182,7 +183,7 @@ def early_warning(
         for i in hits:
             window = np.arange(max(0, i - 2 * lead), i - lead + 1)
             window = window[episode[window] == episode[i]]
-            warned += bool((fear[window] > threshold).any())
+            warned += bool((np.nan_to_num(fear[window], nan=-np.inf) > threshold).any())
         rows.append(
             {
                 "firing": float(share),

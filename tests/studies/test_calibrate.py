@@ -45,6 +45,11 @@ def test_early_warning_counts_the_violations_fear_rose_before_in_time_at_equal_f
     # a 0.5-1 s window finds episode 1's late rise and misses episode 0's early one; a 3-6 s one neither
     assert early_warning(fear, violation, episode, dt=0.1, lead_s=0.5, firing=(0.05,))[0]["warned"] == 0.5
     assert early_warning(fear, violation, episode, dt=0.1, lead_s=3.0, firing=(0.05,))[0]["warned"] == 0.0
+    # steps without a fear (the gate computed none) neither set the threshold nor warn
+    gaps = fear.copy()
+    gaps[[0, 31, 150, 250]] = np.nan
+    with_gaps = early_warning(gaps, violation, episode, dt=0.1, lead_s=1.5, firing=(0.05, 0.5))
+    assert [r["warned"] for r in with_gaps] == [0.5, 0.5] and all(math.isfinite(r["threshold"]) for r in with_gaps)
 
 
 def test_calibrate_scores_fear_against_what_happened(deployed: Path, tmp_path: Path) -> None:  # noqa: F811
