@@ -61,8 +61,8 @@ def familiar_for_bounds(
     familiar state either, nor one the label marks as ``conflict_steps`` before a conflict."""
     ahead = buffer.violation_soon(violation_steps + horizon)
     data = buffer.arrays()
-    conflict = buffer.conflict_soon(conflict_steps) if conflict_weight > 0 else data["conflict"]
-    return np.maximum.reduce([data["cost"], ahead, conflict_weight * conflict]) < SAFE_LABEL
+    conflict = conflict_weight * buffer.conflict_soon(conflict_steps)
+    return np.maximum.reduce([data["cost"], ahead, conflict]) < SAFE_LABEL
 
 
 def calibration_sample(
