@@ -95,4 +95,5 @@ STUDY = StudyDef(
         "the episode. The paper shows this study as curves (Fig. field_test_1), so no paper numbers stand beside.",
     ),
     settings={"sim": "ugv", "scenario": "3", "policy": str(DEFAULT_POLICY), "episodes_per_cycle": 3},
+    learner_overrides=False,
 )

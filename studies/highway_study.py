@@ -60,7 +60,8 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             expert=config.get("expert_run"),
             checkpoint_every=0,
             out=str(Path(config["runs_dir"]) / f"{method}-s{seed}"),
-        )
+        ),
+        config,
     )
     policy = load_agent(out).policy
     results = evaluate_policy(

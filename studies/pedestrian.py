@@ -82,7 +82,8 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             overrides=list(config.get("overrides", [])),
             expert=config.get("expert_run") if str(config["method"]).startswith("sage") else None,
             out=str(run_folder(config)),
-        )
+        ),
+        config,
     )
     rows = read_rows(out)
     if not rows:

@@ -57,6 +57,9 @@ class StudyDef:
     """``prepare(results folder, settings) -> more settings``, run once before the sweep: e.g. train (or find in
     its cache, ``<results folder>/experts``) the expert the trials use (:mod:`studies.experts`). Its
     ``PREPARED_NOTES`` entry, a list of sentences (how good that expert is alone), goes under the table."""
+    learner_overrides: bool = True
+    """Whether its trials train through :func:`studies.training.train_once` with their settings, and so take
+    ``sage study --learner-set`` (the cycles study fine-tunes the committed policy on its own configuration: no)."""
     figures: Callable[[Path, dict[str, Any]], list[Path]] | None = None
     """``figures(results folder, settings) -> paths``: the study's own figures from its trials' run folders,
     drawn after the table."""
@@ -143,12 +146,15 @@ def run_study(
     overrides: Mapping[str, Any] | None = None,
     methods: Sequence[str] | None = None,
     train_steps: int | None = None,
+    learner_overrides: Sequence[str] = (),
 ) -> Path:
     """Train and evaluate every method of study ``name`` on every seed, write ``out``; returns the table path.
 
     ``methods``: only these of the study's methods (default: all); ``train_steps``: this many environment steps per
     method and seed instead of the budget's (e.g. a longer comparison of two methods); both are stated under the
-    table. The Ray experiment state lives in ``out/sweep``: rerunning the same command resumes it.
+    table. ``learner_overrides``: ``key=value`` learner settings every trained method takes after its own (an
+    ablation at the same budgets and seeds), stated under the table too. The Ray experiment state lives in
+    ``out/sweep``: rerunning the same command resumes it.
     """
     study = get_study(name)
     spent: Budget = budget(budget_name)
@@ -157,6 +163,12 @@ def run_study(
     unknown = [m for m in chosen_methods if m not in study.methods]
     if unknown:
         raise ValueError(f"{name} has no method {', '.join(unknown)}; its methods: {', '.join(study.methods)}")
+    if learner_overrides:
+        from studies.training import check_learner_overrides
+
+        if not study.learner_overrides:
+            raise ValueError(f"{name} trains no learner from a spec of its own, so it takes no --learner-set")
+        learner_overrides = check_learner_overrides(learner_overrides)
     if train_steps is not None:
         if train_steps <= 0:
             raise ValueError(f"train_steps must be positive, not {train_steps}")
@@ -172,6 +184,10 @@ def run_study(
         "runs_dir": str((out / "runs").resolve()),
         "methods": list(chosen_methods),
     }
+    if learner_overrides:
+        from studies.training import LEARNER_OVERRIDES
+
+        settings[LEARNER_OVERRIDES] = list(learner_overrides)
     start = time.perf_counter()
     prepared_notes: list[str] = []
     if study.prepare is not None:
@@ -222,6 +238,11 @@ def run_study(
                 else []
             ),
             *([f"Training budget: {train_steps} environment steps (not the budget's)."] if train_steps else []),
+            *(
+                [f"Learner settings changed for every method: {', '.join(learner_overrides)}."]
+                if learner_overrides
+                else []
+            ),
             *prepared_notes,
             timing,
         ),

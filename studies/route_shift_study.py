@@ -81,7 +81,8 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             expert_c2=config.get("expert_c2"),
             checkpoint_every=0,
             out=str(Path(config["runs_dir"]) / f"{method}-s{seed}"),
-        )
+        ),
+        config,
     )
     run = read_run(out)
     c1, c2 = run.rows[: run.switch], run.rows[run.switch :]

@@ -20,7 +20,7 @@ study's outputs (``study.json``, figures) into the run folder.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -173,9 +173,38 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     return TrainOutcome(result, out, setup, notes + setup.finish(out))
 
 
-def train_once(spec: TrainSpec) -> Path:
+LEARNER_OVERRIDES = "learner_overrides"
+"""The study setting that carries ``sage study --learner-set`` to every trial: learner ``key=value`` overrides."""
+
+
+def with_study_overrides(spec: TrainSpec, config: Mapping[str, Any]) -> TrainSpec:
+    """``spec`` with the study's learner overrides (``sage study --learner-set``) after its own: an ablation of
+    every method of a study at the same budgets, seeds and evaluation."""
+    extra = [str(pair) for pair in config.get(LEARNER_OVERRIDES, ())]
+    return spec.replace(overrides=[*spec.overrides, *extra]) if extra else spec
+
+
+def check_learner_overrides(pairs: Sequence[str]) -> list[str]:
+    """``pairs`` as ``key=value`` learner overrides, each checked on a default configuration (a ValueError names
+    the one that does not fit), before any trial starts."""
+    from core.sage.config import AgentConfig, apply_overrides
+
+    checked = []
+    for pair in pairs:
+        try:
+            apply_overrides(AgentConfig(), [pair])
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            raise ValueError(f"--learner-set {pair!r}: {exc}") from None
+        checked.append(pair.strip())
+    return checked
+
+
+def train_once(spec: TrainSpec, study: Mapping[str, Any] | None = None) -> Path:
     """``spec``'s run folder, trained unless it already holds a finished run (a study's trial resumes, an expert is
-    cached): a half-written folder (a crash) is cleared and trained afresh."""
+    cached): a half-written folder (a crash) is cleared and trained afresh. ``study``: a trial's settings, whose
+    learner overrides (:func:`with_study_overrides`) the run takes after ``spec``'s own."""
+    if study is not None:
+        spec = with_study_overrides(spec, study)
     if spec.out is None:
         raise ValueError("train_once needs spec.out, the folder to reuse")
     out = Path(spec.out)

@@ -86,7 +86,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             spec = spec.replace(
                 demo_episodes=1_000_000, episodes=0, overrides=[f"diffusion.offline_steps={offline_steps}"]
             )
-        out = train_once(spec)
+        out = train_once(spec, config)
         policy = load_agent(out).policy
     episodes = int(config["eval_episodes"])  # the budget's, raised to min_eval_episodes by the registry
     rows = evaluate(policy, env_factory("ugv"), scenarios, episodes, seed, None, False, progress=False)

@@ -2,6 +2,7 @@
 
     sage study NAME --budget small --out results/NAME [--address HOST:PORT] [--cpus 2] [--max-concurrent 2]
     sage study highway --methods sac,sage --train-steps 40000 --out results/highway-40k   # a longer comparison
+    sage study ugv --methods sage --learner-set fear_budget_from_data=false               # an ablation
 
 The budget (``smoke|small|full``) is counted in environment steps, the same for every method. Rerunning the
 same command resumes the sweep in ``OUT/sweep``. Writes ``seeds.csv``, ``table.md`` (mean ± 95% CI with the
@@ -45,6 +46,14 @@ def register(app: typer.Typer) -> None:
             int | None,
             typer.Option(min=1, help="Environment steps per method and seed instead of the budget's."),
         ] = None,
+        learner_set: Annotated[
+            list[str] | None,
+            typer.Option(
+                "--learner-set",
+                help="A learner setting key=value every method trains with (an ablation, e.g. "
+                "fear_budget_from_data=false); repeatable.",
+            ),
+        ] = None,
     ) -> None:
         """Run a paper study: every method, five seeds, equal budgets; results with 95% intervals."""
         from studies.budgets import BUDGET_NAMES
@@ -67,13 +76,19 @@ def register(app: typer.Typer) -> None:
                 if not sep or key not in known:
                     raise ValueError(f"--set {pair!r}: give key=value with a setting of {name}: {', '.join(known)}")
                 overrides[key] = setting_value(known[key], value.strip(), key)
+            if learner_set:
+                from studies.training import check_learner_overrides
+
+                if not get_study(name).learner_overrides:
+                    raise ValueError(f"{name} trains no learner from a spec of its own, so it takes no --learner-set")
+                check_learner_overrides(learner_set)
         except ValueError as error:
             typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
         results = out or Path("results") / f"{name}-{budget}"
         run_study(
             name, budget, results, address, cpus, max_concurrent, overrides=overrides, methods=chosen,
-            train_steps=train_steps,
+            train_steps=train_steps, learner_overrides=learner_set or (),
         )  # fmt: skip
         if readme is not None:
             from studies.readme import update_readme

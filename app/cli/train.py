@@ -122,6 +122,9 @@ def register(app: typer.Typer) -> None:
         if tail:
             named = {f"last {len(tail)} episodes": tail}
             typer.echo(format_table(named, table_columns(spec.sim, tail, gated=True)))
+        fear_term = result.learner.describe_fear_term()
+        if fear_term is not None:
+            typer.echo(fear_term)
         for line in outcome.lines:
             typer.echo(line)
         typer.echo(f"run folder: {outcome.out}")

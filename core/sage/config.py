@@ -344,7 +344,15 @@ class AgentConfig:
 
     # -- fear regularisation -----------------------------------------------------------------------
     fear_budget: float = 0.2
-    """F_0 of eq:fear_cmdp: the tolerated mean fear on real states."""
+    """F_0 of eq:fear_cmdp, the tolerated mean fear on real states, where ``fear_budget_from_data`` is off, and
+    until a run's first world-model fit where it is on."""
+    fear_budget_from_data: bool = True
+    """F_0 measured on each simulator's own scale at every world-model fit: the mean fear F(s, a), a the learner's
+    own action, over the fit's familiar states (those with no violation within what fear looks at, the states
+    the τ bounds come from). The budget is then the fear of driving that ended in no violation, and λ rises
+    while the real states carry more fear than that, whatever the simulator. A constant sits on no simulator's
+    scale: 0.2 lay above the mean fear of real states on all four (0.02-0.08), so λ fell to 0 within the first
+    thousand updates and the fear term never acted."""
     lambda_init: float = 1.0
     """Initial value of the dual variable λ."""
     lambda_lr: float = 0.01

@@ -125,7 +125,6 @@ class D3QN(BaseLearner):
         self.q = DuelingQNetwork(self.obs_dim, self.n_actions, cfg.hidden, cfg.layers)
         self.q_target = copy.deepcopy(self.q).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.critic_lr)
-        self.lam = float(cfg.lambda_init)
 
     # -- actions ---------------------------------------------------------------------------------------
     @property
@@ -178,6 +177,9 @@ class D3QN(BaseLearner):
         lam = self.lam if self.fear_active() else 0.0
         paper = penalty_c_star(low, high, self.cfg.gamma, self.cfg.safety_horizon, lam)
         return max(paper, self.cfg.c_star_floor, abs(low), abs(high), self.buffer.reward_magnitude())
+
+    def real_fear(self, obs: Tensor) -> Tensor:
+        return self._fear(obs)
 
     def _fear(self, obs: Tensor) -> Tensor:
         """F(s, greedy a) through the frozen world model."""
@@ -233,8 +235,7 @@ class D3QN(BaseLearner):
         soft_update(self.q_target, self.q, cfg.polyak)
         if self.fear_active():
             fear_real = float(self._fear(batch.obs).mean())
-            self.lam = min(max(self.lam + cfg.lambda_lr * (fear_real - cfg.fear_budget), 0.0), cfg.lambda_max)
-            stats.update(fear_real=fear_real, lam=self.lam)
+            stats.update(fear_real=fear_real, lam=self.dual_step(fear_real), fear_budget=self.fear_budget())
         return stats
 
     def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:

@@ -179,6 +179,10 @@ class BaseLearner:
         self.last_fit: FitReport | None = None
         self.last_calibration: CalibrationSample | None = None
         """The states the last fit calibrated κ and the τ bounds on (a run folder keeps them, for ``sage merge``)."""
+        self.lam = float(cfg.lambda_init)
+        """λ, the dual variable of the fear constraint (methods with a fear term train it; :meth:`dual_step`)."""
+        self.measured_fear_budget = math.nan
+        """F_0 measured at the last world-model fit (``AgentConfig.fear_budget_from_data``); NaN before one."""
         self.info: dict[str, float] = {}
         """Latest training statistics (losses, λ, α, ...), for progress bars and metrics rows."""
         self._gates: list[SageGate] = []
@@ -330,6 +334,55 @@ class BaseLearner:
         for name, saved in snapshot["scalars"].items():
             setattr(self, name, saved)
 
+    # -- fear budget (eq:fear_cmdp) ----------------------------------------------------------------
+    def fear_active(self) -> bool:
+        """Whether the fear term of the critic, actor and dual runs (a method with one, and a fitted model)."""
+        return False
+
+    def real_fear(self, obs: Tensor) -> Tensor:
+        """F(s, a) on real states ``obs`` as the dual update measures it, a the learner's own action (methods with
+        a fear term)."""
+        raise NotImplementedError(f"{type(self).__name__} has no fear term")
+
+    def fear_budget(self) -> float:
+        """F_0 in use: the one measured at the last fit (``fear_budget_from_data``), else the configured one."""
+        if self.cfg.fear_budget_from_data and math.isfinite(self.measured_fear_budget):
+            return self.measured_fear_budget
+        return self.cfg.fear_budget
+
+    def measure_fear_budget(self, sample: CalibrationSample) -> None:
+        """Set F_0 to the mean fear of ``sample``'s familiar states (``AgentConfig.fear_budget_from_data``); kept
+        as it was when the sample holds fewer than 20 of them."""
+        if not (self.cfg.fear_budget_from_data and self.fear_active()):
+            return
+        familiar = np.asarray(sample.familiar, dtype=bool)
+        if int(familiar.sum()) < 20:
+            return
+        with torch.no_grad():
+            values = self.real_fear(torch.from_numpy(np.asarray(sample.obs[familiar], dtype=np.float32)))
+        self.measured_fear_budget = float(values.mean())
+        self.info["fear_budget"] = self.measured_fear_budget
+
+    def describe_fear_term(self) -> str | None:
+        """One line on what the fear term of eq:fear_cmdp did by now (None for a method without one): the budget
+        and where it came from, λ and the last mean fear of real states; it says so where λ is 0, the fear term
+        then adding nothing to the critic's target or the actor's loss."""
+        if not self.cfg.fear_regularisation or self.world_model is None:
+            return None
+        measured = self.cfg.fear_budget_from_data and math.isfinite(self.measured_fear_budget)
+        source = "measured at the last world-model fit" if measured else "configured"
+        line = f"fear term: budget F_0 {self.fear_budget():.3g} ({source}), λ {self.lam:.3g}"
+        if "fear_real" in self.info:
+            line += f", mean fear of real states {self.info['fear_real']:.3g}"
+        if self.lam == 0.0:
+            line += " — λ is 0: the fear term adds nothing now (the real states' fear is under the budget)"
+        return line
+
+    def dual_step(self, fear_real: float) -> float:
+        """Projected dual ascent on λ (eq:lambda_update) against :meth:`fear_budget`; returns the new λ."""
+        self.lam = min(max(self.lam + self.cfg.lambda_lr * (fear_real - self.fear_budget()), 0.0), self.cfg.lambda_max)
+        return self.lam
+
     # -- world model -------------------------------------------------------------------------------
     def world_model_ready(self) -> bool:
         return self.world_model is not None and bool(self.world_model.fitted)
@@ -363,6 +416,7 @@ class BaseLearner:
         self.last_fit = report
         self.last_calibration = calibration_sample(self.buffer, wm, self.cfg.gate, self.rng, motion)
         self.last_calibration.calibrate(wm, self.rollout_policy, self.cfg.gate)
+        self.measure_fear_budget(self.last_calibration)
         self.info.update(wm_holdout_nll=report.holdout_nll, wm_holdout_mse=report.holdout_mse, wm_epochs=report.epochs)
         self.virtual_rollout()
         return report
@@ -436,6 +490,8 @@ class BaseLearner:
         optimizers = self.declared_state().optimizers
         if optimizers:  # a warm start continues (Adam's moments and step), rather than restarts
             state["optimizers"] = {name: getattr(self, name).state_dict() for name in optimizers}
+        if math.isfinite(self.measured_fear_budget):  # a warm start keeps it until its own first fit
+            state["fear_budget"] = torch.tensor(self.measured_fear_budget)
         return state
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
@@ -451,6 +507,9 @@ class BaseLearner:
             elif strict:
                 raise KeyError(f"checkpoint has no {name!r} (it has {', '.join(sorted(state))})")
         loaded.extend(self._load_optimizers(state.get("optimizers", {}), strict))
+        if "fear_budget" in state:
+            self.measured_fear_budget = float(torch.as_tensor(state["fear_budget"]))
+            loaded.append("fear_budget")
         if self.acting_module in loaded:
             self.warm = True
         if self.world_model is not None and "world_model" in loaded:

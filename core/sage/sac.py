@@ -27,7 +27,8 @@ clip keeps it in [e^-κ, e^κ] however large the Q gap: a huge advantage can nei
 sample swamp the batch. The imitation term is scaled by mean|Q| so that it keeps pace with the Q term.
 
 Dual (eq:lambda_update): λ ← clip(λ + lr_λ (mean F(s, π(s)) - F_0), 0, λ_max) on the real states of the
-actor batch: λ grows while mean fear exceeds the budget and shrinks (never below 0) otherwise.
+actor batch: λ grows while mean fear exceeds the budget and shrinks (never below 0) otherwise. F_0 is measured
+at every world-model fit, the mean fear of its familiar states (``fear_budget_from_data``), or a constant.
 Temperature: SAC v2 automatic α towards entropy -dim(A).
 """
 
@@ -105,7 +106,6 @@ class SAC(ActorLearner):
         self.log_alpha = torch.tensor(math.log(cfg.init_alpha), requires_grad=True)
         self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=cfg.alpha_lr)
         self.target_entropy = -float(act_dim) if cfg.target_entropy is None else cfg.target_entropy
-        self.lam = float(cfg.lambda_init)
 
     # -- pieces ------------------------------------------------------------------------------------
     @property
@@ -114,6 +114,10 @@ class SAC(ActorLearner):
 
     def fear_active(self) -> bool:
         return self.cfg.fear_regularisation and self.world_model_ready()
+
+    def real_fear(self, obs: Tensor) -> Tensor:
+        """F(s, a), a ~ π(·|s): the fear the actor's loss and the dual update read on real states."""
+        return self.learner_fear(obs, self.actor.sample(obs)[0])
 
     def learner_fear(self, obs: Tensor, action: Tensor) -> Tensor:
         """F(s, a) through the frozen world model (differentiable w.r.t. ``action`` under grad mode)."""
@@ -187,6 +191,7 @@ class SAC(ActorLearner):
             fear_values = self.learner_fear(states, action)
             loss = loss + self.lam * fear_values.mean()
             stats["fear_real"] = fear_values[:n_real].mean().item()
+            stats["fear_budget"] = self.fear_budget()
         q_scale = q.detach().abs().mean().clamp_min(1.0)
         if imitation is not None:
             with torch.no_grad():
@@ -198,12 +203,6 @@ class SAC(ActorLearner):
             loss = loss + cfg.bc_weight * q_scale * bc
             stats.update(bc_loss=bc.item(), omega_mean=omega.mean().item())
         return loss, log_prob, stats
-
-    def dual_step(self, fear_real: float) -> None:
-        """Projected dual ascent on λ (eq:lambda_update)."""
-        self.lam = min(
-            max(self.lam + self.cfg.lambda_lr * (fear_real - self.cfg.fear_budget), 0.0), self.cfg.lambda_max
-        )
 
     def imitation_batch(self) -> Batch | None:
         if not self.cfg.imitation:

@@ -164,6 +164,8 @@ def test_route_shift_training_writes_its_figures_and_phase_table(route_shift_run
         assert (out / name).read_bytes()[:4] == b"\x89PNG" and (out / name).stat().st_size > 20_000
         assert f"figure: {out / name}" in result.output
     assert "FNI-RL: C1 last 1" in result.output and "FNI-RL: C2 first 1" in result.output
+    # the fear term says what it ran on: a budget measured on the simulator's own fear, and λ
+    assert re.search(r"fear term: budget F_0 [0-9.e-]+ \(measured at the last world-model fit\), λ ", result.output)
 
 
 def test_figure_command_overlays_runs_with_labels(route_shift_run, tmp_path: Path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -99,7 +100,7 @@ def test_c_star_is_a_real_penalty_whenever_rewards_are_bounded() -> None:
 
 # -- λ --------------------------------------------------------------------------------------------
 def test_lambda_rises_while_fear_exceeds_the_budget_and_never_goes_negative() -> None:
-    learner = filled("sage", fear_budget=0.0, lambda_init=0.5, lambda_lr=0.05)
+    learner = filled("sage", fear_budget=0.0, fear_budget_from_data=False, lambda_init=0.5, lambda_lr=0.05)
     lams = [learner.lam]
     for _ in range(10):
         lams.append(learner.update()["lam"])
@@ -109,6 +110,77 @@ def test_lambda_rises_while_fear_exceeds_the_budget_and_never_goes_negative() ->
         lams.append(learner.update()["lam"])
         assert lams[-1] >= 0.0
     assert lams[-1] == 0.0 and min(lams) == 0.0
+
+
+def with_predictable_violations(n: int = 1500, seed: int = 0, **overrides: object) -> SAC:
+    """A SAGE learner whose buffer ends an episode in a violation wherever the first channel exceeds 1.3 (about
+    a tenth of the states), its world model fitted on it."""
+    cfg = for_method("sage", hidden=32, batch_size=128, **overrides)
+    cfg.world_model_config.hidden = 32
+    cfg.world_model_config.max_updates_per_fit = 600
+    cfg.world_model_config.violation_steps = 1
+    learner = make_learner(cfg, OBS, ACT, seed=seed)
+    assert isinstance(learner, SAC)
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        s = rng.normal(size=OBS).astype(np.float32)
+        violation = bool(s[0] > 1.3)
+        a = rng.uniform(-1, 1, ACT).astype(np.float32)
+        nxt = (s + 0.1 * np.concatenate([a, np.zeros(OBS - ACT)])).astype(np.float32)
+        learner.buffer.add(s, a, -1.0 if violation else 0.0, nxt, violation, cost=float(violation), violation=violation)
+    learner.warm = True
+    learner.fit_world_model()
+    return learner
+
+
+def test_the_fear_budget_is_measured_at_each_fit_on_the_familiar_states() -> None:
+    learner = with_predictable_violations()
+    sample = learner.last_calibration
+    assert sample is not None and 0 < int((~sample.familiar).sum()) < len(sample) // 2
+    measured = learner.fear_budget()
+    assert measured == learner.measured_fear_budget != learner.cfg.fear_budget
+    with torch.no_grad():
+        fear_all = learner.real_fear(torch.from_numpy(sample.obs)).numpy()
+    dangerous = sample.obs[:, 0] > 1.3
+    # fear knows where the violations are: the budget, the fear of familiar states, sits under the mean fear of the
+    # real states, so that the dual variable rises while the policy goes where they are
+    assert fear_all[dangerous].mean() > 2 * fear_all[~dangerous].mean()
+    assert measured < float(fear_all.mean())
+    assert measured == pytest.approx(float(fear_all[sample.familiar].mean()), rel=0.15)
+    # the budget moves with the fear of the states it is measured on
+    quiet = dataclasses.replace(sample, familiar=~dangerous & (sample.obs[:, 0] < 0.0))
+    tense = dataclasses.replace(sample, familiar=(sample.obs[:, 0] > 0.8) & ~dangerous)
+    learner.measure_fear_budget(quiet)
+    low = learner.fear_budget()
+    learner.measure_fear_budget(tense)
+    assert learner.fear_budget() > low
+
+
+def test_lambda_rises_against_the_measured_budget_where_a_constant_one_lets_it_fall_to_zero() -> None:
+    lams = {}
+    for from_data in (True, False):
+        learner = with_predictable_violations(fear_budget_from_data=from_data, lambda_init=0.5, lambda_lr=0.5)
+        budget = learner.fear_budget()
+        fears = [learner.update()["fear_real"] for _ in range(40)]
+        lams[from_data] = learner.lam
+        said = learner.describe_fear_term()
+        assert said is not None
+        if from_data:
+            assert budget < float(np.mean(fears))  # the real states carry more fear than the familiar ones
+            assert "(measured at the last world-model fit)" in said and "adds nothing" not in said
+        else:
+            assert budget == 0.2 > max(fears)  # the constant lies above every batch's fear
+            assert "(configured)" in said and "λ is 0: the fear term adds nothing now" in said
+    assert lams[False] == 0.0 and lams[True] > 0.5
+
+
+def test_a_measured_fear_budget_travels_with_the_checkpoint() -> None:
+    learner = with_predictable_violations(n=600)
+    state = learner.state_dict()
+    fresh = make_learner(learner.cfg, OBS, ACT, seed=1)
+    assert math.isnan(fresh.measured_fear_budget) and fresh.fear_budget() == learner.cfg.fear_budget
+    assert "fear_budget" in fresh.load_state_dict(state)
+    assert fresh.fear_budget() == pytest.approx(learner.fear_budget())
 
 
 # -- ω ----------------------------------------------------------------------------------------------
