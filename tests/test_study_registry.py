@@ -90,3 +90,43 @@ def test_study_runs_every_seed_and_writes_rows_per_split(ray_local: None, toy_st
     assert "| a | sage | 2 | 0.050 ± 0.635 | — |" in text
     assert "| b | sage | 2 | 1.500 ± 6.353 | — |" in text
     assert (tmp_path / "seeds.csv").read_text().count("\n") == 5  # header + 2 seeds x 2 splits
+
+
+def overrides_trial(config: dict[str, Any]) -> dict[str, float]:
+    """The learner overrides the trial's run would train with (:func:`studies.training.with_study_overrides`)."""
+    from studies.spec import TrainSpec
+    from studies.training import with_study_overrides
+
+    spec = with_study_overrides(TrainSpec(sim="ugv", overrides=["hidden=32"]), config)
+    assert spec.overrides[0] == "hidden=32"  # the method's own first, the study's after
+    return {"collision_rate": float(len(spec.overrides)), "lambda_init": float("lambda_init=0.25" in spec.overrides)}
+
+
+def test_learner_overrides_reach_every_trial_and_are_stated_under_the_table(ray_local: None, tmp_path: Path) -> None:
+    from app.cli import app
+
+    study = StudyDef("toy-ablation", ("sage",), overrides_trial, metrics=("collision_rate", "lambda_init"))
+    register_study(study)
+    try:
+        args = ["study", "toy-ablation", "--budget", "smoke", "--out", str(tmp_path)]
+        args += ["--learner-set", "fear_budget_from_data=false", "--learner-set", "lambda_init=0.25"]
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 0, result.output
+        # a setting no learner has is refused before any trial runs, and so is one of the wrong type
+        for bad in ("nope=1", "lambda_init=high"):
+            result = CliRunner().invoke(app, ["study", "toy-ablation", "--budget", "smoke", "--learner-set", bad])
+            assert result.exit_code == 2 and f"--learner-set '{bad}'" in result.output
+    finally:
+        unregister_study(study.name)
+    text = (tmp_path / "table.md").read_text()
+    assert "| sage | 2 | 3.000 ± 0.000 | — | 1.000 ± 0.000 | — |" in text
+    assert "Learner settings changed for every method: fear_budget_from_data=false, lambda_init=0.25." in text
+
+
+def test_a_study_that_trains_no_learner_of_its_own_refuses_learner_overrides(tmp_path: Path) -> None:
+    from app.cli import app
+
+    result = CliRunner().invoke(app, ["study", "cycles", "--budget", "smoke", "--learner-set", "hidden=16"])
+    assert result.exit_code == 2 and "cycles trains no learner from a spec of its own" in result.output
+    with pytest.raises(ValueError, match="takes no --learner-set"):
+        run_study("cycles", "smoke", tmp_path, log=lambda _: None, learner_overrides=["hidden=16"])
