@@ -93,10 +93,13 @@ def test_v0_is_the_deployed_policy_and_rounds_publish_numbered_loadable_versions
     metrics = json.loads((result.version.path / "metrics.json").read_text())
     assert metrics["parent"] == 0 and metrics["episodes"] == [0, 1, 2, 3] and metrics["updates"] == 60
     assert all(math.isfinite(v) for v in metrics["losses"].values()) and "bc_loss" in metrics["losses"]
+    # the fear term ran against a budget measured at the round's refit of the world model, not the constant
+    assert metrics["losses"]["fear_budget"] != finetuner.learner.cfg.fear_budget and "lam" in metrics["losses"]
     assert [e["update"] for e in events if e["phase"] == "training"] == [10, 20, 30, 40, 50, 60]
     # a plain tensor checkpoint: loads with weights_only=True and drives with its (refitted) gate
     raw = torch.load(result.version.path / CHECKPOINT_FILE, map_location="cpu", weights_only=True)
     assert raw["meta"]["extra"]["finetune"]["parent"] == 0
+    assert float(raw["state"]["fear_budget"]) == pytest.approx(metrics["losses"]["fear_budget"])
     agent = load_agent(result.version.path)
     assert agent.has_world_model and agent.make_gate() is not None
     before = load_checkpoint(v0.path)["state"]["actor"]
