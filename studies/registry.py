@@ -135,6 +135,16 @@ def _unpack(row: Mapping[str, Any], row_keys: Sequence[str], metrics: Sequence[s
     return list(rows.values())
 
 
+def check_study_learner_overrides(name: str, pairs: Sequence[str]) -> list[str]:
+    """``pairs`` (``sage study --learner-set``) checked for study ``name``: a study that trains no learner from a
+    spec of its own refuses them, and each must fit a learner's configuration (a ValueError says which)."""
+    from studies.training import check_learner_overrides
+
+    if not get_study(name).learner_overrides:
+        raise ValueError(f"{name} trains no learner from a spec of its own, so it takes no --learner-set")
+    return check_learner_overrides(pairs)
+
+
 def run_study(
     name: str,
     budget_name: str,
@@ -164,11 +174,7 @@ def run_study(
     if unknown:
         raise ValueError(f"{name} has no method {', '.join(unknown)}; its methods: {', '.join(study.methods)}")
     if learner_overrides:
-        from studies.training import check_learner_overrides
-
-        if not study.learner_overrides:
-            raise ValueError(f"{name} trains no learner from a spec of its own, so it takes no --learner-set")
-        learner_overrides = check_learner_overrides(learner_overrides)
+        learner_overrides = check_study_learner_overrides(name, learner_overrides)
     if train_steps is not None:
         if train_steps <= 0:
             raise ValueError(f"train_steps must be positive, not {train_steps}")

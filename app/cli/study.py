@@ -57,7 +57,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run a paper study: every method, five seeds, equal budgets; results with 95% intervals."""
         from studies.budgets import BUDGET_NAMES
-        from studies.registry import get_study, run_study
+        from studies.registry import check_study_learner_overrides, get_study, run_study
 
         try:
             known = get_study(name).settings
@@ -77,11 +77,7 @@ def register(app: typer.Typer) -> None:
                     raise ValueError(f"--set {pair!r}: give key=value with a setting of {name}: {', '.join(known)}")
                 overrides[key] = setting_value(known[key], value.strip(), key)
             if learner_set:
-                from studies.training import check_learner_overrides
-
-                if not get_study(name).learner_overrides:
-                    raise ValueError(f"{name} trains no learner from a spec of its own, so it takes no --learner-set")
-                check_learner_overrides(learner_set)
+                check_study_learner_overrides(name, learner_set)
         except ValueError as error:
             typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
             raise typer.Exit(code=2) from None
