@@ -351,7 +351,7 @@ class AgentConfig:
     own action, over the fit's familiar states (those with no violation within what fear looks at, the states
     the τ bounds come from). The budget is then the fear of driving that ended in no violation, and λ rises
     while the real states carry more fear than that, whatever the simulator. A constant sits on no simulator's
-    scale: 0.2 lay above the mean fear of real states on all four (0.02-0.06), so λ fell to 0 within the first
+    scale: 0.2 lay above the mean fear of real states on all four (0.02-0.10), so λ fell to 0 within the first
     thousand updates and the fear term never acted."""
     lambda_init: float = 1.0
     """Initial value of the dual variable λ."""
