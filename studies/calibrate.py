@@ -430,13 +430,15 @@ def run_gated(
     max_steps: int | None,
     warn_steps: int = 10,
     listeners: Sequence[Callable[[StepRecord], None]] = (),
+    first_seed: int = EVAL_SEED,
 ) -> dict[str, float]:
-    """The policy with ``gate`` and the scripted expert over ``episodes`` (the evaluation seeds): see
-    :func:`gate_with_expert` for what it returns; ``listeners`` also see every step (e.g. :meth:`InfoGate.watch`)."""
+    """The policy with ``gate`` and the scripted expert over ``episodes`` (the evaluation seeds, from ``first_seed``):
+    see :func:`gate_with_expert` for what it returns; ``listeners`` also see every step (e.g.
+    :meth:`InfoGate.watch`)."""
     env = make_env()
     tau_min = _tau_min(gate)
     try:
-        runner = Runner(env, agent.policy, gate, ScriptedExpert(), seed=EVAL_SEED, deterministic=True)
+        runner = Runner(env, agent.policy, gate, ScriptedExpert(), seed=first_seed, deterministic=True)
         # per episode: the first violation's (expert driving?, steps the expert had been driving up to it, and the
         # last ``warn_steps`` steps' (fear, gate fired) up to it)
         first: list[tuple[bool, int, list[tuple[float, bool]]] | None] = [None]
@@ -499,6 +501,7 @@ def run_gated(
         **{f"takeover_{cause}": n / max(steps, 1) for cause, n in expert_steps.items()},
         "violation_rate": len(violations) / episodes,
         "episodes": float(episodes),
+        "steps": float(steps),
         "violations_under_expert": float(len(under_expert)),
         "expert_steps_before_violation": float(np.mean(under_expert)) if under_expert else float("nan"),
         "fear_before_handoff": float(np.nanmedian(peaks)) if any(math.isfinite(p) for p in peaks) else float("nan"),
@@ -795,42 +798,56 @@ def curve_point(
     call: CurveCall,
     max_steps: int | None = None,
     gate_settings: Mapping[str, Any] | None = None,
+    first_seed: int = EVAL_SEED,
 ) -> Any:
-    """One call of a :class:`CurvePlan` on the curve's episodes (the evaluation seeds): a point (``fear``, ``random``,
-    ``curiosity only``, :data:`EXPERT_ALONE`) as :func:`gate_with_expert` returns it with its ``knob``, or (``pilot``)
-    the curiosities met with no gating."""
+    """One call of a :class:`CurvePlan` on the curve's episodes (the evaluation seeds, from ``first_seed``): a point
+    (``fear``, ``random``, ``curiosity only``, :data:`EXPERT_ALONE`) as :func:`gate_with_expert` returns it with its
+    ``knob``, or (``pilot``) the curiosities met with no gating. A ``random`` or ``curiosity only`` call with a
+    ``knob`` (a firing share, a curiosity level) instead of a ``rate`` runs that gating at it as it is, without
+    matching a rate: a measured point again on other seeds (:class:`CurveExtension`)."""
     agent = load_agent(run)
     settings = dict(gate_settings or {})
     hold = agent.gate_config(**settings).hold
     kind = call["kind"]
+    # the random gate's own draws move with the episodes' seeds (0 on the curve's own, as before)
+    draws = first_seed - EVAL_SEED
 
     def make_gate() -> SageGate:
         return agent.make_gate(**settings)
 
+    def gated(gate: Gate) -> dict[str, float]:
+        return run_gated(agent, make_env, gate, episodes, max_steps, first_seed=first_seed)
+
     if kind == "fear":
-        gate = ScaledFearGate(make_gate(), hold, float(call["knob"]))
-        return {"knob": float(call["knob"]), **run_gated(agent, make_env, gate, episodes, max_steps)}
+        return {"knob": float(call["knob"]), **gated(ScaledFearGate(make_gate(), hold, float(call["knob"])))}
     if kind == "pilot":
         pilot = CuriosityGate(make_gate(), hold, math.inf)
-        run_gated(agent, make_env, pilot, episodes, max_steps)
+        gated(pilot)
         return pilot.seen
     if kind == EXPERT_ALONE:
-        return {"knob": 1.0, **run_gated(agent, make_env, RandomGate(make_gate(), hold, 1.0), episodes, max_steps)}
+        return {"knob": 1.0, **gated(RandomGate(make_gate(), hold, 1.0, seed=draws))}
     if kind == "random":
 
         def gate_for_share(share: float) -> tuple[float, Gate]:
-            return share, RandomGate(make_gate(), hold, share)
+            return share, RandomGate(make_gate(), hold, share, seed=draws)
 
     elif kind == "curiosity only":
-        seen = call["pilot"]
 
         def gate_for_share(share: float) -> tuple[float, Gate]:
-            level = level_for_share(seen, share)
+            level = level_for_share(call["pilot"], share)
             return level, CuriosityGate(make_gate(), hold, level)
 
     else:
         raise ValueError(f"unknown curve call {kind!r}: fear, pilot, random, curiosity only or {EXPERT_ALONE}")
-    return _at_rate(float(call["rate"]), hold, gate_for_share, agent, make_env, episodes, max_steps)
+    if "knob" in call:
+        knob = float(call["knob"])
+        gate = (
+            RandomGate(make_gate(), hold, knob, seed=draws)
+            if kind == "random"
+            else CuriosityGate(make_gate(), hold, knob)
+        )
+        return {"knob": knob, **gated(gate)}
+    return _at_rate(float(call["rate"]), hold, gate_for_share, agent, make_env, episodes, max_steps, first_seed)
 
 
 def operating_curve(
@@ -875,6 +892,7 @@ def _at_rate(
     make_env: Callable[[], gym.Env[Any, Any]],
     episodes: int,
     max_steps: int | None,
+    first_seed: int = EVAL_SEED,
 ) -> dict[str, float]:
     """A comparison gating's curve point at about takeover ``rate``: ``gate_for_share`` builds it (and names its
     knob) from a per-step firing share, first the share that independent firing would need, then once more scaled
@@ -883,7 +901,7 @@ def _at_rate(
     tries = []
     for _ in range(2):
         knob, gate = gate_for_share(share)
-        point = {"knob": knob, **run_gated(agent, make_env, gate, episodes, max_steps)}
+        point = {"knob": knob, **run_gated(agent, make_env, gate, episodes, max_steps, first_seed=first_seed)}
         tries.append(point)
         reached = point["takeover_rate"]
         if abs(reached - rate) <= 0.02 or reached <= 0.0:
@@ -920,6 +938,144 @@ def compare_curves(
         else:
             verdict["tied"] += 1
     return verdict
+
+
+def pool_points(points: Sequence[Mapping[str, float]]) -> dict[str, float]:
+    """One curve point from runs of the same gating at the same knob on disjoint seeds: counts added, rates weighted
+    by the runs' steps (by their episodes where a run has no ``steps``: points measured before they were recorded),
+    ``expert_steps_before_violation`` by the violations it is the mean of. ``fear_before_handoff``, a median, does
+    not pool: nan."""
+    if not points:
+        raise ValueError("no points to pool")
+    knobs = {float(p.get("knob", math.nan)) for p in points}
+    if len(knobs) > 1 and not all(math.isnan(k) for k in knobs):
+        raise ValueError(f"points at different knobs ({sorted(knobs)}) are not one point")
+    episodes = [float(p["episodes"]) for p in points]
+    counted = all("steps" in p for p in points)
+    weights = [float(p["steps"]) for p in points] if counted else episodes
+    total, weight = sum(episodes), sum(weights)
+    pooled: dict[str, float] = {"knob": points[0].get("knob", math.nan), "episodes": total}
+    if counted:
+        pooled["steps"] = weight
+    rates = sorted({key for p in points for key in p if key.startswith("takeover_")})
+    for key in rates:
+        pooled[key] = sum(float(p.get(key, 0.0)) * w for p, w in zip(points, weights, strict=True)) / max(weight, 1e-9)
+    pooled["violation_rate"] = sum(_violations(dict(p))[0] for p in points) / max(total, 1.0)
+    counts = ("violations_under_expert", "violations_handed_back", "violations_under_threshold")
+    for key in (*counts, "violations_unforeseen"):
+        pooled[key] = sum(float(p.get(key, 0.0)) for p in points)
+    under = [(float(p["violations_under_expert"]), float(p["expert_steps_before_violation"])) for p in points]
+    under = [(n, m) for n, m in under if n > 0 and math.isfinite(m)]
+    pooled["expert_steps_before_violation"] = (
+        sum(n * m for n, m in under) / sum(n for n, _ in under) if under else math.nan
+    )
+    pooled["fear_before_handoff"] = math.nan
+    return pooled
+
+
+@dataclass(frozen=True)
+class ExtendedPoint:
+    """A point of a :class:`CurveExtension`: which gating, at which knob, near which of fear's takeover rates, and
+    the curve's own measurement of it (None for a point the curve lacked)."""
+
+    kind: str
+    knob: float
+    near: float
+    prior: dict[str, float] | None
+
+    def call(self) -> CurveCall:
+        """The :func:`curve_point` call that measures it again."""
+        return {"kind": "fear" if self.kind == "fear (SAGE)" else self.kind, "knob": self.knob}
+
+
+@dataclass(frozen=True)
+class CurveExtension:
+    """More episodes at chosen points of a measured operating curve, on seeds the curve did not use: where its points
+    at some takeover rates were left undecided against a comparison gating. For each of ``rates``, fear's point
+    nearest to it and, for each gating of ``against``, that gating's point nearest to fear's (within ``tolerance``,
+    :func:`compare_curves`'s rule) run again at their own knobs, so that the new episodes pool with the curve's
+    (:func:`pool_points`); where a gating has no point that near, one at the knob interpolated (linearly in takeover
+    rate) between its two points around fear's rate, on the new episodes alone. Each point's new episodes start
+    after the curve's (:meth:`first_seed`)."""
+
+    rates: Sequence[float]
+    against: Sequence[str] = ("random", "curiosity only")
+    tolerance: float = 0.05
+
+    def points(self, curve: Mapping[str, Sequence[dict[str, float]]]) -> list[ExtendedPoint]:
+        fear = list(curve.get("fear (SAGE)", []))
+        if not fear:
+            raise ValueError("the curve has no fear points to extend")
+        chosen: list[dict[str, float]] = []
+        for rate in self.rates:
+            near = min(fear, key=lambda q: abs(q["takeover_rate"] - rate))
+            if abs(near["takeover_rate"] - rate) > self.tolerance:
+                raise ValueError(
+                    f"no fear point within {self.tolerance:.0%} of {rate:.0%} takeover (the curve's: "
+                    + ", ".join(f"{q['takeover_rate']:.0%}" for q in fear)
+                    + ")"
+                )
+            if near not in chosen:
+                chosen.append(near)
+        out: list[ExtendedPoint] = []
+        for point in chosen:
+            at = float(point["takeover_rate"])
+            out.append(ExtendedPoint("fear (SAGE)", float(point["knob"]), at, point))
+            for kind in self.against:
+                others = sorted(curve.get(kind, []), key=lambda q: q["takeover_rate"])
+                near = min(others, key=lambda q: abs(q["takeover_rate"] - at), default=None)
+                if near is not None and abs(near["takeover_rate"] - at) <= self.tolerance:
+                    out.append(ExtendedPoint(kind, float(near["knob"]), at, near))
+                    continue
+                below = [q for q in others if q["takeover_rate"] <= at]
+                above = [q for q in others if q["takeover_rate"] > at]
+                if below and above:
+                    lo, hi = below[-1], above[0]
+                    t = (at - lo["takeover_rate"]) / (hi["takeover_rate"] - lo["takeover_rate"])
+                    out.append(ExtendedPoint(kind, float(lo["knob"] + t * (hi["knob"] - lo["knob"])), at, None))
+        return out
+
+    @staticmethod
+    def first_seed(curve: Mapping[str, Sequence[dict[str, float]]]) -> int:
+        """The first evaluation seed the curve's points did not use."""
+        return EVAL_SEED + max(int(q.get("episodes", 0)) for points in curve.values() for q in points)
+
+
+def extension_rows(points: Sequence[ExtendedPoint], new: Sequence[dict[str, float]]) -> list[dict[str, Any]]:
+    """Fear's point against each other gating's near it, on the new episodes alone and pooled with the curve's:
+    each row's counts and takeover rates and the 95% interval of the difference in the share of episodes with a
+    violation (fear minus the other: :func:`core.metrics.difference_interval`), and the verdict read off the pooled
+    one (better: wholly below 0). ``new[i]`` is ``points[i]``'s new episodes, pooled over their runs."""
+    if len(points) != len(new):
+        raise ValueError(f"{len(new)} results for {len(points)} points")
+    rows: list[dict[str, Any]] = []
+    fear: tuple[ExtendedPoint, dict[str, float]] | None = None
+    for point, fresh in zip(points, new, strict=True):
+        if point.kind == "fear (SAGE)":
+            fear = (point, fresh)
+            continue
+        if fear is None or fear[0].near != point.near:
+            raise ValueError(f"{point.kind} at {point.near:.0%} has no fear point before it")
+        sides = []
+        for p, f in (fear, (point, fresh)):
+            pooled = pool_points([p.prior, f]) if p.prior is not None else f
+            sides.append({"prior": p.prior, "new": f, "pooled": pooled, "knob": p.knob})
+        new_low, new_high = difference_interval(*_violations(sides[0]["new"]), *_violations(sides[1]["new"]))
+        low, high = difference_interval(*_violations(sides[0]["pooled"]), *_violations(sides[1]["pooled"]))
+        matched = abs(sides[0]["pooled"]["takeover_rate"] - sides[1]["pooled"]["takeover_rate"]) <= 0.05
+        verdict = "unmatched" if not matched else "better" if high < 0 else "worse" if low > 0 else "tied"
+        rows.append(
+            {
+                "near": point.near,
+                "against": point.kind,
+                "fear": sides[0],
+                "other": sides[1],
+                "new_interval": (new_low, new_high),
+                "pooled_interval": (low, high),
+                "verdict": verdict,
+            }
+        )
+    return rows
 
 
 def _violations(point: dict[str, float]) -> tuple[int, int]:
