@@ -964,7 +964,10 @@ def pool_points(points: Sequence[Mapping[str, float]]) -> dict[str, float]:
     counts = ("violations_under_expert", "violations_handed_back", "violations_under_threshold")
     for key in (*counts, "violations_unforeseen"):
         pooled[key] = sum(float(p.get(key, 0.0)) for p in points)
-    under = [(float(p["violations_under_expert"]), float(p["expert_steps_before_violation"])) for p in points]
+    under = [
+        (float(p.get("violations_under_expert", 0.0)), float(p.get("expert_steps_before_violation", math.nan)))
+        for p in points
+    ]
     under = [(n, m) for n, m in under if n > 0 and math.isfinite(m)]
     pooled["expert_steps_before_violation"] = (
         sum(n * m for n, m in under) / sum(n for n, _ in under) if under else math.nan

@@ -511,3 +511,96 @@ def test_a_scale_sweep_on_ray_measures_every_row_and_chooses_by_the_same_rule(
     assert there.rows[:2] == here.rows
     assert [(r["scale"], r["scenario"]) for r in there.rows[2:]] == [(1e-6, "dynamic"), (1e-6, "static")]
     assert all(r["takeover_rate"] > 0.9 and not r["met"] for r in there.rows[2:])
+
+
+def test_a_point_on_two_runs_of_new_seeds_pools_to_the_point_on_all_of_them(deployed: Path) -> None:  # noqa: F811
+    """A curve point run again at its own knob from another first seed (:class:`CurveExtension`): two runs on
+    adjacent seed ranges pool to the run over both; a comparison gating called with a knob runs at it as it is."""
+    from studies.calibrate import EVAL_SEED, curve_point, pool_points
+
+    make_env = functools.partial(envs.make, "dynamic")
+    for call in (
+        {"kind": "fear", "knob": 0.5},
+        {"kind": "random", "knob": 0.3},
+        {"kind": "curiosity only", "knob": 0.0},
+    ):
+        whole = curve_point(deployed, make_env, 4, call, first_seed=EVAL_SEED + 10)
+        parts = [curve_point(deployed, make_env, 2, call, first_seed=EVAL_SEED + s) for s in (10, 12)]
+        pooled = pool_points(parts)
+        assert whole["knob"] == pooled["knob"] == call["knob"] and pooled["episodes"] == whole["episodes"] == 4
+        if call["kind"] == "random":  # its own draws start again with each run's first seed: other episodes
+            continue
+        for key in ("steps", "takeover_rate", "violation_rate", "violations_under_expert", "violations_unforeseen"):
+            assert pooled[key] == pytest.approx(whole[key]), (call, key)
+    # curiosity over a level of 0 fires on nearly every step: the knob is used as given, no rate matched
+    assert curve_point(deployed, make_env, 2, {"kind": "curiosity only", "knob": 0.0})["takeover_rate"] > 0.9
+    # the seeds move the episodes
+    fear = [
+        curve_point(deployed, make_env, 3, {"kind": "fear", "knob": 0.5}, first_seed=EVAL_SEED + s) for s in (0, 50)
+    ]
+    assert fear[0]["steps"] != fear[1]["steps"]
+
+
+def _point(takeover: float, violations: int, episodes: int = 1000, knob: float = 1.0) -> dict[str, float]:
+    return {"knob": knob, "takeover_rate": takeover, "violation_rate": violations / episodes, "episodes": episodes}
+
+
+def test_pooled_points_add_counts_and_weigh_rates_by_steps_or_episodes() -> None:
+    from studies.calibrate import pool_points
+
+    a = _point(0.4, 10) | {"violations_under_expert": 4.0, "expert_steps_before_violation": 10.0}
+    b = _point(0.6, 30, 3000) | {"violations_under_expert": 6.0, "expert_steps_before_violation": 5.0}
+    pooled = pool_points([a, b])
+    assert pooled["episodes"] == 4000 and pooled["violation_rate"] == pytest.approx(40 / 4000)
+    assert pooled["takeover_rate"] == pytest.approx(0.55)  # by episodes: neither run counted its steps
+    assert pooled["violations_under_expert"] == 10 and pooled["expert_steps_before_violation"] == pytest.approx(7.0)
+    stepped = pool_points([a | {"steps": 9000.0}, b | {"steps": 1000.0}])
+    assert stepped["takeover_rate"] == pytest.approx(0.42) and stepped["steps"] == 10000
+    with pytest.raises(ValueError, match="different knobs"):
+        pool_points([a, b | {"knob": 2.0}])
+    with pytest.raises(ValueError, match="no points"):
+        pool_points([])
+
+
+def test_an_extension_takes_fears_points_with_their_matched_counterparts_or_interpolates_one() -> None:
+    from studies.calibrate import EVAL_SEED, CurveExtension
+
+    curve = {
+        "fear (SAGE)": [_point(0.23, 62, knob=1.4), _point(0.47, 25, knob=0.5), _point(0.56, 14, knob=0.3)],
+        "random": [_point(0.49, 50, knob=0.068), _point(0.63, 31, knob=0.092)],
+        "curiosity only": [_point(0.49, 34, knob=3.29), _point(0.58, 17, knob=2.77)],
+        "expert alone": [_point(1.0, 1)],
+    }
+    points = CurveExtension([0.47, 0.56]).points(curve)
+    assert [(p.kind, p.knob) for p in points[:3]] == [("fear (SAGE)", 0.5), ("random", 0.068), ("curiosity only", 3.29)]
+    assert [p.call()["kind"] for p in points[:3]] == ["fear", "random", "curiosity only"]
+    fear, random, curiosity = points[3:]
+    assert fear.near == 0.56 and curiosity.knob == 2.77 and curiosity.prior is curve["curiosity only"][1]
+    # no random point within 5 points of 56%: one at the share halfway from 49%'s to 63%'s, new episodes only
+    assert random.prior is None and random.knob == pytest.approx(0.068 + 0.5 * (0.092 - 0.068))
+    assert CurveExtension.first_seed(curve) == EVAL_SEED + 1000
+    assert [p.kind for p in CurveExtension([0.23], ("curiosity only",)).points(curve)] == ["fear (SAGE)"]
+    with pytest.raises(ValueError, match="no fear point within 5% of 35%"):
+        CurveExtension([0.35]).points(curve)
+
+
+def test_an_extensions_verdict_is_read_off_the_pooled_episodes() -> None:
+    from core.metrics import difference_interval
+    from studies.calibrate import CurveExtension, extension_rows
+
+    curve = {"fear (SAGE)": [_point(0.47, 25, knob=0.5)], "curiosity only": [_point(0.49, 34, knob=3.29)]}
+    points = CurveExtension([0.47], ("curiosity only",)).points(curve)
+    # 25 against 34 of 1000 is undecided; 75 against 110 of 3000 more decides the pooled 100 against 144 of 4000
+    rows = extension_rows(points, [_point(0.47, 75, 3000, 0.5), _point(0.49, 110, 3000, 3.29)])
+    (row,) = rows
+    assert row["fear"]["pooled"]["episodes"] == 4000 and row["verdict"] == "better"
+    assert row["pooled_interval"][1] < 0
+    assert row["new_interval"] == difference_interval(75, 3000, 110, 3000)  # the new episodes alone
+    tied = extension_rows(points, [_point(0.47, 90, 3000, 0.5), _point(0.49, 100, 3000, 3.29)])
+    assert tied[0]["verdict"] == "tied"
+    worse = extension_rows(points, [_point(0.47, 150, 3000, 0.5), _point(0.49, 90, 3000, 3.29)])
+    assert worse[0]["verdict"] == "worse"
+    apart = extension_rows(points, [_point(0.47, 75, 3000, 0.5), _point(0.70, 110, 3000, 3.29)])
+    assert apart[0]["verdict"] == "unmatched"  # the pooled takeover rates drifted more than 5 points apart
+    with pytest.raises(ValueError, match="2 points"):
+        extension_rows(points, [_point(0.47, 75, 3000)])
