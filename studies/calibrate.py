@@ -961,8 +961,12 @@ def pool_points(points: Sequence[Mapping[str, float]]) -> dict[str, float]:
     for key in rates:
         pooled[key] = sum(float(p.get(key, 0.0)) * w for p, w in zip(points, weights, strict=True)) / max(weight, 1e-9)
     pooled["violation_rate"] = sum(_violations(dict(p))[0] for p in points) / max(total, 1.0)
-    counts = ("violations_under_expert", "violations_handed_back", "violations_under_threshold")
-    for key in (*counts, "violations_unforeseen"):
+    for key in (
+        "violations_under_expert",
+        "violations_handed_back",
+        "violations_under_threshold",
+        "violations_unforeseen",
+    ):
         pooled[key] = sum(float(p.get(key, 0.0)) for p in points)
     under = [
         (float(p.get("violations_under_expert", 0.0)), float(p.get("expert_steps_before_violation", math.nan)))
