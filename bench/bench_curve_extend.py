@@ -33,8 +33,14 @@ from typing import Any
 import torch
 
 import sims
-from core.metrics import wilson_interval
-from studies.calibrate import CurveExtension, ExtendedPoint, curve_point, extension_rows, pool_points
+from studies.calibrate import (
+    CurveExtension,
+    ExtendedPoint,
+    curve_point,
+    extension_rows,
+    pool_points,
+    violation_interval,
+)
 from studies.readme import publish
 from studies.sweep import run_tasks
 
@@ -183,20 +189,14 @@ def table(
             + " · ".join(_count(other[k]) for k in ("prior", "new", "pooled"))
             + f" | {_interval(row['new_interval'])} | {_interval(row['pooled_interval'])} | {row['verdict']} |"
         )
-    shares = [
-        f"{k}: {v * 100:.1f}% ({lo * 100:.1f}-{hi * 100:.1f})"
-        for k, v, (lo, hi) in (
-            (
-                f"{row['against']} near {row['near']:.0%}",
-                row["other"]["pooled"]["violation_rate"],
-                wilson_interval(
-                    round(row["other"]["pooled"]["violation_rate"] * row["other"]["pooled"]["episodes"]),
-                    int(row["other"]["pooled"]["episodes"]),
-                ),
-            )
-            for row in rows
+    shares = []
+    for row in rows:
+        pooled = row["other"]["pooled"]
+        low, high = violation_interval(pooled)
+        shares.append(
+            f"{row['against']} near {row['near']:.0%}: {pooled['violation_rate'] * 100:.1f}% "
+            f"({low * 100:.1f}-{high * 100:.1f})"
         )
-    ]
     lines += [
         "",
         "Curve: the report's own episodes at the point (– where the gating had no point within 5 points of fear's and "
