@@ -2,7 +2,7 @@
 
 A world-model-only refit (``sage train --world-model-only``) is one draw: the same command with another seed
 gives a model whose warnings come earlier on one layout and later on another, enough to move the gate's safety
-by several times its own sampling error (`docs/calibration_history.md`, "The gate's safety over refits of the
+by several times its own sampling error (`docs/notes/calibration_history.md`, "The gate's safety over refits of the
 world model"). Bagging
 averages that draw out: refit K times with different seeds, then merge the K world models into one ensemble
 of all their members (:func:`core.sage.world_model.merge_ensembles`) and set its κ and τ bounds on the union

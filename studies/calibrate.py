@@ -155,7 +155,7 @@ def labels_within(violation: np.ndarray, episode: np.ndarray, steps: int) -> np.
 EARLY_LEAD_S = 1.5
 """:func:`early_warning`'s lead [s]: a warning this far ahead, or up to twice that, counts as early (the scripted
 highway expert avoided, by a steady manoeuvre, every collision of a replayed handful from 2 s before the takeover and
-few from the takeover itself, ``docs/calibration_history.md``)."""
+few from the takeover itself, ``docs/notes/calibration_history.md``)."""
 EARLY_FIRING = (0.2, 0.3, 0.45, 0.55)
 """The firing shares :func:`early_warning` compares at."""
 
@@ -755,7 +755,7 @@ CurveCall = dict[str, Any]
 @dataclass(frozen=True)
 class CurvePlan:
     """The operating curve as independent pieces of work, so that a caller can run each on its own core (Ray tasks:
-    ``bench/bench_calibration.py``): first the fear points, the curiosity pilot and the expert alone (:meth:`first`),
+    ``experiments/calibration.py``): first the fear points, the curiosity pilot and the expert alone (:meth:`first`),
     then random and curiosity-only gating at the takeover rates the fear points reached (:meth:`second`). Run each
     call with :func:`curve_point`; :meth:`curve` puts the results together. :func:`operating_curve` runs them in
     turn."""

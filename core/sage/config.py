@@ -178,7 +178,7 @@ class GateConfig:
     without replacement, or all of them when it holds fewer. τ_max is a tail quantile, so its estimate is noisy:
     on the deployed UGV policy's states its sampling sd is 0.025 over 2048 states (the draw before this field),
     where τ_max differs by up to 0.06 between refits, and 0.010 over 16384, for about a second a fit
-    (``bench/bench_tau_estimate.py``)."""
+    (``experiments/tau_estimate.py``)."""
     curiosity_smoothing: float = 0.3
     """Weight of the newest curiosity in the short moving average that ρ reads, so that τ does not jump with
     every noisy transition (1: no smoothing)."""
@@ -217,7 +217,7 @@ class GateConfig:
     channel i closing (the motion input's change below 0), so that the imagined robot driving into a wall the real
     one is not approaching does not count. On the UGV's training drives it keeps the imagined contact of nearly
     every state before a violation and drops it from about one in eight of the states with none ahead
-    (docs/calibration_history.md, "Imagined contact"). Needs the world model's motion input; where fear is computed
+    (docs/notes/calibration_history.md, "Imagined contact"). Needs the world model's motion input; where fear is computed
     without it (the learner's batches), no contact counts."""
     contact_floors: list[float] | None = None
     """The observation's contact floors (channels [0, n), the observation's units): every training run writes them

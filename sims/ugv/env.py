@@ -55,7 +55,7 @@ def scan_layout(config: UGVConfig | None = None) -> dict[str, Any]:
     """``world_model_config`` fields for a world model whose motion input turns the previous lidar frame to the
     current heading (:mod:`core.motion`): the first 54 channels are sectors over the front 270° (rightmost
     first), the last channel the last yaw-rate command over w_max, and one step at it turns the heading by
-    w_max dt, that many sector widths. Measured (``bench/bench_refit_spread.py``), not a default."""
+    w_max dt, that many sector widths. Measured (``experiments/refit_spread.py``), not a default."""
     config = config or UGVConfig()
     sector_width = math.radians(config.lidar.fov_deg) / SECTORS
     return {

@@ -1,5 +1,5 @@
 """What the simulator knows of the robot's encounters with movers and the world model must infer: the true time to
-contact and the nearest gap (privileged; the reference gates of ``bench/bench_oracle_gate.py`` read them, and the
+contact and the nearest gap (privileged; the reference gates of ``experiments/oracle_gate.py`` read them, and the
 near-miss flag ``info["conflict"]`` can join the world model's violation label, as on highway).
 
 Time to contact: holding its last command (v, w) (the unicycle's constant motion, as the traffic literature's time

@@ -54,7 +54,7 @@ def test_adapting_from_the_default_ugv_policy_updates_it(tmp_path: Path) -> None
 @pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
 def test_a_committed_policy_deploys_the_operating_point_it_chose(checkpoint: Path) -> None:
     """``sage choose-scale`` ran on each default's training scenarios: its rows and choice lie beside the policy
-    (``tau_scale_choice.json``, where it changed the scale) or in ``docs/choose_scale/<policy>.json``. The
+    (``tau_scale_choice.json``, where it changed the scale) or in ``docs/notes/choose_scale/<policy>.json``. The
     checkpoint deploys the scale chosen, which met the target on every scenario it was chosen on; where none met,
     the scale the policy had (1) stays."""
     import json
@@ -62,7 +62,10 @@ def test_a_committed_policy_deploys_the_operating_point_it_chose(checkpoint: Pat
     from core.agents import load_agent
 
     name = checkpoint.parent.name
-    beside, documented = checkpoint.parent / "tau_scale_choice.json", ROOT / "docs" / "choose_scale" / f"{name}.json"
+    beside, documented = (
+        checkpoint.parent / "tau_scale_choice.json",
+        ROOT / "docs" / "notes" / "choose_scale" / f"{name}.json",
+    )
     assert beside.exists() != documented.exists(), f"{name}: one record of its scale's choice"
     choice = json.loads((beside if beside.exists() else documented).read_text())
     gate = load_agent(checkpoint.parent).make_gate()

@@ -1,16 +1,17 @@
 """More episodes where a measured operating curve left fear undecided against a comparison gating.
 
-    .venv/bin/python bench/bench_curve_extend.py docs/calibration_highway_defensive/highway-default-test-adversarial \\
+    .venv/bin/python -m experiments.curve_extend \\
+        docs/notes/calibration_highway_defensive/highway-default-test-adversarial \\
         --at-rates 0.47 0.56 --episodes 3000 [--chunk 250] [--against 'curiosity only'] [--out DIR] \\
         [--readme FILE --block NAME] [--cpus N | --address HOST:PORT]
 
-Reads the curve of a ``report.json`` that ``bench/bench_calibration.py`` wrote, takes fear's points nearest to
+Reads the curve of a ``report.json`` that ``experiments/calibration.py`` wrote, takes fear's points nearest to
 ``--at-rates`` and each comparison gating's point that :func:`studies.calibrate.compare_curves` matched to them
 (:class:`studies.calibrate.CurveExtension`), and runs each again at its own knob (τ's scale, the random firing share,
 the curiosity level) on ``--episodes`` new episodes: the evaluation seeds after the curve's, the same for every point.
 Where a gating had no point within 5 points of fear's, one at the knob interpolated between its two points around
-fear's rate, on the new episodes alone. Prints and writes (``--out``, default ``docs/curve_extension``) each pair on
-the new episodes alone and pooled with the curve's, with the 95% interval of the difference in the share of
+fear's rate, on the new episodes alone. Prints and writes (``--out``, default ``docs/notes/curve_extension``) each pair
+on the new episodes alone and pooled with the curve's, with the 95% interval of the difference in the share of
 episodes with a violation (Newcombe's); the verdict is the pooled one's. Pooling follows a first look that left the
 points undecided, so the pooled interval's 5% is nominal (two looks); the new episodes' own interval is the one that
 no earlier look touched.
@@ -49,7 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("report", type=Path, help="a case's folder of bench_calibration.py (or its report.json)")
+    parser.add_argument("report", type=Path, help="a case's folder of experiments/calibration.py (or its report.json)")
     parser.add_argument("--at-rates", type=float, nargs="+", required=True, help="fear's takeover rates to extend")
     parser.add_argument("--episodes", type=int, required=True, help="new episodes a point")
     parser.add_argument("--chunk", type=int, default=250, help="episodes a Ray task")
@@ -61,7 +62,7 @@ def main() -> None:
         help="the comparison gatings to extend beside fear (default: both)",
     )
     parser.add_argument("--policy", type=Path, help="the policy (default: policies/<the report's run's name>)")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "curve_extension")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "notes" / "curve_extension")
     parser.add_argument("--readme", type=Path, help="also copy the table into this file's --block")
     parser.add_argument("--block", default="curve-extension")
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
@@ -69,7 +70,7 @@ def main() -> None:
     args = parser.parse_args()
     path = args.report / "report.json" if args.report.is_dir() else args.report
     if not path.is_file():
-        parser.error(f"{path}: no report.json (bench/bench_calibration.py writes one per case)")
+        parser.error(f"{path}: no report.json (experiments/calibration.py writes one per case)")
     if args.episodes < 1 or args.chunk < 1:
         parser.error("--episodes and --chunk must be at least 1")
     report = json.loads(path.read_text())
@@ -120,7 +121,7 @@ def main() -> None:
         fresh.append(pool_points(parts))
     rows = extension_rows(points, fresh)
     command = (
-        f"python bench/bench_curve_extend.py {args.report.as_posix()} --at-rates "
+        f"python -m experiments.curve_extend {args.report.as_posix()} --at-rates "
         + " ".join(f"{r:g}" for r in args.at_rates)
         + f" --episodes {args.episodes}"
         + (" --against " + " ".join(f"'{a}'" for a in args.against) if len(args.against) < 2 else "")

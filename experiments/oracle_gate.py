@@ -11,14 +11,14 @@ A privileged gate that meets issue #11's target (a violation in at most 5% of th
 where fear does not says the policy, the expert and the hold leave the target within reach, and the warning is
 what is missing; one that does not says the target asks more than any warning from these states can give.
 
-    .venv/bin/python bench/bench_oracle_gate.py [--sim highway|ugv] [--episodes 300] [--ttc S [S ...]] [--gap M] \
-        [--out DIR] [--readme docs/calibration_history.md] [--cpus N | --address HOST:PORT]
+    .venv/bin/python -m experiments.oracle_gate [--sim highway|ugv] [--episodes 300] [--ttc S [S ...]] [--gap M] \
+        [--out DIR] [--readme docs/notes/calibration_history.md] [--cpus N | --address HOST:PORT]
 
 The thresholds are conventional, not swept to fit: on highway a time to contact under 3 s is the traffic-conflict
 literature's usual line for a conflict (1.5 s for a serious one) and 1.5 m to the nearest vehicle about half a
 lane's width beside the ego's own; on the UGV the defaults are the warning the scripted expert needs (1 s, the
 calibration bench's warning table on every built-in UGV scenario) and the label horizon of its world model (2 s),
-and the margin the expert keeps to movers (0.12 m). Rows: the gate table's (``bench/bench_calibration.py``, its
+and the margin the expert keeps to movers (0.12 m). Rows: the gate table's (``experiments/calibration.py``, its
 seeds, so the deployed rows reproduce its table at the same commit). Each row is a Ray task
 (:func:`studies.sweep.run_tasks`). Not a unit test: about 20 minutes of one core at 300 episodes on highway.
 """
@@ -32,10 +32,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from bench_calibration import table_scenarios  # the sibling bench (this folder is on the path when run as a script)
 
 import sims
 from core.metrics import wilson_interval
+from experiments.calibration import table_scenarios
 from studies.readme import publish
 from studies.sweep import run_tasks
 
@@ -94,7 +94,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=300, help="episodes per scenario and gate")
     parser.add_argument("--ttc", type=float, nargs="+", help="the privileged gates' times to contact [s]")
     parser.add_argument("--gap", type=float, help="the privileged gate's gap to the nearest vehicle or mover [m]")
-    parser.add_argument("--out", type=Path, help="the report's folder (default: docs/oracle_gate_<sim>)")
+    parser.add_argument("--out", type=Path, help="the report's folder (default: docs/notes/oracle_gate_<sim>)")
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
@@ -118,7 +118,7 @@ def main() -> None:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     header = "| scenario | " + " | ".join(f"{name}: violations | takeover" for name, _ in named) + " |"
     command = (
-        f"python bench/bench_oracle_gate.py{' --sim ugv' if sim != 'highway' else ''} --episodes {args.episodes} "
+        f"python -m experiments.oracle_gate{' --sim ugv' if sim != 'highway' else ''} --episodes {args.episodes} "
         f"--ttc {' '.join(f'{ttc:g}' for ttc in ttcs)} --gap {gap:g}"
     )
     what = {
@@ -144,7 +144,7 @@ def main() -> None:
             low, high = wilson_interval(bad, args.episodes)
             cells.append(f"{bad}/{args.episodes} ({low:.0%}-{high:.0%}) | {point['takeover_rate']:.1%}")
         lines.append(f"| {sim} {scenario} | " + " | ".join(cells) + " |")
-    out = args.out or ROOT / "docs" / f"oracle_gate_{sim}"
+    out = args.out or ROOT / "docs" / "notes" / f"oracle_gate_{sim}"
     publish(lines, out, args.readme, f"oracle-gate-{sim}", "## Calibration of fear")
 
 

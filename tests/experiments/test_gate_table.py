@@ -2,12 +2,7 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
-from bench_calibration import GateRow, aliases, table_scenarios, target_summary
+from experiments.calibration import GateRow, aliases, table_scenarios, target_summary
 
 
 def _row(scenario: str, violations: int, takeover: float, beyond: bool = False) -> GateRow:

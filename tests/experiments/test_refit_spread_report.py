@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
-from bench_calibration import table_scenarios
-from bench_refit_spread import arms, earlier_rows, rank_report, report, scaled_report
+from experiments.calibration import table_scenarios
+from experiments.refit_spread import arms, earlier_rows, rank_report, report, scaled_report
 
 
 def test_the_equal_takeover_table_puts_each_arm_at_each_scale_beside_the_deployed_gate(tmp_path: Path) -> None:

@@ -1,15 +1,15 @@
 """Were the gate + expert table's violations avoidable at the warning the gate gave? (:mod:`studies.escape`)
 
-For each committed default policy and scenario of the gate table in ``bench/bench_calibration.py`` (the same seeds,
+For each committed default policy and scenario of the gate table in ``experiments/calibration.py`` (the same seeds,
 the policy's own gate and the scripted expert), every episode with a violation is replayed from its seed and every
 steady manoeuvre (a grid over the action space, each action held ``--hold`` seconds) is tried from the start of the
 last takeover before the violation and from ``--before`` seconds before it. A violation no manoeuvre avoids from the
 takeover was probably out of reach at that warning (a manoeuvre that changes course on the way might still have
 escaped); one that some manoeuvre avoids was within reach of a driver who knew what the others would do (the
-manoeuvres are tried against the true future). Writes ``docs/escape/README.md`` with the commit and the command.
+manoeuvres are tried against the true future). Writes ``docs/notes/escape/README.md`` with the commit and the command.
 
-    .venv/bin/python bench/bench_escape.py [--episodes 100] [--hold 3] [--before 1 2] [--levels 5] \
-        [--readme docs/calibration_history.md] [--cpus N | --address HOST:PORT]
+    .venv/bin/python -m experiments.escape [--episodes 100] [--hold 3] [--before 1 2] [--levels 5] \
+        [--readme docs/notes/calibration_history.md] [--cpus N | --address HOST:PORT]
 
 Each row is a Ray task (:func:`studies.sweep.run_tasks`); rows do not depend on how many run at once. Not a unit
 test: it takes minutes.
@@ -24,14 +24,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from bench_calibration import (  # the sibling bench (this folder is on the path when run as a script)
+
+import sims
+from experiments.calibration import (
     CASES,
     gate_cases,
     scenario_source,
     shown_scenario,
 )
-
-import sims
 from studies.escape import EscapeReport, escape_check
 from studies.readme import include
 from studies.sweep import run_tasks
@@ -80,7 +80,7 @@ def main() -> None:
     parser.add_argument("--hold", type=float, default=3.0, help="seconds each manoeuvre is held")
     parser.add_argument("--before", type=float, nargs="*", default=[1.0, 2.0], help="seconds before the violation")
     parser.add_argument("--levels", type=int, default=5, help="values per action dimension of the manoeuvre grid")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "escape")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "notes" / "escape")
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's escape section")
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
@@ -108,7 +108,7 @@ def main() -> None:
     )
     before = [f"{s:g}" for s in args.before]
     command = (
-        f"python bench/bench_escape.py --episodes {args.episodes} --hold {args.hold:g} --before {' '.join(before)} "
+        f"python -m experiments.escape --episodes {args.episodes} --hold {args.hold:g} --before {' '.join(before)} "
         f"--levels {args.levels}"
     )
     text: list[Any] = [

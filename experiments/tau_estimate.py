@@ -8,8 +8,9 @@ scenarios its world model was refitted on, labels the familiar states as the lea
 states for several N: the spread of τ over draws is the sampling noise a single fit's estimate carries, and the
 time is what one calibration costs. The learner's sample size is ``GateConfig.calibration_states``.
 
-    .venv/bin/python bench/bench_tau_estimate.py [--policy policies/ugv-default] [--sim ugv] \
-        [--scenario 1,2,...] [--env KEY=VALUE ...] [--episodes 200] [--draws 30] [--readme docs/calibration_history.md]
+    .venv/bin/python -m experiments.tau_estimate [--policy policies/ugv-default] [--sim ugv] \
+        [--scenario 1,2,...] [--env KEY=VALUE ...] [--episodes 200] [--draws 30] \
+        [--readme docs/notes/calibration_history.md]
 
 Not a unit test: it takes a few minutes of one core.
 """
@@ -23,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from bench_refit_spread import REFIT  # the sibling bench (this folder is on the path when run as a script)
 
 import sims
 from core.agents import LoadedAgent, load_agent
@@ -31,6 +31,7 @@ from core.loop import NoGate, Runner
 from core.replay import ReplayBuffer
 from core.sage.fear import calibrate
 from core.sage.learner import familiar_for_bounds
+from experiments.refit_spread import REFIT
 from studies.envs import parse_env_overrides
 from studies.readme import publish
 
@@ -72,7 +73,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=200, help="policy episodes, over the scenarios in turn")
     parser.add_argument("--draws", type=int, default=30, help="independent draws of N states per N")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "tau_estimate")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "notes" / "tau_estimate")
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -108,7 +109,7 @@ def main() -> None:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     shown = args.policy.resolve()
     shown = shown.relative_to(ROOT) if shown.is_relative_to(ROOT) else shown
-    command = f"python bench/bench_tau_estimate.py --policy {shown} --sim {args.sim} --scenario {args.scenario}"
+    command = f"python -m experiments.tau_estimate --policy {shown} --sim {args.sim} --scenario {args.scenario}"
     if args.env:
         command += " --env " + " ".join(args.env)
     command += f" --episodes {args.episodes} --draws {args.draws} --seed {args.seed}"

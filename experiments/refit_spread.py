@@ -3,15 +3,16 @@ model (an arm: ``--set`` overrides) beat that spread?
 
 Each arm refits a default policy's world model (``--sim``: :data:`REFITS`; on the UGV the command in
 ``policies/ugv-default/README.md``: the same demonstrations, episodes and label, the policy from c36823a, as there),
-once per seed. Then every refit drives the gate + scripted expert table of ``bench/bench_calibration.py`` (its
+once per seed. Then every refit drives the gate + scripted expert table of ``experiments/calibration.py`` (its
 seeds, the simulator's scenarios and fields). The table gives per arm and scenario the episodes with a violation
 for each seed, their mean with a 95% t-interval over seeds, and the mean takeover rate; ``--deployed`` adds the
 committed policy's own rows beside them. ``--rows`` takes an arm's rows from an earlier run's ``rows.json`` where its
 refits are not kept (the report says which, and the commit they were measured at).
 
-    .venv/bin/python bench/bench_refit_spread.py [--sim ugv] [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
-        [--runs runs/refit-spread] [--merge] [--deployed] [--rank-episodes 150] [--rows docs/refit_spread/rows.json] \
-        [--out DIR] [--readme docs/calibration_history.md] [--block NAME] [--cpus N | --address HOST:PORT]
+    .venv/bin/python -m experiments.refit_spread [--sim ugv] [--arms plain scan] [--seeds 0 1 2] [--episodes 100] \
+        [--runs runs/refit-spread] [--merge] [--deployed] [--rank-episodes 150] \
+        [--rows docs/notes/refit_spread/rows.json] \
+        [--out DIR] [--readme docs/notes/calibration_history.md] [--block NAME] [--cpus N | --address HOST:PORT]
 
 ``--rank-episodes N`` adds how well fear ranks the steps before a violation (``sage calibrate``'s first table: the
 policy alone with its gate watching, no expert, N episodes per scenario, "a violation within 1 s"): per arm and
@@ -68,11 +69,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_calibration import table_scenarios  # the sibling bench (this folder is on the path when run as a script)
 from scipy import stats
 
 import sims
 from core.sage.fear import CALIBRATION_FILE
+from experiments.calibration import table_scenarios
 from studies.readme import include
 from studies.spec import TrainSpec
 from studies.sweep import run_tasks
@@ -102,7 +103,7 @@ REFIT = TrainSpec(
     checkpoint_dtype="float16",
 )
 """The refit of ``policies/ugv-default/README.md`` with its deployed gate (seed, init and out filled in per run).
-The refits and rows of ``docs/calibration_history.md`` made up to c19b723 had the paper's linear τ and a 5-step
+The refits and rows of ``docs/notes/calibration_history.md`` made up to c19b723 had the paper's linear τ and a 5-step
 hold; a refit kept under ``--runs`` from then keeps its own gate (a rerun reuses it): give a new ``--runs``."""
 
 
@@ -188,12 +189,12 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             "late-brakes": Arm(changes={"env": ["expert.horizon=0.2"]}),
             # label4s: the violation label "within the next 40 steps" (4 s) where the checkpoint's is 2 s. Under gate
             # + expert most adversarial collisions come after a takeover 0.2-0.5 s before them, where the expert needs
-            # about 1 s (bench_escape.py); a label that reaches past the leader's braking may rank the short headways
-            # that precede it
+            # about 1 s (experiments/escape.py); a label that reaches past the leader's braking may rank the short
+            # headways that precede it
             "label4s": Arm(["world_model_config.violation_steps=40"]),
             # conflict: the violation head also learns the simulator's traffic conflicts (time to contact under 3 s or
-            # a vehicle within 1.5 m; bench_oracle_gate.py: a gate on them meets the target), many more positives than
-            # collisions; conflict-half weighs them 0.5, below a real violation ahead
+            # a vehicle within 1.5 m; experiments/oracle_gate.py: a gate on them meets the target), many more positives
+            # than collisions; conflict-half weighs them 0.5, below a real violation ahead
             "conflict": Arm(["world_model_config.conflict_label_weight=1"]),
             "conflict-half": Arm(["world_model_config.conflict_label_weight=0.5"]),
             # conflict-ahead: a conflict within the next second (10 steps) where conflict labels the conflict's own
@@ -222,7 +223,7 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
         # conflict: the violation head also learns the near misses with movers (sims/ugv/interaction.py: holding its
         # command the robot would touch a mover within 2 s, the label's own horizon, or is within the expert's 0.12 m
         # margin of one), as highway's deployed model does; conflict1s: within 1 s, the warning the expert needs (the
-        # calibration bench's warning table), where bench_oracle_gate.py's gate on it asks for a quarter of fear's
+        # calibration bench's warning table), where experiments/oracle_gate.py's gate on it asks for a quarter of fear's
         # takeover on UGV 4
         "conflict": Arm(
             ["gate.calibration_states=16384", "world_model_config.conflict_label_weight=1"],
@@ -233,8 +234,8 @@ def arms(sim: str = "ugv") -> dict[str, Arm]:
             {"env": [*REFIT.env, "conflict.report=true", "conflict.ttc=1"]},
         ),
         # label1s: the violation label "within the next 10 steps" (1 s, the warning the expert needs) where the
-        # deployed refit's is 2 s: bench_oracle_gate.py's gate on the true time to contact meets UGV 4's target at a
-        # quarter of fear's takeover, and fear's median warning there is 3 s
+        # deployed refit's is 2 s: experiments/oracle_gate.py's gate on the true time to contact meets UGV 4's target
+        # at a quarter of fear's takeover, and fear's median warning there is 3 s
         "label1s": Arm(["gate.calibration_states=16384", "world_model_config.violation_steps=10"]),
         # label1s-conflict: a collision within 1 s, or a near miss by the true time to contact (2 s), which reaches
         # further ahead where the closing speed is high (head-on) and less far where it is low (a cut-in alongside)
@@ -303,7 +304,7 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")
     parser.add_argument("--runs", type=Path, help="refits are kept here (default: runs/refit-spread, -<sim> but ugv)")
-    parser.add_argument("--out", type=Path, help="default: docs/refit_spread, _<sim> but ugv")
+    parser.add_argument("--out", type=Path, help="default: docs/notes/refit_spread, _<sim> but ugv")
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
     parser.add_argument(
         "--merge",
@@ -352,7 +353,7 @@ def main() -> None:
         parser.error(f"no arm {', '.join(unknown)} on {args.sim}; choose from {', '.join(settings)}")
     suffix = "" if args.sim == "ugv" else f"-{args.sim}"
     args.runs = (args.runs or ROOT / "runs" / f"refit-spread{suffix}").resolve()  # Ray workers: another directory
-    args.out = args.out or ROOT / "docs" / f"refit_spread{suffix.replace('-', '_')}"
+    args.out = args.out or ROOT / "docs" / "notes" / f"refit_spread{suffix.replace('-', '_')}"
     setup = REFITS[args.sim]
     init = policy_at_commit(args.runs, setup.policy, setup.commit)
     folders = {(arm, seed): args.runs / f"{arm}-s{seed}" for arm in args.arms for seed in args.seeds}
@@ -764,7 +765,7 @@ def report(
     lines = [
         "### The gate's safety over refits of the world model" + ("" if sim == "ugv" else f" ({sim})"),
         "",
-        f"Generated by `python bench/bench_refit_spread.py {flags}--arms {' '.join(args.arms)} --seeds {seeds} "
+        f"Generated by `python -m experiments.refit_spread {flags}--arms {' '.join(args.arms)} --seeds {seeds} "
         f"--episodes {args.episodes}{' --merge' if getattr(args, 'merge', False) else ''}"
         f"{' --deployed' if deployed else ''}{rows_flag(args)}{scales_flags(args)}{rank_flag(args)}` at commit "
         f"{commit}. "

@@ -1,19 +1,20 @@
 """Does each committed default policy's fear predict danger? ``sage calibrate`` on every default that has a world
-model, on the scenarios where its simulator's danger lives; writes ``docs/calibration/README.md`` (the table the
+model, on the scenarios where its simulator's danger lives; writes ``docs/notes/calibration/README.md`` (the table the
 README quotes) and each run's figures, with the commit and the command that produced them.
 
-    .venv/bin/python bench/bench_calibration.py [--episodes 20] [--curve-episodes 10] [--gate-episodes 20] \
-        [--lead-episodes N] [--compare-gate KEY=VALUE ...] [--readme README.md] [--cpus N | --address HOST:PORT]
-    .venv/bin/python bench/bench_calibration.py --gate-only --gate-episodes 300 --compare-gate KEY=VALUE ... \
-        [--out DIR] [--readme docs/calibration_history.md --block NAME]
-    .venv/bin/python bench/bench_calibration.py --curves-only --sims highway --episodes 150 --curve-episodes 300 \
-        [--out DIR] [--readme docs/calibration_history.md --block NAME]
-    .venv/bin/python bench/bench_calibration.py --sims highway --episodes 150 --curve-episodes 300 \
-        --gate-episodes 300 [--readme README.md]
+    .venv/bin/python -m experiments.calibration [--episodes 20] [--curve-episodes 10] [--gate-episodes 20] \
+        [--lead-episodes N] [--compare-gate KEY=VALUE ...] [--readme docs/calibration.md] \
+        [--cpus N | --address HOST:PORT]
+    .venv/bin/python -m experiments.calibration --gate-only --gate-episodes 300 --compare-gate KEY=VALUE ... \
+        [--out DIR] [--readme docs/notes/calibration_history.md --block NAME]
+    .venv/bin/python -m experiments.calibration --curves-only --sims highway --episodes 150 --curve-episodes 300 \
+        [--out DIR] [--readme docs/notes/calibration_history.md --block NAME]
+    .venv/bin/python -m experiments.calibration --sims highway --episodes 150 --curve-episodes 300 \
+        --gate-episodes 300 [--readme docs/calibration.md]
 
 ``--sims`` alone (no ``--curves-only`` or ``--gate-only``): the whole bench on those simulators' defaults, written to
-``docs/calibration_<sims>`` and the README block ``calibration-<sims>`` (e.g. after a new default policy), so that the
-table of every default (``docs/calibration``, block ``calibration``) is not cut down to them.
+``docs/notes/calibration_<sims>`` and the README block ``calibration-<sims>`` (e.g. after a new default policy), so
+that the table of every default (``docs/notes/calibration``, block ``calibration``) is not cut down to them.
 
 ``--curves-only`` leaves the gate tables out: the calibration table and operating curves of ``--sims``' cases, e.g. a
 curve at more episodes where 100 a point left the comparison with random gating undecided. Each point of a curve is a
@@ -104,14 +105,14 @@ def main() -> None:
         "--gate-only",
         action="store_true",
         help="only the gate table, its gate with the --compare-gate settings (a comparison with the deployed gate's "
-        "table of the same episodes), written to --out (default docs/calibration_gate) and the README's --block",
+        "table of the same episodes), written to --out (default docs/notes/calibration_gate) and the README's --block",
     )
     parser.add_argument(
         "--curves-only",
         action="store_true",
         help="only the calibration table and its operating curves (no gate tables), written to --out (default "
-        "docs/calibration_curves) and the README's --block: e.g. a case's curve at more --curve-episodes, where 100 "
-        "leave its points undecided",
+        "docs/notes/calibration_curves) and the README's --block: e.g. a case's curve at more --curve-episodes, "
+        "where 100 leave its points undecided",
     )
     parser.add_argument(
         "--sims",
@@ -124,8 +125,8 @@ def main() -> None:
     parser.add_argument(
         "--out",
         type=Path,
-        help="default: docs/calibration (docs/calibration_gate with --gate-only, docs/calibration_curves with "
-        "--curves-only)",
+        help="default: docs/notes/calibration (docs/notes/calibration_gate with --gate-only, "
+        "docs/notes/calibration_curves with --curves-only)",
     )
     parser.add_argument("--readme", type=Path, help="also copy the result into this README's calibration section")
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
@@ -198,7 +199,7 @@ def main() -> None:
     if args.gate_only:
         gate_only(args, table_cases, compare_rows or gate_rows, compare, commit.strip())
         return
-    args.out = args.out or ROOT / "docs" / (
+    args.out = args.out or ROOT / "docs" / "notes" / (
         "calibration_curves" if args.curves_only else f"calibration_{subset}" if subset else "calibration"
     )
     lead_episodes = args.lead_episodes or args.gate_episodes
@@ -240,7 +241,7 @@ def main() -> None:
             else ""
         ),
         "",
-        f"Generated by `python bench/bench_calibration.py --episodes {args.episodes} --curve-episodes "
+        f"Generated by `python -m experiments.calibration --episodes {args.episodes} --curve-episodes "
         f"{args.curve_episodes}"
         + (" --curves-only" if args.curves_only else f" --gate-episodes {args.gate_episodes}")
         + (f" --sims {' '.join(args.sims)}" if args.sims else "")
@@ -312,13 +313,13 @@ def gate_only(
     text = [
         f"# The gate table {title}",
         "",
-        f"Generated by `python bench/bench_calibration.py --gate-only --gate-episodes {args.gate_episodes}"
+        f"Generated by `python -m experiments.calibration --gate-only --gate-episodes {args.gate_episodes}"
         + (f" --sims {' '.join(args.sims)}" if args.sims else "")
         + "".join(f" --compare-gate {item}" for item in args.compare_gate)
         + f"` at commit {commit}: the same episodes (seeds) as the calibration bench's gate table.",
         *gate_table(args.gate_episodes, rows, gate),
     ]
-    out = args.out or ROOT / "docs" / "calibration_gate"
+    out = args.out or ROOT / "docs" / "notes" / "calibration_gate"
     out.mkdir(parents=True, exist_ok=True)
     (out / "README.md").write_text("\n".join(text) + "\n")
     print("\n".join(text[-3:]))
@@ -663,7 +664,7 @@ def gate_table(episodes: int, rows: list[GateRow], gate: dict[str, Any] | None =
         "expert finishing a manoeuvre past the hold (the UGV's evasions).",
         "",
         "Rows named by a file (`*.yaml`) are layouts beyond the built-in scenarios that no committed model was trained "
-        "on (`FIELDS` in `bench/bench_calibration.py`).",
+        "on (`FIELDS` in `experiments/calibration.py`).",
         "",
         "| policy | scenario | episodes with a violation (95% interval) | takeover rate "
         "| why the expert drove: fear over τ · hold · hysteresis · manoeuvre (% of steps) "

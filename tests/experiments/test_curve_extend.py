@@ -1,4 +1,4 @@
-"""bench/bench_curve_extend.py: what it refuses before any episode, and the table it writes."""
+"""experiments/curve_extend.py: what it refuses before any episode, and the table it writes."""
 
 from __future__ import annotations
 
@@ -8,10 +8,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
-import bench_curve_extend
-
+from experiments import curve_extend
 from studies.calibrate import CurveExtension, extension_rows
 
 
@@ -23,8 +20,8 @@ CURVE = {"fear (SAGE)": [_point(0.47, 25, 1000, 0.5)], "curiosity only": [_point
 
 
 def _main(monkeypatch: pytest.MonkeyPatch, *argv: str) -> None:
-    monkeypatch.setattr(sys, "argv", ["bench_curve_extend.py", *argv])
-    bench_curve_extend.main()
+    monkeypatch.setattr(sys, "argv", ["experiments/curve_extend.py", *argv])
+    curve_extend.main()
 
 
 @pytest.mark.parametrize(
@@ -73,9 +70,7 @@ def test_the_table_gives_each_pair_on_the_curve_new_and_pooled_episodes() -> Non
     points = CurveExtension([0.47], ("curiosity only",)).points(CURVE)
     rows = extension_rows(points, [_point(0.46, 75, 3000, 0.5), _point(0.50, 110, 3000, 3.29)])
     report = {"sim": "highway", "scenario": "test-adversarial"}
-    lines = bench_curve_extend.table(
-        rows, report, "python bench/bench_curve_extend.py X", "abc1234", 3_001_000, 3000, 9.0
-    )
+    lines = curve_extend.table(rows, report, "python -m experiments.curve_extend X", "abc1234", 3_001_000, 3000, 9.0)
     (row,) = [line for line in lines if line.startswith("| 47%")]
     assert "25/1000 at 47.0% · 75/3000 at 46.0% · 100/4000 at 46.2%" in row
     assert "34/1000 at 49.0% · 110/3000 at 50.0% · 144/4000 at 49.8%" in row
