@@ -59,7 +59,7 @@ def test_a_study_runs_a_subset_of_its_methods_for_a_given_step_budget(ray_local:
 
         readme = tmp_path / "README.md"
         args = ["study", "toy-two", "--budget", "smoke", "--methods", "sage", "--train-steps", "1234", "--out"]
-        args += [str(tmp_path), "--readme", str(readme), "--readme-section", "toy-long"]
+        args += [str(tmp_path), "--results-doc", str(readme), "--section", "toy-long"]
         result = CliRunner().invoke(app, args)
         assert result.exit_code == 0, result.output
     finally:

@@ -1,6 +1,7 @@
 """``sage study NAME``: train every method of a study over its seeds on Ray, evaluate, write the results folder.
 
     sage study NAME --budget small --out results/NAME [--address HOST:PORT] [--cpus 2] [--max-concurrent 2]
+    sage study NAME --results-doc docs/results.md   # also its table in docs/results.md, the README's summary after
     sage study highway --methods sac,sage --train-steps 40000 --out results/highway-40k   # a longer comparison
     sage study ugv --methods sage --learner-set fear_budget_from_data=false               # an ablation
 
@@ -28,12 +29,22 @@ def register(app: typer.Typer) -> None:
         address: Annotated[str | None, typer.Option(help="Join this Ray cluster instead of running locally.")] = None,
         cpus: Annotated[int | None, typer.Option(min=1, help="Local cores for trials (default: all).")] = None,
         max_concurrent: Annotated[int | None, typer.Option(min=1, help="Most trials at once.")] = None,
-        readme: Annotated[
-            Path | None, typer.Option(help="Also write the table into this README's section for the study.")
+        results_doc: Annotated[
+            Path | None,
+            typer.Option(
+                "--results-doc",
+                "--readme",
+                help="Also write the table into this document's section for the study (the project's: "
+                "docs/results.md, which also refreshes README.md's summary).",
+            ),
         ] = None,
-        readme_section: Annotated[
+        section: Annotated[
             str | None,
-            typer.Option(help="The README section's name (default: the study's; e.g. highway-40k beside highway)."),
+            typer.Option(
+                "--section",
+                "--readme-section",
+                help="The document section's name (default: the study's; e.g. highway-40k beside highway).",
+            ),
         ] = None,
         set_: Annotated[
             list[str] | None,
@@ -86,11 +97,14 @@ def register(app: typer.Typer) -> None:
             name, budget, results, address, cpus, max_concurrent, overrides=overrides, methods=chosen,
             train_steps=train_steps, learner_overrides=learner_set or (),
         )  # fmt: skip
-        if readme is not None:
-            from studies.readme import update_readme
+        if results_doc is not None:
+            from studies.readme import RESULTS_DOC, SUMMARY_README, update_results, update_summary
 
-            update_readme(readme, readme_section or name, results)
-            typer.echo(f"README section '{readme_section or name}' written from {results} into {readme}")
+            update_results(results_doc, section or name, results)
+            typer.echo(f"section '{section or name}' written from {results} into {results_doc}")
+            if results_doc.resolve() == RESULTS_DOC.resolve():  # the project's document: its README summary follows
+                update_summary(SUMMARY_README, results_doc)
+                typer.echo(f"summary written into {SUMMARY_README}")
 
 
 def setting_value(default: Any, text: str, key: str) -> Any:
