@@ -110,7 +110,7 @@ def approach_rate(state: Tensor, motion: Tensor, start: int, stop: int) -> Tenso
     This is the inverse of a beam's time to contact. A small network reads ranges and their changes on their own
     scales, where a 4 m/s approach at 7 m and a 4 m/s approach at 40 m differ by nothing in the change; the ratio is
     what tells them apart, and it is a division, which a few SiLU layers learn poorly from rare violations. On
-    highway the gate's rows did not improve beyond the spread of refits (README, "Calibration of fear"), so it is an
+    highway the gate's rows did not improve beyond the spread of refits (docs/calibration.md), so it is an
     option, off by default. Any leading shape, (..., D) -> (..., stop - start)."""
     closing = motion[..., start:stop].neg().clamp_min(0.0)
     return closing.div(state[..., start:stop].clamp_min(APPROACH_RANGE_FLOOR)).clamp_max(1.0)

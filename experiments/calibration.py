@@ -1,6 +1,6 @@
 """Does each committed default policy's fear predict danger? ``sage calibrate`` on every default that has a world
-model, on the scenarios where its simulator's danger lives; writes ``docs/notes/calibration/README.md`` (the table the
-README quotes) and each run's figures, with the commit and the command that produced them.
+model, on the scenarios where its simulator's danger lives; writes ``docs/notes/calibration/README.md`` (the table
+docs/calibration.md quotes) and each run's figures, with the commit and the command that produced them.
 
     .venv/bin/python -m experiments.calibration [--episodes 20] [--curve-episodes 10] [--gate-episodes 20] \
         [--lead-episodes N] [--compare-gate KEY=VALUE ...] [--readme docs/calibration.md] \

@@ -13,8 +13,8 @@ looks at), and sets κ and the τ bounds on them for the new settings. The world
 step is labelled "a violation within ``horizon_s``", and β is the candidate whose fear ranks those steps best
 (the mean AUROC over the scenarios where the policy met a violation), ties to the candidate nearest the run's own.
 The drives are on the training scenarios, where ĉ learned from violations, so the choice leans towards ĉ; σ̂ is
-the part that speaks on ground the model never saw, which no training scenario shows. The README's calibration
-section measures the choice on scenarios and layouts it did not see.
+the part that speaks on ground the model never saw, which no training scenario shows. docs/calibration.md
+measures the choice on scenarios and layouts it did not see.
 """
 
 from __future__ import annotations

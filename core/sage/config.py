@@ -154,7 +154,7 @@ class GateConfig:
     the same equation on log τ, τ = τ_min^ρ τ_max^(1-ρ), so that a step of ρ moves τ by the same ratio whatever the
     bounds' spread. Where the fear of familiar states has a long tail (SUMO's bounds lie a factor 10 apart: 0.056 and
     0.576) the linear mean of the bounds sits above almost all of it, and curiosity that carries no danger (SUMO's
-    AUROC 0.51) leaves τ there; README, "Calibration of fear", compares the two. The committed default policies
+    AUROC 0.51) leaves τ there; docs/calibration.md compares the two. The committed default policies
     deploy ``geometric``; new runs and the studies keep the paper's ``linear``."""
     curiosity_ema: float = 0.02
     """Rate of the exponential moving average of curiosity that ρ compares the current curiosity with."""
@@ -199,7 +199,7 @@ class GateConfig:
     """Hysteresis of the hold, in [0, 1]: while the expert holds control, fear above τ_t - release (τ_t - τ_min)
     restarts the hold. 0 (the paper's gate, the default of new runs and of the studies) hands back after
     the hold's k steps under τ_t; 1 only after k steps under τ_min, the threshold of the most novel
-    ground. The committed default policies deploy 1 (README, "Calibration of fear": over 100 episodes a scenario it
+    ground. The committed default policies deploy 1 (docs/calibration.md: over 100 episodes a scenario it
     left SUMO's routes 62 -> 38 episodes with a violation and the UGV's within noise, at a few points more takeover)."""
 
     imagined_contact: bool = False
@@ -217,8 +217,8 @@ class GateConfig:
     channel i closing (the motion input's change below 0), so that the imagined robot driving into a wall the real
     one is not approaching does not count. On the UGV's training drives it keeps the imagined contact of nearly
     every state before a violation and drops it from about one in eight of the states with none ahead
-    (docs/notes/calibration_history.md, "Imagined contact"). Needs the world model's motion input; where fear is computed
-    without it (the learner's batches), no contact counts."""
+    (docs/notes/calibration_history.md, "Imagined contact"). Needs the world model's motion input; where fear is
+    computed without it (the learner's batches), no contact counts."""
     contact_floors: list[float] | None = None
     """The observation's contact floors (channels [0, n), the observation's units): every training run writes them
     from its simulator's descriptor (:attr:`core.descriptor.SimDescriptor.contact_floors`; None or empty where the

@@ -4,7 +4,7 @@
 :mod:`core.sage.fear`) against τ_t; Ξ_t = 1 when F^m_t > τ_t, and once fired the expert keeps control for
 k steps (``GateConfig.hold``: ``hold_steps``, or ``hold_seconds`` in the simulator's steps; each new firing
 restarts the count), which avoids frame-by-frame switching. With
-``release`` > 0 (off in the paper's gate; the committed default policies deploy 1; README, "Calibration of fear",
+``release`` > 0 (off in the paper's gate; the committed default policies deploy 1; docs/calibration.md,
 says what it measured), fear over a lower release level (between τ_t and τ_min) restarts the count too while the
 expert holds control: hysteresis, so that control goes back to the policy only once its own plan looks safe again.
 ``observe``: curiosity C_{t+1} of the executed transition, which sets the threshold of the next step.

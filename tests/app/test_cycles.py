@@ -102,8 +102,8 @@ def test_deployment_and_fine_tuning_cycles_learn_from_the_takeovers(policy: Path
     closer than the deployed one (mean action gap; 4 cycle seeds, when measured: 0.43 -> 0.10, 0.57 -> 0.12,
     0.99 -> 0.70, 0.74 -> 0.23).
     At two episodes a cycle the takeover rate and the collisions are noise (the last cycle asked less than the first
-    in 1 of those 4 seeds, with the expert before detours too); the five-seed study measures them (README, "Deploy /
-    fine-tune cycles", ``sage study cycles``)."""
+    in 1 of those 4 seeds, with the expert before detours too); the five-seed study measures them
+    (docs/results.md, "Deploy / fine-tune cycles", ``sage study cycles``)."""
     cfg = CyclesConfig(
         sim="ugv",
         scenario="3",

@@ -25,8 +25,8 @@ def test_a_committed_policy_carries_a_learning_schedule(checkpoint: Path) -> Non
 @pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
 def test_a_committed_policy_deploys_the_gate_its_readme_measured(checkpoint: Path) -> None:
     """The dashboard, ``sage eval --gate`` and the calibration bench build the gate from the checkpoint's config: the
-    defaults deploy the hysteresis (``gate.release=1``), the 1 s hold and the geometric threshold that README,
-    "Calibration of fear", measured; a refit that rewrote them with the paper's defaults would silently change what
+    defaults deploy the hysteresis (``gate.release=1``), the 1 s hold and the geometric threshold that
+    docs/calibration.md measured; a refit that rewrote them with the paper's defaults would silently change what
     a person supervising the robot gets."""
     from core.agents import load_agent
 
