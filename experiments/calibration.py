@@ -13,7 +13,7 @@ docs/calibration.md quotes) and each run's figures, with the commit and the comm
         --gate-episodes 300 [--readme docs/calibration.md]
 
 ``--sims`` alone (no ``--curves-only`` or ``--gate-only``): the whole bench on those simulators' defaults, written to
-``docs/notes/calibration_<sims>`` and the README block ``calibration-<sims>`` (e.g. after a new default policy), so
+``docs/notes/calibration_<sims>`` and the block ``calibration-<sims>`` (e.g. after a new default policy), so
 that the table of every default (``docs/notes/calibration``, block ``calibration``) is not cut down to them.
 
 ``--curves-only`` leaves the gate tables out: the calibration table and operating curves of ``--sims``' cases, e.g. a
@@ -105,13 +105,13 @@ def main() -> None:
         "--gate-only",
         action="store_true",
         help="only the gate table, its gate with the --compare-gate settings (a comparison with the deployed gate's "
-        "table of the same episodes), written to --out (default docs/notes/calibration_gate) and the README's --block",
+        "table of the same episodes), written to --out (default docs/notes/calibration_gate) and --readme's --block",
     )
     parser.add_argument(
         "--curves-only",
         action="store_true",
         help="only the calibration table and its operating curves (no gate tables), written to --out (default "
-        "docs/notes/calibration_curves) and the README's --block: e.g. a case's curve at more --curve-episodes, "
+        "docs/notes/calibration_curves) and --readme's --block: e.g. a case's curve at more --curve-episodes, "
         "where 100 leave its points undecided",
     )
     parser.add_argument(
@@ -120,7 +120,7 @@ def main() -> None:
         help="only the cases (and layouts) of these simulators (default: every default policy's)",
     )
     parser.add_argument(
-        "--block", help="the README block of --gate-only or --curves-only (calibration-gate, calibration-curves)"
+        "--block", help="--readme's block of --gate-only or --curves-only (calibration-gate, calibration-curves)"
     )
     parser.add_argument(
         "--out",
@@ -128,7 +128,11 @@ def main() -> None:
         help="default: docs/notes/calibration (docs/notes/calibration_gate with --gate-only, "
         "docs/notes/calibration_curves with --curves-only)",
     )
-    parser.add_argument("--readme", type=Path, help="also copy the result into this README's calibration section")
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        help="also copy the result into this document's block (the project's: docs/calibration.md)",
+    )
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     parser.add_argument(

@@ -81,7 +81,11 @@ def main() -> None:
     parser.add_argument("--before", type=float, nargs="*", default=[1.0, 2.0], help="seconds before the violation")
     parser.add_argument("--levels", type=int, default=5, help="values per action dimension of the manoeuvre grid")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "notes" / "escape")
-    parser.add_argument("--readme", type=Path, help="also copy the result into this README's escape section")
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        help="also copy the result into this document's escape block (e.g. docs/notes/calibration_history.md)",
+    )
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()

@@ -95,7 +95,11 @@ def main() -> None:
     parser.add_argument("--ttc", type=float, nargs="+", help="the privileged gates' times to contact [s]")
     parser.add_argument("--gap", type=float, help="the privileged gate's gap to the nearest vehicle or mover [m]")
     parser.add_argument("--out", type=Path, help="the report's folder (default: docs/notes/oracle_gate_<sim>)")
-    parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        help="also copy the result into this document's block (e.g. docs/notes/calibration_history.md)",
+    )
     parser.add_argument("--cpus", type=int, help="cores for local Ray (default: all of them)")
     parser.add_argument("--address", help="join the Ray cluster at this address instead of starting one")
     args = parser.parse_args()

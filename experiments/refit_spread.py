@@ -305,14 +305,18 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100, help="gate + expert episodes per scenario and refit")
     parser.add_argument("--runs", type=Path, help="refits are kept here (default: runs/refit-spread, -<sim> but ugv)")
     parser.add_argument("--out", type=Path, help="default: docs/notes/refit_spread, _<sim> but ugv")
-    parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        help="also copy the result into this document's block (e.g. docs/notes/calibration_history.md)",
+    )
     parser.add_argument(
         "--merge",
         action="store_true",
         help="also merge each arm's refits into one ensemble (sage merge) and drive its gate rows",
     )
     parser.add_argument("--deployed", action="store_true", help="also the committed policy's own gate rows")
-    parser.add_argument("--block", help="the README block to write (default: refit-spread, -<sim> but ugv)")
+    parser.add_argument("--block", help="--readme's block to write (default: refit-spread, -<sim> but ugv)")
     parser.add_argument(
         "--rows",
         type=Path,

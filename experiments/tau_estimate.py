@@ -74,7 +74,11 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=30, help="independent draws of N states per N")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "notes" / "tau_estimate")
-    parser.add_argument("--readme", type=Path, help="also copy the result into this README's section")
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        help="also copy the result into this document's block (e.g. docs/notes/calibration_history.md)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     scenarios = [s for s in args.scenario.split(",") if s]
