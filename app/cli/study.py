@@ -103,7 +103,11 @@ def register(app: typer.Typer) -> None:
             update_results(results_doc, section or name, results)
             typer.echo(f"section '{section or name}' written from {results} into {results_doc}")
             if results_doc.resolve() == RESULTS_DOC.resolve():  # the project's document: its README summary follows
-                update_summary(SUMMARY_README, results_doc)
+                try:
+                    update_summary(SUMMARY_README, results_doc)
+                except (OSError, ValueError) as error:
+                    typer.secho(f"error: the README summary was not written: {error}", fg=typer.colors.RED, err=True)
+                    raise typer.Exit(code=2) from None
                 typer.echo(f"summary written into {SUMMARY_README}")
 
 

@@ -127,3 +127,36 @@ def test_publish_writes_the_report_and_its_document_block(tmp_path: Path) -> Non
     assert "old" not in text and "### A bench" in text and text.index("| 1 |") < text.index("## After")
     publish(["# Again"], out, None, "bench", "## Calibration of fear")
     assert (out / "README.md").read_text() == "# Again\n" and "### A bench" in doc.read_text()
+
+
+def test_sage_study_writes_the_results_document_and_then_the_readme_summary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The wiring end to end, the study itself replaced by a results folder as it writes one."""
+    from typer.testing import CliRunner
+
+    import studies.registry
+    from app.cli import app
+
+    def fake_study(name: str, budget: str, results: Path, *args: object, **kwargs: object) -> Path:
+        made = tmp_path / "results" / "made"
+        if not made.is_dir():
+            _results(tmp_path, "made", "ccc3333", sage=10.0, baseline=30.0)
+        results.mkdir(parents=True, exist_ok=True)
+        for file in made.iterdir():
+            (results / file.name).write_bytes(file.read_bytes())
+        return results / "table.md"
+
+    monkeypatch.setattr(studies.registry, "run_study", fake_study)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "README.md").write_text("# Project\n\n## Results\n\n<!-- summary -->\n<!-- /summary -->\n")
+    args = ["study", "highway", "--out", "results/highway-small", "--results-doc", "docs/results.md"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "<!-- results:highway -->" in (tmp_path / "docs" / "results.md").read_text()
+    assert "| [highway](docs/results.md#highway) |" in (tmp_path / "README.md").read_text()
+    # another document is written alone: the README's summary is the project document's
+    result = CliRunner().invoke(app, [*args[:-1], "elsewhere.md", "--section", "highway-again"])
+    assert result.exit_code == 0 and "<!-- results:highway-again -->" in (tmp_path / "elsewhere.md").read_text()
+    assert "highway-again" not in (tmp_path / "README.md").read_text()
