@@ -21,7 +21,7 @@ test-all:  # includes the slow learning runs
 lint:
 	$(PY) -m ruff check . && $(PY) -m ruff format --check .
 
-bench: setup
+bench: setup  # speed benchmarks; the investigations are experiments/ (python -m experiments.NAME, one by one)
 	for f in bench/bench_*.py; do $(PY) $$f || exit 1; done
 
 screenshot:  # refresh docs/dashboard.png (the README's picture) from a real browser session
