@@ -53,7 +53,6 @@ from ._gatings import CuriosityGate as CuriosityGate
 from ._gatings import HoldGate as HoldGate
 from ._gatings import InfoGate as InfoGate
 from ._gatings import RandomGate as RandomGate
-from ._gatings import ScaledFearGate as ScaledFearGate
 from ._gatings import firing_share as firing_share
 from ._gatings import level_for_share as level_for_share
 from ._lead import LeadReport as LeadReport

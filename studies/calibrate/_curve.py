@@ -17,7 +17,7 @@ from core.loop import Gate
 from core.metrics import difference_interval
 from core.sage.gate import SageGate
 from studies.calibrate._gated_runs import EVAL_SEED, run_gated
-from studies.calibrate._gatings import CuriosityGate, RandomGate, ScaledFearGate, firing_share, level_for_share
+from studies.calibrate._gatings import CuriosityGate, RandomGate, firing_share, level_for_share
 from studies.calibrate._metrics import violation_counts
 
 CURVE_SCALES = (0.15, 0.3, 0.5, 0.7, 1.0, 1.4)
@@ -31,7 +31,8 @@ clearly above the other."""
 
 CurveCall = dict[str, Any]
 """One point's work: ``kind`` (``fear``, ``pilot``, ``random``, ``curiosity only`` or :data:`EXPERT_ALONE`) and its
-``knob`` (τ's scale), ``rate`` (the takeover rate to match) and ``pilot`` (curiosities met with no gating)."""
+``knob`` (τ's scale over the gate's own ``tau_scale``), ``rate`` (the takeover rate to match) and ``pilot``
+(curiosities met with no gating)."""
 
 
 @dataclass(frozen=True)
@@ -89,7 +90,8 @@ def curve_point(
     matching a rate: a measured point again on other seeds (:class:`CurveExtension`)."""
     agent = load_agent(run)
     settings = dict(gate_settings or {})
-    hold = agent.gate_config(**settings).hold
+    own = agent.gate_config(**settings)
+    hold = own.hold
     kind = call["kind"]
     # the random gate's own draws move with the episodes' seeds (0 on the curve's own, as before)
     draws = first_seed - EVAL_SEED
@@ -101,7 +103,10 @@ def curve_point(
         return run_gated(agent, make_env, gate, episodes, max_steps, first_seed=first_seed)
 
     if kind == "fear":
-        return {"knob": float(call["knob"]), **gated(ScaledFearGate(make_gate(), hold, float(call["knob"])))}
+        # the knob scales τ over the gate's own: the SAGE gate itself at that gate.tau_scale, hold and hysteresis
+        # as it runs
+        knob = float(call["knob"])
+        return {"knob": knob, **gated(agent.make_gate(**{**settings, "tau_scale": own.tau_scale * knob}))}
     if kind == "pilot":
         pilot = CuriosityGate(make_gate(), hold, math.inf)
         gated(pilot)

@@ -49,9 +49,8 @@ def run_gated(
         streak = [0]
         recent: deque[tuple[float, bool]] = deque(maxlen=max(1, warn_steps))
         expert_steps = dict.fromkeys(TAKEOVER_CAUSES, 0)
-        # fear over the threshold the gate compares it with (τ, times the curve's scale for a scaled fear gate) over
-        # the last 2 · warn_steps steps, and its peak over those before the expert's present streak began
-        scale = float(getattr(gate, "scale", 1.0))
+        # fear over the threshold the gate compares it with (τ_t, gate.tau_scale already in it) over the last
+        # 2 · warn_steps steps, and its peak over those before the expert's present streak began
         ratios: deque[float] = deque(maxlen=2 * max(1, warn_steps))
         peak_before_streak = [math.nan]
         peaks: list[float] = []
@@ -60,7 +59,7 @@ def run_gated(
             streak[0] = streak[0] + 1 if r.takeover else 0
             if streak[0] == 1:
                 peak_before_streak[0] = max((v for v in ratios if math.isfinite(v)), default=math.nan)
-            level = scale * r.threshold
+            level = r.threshold
             ratios.append(r.fear / level if math.isfinite(r.fear) and math.isfinite(level) and level > 0 else math.nan)
             recent.append((r.fear, bool(r.gate_fired or r.takeover)))
             if r.violation and first[0] is None:
@@ -131,8 +130,8 @@ def gate_with_expert(
 
     - ``violations_under_expert``: the expert was driving (the gate warned; the expert could not avoid it from
       there), and for how many steps it had been driving by then (``expert_steps_before_violation``, their mean);
-      ``fear_before_handoff``: over those, the median of fear's peak over the threshold it was compared with (τ; for
-      a :class:`ScaledFearGate`, τ times its scale) in the ``2 · warn_steps`` steps before the expert's last takeover
+      ``fear_before_handoff``: over those, the median of fear's peak over the threshold it was compared with (τ_t, at
+      the gate's ``tau_scale``) in the ``2 · warn_steps`` steps before the expert's last takeover
       began. Well under 1: fear rose suddenly, and a lower threshold would have handed over little earlier; near 1:
       it hovered just under the threshold, which a lower one would have caught sooner;
     - with the policy driving, judged on the last ``warn_steps`` steps up to the violation (1 s by default at

@@ -1,5 +1,6 @@
 """Reference gatings for the operating curve: random, curiosity-only and privileged (InfoGate), each with the SAGE
-gate's hold."""
+gate's own hold (:class:`~core.sage.gate.TakeoverHold`). Fear at another operating point is no reference gating: it
+is the SAGE gate itself with ``gate.tau_scale`` set (:func:`studies.calibrate.curve_point`)."""
 
 from __future__ import annotations
 
@@ -10,52 +11,36 @@ from typing import Any
 import numpy as np
 
 from core.loop import Gate, GateDecision, StepRecord
-from core.sage.gate import SageGate
+from core.sage.gate import TakeoverHold
 
 
 class HoldGate:
-    """Fires by its own rule and holds control for ``hold`` steps, as the SAGE gate does."""
+    """Fires by its own rule (:meth:`rule`) and holds control as the SAGE gate does: the same
+    :class:`~core.sage.gate.TakeoverHold`, for ``hold`` steps. ``inner`` (a SAGE gate) still computes fear, τ and
+    curiosity for the records; its own firing is not used."""
 
     def __init__(self, inner: Gate, hold: int) -> None:
-        self.inner, self.hold, self.remaining = inner, hold, 0
+        self.inner, self.hold = inner, hold
+        self.takeover_hold = TakeoverHold()
         self.last_curiosity = math.nan
 
     def reset(self) -> None:
         self.inner.reset()
-        self.remaining = 0
+        self.takeover_hold.reset()
         self.last_curiosity = math.nan
 
-    def rule(self, decision: GateDecision, held: bool) -> bool:
-        """Whether to (re)start the hold; ``held``: the expert holds control now."""
+    def rule(self, decision: GateDecision) -> bool:
+        """Whether to (re)start the hold at this step."""
         raise NotImplementedError
 
     def decide(self, obs: np.ndarray, a_rl: np.ndarray) -> GateDecision:
         decision = self.inner.decide(obs, a_rl)
-        if self.rule(decision, self.remaining > 0):
-            self.remaining = self.hold
-        fired = self.remaining > 0
-        if fired:
-            self.remaining -= 1
+        fired = self.takeover_hold.step(self.rule(decision), self.hold)
         return GateDecision(decision.fear, decision.threshold, fired)
 
     def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
         self.last_curiosity = float(self.inner.observe(obs, action, next_obs))
         return self.last_curiosity
-
-
-class ScaledFearGate(HoldGate):
-    """SAGE's rule with τ scaled: fire when F > scale · τ; while the expert holds control, keep it while
-    F > scale · the SAGE gate's release level (its hysteresis, :meth:`SageGate.release_level`)."""
-
-    def __init__(self, inner: SageGate, hold: int, scale: float) -> None:
-        super().__init__(inner, hold)
-        self.sage, self.scale = inner, scale
-
-    def rule(self, decision: GateDecision, held: bool) -> bool:
-        if not math.isfinite(decision.fear):
-            return False
-        level = self.sage.release_level(decision.threshold) if held else decision.threshold
-        return decision.fear > self.scale * level
 
 
 class RandomGate(HoldGate):
@@ -65,7 +50,7 @@ class RandomGate(HoldGate):
         super().__init__(inner, hold)
         self.p, self.rng = p, np.random.default_rng(seed)
 
-    def rule(self, decision: GateDecision, held: bool) -> bool:
+    def rule(self, decision: GateDecision) -> bool:
         return bool(self.rng.random() < self.p)
 
 
@@ -78,7 +63,7 @@ class CuriosityGate(HoldGate):
         self.level = level
         self.seen: list[float] = []
 
-    def rule(self, decision: GateDecision, held: bool) -> bool:
+    def rule(self, decision: GateDecision) -> bool:
         return math.isfinite(self.last_curiosity) and self.last_curiosity > self.level
 
     def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> float:
@@ -105,7 +90,7 @@ class InfoGate(HoldGate):
     def watch(self, record: StepRecord) -> None:
         self.info = record.info
 
-    def rule(self, decision: GateDecision, held: bool) -> bool:
+    def rule(self, decision: GateDecision) -> bool:
         return bool(self.info) and bool(self.danger(self.info))
 
 
