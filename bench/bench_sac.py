@@ -25,7 +25,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from core.sage import make_learner
+from core.learners import make_learner
 from core.sage.config import for_method
 from core.sage.learner import BaseLearner
 
@@ -58,7 +58,7 @@ def ours(
     cfg.world_model_config.max_updates_per_fit = 200
     for key, value in (world_model or {}).items():
         setattr(cfg.world_model_config, key, value)
-    learner = make_learner(cfg, OBS_DIM, ACT_DIM, seed=0)
+    learner = make_learner(cfg.method, cfg, OBS_DIM, ACT_DIM, seed=0)
     fill(learner, 20_000, rng)
     learner.warm = True
     if learner.world_model is not None:

@@ -263,7 +263,8 @@ class LoadedAgent:
         return cfg
 
     def make_gate(self, world_model_from: str | Path | LoadedAgent | None = None, **overrides: Any) -> SageGate:
-        """A fresh :class:`SageGate` on this run's world model and policy (its curiosity average restored).
+        """A fresh :class:`SageGate` on this run's world model and policy (its curiosity average restored), built by
+        the learner's own :meth:`~core.sage.learner.BaseLearner.make_gate` once the settings are resolved.
 
         ``overrides``: any :class:`GateConfig` field (beta, horizon, aggregate, discount, tau_min, tau_max,
         curiosity_ema, use_curiosity, hold_steps, hold_seconds, release). ``world_model_from``: take the world model
@@ -289,11 +290,8 @@ class LoadedAgent:
                 f"{', '.join(f'{n}={getattr(own, n)}' for n in moved)}: recalibrate them first "
                 "(sage recalibrate RUN --gate-set ...), or give the bounds (tau_from_data=false, tau_min, tau_max)"
             )
-        learner = self.learner
-        gate = SageGate(source.world_model, learner.gate_policy(), cfg, encode=learner.gate_encoder())
-        if source is self and self.gate_state:
-            gate.load_state(self.gate_state)
-        return gate
+        state = self.gate_state if source is self else None  # another run's curiosity average is not this one's
+        return self.learner.make_gate(cfg, world_model=source.world_model, state=state)
 
 
 def load_agent(path: str | Path) -> LoadedAgent:

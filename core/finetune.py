@@ -46,9 +46,9 @@ import numpy as np
 import torch
 
 from core.agents import AgentMeta, load_checkpoint, meta_of, resolve_checkpoint, save_checkpoint
+from core.learners import make_learner
 from core.loop import StepRecord
 from core.promotion import is_promoted, read_verdict
-from core.sage import make_learner
 from core.sage.config import AgentConfig, apply_overrides, from_dict
 from core.sage.learner import BaseLearner
 from core.sessions import SessionStore
@@ -417,7 +417,9 @@ class Finetuner:
         torch.manual_seed(self.cfg.seed)
         low = np.asarray(self.meta.action_low, np.float32)
         high = np.asarray(self.meta.action_high, np.float32)
-        self.learner = make_learner(agent_cfg, self.meta.obs_dim, self.meta.act_dim, low, high, self.cfg.seed)
+        self.learner = make_learner(
+            agent_cfg.method, agent_cfg, self.meta.obs_dim, self.meta.act_dim, low, high, self.cfg.seed
+        )
         try:
             self.learner.load_state_dict(payload["state"], strict=False)
         except RuntimeError as exc:

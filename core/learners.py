@@ -1,7 +1,7 @@
 """The learner registry: one entry per training method (its learner class and its configuration preset).
 
-Before this module the methods were split over ``core.sage.make_learner``'s class table, ``core.sage.config``'s
-presets and ``core.agents``. A new method (e.g. a discrete-action D3QN) registers itself once:
+Every learner is built here, by name (:func:`make_learner`; a run's config names its method, ``cfg.method``). A new
+method (e.g. a discrete-action D3QN) registers itself once:
 
     register_learner("my-method", MyLearner, preset=my_preset)
     learner = make_learner("my-method", cfg, obs_dim, act_dim, low, high, seed=0)

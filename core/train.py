@@ -48,9 +48,9 @@ from core.agents import (
 )
 from core.datasets import records
 from core.experts import CostSupervisor, PolicyExpert, ScriptedExpert
+from core.learners import make_learner
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
 from core.planners import PlannerExpert, PlannerFactory, checked_entry, is_planner
-from core.sage import make_learner
 from core.sage.config import AgentConfig, to_dict, world_model_refit
 from core.sage.fear import CALIBRATION_FILE
 from core.sage.gate import AlwaysGate
@@ -212,7 +212,7 @@ class Trainer:
         for s, env in self.envs.items():
             if _dims(env)[:2] != (self.obs_dim, self.act_dim):
                 raise ValueError(f"scenario {s} has other observation/action sizes than {run.scenarios[0]}")
-        self.learner = make_learner(agent, self.obs_dim, self.act_dim, self.low, self.high, run.seed)
+        self.learner = make_learner(agent.method, agent, self.obs_dim, self.act_dim, self.low, self.high, run.seed)
         if run.demo_noise > 0 and self.learner.encodes_actions:
             raise ValueError("--demo-noise perturbs continuous actions; this learner's actions are discrete")
         self.expert = self._make_expert(run.expert)

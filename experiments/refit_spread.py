@@ -600,19 +600,17 @@ def refit(spec: TrainSpec) -> str:
 
 def gate_row(folder: str, scenario: str, episodes: int, sim: str = "ugv", scale: float | None = None) -> dict[str, Any]:
     """One Ray task: the gate + scripted expert on a scenario (cached in the refit's folder); ``scale``: the gate
-    fires where fear exceeds ``scale`` times its τ (:class:`studies.calibrate.ScaledFearGate`, the operating curve's
+    fires where fear exceeds ``scale`` times its τ (``gate.tau_scale`` times the refit's own, the operating curve's
     knob), None: the gate as deployed."""
     from core.agents import load_agent
-    from studies.calibrate import ScaledFearGate, run_gated
+    from studies.calibrate import run_gated
 
     d = sims.descriptor(sim)
     path = scenario_path(scenario)
 
     def drive() -> dict[str, Any]:
         agent = load_agent(folder)
-        gate = agent.make_gate()
-        if scale is not None:
-            gate = ScaledFearGate(gate, agent.gate_config().hold, scale)
+        gate = agent.make_gate() if scale is None else agent.make_gate(tau_scale=agent.gate_config().tau_scale * scale)
         point = run_gated(agent, lambda: d.make(path), gate, episodes, None, warn_steps=max(1, round(1.0 / d.dt)))
         return {
             "violations": round(point["violation_rate"] * episodes),
@@ -859,7 +857,7 @@ def scaled_report(
         f"#### At about equal takeover: τ scaled (`{scales_flags(args).strip()}`)",
         "",
         "The gate firing where fear exceeds the scale times its τ (the operating curve's knob, "
-        "`studies.calibrate.ScaledFearGate`; 1: as deployed, the rows above), gate + scripted expert over the same "
+        "`gate.tau_scale` times the refit's own; 1: as deployed, the rows above), gate + scripted expert over the same "
         f"{args.episodes} episodes per refit: episodes with a violation, mean ± 95% over seeds @ mean takeover. An arm "
         "is better than another where it has fewer violations at no more takeover.",
         "",

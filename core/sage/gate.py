@@ -51,8 +51,38 @@ class GateDetail:
     hold_remaining: int = 0
 
 
+class TakeoverHold:
+    """The gate's k-step hold: once triggered, the expert keeps control for the next k decisions (this one
+    included), and every new trigger restarts the count. The SAGE gate triggers it with fear over τ_t (or over the
+    release level while it holds: hysteresis); the reference gatings of :mod:`studies.calibrate` with their own
+    rules, so that they hold and hand back control exactly as it does."""
+
+    def __init__(self) -> None:
+        self.remaining = 0
+        """Decisions left under the expert after the last one."""
+
+    @property
+    def holding(self) -> bool:
+        """Whether the expert holds control now (the last decision left some of the hold)."""
+        return self.remaining > 0
+
+    def reset(self) -> None:
+        self.remaining = 0
+
+    def step(self, trigger: bool, steps: int) -> bool:
+        """One decision: ``trigger`` (re)starts a hold of ``steps`` decisions; whether the expert drives this one."""
+        if trigger:
+            self.remaining = steps
+        fired = self.remaining > 0
+        if fired:
+            self.remaining -= 1
+        return fired
+
+
 class SageGate:
-    """Fear vs curiosity-modulated threshold, with a k-step hold. Cheap enough to run at every step."""
+    """Fear vs curiosity-modulated threshold, with a k-step hold (:class:`TakeoverHold`). Cheap enough to run at
+    every step. ``GateConfig.tau_scale`` scales τ's bounds, and so τ_t and the release level: the gate's operating
+    point, also the operating curve's knob (:func:`studies.calibrate.curve_point`)."""
 
     def __init__(
         self,
@@ -75,7 +105,7 @@ class SageGate:
         self._kernel: tuple[int, GateKernel] | None = None
         self._fitted_version, self._fitted = -1, False
         self._last: tuple[object, object, int] = (None, None, -1)
-        self.hold_remaining = 0
+        self.takeover_hold = TakeoverHold()
         self.detail = GateDetail(threshold=self.threshold.threshold)
         self._history: collections.deque[np.ndarray] = collections.deque(maxlen=world_model.motion_lag)
         """The last observations the gate saw in this episode, oldest first (at most ``motion_lag``): the world
@@ -98,8 +128,13 @@ class SageGate:
             self._kernel = (self.world_model.version, kernel)
         return self._kernel[1]
 
+    @property
+    def hold_remaining(self) -> int:
+        """Decisions left under the expert after the last one (:class:`TakeoverHold`)."""
+        return self.takeover_hold.remaining
+
     def reset(self) -> None:
-        self.hold_remaining = 0
+        self.takeover_hold.reset()
         self.detail.hold_remaining = 0
         self.threshold.reset_smoothing()
         self._history.clear()
@@ -157,11 +192,7 @@ class SageGate:
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
                 self._horizon_source = ro.cost[..., 0].numpy().copy()
         level = self._level(threshold)
-        if value > level:
-            self.hold_remaining = self.cfg.hold
-        fired = self.hold_remaining > 0
-        if fired:
-            self.hold_remaining -= 1
+        fired = self.takeover_hold.step(value > level, self.cfg.hold)
         d = self.detail
         d.fear, d.cost, d.sigma, d.threshold, d.level = value, cost, sigma, threshold, level
         d.hold_remaining = self.hold_remaining
@@ -169,7 +200,7 @@ class SageGate:
 
     def _level(self, threshold: float) -> float:
         """The fear that (re)starts the hold now: τ_t, or while the expert holds control the release level."""
-        return self.release_level(threshold) if self.hold_remaining > 0 else threshold
+        return self.release_level(threshold) if self.takeover_hold.holding else threshold
 
     def release_level(self, threshold: float) -> float:
         """τ_t - r (τ_t - τ_min), r = ``release``: while the expert holds control, fear above this keeps it there

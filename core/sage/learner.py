@@ -29,6 +29,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -447,14 +448,30 @@ class BaseLearner:
         self._steps_at_last_rollout = self.env_steps
 
     # -- gate --------------------------------------------------------------------------------------
-    def make_gate(self, cfg: GateConfig | None = None) -> SageGate:
-        """A SAGE gate on this learner's world model and (live) policy."""
-        if self.world_model is None:
+    def make_gate(
+        self,
+        cfg: GateConfig | None = None,
+        *,
+        world_model: EnsembleWorldModel | None = None,
+        state: Mapping[str, float] | None = None,
+    ) -> SageGate:
+        """A SAGE gate on this learner's (live) policy: every SAGE gate of a learner is built here, in training and
+        for a loaded run (:meth:`core.agents.LoadedAgent.make_gate`, which resolves its overrides first).
+
+        On the learner's own world model by default: the gate starts from the curiosity average the learner
+        inherited for that model version and is the one its checkpoints save. ``world_model``: another one (a
+        loaded run's, another run's), the gate then starting from ``state`` (:meth:`SageGate.state`) where given."""
+        own = world_model is None
+        model = self.world_model if own else world_model
+        if model is None:
             raise ValueError(f"method {self.cfg.method!r} trains no world model, so it has no SAGE gate")
-        gate = SageGate(self.world_model, self.gate_policy(), cfg or self.cfg.gate, encode=self.gate_encoder())
-        if self._inherited_gate is not None and self._inherited_gate[1] == self.world_model.version:
-            gate.load_state(self._inherited_gate[0])
-        self._gates.append(gate)
+        gate = SageGate(model, self.gate_policy(), cfg or self.cfg.gate, encode=self.gate_encoder())
+        if own:
+            if self._inherited_gate is not None and self._inherited_gate[1] == model.version:
+                gate.load_state(self._inherited_gate[0])
+            self._gates.append(gate)
+        elif state:
+            gate.load_state(dict(state))
         return gate
 
     # -- demonstrations ----------------------------------------------------------------------------

@@ -21,9 +21,9 @@ from app.policies import LoadedPolicy, load_policy
 from app.versions import VersionFollower
 from core.agents import AgentMeta, save_checkpoint
 from core.finetune import FinetuneConfig
+from core.learners import make_learner
 from core.loop import GateDecision, NoGate
 from core.promotion import PromotionConfig
-from core.sage import make_learner
 from core.sage.config import for_method
 from tests.app.conftest import start_server, stop_server, toy_settings
 from tests.app.fakesim import ToyRobotEnv, toy_env_factory, toy_policy_loader
@@ -157,7 +157,7 @@ def toy_agent(folder: Path) -> Path:
     cfg.world_model_config.hidden = 16
     cfg.world_model_config.max_updates_per_fit = 60
     low, high = -np.ones(2, np.float32), np.ones(2, np.float32)
-    learner = make_learner(cfg, 29, 2, low, high, seed=0)
+    learner = make_learner(cfg.method, cfg, 29, 2, low, high, seed=0)
     env, rng = ToyRobotEnv(), np.random.default_rng(0)
     obs, _ = env.reset(seed=0)
     for _ in range(200):

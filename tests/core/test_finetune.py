@@ -263,10 +263,11 @@ def test_ingest_keeps_takeover_labels_and_drops_rows_that_are_not_finite(deploye
     writer.close()
     assert ready_episodes(store, "glitch") == [0]
     finetuner_cfg = load_checkpoint(deployed)
-    from core.sage import make_learner
+    from core.learners import make_learner
     from core.sage.config import from_dict
 
-    learner = make_learner(from_dict(finetuner_cfg["agent_config"]), 8, 2)
+    agent_cfg = from_dict(finetuner_cfg["agent_config"])
+    learner = make_learner(agent_cfg.method, agent_cfg, 8, 2)
     got = ingest(learner, store, "glitch", [0])
     assert (got.steps, got.takeovers, got.dropped) == (3, 1, 1)
     assert learner.buffer.takeover_count() == 1 and np.allclose(learner.buffer.a_expert[1], 1.0)

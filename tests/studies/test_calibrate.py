@@ -276,7 +276,7 @@ def test_operating_curve_figure_draws_intervals_at_zero_and_all_episodes(tmp_pat
 
 
 def test_the_operating_curves_scaled_gate_keeps_the_sage_gates_hysteresis() -> None:
-    from studies.calibrate import ScaledFearGate
+    """The curve's fear points are the SAGE gate itself at ``gate.tau_scale``: τ and the release level scaled."""
     from tests.core.sage.test_gate import fitted_gate
 
     # τ = 0.5, τ_min = 0.15, scale 0.8: fires over 0.4, and once fired holds while fear is over 0.8 · 0.15
@@ -286,8 +286,39 @@ def test_the_operating_curves_scaled_gate_keeps_the_sage_gates_hysteresis() -> N
         (1.0, [False, True, True, True, True, False, False]),
         (0.0, [False, True, True, False, False, False, False]),
     ):
-        gate = ScaledFearGate(fitted_gate(2, list(fears), release=release), hold=2, scale=0.8)
+        gate = fitted_gate(2, list(fears), release=release)
+        gate.cfg.tau_scale = 0.8  # the config its threshold reads too
+        gate.threshold.set_bounds((0.15, 0.85))  # scaled: 0.12 and 0.68
+        gate.threshold.threshold = gate.threshold.neutral()  # 0.8 · 0.5
         assert [gate.decide(obs, action).fired for _ in fears] == expected
+
+
+def test_a_reference_gating_holds_and_hands_back_control_as_the_sage_gate_does() -> None:
+    """One hold (:class:`core.sage.gate.TakeoverHold`): a reference gating whose rule is the SAGE gate's own (fear
+    over τ) takes control and hands it back at the same steps as the SAGE gate, whatever the hold, also after a
+    reset."""
+    from studies.calibrate import HoldGate
+    from tests.core.sage.test_gate import fitted_gate
+
+    class FearOverTau(HoldGate):
+        def rule(self, decision: GateDecision) -> bool:
+            return decision.fear > decision.threshold
+
+    fears = [float(f) for f in np.random.default_rng(0).uniform(0.0, 0.9, 60)]  # τ = 0.5
+    obs, action = np.zeros(3, np.float32), np.zeros(2, np.float32)
+    for k in (1, 2, 3, 5):
+        sage = fitted_gate(k, list(fears), release=0.0)
+        reference = FearOverTau(fitted_gate(k, list(fears), release=0.0), hold=k)
+        taken: list[list[bool]] = []
+        for gate in (sage, reference):
+            fired = [gate.decide(obs, action).fired for _ in range(30)]
+            gate.reset()
+            taken.append(fired + [gate.decide(obs, action).fired for _ in range(30)])
+        assert taken[0] == taken[1]
+        # both take control, hand it back, and hold past a step with fear under τ (for k > 1)
+        assert any(taken[0]) and not all(taken[0])
+        if k > 1:
+            assert any(on and f <= 0.5 for on, f in zip(taken[0], fears, strict=True))
 
 
 def test_gate_with_expert_runs_the_gate_with_the_settings_it_is_given(deployed: Path) -> None:  # noqa: F811

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from core.sage import make_learner
+from core.learners import make_learner
 from core.sage.config import for_method
 from core.sage.hg_dagger import HGDAgger
 from core.sage.sac import SAC, advantage_weights, penalty_c_star, penalty_condition_holds
@@ -26,7 +26,7 @@ def filled(method: str, n: int = 600, seed: int = 0, **overrides: object) -> SAC
     cfg = for_method(method, hidden=32, batch_size=64, bc_batch_size=32, **overrides)
     cfg.world_model_config.hidden = 32
     cfg.world_model_config.max_updates_per_fit = 100
-    learner = make_learner(cfg, OBS, ACT, seed=seed)
+    learner = make_learner(cfg.method, cfg, OBS, ACT, seed=seed)
     rng = np.random.default_rng(seed)
     s = rng.normal(size=(n + 1, OBS)).astype(np.float32)
     for i in range(n):
@@ -119,7 +119,7 @@ def with_predictable_violations(n: int = 1500, seed: int = 0, **overrides: objec
     cfg.world_model_config.hidden = 32
     cfg.world_model_config.max_updates_per_fit = 600
     cfg.world_model_config.violation_steps = 1
-    learner = make_learner(cfg, OBS, ACT, seed=seed)
+    learner = make_learner(cfg.method, cfg, OBS, ACT, seed=seed)
     assert isinstance(learner, SAC)
     rng = np.random.default_rng(seed)
     for _ in range(n):
@@ -177,7 +177,7 @@ def test_lambda_rises_against_the_measured_budget_where_a_constant_one_lets_it_f
 def test_a_measured_fear_budget_travels_with_the_checkpoint() -> None:
     learner = with_predictable_violations(n=600)
     state = learner.state_dict()
-    fresh = make_learner(learner.cfg, OBS, ACT, seed=1)
+    fresh = make_learner(learner.cfg.method, learner.cfg, OBS, ACT, seed=1)
     assert math.isnan(fresh.measured_fear_budget) and fresh.fear_budget() == learner.cfg.fear_budget
     assert "fear_budget" in fresh.load_state_dict(state)
     assert fresh.fear_budget() == pytest.approx(learner.fear_budget())
