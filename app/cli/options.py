@@ -103,6 +103,22 @@ def runs_sim(runs: Sequence[str | Path], sim: str | None, planners: bool = False
     return sim if sim is not None else seen[0]
 
 
+def policy_sim(policy: str | None, sim: str | None, default: str = "ugv") -> str:
+    """The simulator to open a ``--policy`` on: the one its run records (``sim``, when given, must be it); ``sim`` or
+    ``default`` where the policy is none, a planner, or cannot be read (its own check then says why)."""
+    from core.agents import load_checkpoint, meta_of
+
+    recorded = None
+    if policy is not None and Path(policy).exists():
+        try:
+            recorded = meta_of(load_checkpoint(policy)).sim
+        except Exception:  # an unreadable policy is refused where it is loaded, in one line
+            recorded = None
+    if sim is not None and recorded is not None and sim != recorded:
+        fail(f"--sim {sim}: {policy} was trained on {recorded} (leave --sim out: it is the policy's)")
+    return sim or recorded or default
+
+
 def refuse_retired(**given: Sequence[str] | None) -> None:
     """A retired flag (``--gate-set``, ``--env``, ``--learner-set``) that was given: one line with its new spelling."""
     for name, values in given.items():
