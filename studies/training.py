@@ -238,7 +238,7 @@ def prepare_training(
 
     ``bounded_by_steps``: the run has an environment-step budget, so no episode count means "until the
     budget is spent" rather than the default count. ``env``: keyword arguments for every env's ``make()``
-    (``--env``)."""
+    (``--set env.KEY=VALUE``)."""
     protocol = protocol or "none"
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
