@@ -264,7 +264,7 @@ def point_sim(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sims.SIMULATORS, "point", "tests.core.sage.envs")  # its DESCRIPTOR is all it takes
 
 
-def test_cli_train_eval_compare(point_sim, tmp_path: Path) -> None:
+def test_cli_train_and_eval_of_one_run_and_of_several(point_sim, tmp_path: Path) -> None:
     from app.cli import app
 
     cli = CliRunner()
