@@ -17,16 +17,24 @@ from typing import Annotated
 
 import typer
 
-from app.cli.options import LEARNER_SECTIONS, LEARNER_SET_HELP, fail, one_scenario, routed_settings, runs_sim
+from app.cli.options import (
+    LEARNER_SECTIONS,
+    LEARNER_SET_HELP,
+    NamedChoicesCommand,
+    fail,
+    one_scenario,
+    routed_settings,
+    runs_sim,
+)
 
 
 def register(app: typer.Typer) -> None:
     """Add ``sage cycles``."""
 
-    @app.command("cycles")
+    @app.command("cycles", cls=NamedChoicesCommand)
     def cycles(
         sim: Annotated[
-            str | None, typer.Option(help="Simulator (default: the --policy run's own, else ugv; must match it).")
+            str | None, typer.Option(help="Simulator: {SIMS} (default: the --policy run's, else ugv; must match it).")
         ] = None,
         scenario: Annotated[
             list[str] | None, typer.Option(help="The scenario of every cycle (one; default 3: UGV's crossing).")

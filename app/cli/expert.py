@@ -15,7 +15,7 @@ from typing import Annotated, Any
 
 import typer
 
-from app.cli.options import one_scenario
+from app.cli.options import NamedChoicesCommand, one_scenario
 
 OUTCOMES = ("success", "collision", "timeout")
 
@@ -86,9 +86,9 @@ def run_expert(
 def register(app: typer.Typer) -> None:
     """Add ``sage expert`` to ``app``."""
 
-    @app.command("expert")
+    @app.command("expert", cls=NamedChoicesCommand)
     def expert(
-        sim: Annotated[str, typer.Option("--sim", help="Simulator (a name in sims.SIMULATORS).")] = "ugv",
+        sim: Annotated[str, typer.Option("--sim", help="Simulator: {SIMS}.")] = "ugv",
         scenario: Annotated[
             list[str] | None,
             typer.Option("--scenario", help="Scenario name or file (one; default: the simulator's own)."),

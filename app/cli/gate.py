@@ -39,6 +39,7 @@ import typer
 from app.cli.options import (
     GATE_SET_HELP,
     GateSetRetired,
+    NamedChoicesCommand,
     fail,
     gate_pairs,
     one_scenario,
@@ -48,7 +49,7 @@ from app.cli.options import (
 )
 
 RunArgument = Annotated[str, typer.Argument(help="Run folder or checkpoint with a world model.", show_default=False)]
-SimOption = Annotated[str | None, typer.Option(help="Simulator (default: the run's own; must match it).")]
+SimOption = Annotated[str | None, typer.Option(help="Simulator: {SIMS} (default: the run's own; must match it).")]
 SetOption = Annotated[list[str] | None, typer.Option("--set", help=GATE_SET_HELP)]
 MaxStepsOption = Annotated[int | None, typer.Option(help="Cut episodes at this many steps.")]
 CpusOption = Annotated[
@@ -206,7 +207,7 @@ def register(app: typer.Typer) -> None:
     )
     app.add_typer(group, name="gate")
 
-    @group.command("evaluate")
+    @group.command("evaluate", cls=NamedChoicesCommand)
     def evaluate(
         run: RunArgument,
         sim: SimOption = None,
@@ -263,7 +264,7 @@ def register(app: typer.Typer) -> None:
             for path in write_evaluation(evaluation, out):
                 typer.echo(f"wrote {path}")
 
-    @group.command("choose-scale")
+    @group.command("choose-scale", cls=NamedChoicesCommand)
     def choose_scale(
         run: RunArgument,
         sim: SimOption = None,
@@ -323,7 +324,7 @@ def register(app: typer.Typer) -> None:
             out.write_text(json.dumps(choice.as_dict(), indent=2) + "\n")
             typer.echo(f"wrote {out}")
 
-    @group.command("refit-bounds")
+    @group.command("refit-bounds", cls=NamedChoicesCommand)
     def refit_bounds(
         run: RunArgument,
         sim: SimOption = None,
