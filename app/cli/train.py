@@ -200,7 +200,7 @@ def register(app: typer.Typer) -> None:
         runs: Annotated[
             list[Path],
             typer.Argument(
-                metavar="RUN...",
+                metavar="RUN",
                 help="Run folder(s) or checkpoint(s), or a planner's name ({PLANNERS}) with --sim. Several: the "
                 "same episodes for every run, side by side.",
                 show_default=False,
