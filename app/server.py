@@ -117,7 +117,7 @@ class ServerSettings:
     promotion: PromotionConfig = field(default_factory=PromotionConfig)
     """How a fine-tuned version is evaluated before it may drive (:mod:`core.promotion`)."""
     gate_settings: dict[str, Any] = field(default_factory=dict)
-    """Settings of the gate over each driven policy's own (``sage serve --gate-set``, e.g. a longer hold):
+    """Settings of the gate over each driven policy's own (``sage serve --set gate.KEY=VALUE``, e.g. a longer hold):
     :class:`core.sage.config.GateConfig` fields, applied to every policy with a world model that this dashboard
     loads, fine-tuned versions included."""
 

@@ -75,7 +75,7 @@ FEAR_SHAPE = (
     "contact_needs_closing",
 )
 """Gate settings that change the fear a model's τ bounds were measured on (or the quantiles they were taken at):
-a gate that sets one over a run's own needs the bounds measured again (``sage recalibrate``)."""
+a gate that sets one over a run's own needs the bounds measured again (``sage gate refit-bounds``)."""
 
 
 def fear_shape_moved(own: GateConfig | dict[str, Any], new: GateConfig) -> list[str]:
@@ -126,7 +126,7 @@ def save_with_world_model(
 ) -> Path:
     """Write a run folder ``out`` (``checkpoint.pt``, ``config.json``) that is the loaded checkpoint ``payload``
     (:func:`load_checkpoint`) with another world model and learner config, every other tensor as it was: what
-    ``sage merge`` and ``sage recalibrate`` make from a run. ``provenance`` (JSON-ready) goes into the meta's
+    ``sage gate merge`` and ``sage gate refit-bounds`` make from a run. ``provenance`` (JSON-ready) goes into the meta's
     ``extra`` and the top of ``config.json``, which starts from the source run's own when it has one."""
     if dtype not in ("float32", "float16"):
         raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
@@ -288,7 +288,7 @@ class LoadedAgent:
                 f"gate setting {', '.join(f'{n}={getattr(cfg, n)}' for n in moved)} changes fear itself, and the "
                 f"τ bounds of {source.path} were measured on its fear with "
                 f"{', '.join(f'{n}={getattr(own, n)}' for n in moved)}: recalibrate them first "
-                "(sage recalibrate RUN --gate-set ...), or give the bounds (tau_from_data=false, tau_min, tau_max)"
+                "(sage gate refit-bounds RUN --set gate.…), or give the bounds (tau_from_data=false, tau_min, tau_max)"
             )
         state = self.gate_state if source is self else None  # another run's curiosity average is not this one's
         return self.learner.make_gate(cfg, world_model=source.world_model, state=state)

@@ -1,4 +1,4 @@
-"""Merge the world models of several refits of one policy into one ensemble (``sage merge``).
+"""Merge the world models of several refits of one policy into one ensemble (``sage gate merge``).
 
 A world-model-only refit (``sage train --world-model-only``) is one draw: the same command with another seed
 gives a model whose warnings come earlier on one layout and later on another, enough to move the gate's safety

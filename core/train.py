@@ -113,8 +113,8 @@ class RunConfig:
     """Offline data loaded into the buffer after the demonstrations and before pretraining (:mod:`core.datasets`:
     recorded session files, ``minari:<id>``); not counted in ``train_steps`` (no environment step is taken)."""
     env: dict[str, Any] = field(default_factory=dict)
-    """Simulator config overrides that every env of the run was built with (``--env``), recorded in config.json;
-    the caller's ``make_env`` applies them."""
+    """Simulator config overrides that every env of the run was built with (``--set env.KEY=VALUE``), recorded in
+    config.json; the caller's ``make_env`` applies them."""
     world_model_only: bool = False
     """Refit only the world model of ``init`` (:func:`core.sage.config.world_model_refit`): the policy drives and
     nothing else learns; checkpoints keep the learner config given (the policy's own schedule)."""
@@ -243,7 +243,8 @@ class Trainer:
                 raise ValueError(
                     f"--init {path}: gate {', '.join(f'{n}={getattr(gate, n)}' for n in moved)} changes fear itself, "
                     "and a run of 0 episodes fits nothing, so its τ bounds would stay those measured on the init's "
-                    f"fear ({', '.join(f'{n}={own[n]}' for n in moved)}): use sage recalibrate {path} --gate-set ..."
+                    f"fear ({', '.join(f'{n}={own[n]}' for n in moved)}): use sage gate refit-bounds {path} "
+                    "--set gate.…"
                 )
         try:
             return self.learner.load_state_dict(payload["state"], strict=False)

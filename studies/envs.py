@@ -28,13 +28,14 @@ def scenario_kwargs(sim: str, scenario: str) -> dict[str, Any]:
 
 
 def parse_env_overrides(pairs: list[str]) -> dict[str, Any]:
-    """``key=value`` strings (``sage train --env``) as keyword arguments of the simulator's ``make()``: a value is
-    read as JSON where it parses (``false``, ``0.3``, ``[1, 2]``; ``True``/``False`` too), else kept as text."""
+    """``key=value`` strings (``sage train --set env.KEY=VALUE``) as keyword arguments of the simulator's
+    ``make()``: a value is read as JSON where it parses (``false``, ``0.3``, ``[1, 2]``; ``True``/``False`` too),
+    else kept as text."""
     out: dict[str, Any] = {}
     for pair in pairs:
         key, sep, text = pair.partition("=")
         if not sep or not key.strip():
-            raise ValueError(f"--env {pair!r} is not of the form key=value")
+            raise ValueError(f"--set env.{pair}: not of the form env.key=value")
         text = text.strip()
         try:
             value: Any = json.loads(text.lower() if text in ("True", "False") else text)

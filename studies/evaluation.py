@@ -1,6 +1,6 @@
 """Simulators whose evaluation is a study protocol of its own, not episodes per scenario.
 
-``sage eval`` and ``sage compare`` ask :func:`protocol_for` first; a simulator without an entry is evaluated
+``sage eval`` (one run or several) asks :func:`protocol_for` first; a simulator without an entry is evaluated
 the common way (:func:`core.train.evaluate`, episodes per scenario). Highway is evaluated as the paper does:
 one episode per logged scenario of a split, in the normal and the adversarial mode (:mod:`studies.highway`).
 """

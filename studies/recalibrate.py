@@ -1,4 +1,4 @@
-"""Measure a run's τ bounds again for another fear, and choose fear's β from data (``sage recalibrate``).
+"""Measure a run's τ bounds again for another fear, and choose fear's β from data (``sage gate refit-bounds``).
 
 A world model's τ bounds are quantiles of the fear of familiar states under the policy, measured at its fit
 (:func:`core.sage.fear.calibrate`). Fear is β ĉ + (1-β) σ̂, so a gate that weighs the parts otherwise (or looks
@@ -140,13 +140,13 @@ def recalibrate_run(
     and chosen, or drives with too few familiar states."""
     settings = dict(gate_settings or {})
     if choose and "beta" in settings:
-        raise ValueError("give β (--gate-set beta=...) or choose it (--choose-beta), not both")
+        raise ValueError("give β (--set gate.beta=...) or choose it (--choose-beta), not both")
     reshaped = sorted(set(settings) & set(FEAR_SHAPE))
     if choose and reshaped:
         # β is scored on the parts of the run's own fear, which these settings change
         raise ValueError(
             f"--choose-beta scores β on the run's own fear, and {', '.join(reshaped)} change it: measure the bounds "
-            "for them first (sage recalibrate --gate-set ...), then choose β on that run"
+            "for them first (sage gate refit-bounds --set gate.…), then choose β on that run"
         )
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")

@@ -59,7 +59,8 @@ class StudyDef:
     ``PREPARED_NOTES`` entry, a list of sentences (how good that expert is alone), goes under the table."""
     learner_overrides: bool = True
     """Whether its trials train through :func:`studies.training.train_once` with their settings, and so take
-    ``sage study --learner-set`` (the cycles study fine-tunes the committed policy on its own configuration: no)."""
+    ``sage study --set learner.KEY=VALUE`` (the cycles study fine-tunes the committed policy on its own
+    configuration: no)."""
     figures: Callable[[Path, dict[str, Any]], list[Path]] | None = None
     """``figures(results folder, settings) -> paths``: the study's own figures from its trials' run folders,
     drawn after the table."""
@@ -136,12 +137,12 @@ def _unpack(row: Mapping[str, Any], row_keys: Sequence[str], metrics: Sequence[s
 
 
 def check_study_learner_overrides(name: str, pairs: Sequence[str]) -> list[str]:
-    """``pairs`` (``sage study --learner-set``) checked for study ``name``: a study that trains no learner from a
-    spec of its own refuses them, and each must fit a learner's configuration (a ValueError says which)."""
+    """``pairs`` (``sage study --set learner.KEY=VALUE``) checked for study ``name``: a study that trains no learner
+    from a spec of its own refuses them, and each must fit a learner's configuration (a ValueError says which)."""
     from studies.training import check_learner_overrides
 
     if not get_study(name).learner_overrides:
-        raise ValueError(f"{name} trains no learner from a spec of its own, so it takes no --learner-set")
+        raise ValueError(f"{name} trains no learner from a spec of its own, so it takes no learner settings")
     return check_learner_overrides(pairs)
 
 

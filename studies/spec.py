@@ -18,12 +18,12 @@ class TrainSpec:
     """
 
     sim: str = "ugv"
-    """Simulator: a name of sims.SIMULATORS (ugv, highway, sumo, pedestrian, ...)."""
+    """Simulator: a name of sims.SIMULATORS."""
     scenario: str | None = None
     """Scenario(s) by the simulator's names (ugv 1-4, highway train|test, sumo c1|c2, ...); a comma list
     trains on each in turn. None: the simulator's default."""
     method: str = "sage"
-    """A learner registered in core.learners (sage, sac, td3, hg-dagger, fni-rl, ...)."""
+    """A learner registered in core.learners, by name."""
     episodes: int | None = None
     """Training episodes (demonstrations not counted). None: 100, or unbounded when train_steps is given."""
     train_steps: int | None = None
@@ -50,14 +50,15 @@ class TrainSpec:
     """float32, or float16 for small committed policies."""
     max_episode_steps: int | None = None
     """Cut episodes at this many steps (None: the simulator's own time limit)."""
-    env: list[str] = field(default_factory=list, metadata={"flag": "--env"})
-    """Simulator config overrides key=value for every env of the run (repeatable), e.g. expert.yield_to_movers=false
-    on ugv (demonstrations that run into movers); a value is read as JSON where it parses (false, 0.3), else as
-    text."""
-    overrides: list[str] = field(default_factory=list, metadata={"flag": "--set"})
-    """Learner config overrides key=value, e.g. gate.tau_max=0.7 (fields: core.sage.config)."""
+    env: list[str] = field(default_factory=list)
+    """Simulator config overrides key=value for every env of the run (``sage train --set env.KEY=VALUE``), e.g.
+    expert.yield_to_movers=false on ugv (demonstrations that run into movers); a value is read as JSON where it
+    parses (false, 0.3), else as text."""
+    overrides: list[str] = field(default_factory=list)
+    """Learner config overrides key=value by the field's path, e.g. gate.tau_max=0.7 (``sage train --set``; fields:
+    core.sage.config)."""
     expert: str | None = None
-    """Run folder or checkpoint whose policy is the expert, or a planner's name (core.planners: scripted, ...);
+    """Run folder or checkpoint whose policy is the expert, or a planner's name (core.planners);
     default: the simulator's scripted expert."""
     demo_expert: str | None = None
     """The expert of the demonstrations alone, by the same names as --expert (e.g. the UGV's planner blind-movers,

@@ -174,12 +174,13 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
 
 
 LEARNER_OVERRIDES = "learner_overrides"
-"""The study setting that carries ``sage study --learner-set`` to every trial: learner ``key=value`` overrides."""
+"""The study setting that carries ``sage study --set learner.KEY=VALUE`` to every trial: learner ``key=value``
+overrides."""
 
 
 def with_study_overrides(spec: TrainSpec, config: Mapping[str, Any]) -> TrainSpec:
-    """``spec`` with the study's learner overrides (``sage study --learner-set``) after its own: an ablation of
-    every method of a study at the same budgets, seeds and evaluation."""
+    """``spec`` with the study's learner overrides (``sage study --set learner.KEY=VALUE``) after its own: an
+    ablation of every method of a study at the same budgets, seeds and evaluation."""
     extra = [str(pair) for pair in config.get(LEARNER_OVERRIDES, ())]
     return spec.replace(overrides=[*spec.overrides, *extra]) if extra else spec
 
@@ -194,7 +195,7 @@ def check_learner_overrides(pairs: Sequence[str]) -> list[str]:
         try:
             apply_overrides(AgentConfig(), [pair])
         except (ValueError, TypeError, KeyError, AttributeError) as exc:
-            raise ValueError(f"--learner-set {pair!r}: {exc}") from None
+            raise ValueError(f"--set learner.{pair.strip()}: {exc}") from None
         checked.append(pair.strip())
     return checked
 
@@ -237,7 +238,7 @@ def prepare_training(
 
     ``bounded_by_steps``: the run has an environment-step budget, so no episode count means "until the
     budget is spent" rather than the default count. ``env``: keyword arguments for every env's ``make()``
-    (``--env``)."""
+    (``--set env.KEY=VALUE``)."""
     protocol = protocol or "none"
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")

@@ -43,8 +43,8 @@ def test_cli_refuses_unknown_study_and_budget(toy_study: StudyDef) -> None:
     assert result.exit_code == 2 and "unknown study" in result.output
     result = CliRunner().invoke(app, ["study", "toy-split", "--budget", "huge"])
     assert result.exit_code == 2 and "smoke, small, full" in result.output
-    result = CliRunner().invoke(app, ["study", "toy-split", "--set", "nope=1"])
-    assert result.exit_code == 2 and "--set 'nope=1'" in result.output
+    result = CliRunner().invoke(app, ["study", "toy-split", "--set", "study.nope=1"])
+    assert result.exit_code == 2 and "--set study.nope=1: toy-split has no setting 'nope'" in result.output
     result = CliRunner().invoke(app, ["study", "toy-split", "--methods", "sage,nope"])
     assert result.exit_code == 2 and "toy-split has no nope; its: sage" in result.output
 
@@ -109,13 +109,13 @@ def test_learner_overrides_reach_every_trial_and_are_stated_under_the_table(ray_
     register_study(study)
     try:
         args = ["study", "toy-ablation", "--budget", "smoke", "--out", str(tmp_path)]
-        args += ["--learner-set", "fear_budget_from_data=false", "--learner-set", "lambda_init=0.25"]
+        args += ["--set", "learner.fear_budget_from_data=false", "--set", "lambda_init=0.25"]
         result = CliRunner().invoke(app, args)
         assert result.exit_code == 0, result.output
         # a setting no learner has is refused before any trial runs, and so is one of the wrong type
         for bad in ("nope=1", "lambda_init=high"):
-            result = CliRunner().invoke(app, ["study", "toy-ablation", "--budget", "smoke", "--learner-set", bad])
-            assert result.exit_code == 2 and f"--learner-set '{bad}'" in result.output
+            result = CliRunner().invoke(app, ["study", "toy-ablation", "--budget", "smoke", "--set", f"learner.{bad}"])
+            assert result.exit_code == 2 and f"--set learner.{bad}: " in result.output
     finally:
         unregister_study(study.name)
     text = (tmp_path / "table.md").read_text()
@@ -126,7 +126,7 @@ def test_learner_overrides_reach_every_trial_and_are_stated_under_the_table(ray_
 def test_a_study_that_trains_no_learner_of_its_own_refuses_learner_overrides(tmp_path: Path) -> None:
     from app.cli import app
 
-    result = CliRunner().invoke(app, ["study", "cycles", "--budget", "smoke", "--learner-set", "hidden=16"])
+    result = CliRunner().invoke(app, ["study", "cycles", "--budget", "smoke", "--set", "learner.hidden=16"])
     assert result.exit_code == 2 and "cycles trains no learner from a spec of its own" in result.output
-    with pytest.raises(ValueError, match="takes no --learner-set"):
+    with pytest.raises(ValueError, match="takes no learner settings"):
         run_study("cycles", "smoke", tmp_path, log=lambda _: None, learner_overrides=["hidden=16"])

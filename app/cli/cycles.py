@@ -1,6 +1,6 @@
 """``sage cycles``: deploy → takeover → fine-tune cycles, headless, and the paper's continual-adaptation figures.
 
-    sage cycles --sim ugv --scenario 3 --cycles 9 --episodes-per-cycle 3 --policy policies/ugv-default --out DIR
+    sage cycles --scenario 3 --cycles 9 --episodes-per-cycle 3 --policy policies/ugv-default --out DIR
 
 Each cycle deploys the current policy version with its SAGE gate and the scripted expert, records the session, then
 fine-tunes on it with the same function the live server's worker runs (:mod:`core.finetune`) and deploys the new
@@ -17,19 +17,28 @@ from typing import Annotated
 
 import typer
 
-
-def _fail(message: str) -> None:
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
+from app.cli.options import (
+    LEARNER_SECTIONS,
+    LEARNER_SET_HELP,
+    NamedChoicesCommand,
+    fail,
+    one_scenario,
+    routed_settings,
+    runs_sim,
+)
 
 
 def register(app: typer.Typer) -> None:
     """Add ``sage cycles``."""
 
-    @app.command("cycles")
+    @app.command("cycles", cls=NamedChoicesCommand)
     def cycles(
-        sim: Annotated[str, typer.Option(help="Simulator.")] = "ugv",
-        scenario: Annotated[str, typer.Option(help="Scenario of every cycle (UGV 3: a crossing vehicle).")] = "3",
+        sim: Annotated[
+            str | None, typer.Option(help="Simulator: {SIMS} (default: the --policy run's, else ugv; must match it).")
+        ] = None,
+        scenario: Annotated[
+            list[str] | None, typer.Option(help="The scenario of every cycle (one; default 3: UGV's crossing).")
+        ] = None,
         cycles: Annotated[int, typer.Option(min=1, help="Deployment cycles (fine-tuning rounds between them).")] = 9,
         episodes_per_cycle: Annotated[int, typer.Option(min=1, help="Episodes deployed per cycle.")] = 3,
         policy: Annotated[
@@ -44,7 +53,7 @@ def register(app: typer.Typer) -> None:
         updates: Annotated[int, typer.Option(min=0, help="Gradient updates per fine-tuning round.")] = 400,
         set_: Annotated[
             list[str] | None,
-            typer.Option("--set", help="Learner config override for fine-tuning, key=value (repeatable)."),
+            typer.Option("--set", help=f"A learner setting for fine-tuning (repeatable), {LEARNER_SET_HELP}."),
         ] = None,
         stochastic: Annotated[bool, typer.Option(help="Deploy the sampled policy instead of its mean action.")] = False,
         max_episode_steps: Annotated[int | None, typer.Option(min=1, help="Cut episodes at this many steps.")] = None,
@@ -63,16 +72,19 @@ def register(app: typer.Typer) -> None:
         shown = show_cycle or [1]
         for k in shown:
             if not 1 <= k <= cycles:
-                _fail(f"--show-cycle {k} is not one of the cycles (1-{cycles})")
-        policy_path = policy or f"policies/{sim}-default"
+                fail(f"--show-cycle {k} is not one of the cycles (1-{cycles})")
+        overrides = routed_settings(set_, LEARNER_SECTIONS, other="learner").get("learner", [])
+        name = one_scenario(scenario, "sage cycles") or "3"
+        policy_path = policy or f"policies/{sim or 'ugv'}-default"
         if not Path(policy_path).exists():
-            _fail(f"no policy at {policy_path!r} (give --policy a run folder or a checkpoint)")
-        folder = out or Path("runs") / f"cycles-{sim}-{scenario}-s{seed}"
+            fail(f"no policy at {policy_path!r} (give --policy a run folder or a checkpoint)")
+        sim = runs_sim([policy_path], sim)
+        folder = out or Path("runs") / f"cycles-{sim}-{name}-s{seed}"
         try:
             make_env = env_factory(sim)
             config = CyclesConfig(
                 sim=sim,
-                scenario=scenario,
+                scenario=name,
                 policy=policy_path,
                 cycles=cycles,
                 episodes_per_cycle=episodes_per_cycle,
@@ -81,12 +93,12 @@ def register(app: typer.Typer) -> None:
                 max_episode_steps=max_episode_steps,
                 # each cycle is the unit of data the user chose (see CyclesConfig.finetune)
                 finetune=FinetuneConfig(
-                    updates=updates, overrides=tuple(set_ or ()), seed=seed, min_steps=1, min_takeover_samples=0
+                    updates=updates, overrides=tuple(overrides), seed=seed, min_steps=1, min_takeover_samples=0
                 ),
             )
             result = run_cycles(config, folder, make_env, progress=None if quiet else typer.echo)
         except (ValueError, FileNotFoundError, FileExistsError, FinetuneError) as exc:
-            _fail(str(exc))
+            fail(str(exc))
         table = format_cycle_table(result.cycles, result.rounds)
         (folder / "table.md").write_text(table + "\n")
         typer.echo(table)

@@ -15,6 +15,8 @@ from typing import Annotated, Any
 
 import typer
 
+from app.cli.options import NamedChoicesCommand, one_scenario
+
 OUTCOMES = ("success", "collision", "timeout")
 
 
@@ -84,11 +86,12 @@ def run_expert(
 def register(app: typer.Typer) -> None:
     """Add ``sage expert`` to ``app``."""
 
-    @app.command("expert")
+    @app.command("expert", cls=NamedChoicesCommand)
     def expert(
-        sim: Annotated[str, typer.Option("--sim", help="Simulator (a name in sims.SIMULATORS).")] = "ugv",
+        sim: Annotated[str, typer.Option("--sim", help="Simulator: {SIMS}.")] = "ugv",
         scenario: Annotated[
-            str | None, typer.Option("--scenario", help="Scenario number or file (default: the simulator's own).")
+            list[str] | None,
+            typer.Option("--scenario", help="Scenario name or file (one; default: the simulator's own)."),
         ] = None,
         episodes: Annotated[int, typer.Option("--episodes", min=1, help="Number of episodes.")] = 20,
         seed: Annotated[int, typer.Option("--seed", help="Seed of the first episode (then seed + 1, ...).")] = 0,
@@ -97,8 +100,9 @@ def register(app: typer.Typer) -> None:
         """Run the scripted expert headless and print the paper's metric table."""
         from core.report import format_table
 
+        name = one_scenario(scenario, "sage expert")
         try:
-            rows, written = run_expert(sim, scenario, episodes, seed, plot)
+            rows, written = run_expert(sim, name, episodes, seed, plot)
         except (ValueError, FileNotFoundError) as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(2) from None
@@ -106,7 +110,7 @@ def register(app: typer.Typer) -> None:
         metric_columns = [k for k in rows[0] if k not in ("episode", "steps", "return", "cost", "error")]
         metric_columns = [k for k in metric_columns if not k.startswith(("takeover", "mean_"))]
         columns = [*metric_columns, "return", "cost"]
-        label = f"expert ({sim} {scenario})" if scenario is not None else f"expert ({sim})"
+        label = f"expert ({sim} {name})" if name is not None else f"expert ({sim})"
         typer.echo(format_table({label: rows}, columns))
         if errors:
             typer.echo(f"{len(errors)} episode(s) ended by a simulator error, first: {errors[0]}", err=True)

@@ -7,6 +7,7 @@ from typing import Annotated, Any
 
 import typer
 
+from app.cli.options import GATE_SET_HELP, GateSetRetired, gate_pairs, one_scenario, policy_sim, refuse_retired
 from app.messages import EXPERT_MODES
 
 
@@ -19,10 +20,12 @@ def register(app: typer.Typer) -> None:
             "127.0.0.1"
         ),
         port: Annotated[int, typer.Option(help="Port of the dashboard (viser gets its own loopback port).")] = 8000,
-        sim: Annotated[str, typer.Option(help="Simulator to open on (sage serve --help lists them).")] = "ugv",
+        sim: Annotated[
+            str | None, typer.Option(help="Simulator to open on (default: the --policy run's own, else ugv).")
+        ] = None,
         scenario: Annotated[
-            str | None,
-            typer.Option(help="Scenario name of the simulator (e.g. 3, c2, test-adversarial, or a UGV .yaml file)."),
+            list[str] | None,
+            typer.Option(help="Scenario name of the simulator (one; e.g. 3, c2, test-adversarial, a UGV .yaml file)."),
         ] = None,
         policy: Annotated[
             str | None,
@@ -42,14 +45,8 @@ def register(app: typer.Typer) -> None:
         finetune: Annotated[
             bool, typer.Option(help="Fine-tune a trained policy on the session in a worker process.")
         ] = True,
-        gate_set: Annotated[
-            list[str] | None,
-            typer.Option(
-                "--gate-set",
-                help="A setting of the gate over each policy's own, KEY=VALUE (repeatable), e.g. hold_seconds=2 "
-                "for a longer takeover: any field of core.sage.config.GateConfig.",
-            ),
-        ] = None,
+        set_: Annotated[list[str] | None, typer.Option("--set", help=f"For each policy: {GATE_SET_HELP}")] = None,
+        gate_set: GateSetRetired = None,
     ) -> None:
         """Serve the live dashboard: the SAGE loop at wall-clock rate, its fear / curiosity / threshold
         charts, keyboard and gamepad takeover, recorded sessions and replays."""
@@ -61,13 +58,15 @@ def register(app: typer.Typer) -> None:
 
         if expert not in EXPERT_MODES:
             _fail(f"--expert must be one of {', '.join(EXPERT_MODES)}, not {expert!r}")
-        gate_settings = _check_startup(sim, scenario, policy, gate_set or [])
+        refuse_retired(gate_set=gate_set)
+        scenario_name, sim = one_scenario(scenario, "sage serve"), policy_sim(policy, sim)
+        gate_settings = _check_startup(sim, scenario_name, policy, gate_pairs(set_))
         logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
         settings = ServerSettings(
             host=host,
             port=port,
             sim=sim,
-            scenario=scenario,
+            scenario=scenario_name,
             policy=policy,
             expert_mode=expert,  # type: ignore[arg-type]
             speed=speed,
@@ -108,7 +107,7 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
     try:
         settings = parse_gate_settings(gate_set, sims.descriptor(sim).contact_floors)
     except ValueError as exc:
-        _fail(f"--gate-set: {exc}")
+        _fail(f"--set gate.…: {exc}")
     opening = policy or default_policy(ServerSettings().policy_roots, sim)  # where the dashboard will look
     if settings and opening != SCRIPTED and Path(opening).exists():
         try:
@@ -116,7 +115,7 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
             if agent.has_world_model:
                 agent.gate_config(**settings)
         except ValueError as exc:
-            _fail(f"--gate-set: {_first_line(exc)}")
+            _fail(f"--set gate.…: {_first_line(exc)}")
     return settings
 
 

@@ -11,7 +11,7 @@ import dataclasses
 import functools
 import inspect
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Annotated, Any
 
 import typer
@@ -28,8 +28,11 @@ def _default(field: dataclasses.Field[Any]) -> Any:
     raise TypeError(f"field {field.name} needs a default to be an option")
 
 
-def spec_parameters(cls: type, skip: tuple[str, ...] = ()) -> list[inspect.Parameter]:
-    """One keyword parameter per field of ``cls``, annotated as a typer option."""
+def spec_parameters(
+    cls: type, skip: tuple[str, ...] = (), more_help: Mapping[str, str] | None = None
+) -> list[inspect.Parameter]:
+    """One keyword parameter per field of ``cls`` but those in ``skip``, annotated as a typer option; ``more_help``
+    adds text after a field's docstring (the command's own, e.g. the list of choices)."""
     hints = typing.get_type_hints(cls)
     docs = field_docs(cls)
     params: list[inspect.Parameter] = []
@@ -41,7 +44,7 @@ def spec_parameters(cls: type, skip: tuple[str, ...] = ()) -> list[inspect.Param
         if typing.get_origin(kind) is list:
             kind = kind | None
         flag = field.metadata.get("flag", "--" + field.name.replace("_", "-"))
-        option = typer.Option(flag, help=docs.get(field.name, ""))
+        option = typer.Option(flag, help=docs.get(field.name, "") + (more_help or {}).get(field.name, ""))
         params.append(
             inspect.Parameter(
                 field.name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=Annotated[kind, option]
@@ -51,18 +54,27 @@ def spec_parameters(cls: type, skip: tuple[str, ...] = ()) -> list[inspect.Param
 
 
 def spec_command(
-    cls: type, body: Callable[..., None], extra: list[inspect.Parameter] | None = None
+    cls: type,
+    body: Callable[..., None],
+    extra: list[inspect.Parameter] | None = None,
+    skip: tuple[str, ...] = (),
+    more_help: Mapping[str, str] | None = None,
 ) -> Callable[..., None]:
-    """A function typer can register: its options are ``cls``'s fields plus ``extra``; it calls
-    ``body(spec, **extra_values)`` with the spec built from the given options."""
-    names = {f.name for f in dataclasses.fields(cls)}
-    params = spec_parameters(cls) + list(extra or [])
+    """A function typer can register: its options are ``cls``'s fields (but ``skip``, which keep their defaults and
+    which ``body`` fills from its own options) plus ``extra``; it calls ``body(spec, **extra_values)`` with the spec
+    built from the given options."""
+    names = {f.name for f in dataclasses.fields(cls)} - set(skip)
+    params = spec_parameters(cls, skip, more_help) + list(extra or [])
 
     @functools.wraps(body)
     def command(**values: Any) -> None:
         fields = {k: v for k, v in values.items() if k in names}
         for field in dataclasses.fields(cls):
-            if fields.get(field.name) is None and field.default_factory is not dataclasses.MISSING:
+            if (
+                field.name in names
+                and fields.get(field.name) is None
+                and field.default_factory is not dataclasses.MISSING
+            ):
                 fields[field.name] = field.default_factory()
         body(cls(**fields), **{k: v for k, v in values.items() if k not in names})
 

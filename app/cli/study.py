@@ -3,11 +3,15 @@
     sage study NAME --budget small --out results/NAME [--address HOST:PORT] [--cpus 2] [--max-concurrent 2]
     sage study NAME --results-doc docs/results.md   # also its table in docs/results.md, the README's summary after
     sage study highway --methods sac,sage --train-steps 40000 --out results/highway-40k   # a longer comparison
-    sage study ugv --methods sage --learner-set fear_budget_from_data=false               # an ablation
+    sage study ugv --methods sage --set learner.fear_budget_from_data=false             # an ablation
+    sage study pedestrian --set study.expert=hg-dagger                                    # a study setting
 
 The budget (``smoke|small|full``) is counted in environment steps, the same for every method. Rerunning the
 same command resumes the sweep in ``OUT/sweep``. Writes ``seeds.csv``, ``table.md`` (mean ± 95% CI with the
-paper's numbers beside), ``summary.json`` and figures, and prints the wall time.
+paper's numbers beside), ``summary.json`` and figures, and prints the wall time. ``--set`` takes the study's
+settings (``study.KEY=VALUE``) and learner settings every method trains with (``learner.KEY=VALUE``, or the
+field's path in :class:`core.sage.config.AgentConfig`), read by the one parser of every command
+(:mod:`app.cli.options`).
 """
 
 from __future__ import annotations
@@ -17,13 +21,24 @@ from typing import Annotated, Any
 
 import typer
 
+from app.cli.options import (
+    LEARNER_SECTIONS,
+    LEARNER_SET_HELP,
+    STUDY_SECTIONS,
+    LearnerSetRetired,
+    NamedChoicesCommand,
+    fail,
+    refuse_retired,
+    routed_settings,
+)
+
 
 def register(app: typer.Typer) -> None:
     """Add ``sage study``."""
 
-    @app.command("study")
+    @app.command("study", cls=NamedChoicesCommand)
     def study(
-        name: Annotated[str, typer.Argument(help="Registered study name.")],
+        name: Annotated[str, typer.Argument(help="The study: {STUDIES}.", show_default=False)],
         budget: Annotated[str, typer.Option(help="smoke | small | full (environment steps per method).")] = "small",
         out: Annotated[Path | None, typer.Option(help="Results folder (default: results/NAME-BUDGET).")] = None,
         address: Annotated[str | None, typer.Option(help="Join this Ray cluster instead of running locally.")] = None,
@@ -48,28 +63,33 @@ def register(app: typer.Typer) -> None:
         ] = None,
         set_: Annotated[
             list[str] | None,
-            typer.Option("--set", help="A study setting key=value (e.g. expert=hg-dagger for pedestrian); repeatable."),
+            typer.Option(
+                "--set",
+                help="A setting, section.key=value (repeatable): study.KEY=VALUE, a setting of the study (e.g. "
+                f"study.expert=hg-dagger for pedestrian); {LEARNER_SET_HELP}, a learner setting every method trains "
+                "with (an ablation, e.g. learner.fear_budget_from_data=false).",
+            ),
         ] = None,
         methods: Annotated[
-            str | None, typer.Option(help="Only these of the study's methods, comma-separated (default: all).")
+            str | None,
+            typer.Option(
+                help="Only these of the study's methods, comma-separated (default: all). The studies' methods: "
+                "{STUDY_METHODS}."
+            ),
         ] = None,
         train_steps: Annotated[
             int | None,
             typer.Option(min=1, help="Environment steps per method and seed instead of the budget's."),
         ] = None,
-        learner_set: Annotated[
-            list[str] | None,
-            typer.Option(
-                "--learner-set",
-                help="A learner setting key=value every method trains with (an ablation, e.g. "
-                "fear_budget_from_data=false); repeatable.",
-            ),
-        ] = None,
+        learner_set: LearnerSetRetired = None,
     ) -> None:
         """Run a paper study: every method, five seeds, equal budgets; results with 95% intervals."""
         from studies.budgets import BUDGET_NAMES
         from studies.registry import check_study_learner_overrides, get_study, run_study
 
+        refuse_retired(learner_set=learner_set)
+        settings = routed_settings(set_, STUDY_SECTIONS | LEARNER_SECTIONS, other="learner")
+        learner_overrides = settings.get("learner", [])
         try:
             known = get_study(name).settings
             chosen = [m.strip() for m in (methods or "").split(",") if m.strip()] or None
@@ -80,22 +100,19 @@ def register(app: typer.Typer) -> None:
                 )
             if budget not in BUDGET_NAMES:
                 raise ValueError(f"unknown budget {budget!r}; choose one of {', '.join(BUDGET_NAMES)}")
-            overrides: dict[str, Any] = {}
-            for pair in set_ or []:
-                key, sep, value = pair.partition("=")
-                key = key.strip()
-                if not sep or key not in known:
-                    raise ValueError(f"--set {pair!r}: give key=value with a setting of {name}: {', '.join(known)}")
-                overrides[key] = setting_value(known[key], value.strip(), key)
-            if learner_set:
-                check_study_learner_overrides(name, learner_set)
+            overrides = study_settings(name, known, settings.get("study", []))
+            for pair in learner_overrides:
+                key = pair.partition("=")[0]
+                if key in known:  # a study setting given as the learner's
+                    raise ValueError(f"--set {pair}: {key} is a setting of {name}, --set study.{pair}")
+            if learner_overrides:
+                check_study_learner_overrides(name, learner_overrides)
         except ValueError as error:
-            typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
-            raise typer.Exit(code=2) from None
+            fail(str(error))
         results = out or Path("results") / f"{name}-{budget}"
         run_study(
             name, budget, results, address, cpus, max_concurrent, overrides=overrides, methods=chosen,
-            train_steps=train_steps, learner_overrides=learner_set or (),
+            train_steps=train_steps, learner_overrides=learner_overrides,
         )  # fmt: skip
         if results_doc is not None:
             from studies.readme import RESULTS_DOC, SUMMARY_README, update_results, update_summary
@@ -111,6 +128,17 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"summary written into {SUMMARY_README}")
 
 
+def study_settings(name: str, known: dict[str, Any], pairs: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` pairs (``--set study.KEY=VALUE``) as settings of study ``name``, each of its default's type."""
+    overrides: dict[str, Any] = {}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        if key not in known:
+            raise ValueError(f"--set study.{pair}: {name} has no setting {key!r}; its: {', '.join(known) or 'none'}")
+        overrides[key] = setting_value(known[key], value, key)
+    return overrides
+
+
 def setting_value(default: Any, text: str, key: str) -> Any:
     """``text`` as a value of the setting's own type: a comma list for a list, a number for a number."""
     if isinstance(default, list | tuple):
@@ -121,5 +149,5 @@ def setting_value(default: Any, text: str, key: str) -> Any:
         try:
             return type(default)(text)
         except ValueError:
-            raise ValueError(f"--set {key}={text}: {key} is a number") from None
+            raise ValueError(f"--set study.{key}={text}: {key} is a number") from None
     return text

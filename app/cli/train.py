@@ -1,19 +1,20 @@
-"""``sage train``, ``sage eval``, ``sage compare``: headless training and evaluation of the learners.
+"""``sage train`` and ``sage eval``: headless training and evaluation of the learners.
 
     sage train --sim ugv --scenario 3 --method sage --episodes 60 --seed 0 --init policies/ugv-default --out runs/s3
     sage eval runs/s3 --episodes 20 --scenario 1,2,3,4
-    sage compare runs/s3 runs/s3-sac --episodes 20 --scenario 3
+    sage eval runs/s3 runs/s3-sac --episodes 20 --scenario 3          # several runs: side by side
     sage train --sim highway --method sage --episodes 150            # closed-loop adversarial (CAT-style)
-    sage eval runs/hw --sim highway --split test --mode normal,adversarial --episodes 50 --seeds 0,1,2,3,4
+    sage eval runs/hw --split test --mode normal,adversarial --episodes 50 --seeds 0,1,2,3,4
     sage train --sim sumo --protocol route-shift --method sage --c1 40 --c2 20   # + figures in the run folder
 
 ``sage train``'s options are the fields of :class:`studies.training.TrainSpec` (the composition root: each
-default and help text is written there once, and a study sweep builds the same spec without a shell).
-``--sim`` is any simulator of :data:`sims.SIMULATORS`; ``--scenario`` names its variant (a comma list
-trains on several in turn; :mod:`studies.envs`: UGV 1-4, highway train/test, SUMO c1/c2). The study
-protocols (highway closed-loop adversaries, SUMO route shift) live in :mod:`studies`. In ``sage train``,
-``--set key=value`` edits the learner's config (``--set gate.tau_max=0.7``; fields: :mod:`core.sage.config`);
-in ``sage eval`` / ``compare`` on highway, ``--split`` is the logged split (train or test), as in the paper.
+default and help text is written there once, and a study sweep builds the same spec without a shell), with the
+options every command shares (:mod:`app.cli.options`): ``--sim`` is any simulator of :data:`sims.SIMULATORS`
+(a run's own where one is given); ``--scenario`` names its variants (repeatable, comma lists; :mod:`studies.envs`:
+UGV 1-4, highway train/test, SUMO c1/c2), trained on in turn; ``--set`` edits the learner's config
+(``--set gate.tau_max=0.7``, ``--set hidden=64``; fields: :mod:`core.sage.config`) and the simulator's
+(``--set env.expert.horizon=0.5``). The study protocols (highway closed-loop adversaries, SUMO route shift) live in
+:mod:`studies`. In ``sage eval`` on highway, ``--split`` is the logged split (train or test), as in the paper.
 The tables are the paper's (:mod:`core.report`): one row per run and scenario, the simulator's own
 metric columns, then return and cost.
 """
@@ -28,6 +29,21 @@ from typing import Annotated, Any
 
 import typer
 
+from app.cli.options import (
+    ENV_SECTIONS,
+    GATE_SET_HELP,
+    LEARNER_SECTIONS,
+    LEARNER_SET_HELP,
+    EnvRetired,
+    GateSetRetired,
+    NamedChoicesCommand,
+    fail,
+    gate_pairs,
+    refuse_retired,
+    routed_settings,
+    runs_sim,
+    scenario_list,
+)
 from app.cli.spec_command import spec_command
 from studies.spec import TrainSpec
 
@@ -36,13 +52,6 @@ SplitOption = Annotated[str, typer.Option("--split", help="highway: logged split
 ModeOption = Annotated[str, typer.Option(help="highway: normal and/or adversarial (comma list).")]
 SeedsOption = Annotated[str | None, typer.Option(help="Evaluation seeds, pooled (comma list; overrides --seed).")]
 GATED_COLUMNS = ("takeover_rate", "mean_fear")
-
-
-def _scenarios(value: str) -> list[str]:
-    items = [s.strip() for s in value.split(",") if s.strip()]
-    if not items:
-        raise typer.BadParameter("give at least one scenario, e.g. 3 or 1,2")
-    return items
 
 
 def _make_env_factory(sim: str, overrides: dict[str, Any] | None = None) -> Any:
@@ -92,26 +101,39 @@ def table_columns(sim: str, rows: list[dict[str, Any]], gated: bool = False) -> 
     return columns
 
 
-def _fail(message: str) -> None:
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
-
-
 def register(app: typer.Typer) -> None:
-    """Add ``train``, ``eval`` and ``compare``."""
+    """Add ``train`` and ``eval``."""
 
-    def train(spec: TrainSpec, quiet: bool = False) -> None:
+    def train(
+        spec: TrainSpec,
+        sim: str | None = None,
+        scenario: list[str] | None = None,
+        set_: list[str] | None = None,
+        env: list[str] | None = None,
+        quiet: bool = False,
+    ) -> None:
         """Train a learner on a simulator with the one step loop; write a run folder."""
         import torch
 
         from core.report import format_table
         from studies.training import run_training
 
+        refuse_retired(env=env)
+        settings = routed_settings(set_, ENV_SECTIONS | LEARNER_SECTIONS, other="learner")
+        if spec.init is not None and Path(spec.init).exists():
+            sim = runs_sim([spec.init], sim)  # a warm start drives the simulator its run was trained on
+        names = scenario_list(scenario)
+        spec = spec.replace(
+            sim=sim or TrainSpec.sim,
+            scenario=",".join(names) if names else None,
+            env=settings.get("env", []),
+            overrides=settings.get("learner", []),
+        )
         torch.set_num_threads(1)
         try:
             outcome = run_training(spec, progress=not quiet)
         except (ValueError, FileNotFoundError, TypeError) as exc:
-            _fail(str(exc))
+            fail(str(exc))
         result, rows = outcome.result, outcome.result.rows
         tail = rows[-max(1, len(rows) // 4) :] if rows else []
         method, scenarios = result.learner.cfg.method, ",".join(outcome.setup.scenarios)
@@ -129,113 +151,114 @@ def register(app: typer.Typer) -> None:
             typer.echo(line)
         typer.echo(f"run folder: {outcome.out}")
 
-    quiet = inspect.Parameter(
-        "quiet",
-        inspect.Parameter.KEYWORD_ONLY,
-        default=False,
-        annotation=Annotated[bool, typer.Option(help="No progress bar.")],
-    )
-    app.command("train")(spec_command(TrainSpec, train, [quiet]))
+    def option(name: str, annotation: Any, default: Any = None) -> inspect.Parameter:
+        return inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=annotation)
 
-    @app.command("eval")
+    extra = [
+        option(
+            "sim",
+            Annotated[
+                str | None,
+                typer.Option(help="Simulator: {SIMS}. Default: that of the --init run, else ugv (must match the run)."),
+            ],
+        ),
+        option(
+            "scenario",
+            Annotated[
+                list[str] | None,
+                typer.Option(
+                    help="Scenario(s) by the simulator's names (ugv 1-4, highway train|test, sumo c1|c2, pedestrian "
+                    "crossing|rare); repeatable or a comma list: trains on each in turn. Default: the simulator's."
+                ),
+            ],
+        ),
+        option(
+            "set_",
+            Annotated[
+                list[str] | None,
+                typer.Option(
+                    "--set",
+                    help=f"A setting, section.key=value (repeatable): {LEARNER_SET_HELP}; env.KEY=VALUE: the "
+                    "simulator's config for every env of the run, e.g. env.expert.yield_to_movers=false on ugv (a "
+                    "value is read as JSON where it parses: false, 0.3).",
+                ),
+            ],
+        ),
+        option("env", EnvRetired),
+        option("quiet", Annotated[bool, typer.Option(help="No progress bar.")], False),
+    ]
+    more_help = {
+        "method": " One of: {METHODS}.",
+        "expert": " Planners: {PLANNERS}.",
+        "demo_expert": " Planners: {PLANNERS}.",
+    }
+    command = spec_command(TrainSpec, train, extra, skip=("sim", "scenario", "env", "overrides"), more_help=more_help)
+    app.command("train", cls=NamedChoicesCommand)(command)
+
+    @app.command("eval", cls=NamedChoicesCommand)
     def eval_(
-        run: Annotated[
-            Path, typer.Argument(help="Run folder or checkpoint file, or a planner's name (core.planners), with --sim.")
+        runs: Annotated[
+            list[Path],
+            typer.Argument(
+                metavar="RUN",
+                help="Run folder(s) or checkpoint(s), or a planner's name ({PLANNERS}) with --sim. Several: the "
+                "same episodes for every run, side by side.",
+                show_default=False,
+            ),
         ],
-        episodes: Annotated[int, typer.Option(help="Episodes per scenario.")] = 20,
-        scenario: Annotated[str | None, typer.Option(help="Scenario(s); default: the run's own.")] = None,
-        seed: Annotated[int, typer.Option(help="Evaluation seed.")] = 0,
+        episodes: Annotated[int, typer.Option(help="Episodes per run and scenario.")] = 20,
+        scenario: Annotated[
+            list[str] | None,
+            typer.Option(help="Scenario(s), repeatable or a comma list; default: each run's own."),
+        ] = None,
+        seed: Annotated[int, typer.Option(help="Evaluation seed (the same episodes for every run).")] = 0,
         gate: Annotated[
             bool, typer.Option(help="Run the SAGE gate (records fear; with --expert it takes over).")
         ] = False,
         expert: Annotated[bool, typer.Option(help="Let the gate hand over to the scripted expert.")] = False,
-        gate_set: Annotated[
-            list[str] | None,
-            typer.Option(
-                "--gate-set",
-                help="A setting of the gate over the run's own, KEY=VALUE (repeatable; with --gate), e.g. "
-                "hold_seconds=2 or release=0: any field of core.sage.config.GateConfig.",
-            ),
-        ] = None,
+        set_: Annotated[list[str] | None, typer.Option("--set", help=f"With --gate: {GATE_SET_HELP}")] = None,
         save: Annotated[Path | None, typer.Option(help="Also write the rows to this JSON-lines file.")] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
-        sim: Annotated[str | None, typer.Option(help="Simulator (default: the run's own; must match it).")] = None,
+        sim: Annotated[
+            str | None,
+            typer.Option(
+                help="Simulator: {SIMS}. Default: the runs' own (must match them); needed for planners alone."
+            ),
+        ] = None,
         split: SplitOption = "test",
         mode: ModeOption = "normal,adversarial",
         seeds: SeedsOption = None,
+        gate_set: GateSetRetired = None,
     ) -> None:
-        """Run a learned policy with no expert and print the paper's table per scenario.
+        """Run learned policies with no expert and print the paper's table per scenario (several runs: side by side).
 
-        On highway: the first --episodes scenarios of each --set, in each --mode
+        On highway: the first --episodes scenarios of each --split, in each --mode
         (adversaries aimed at the evaluated policy), pooled over --seeds, with the
         paper's columns: success and collision rates, speed and acceleration; with --scenario, --gate or
         --expert, the per-scenario table instead (on highway: test, test-adversarial, train, ...)."""
+        refuse_retired(gate_set=gate_set)
         seed_list = _ints(seeds) if seeds else [seed]
-        run_sim = _run_sim([run], sim)
-        if gate_set and not gate:
-            _fail("--gate-set needs --gate (it sets the gate the run drives with)")
-        generic = scenario is not None or gate or expert  # the protocol table runs the policy alone, on its sets
-        table = None if generic else _protocol_table(run_sim, [run], episodes, split, mode, seed_list, save, quiet)
+        gate_settings = gate_pairs(set_)
+        run_sim = runs_sim(runs, sim, planners=True)
+        if gate_settings and not gate:
+            fail("--set gate.… needs --gate (it sets the gate the run drives with)")
+        names = scenario_list(scenario)
+        generic = bool(names) or gate or expert  # the protocol table runs the policy alone, on its sets
+        table = None if generic else _protocol_table(run_sim, runs, episodes, split, mode, seed_list, save, quiet)
         if table is not None:
             typer.echo(table)
             return
         typer.echo(
             _evaluate_and_format(
-                run_sim, [run], episodes, scenario, seed_list, gate, expert, save, quiet, gate_set=gate_set or []
+                run_sim, runs, episodes, names, seed_list, gate, expert, save, quiet, gate_set=gate_settings
             )
         )
-
-    @app.command()
-    def compare(
-        runs: Annotated[
-            list[Path], typer.Argument(help="Run folders or checkpoints, or planner names (core.planners).")
-        ],
-        episodes: Annotated[int, typer.Option(help="Episodes per run and scenario.")] = 20,
-        scenario: Annotated[str | None, typer.Option(help="Scenario(s); default: each run's own.")] = None,
-        seed: Annotated[int, typer.Option(help="Evaluation seed (the same episodes for every run).")] = 0,
-        save: Annotated[Path | None, typer.Option(help="Also write the rows to this JSON-lines file.")] = None,
-        quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
-        split: SplitOption = "test",
-        mode: ModeOption = "normal,adversarial",
-        seeds: SeedsOption = None,
-        sim: Annotated[str | None, typer.Option(help="Simulator (needed when only planners are compared).")] = None,
-    ) -> None:
-        """Evaluate several runs on the same episodes and print them side by side."""
-        seed_list = _ints(seeds) if seeds else [seed]
-        run_sim = _run_sim(runs, sim)
-        table = _protocol_table(run_sim, runs, episodes, split, mode, seed_list, save, quiet)
-        if table is not None:
-            typer.echo(table)
-            return
-        typer.echo(_evaluate_and_format(run_sim, runs, episodes, scenario, seed_list, False, False, save, quiet))
 
 
 def _label(run: Path) -> str:
     if run.is_dir() or not run.parent.name:  # a run folder, or a planner's name
         return run.name
     return f"{run.parent.name}/{run.stem}"
-
-
-def _run_sim(runs: list[Path], sim: str | None) -> str:
-    """The simulator the runs were trained on (all the same, and ``sim`` when given). A planner's name
-    (:mod:`core.planners`) stands for a policy too; it drives the ``--sim`` it is given."""
-    import sims  # noqa: F401 (registers the simulators' planners)
-    from core.agents import load_checkpoint, meta_of
-    from core.planners import is_planner
-
-    seen = []
-    for run in runs:
-        if is_planner(str(run)):
-            continue
-        try:
-            seen.append(meta_of(load_checkpoint(run)).sim)
-        except (FileNotFoundError, ValueError) as exc:
-            _fail(str(exc))
-    if sim is not None and any(s != sim for s in seen):
-        _fail(f"--sim {sim}: the run was trained on {', '.join(sorted(set(seen)))}")
-    if not seen and sim is None:
-        _fail(f"{runs[0]} is a planner: say which simulator it drives with --sim")
-    return sim if sim is not None else seen[0]
 
 
 def _write_rows(save: Path, rows: list[dict[str, Any]]) -> None:
@@ -260,7 +283,7 @@ def _protocol_table(
     try:
         text, rows = protocol([str(r) for r in runs], episodes, split, mode, seeds, not quiet)
     except (ValueError, FileNotFoundError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     if save is not None:
         _write_rows(save, rows)
     return text
@@ -270,7 +293,7 @@ def _evaluate_and_format(
     sim_given: str,
     runs: list[Path],
     episodes: int,
-    scenario: str | None,
+    scenario: list[str],
     seeds: list[int],
     gate: bool,
     expert: bool,
@@ -291,41 +314,41 @@ def _evaluate_and_format(
 
     torch.set_num_threads(1)
     if expert and not gate:
-        _fail("--expert needs --gate (the gate decides when the expert takes over)")
+        fail("--expert needs --gate (the gate decides when the expert takes over)")
     try:
         parse_gate_settings(gate_set or [])  # an unreadable setting stops here, before any run loads
     except ValueError as exc:
-        _fail(f"--gate-set: {exc}")
+        fail(f"--set gate.…: {exc}")
     named: dict[str, list[dict[str, Any]]] = {}
     sims_seen: list[str] = []
     all_rows: list[dict[str, Any]] = []
     for run in runs:
         if is_planner(str(run)):  # a planner that is not a learner: no checkpoint, no gate
             if gate:
-                _fail(f"{run} is a planner: it has no world model, so no SAGE gate (drop --gate)")
+                fail(f"{run} is a planner: it has no world model, so no SAGE gate (drop --gate)")
             sim = sim_given
             try:
                 default = sims.descriptor(sim).default_scenario
             except ValueError as exc:
-                _fail(str(exc))
-            scenarios = _scenarios(scenario) if scenario else [default]
+                fail(str(exc))
+            scenarios = scenario or [default]
             policy: Any = functools.partial(make_planner, str(run), sim=sim)
             gate_factory = None
         else:
             try:
                 agent = load_agent(run)
             except (FileNotFoundError, ValueError) as exc:
-                _fail(str(exc))
+                fail(str(exc))
             sim = agent.meta.sim
-            scenarios = _scenarios(scenario) if scenario else list(agent.meta.scenarios)
+            scenarios = scenario or list(agent.meta.scenarios)
             if gate and not agent.has_world_model:
-                _fail(f"{run} has no world model: no SAGE gate to run (drop --gate)")
+                fail(f"{run} has no world model: no SAGE gate to run (drop --gate)")
             try:
                 # the run's simulator's contact floors, should the settings switch imagined contact on
                 run_settings = parse_gate_settings(gate_set or [], sims.descriptor(sim).contact_floors)
                 agent.gate_config(**run_settings)
             except ValueError as exc:
-                _fail(f"--gate-set: {exc}")
+                fail(f"--set gate.…: {exc}")
             policy = agent.policy
             gate_factory = functools.partial(agent.make_gate, **run_settings) if gate else None
         sims_seen.append(sim)
@@ -336,7 +359,7 @@ def _evaluate_and_format(
                     policy, _make_env_factory(sim), scenarios, episodes, seed, gate_factory, expert, not quiet
                 )
             except ValueError as exc:
-                _fail(str(exc))
+                fail(str(exc))
             for s, rows in by_scenario.items():
                 results.setdefault(s, []).extend(dict(r, seed=seed) for r in rows)
         label = _label(run)

@@ -561,7 +561,7 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(
             "gate.imagined_contact needs gate.contact_floors, where the observation shows contact: a training run sets "
             "them from its simulator; a run made before them, or a simulator whose observation shows no contact, "
-            "has none (sage recalibrate --gate-set imagined_contact=true --sim SIM fills them from SIM)"
+            "has none (sage gate refit-bounds RUN --set gate.imagined_contact=true fills them from its simulator)"
         )
     if cfg.gate.contact_needs_closing and not cfg.world_model_config.motion_input:
         raise ValueError("gate.contact_needs_closing reads the motion input: it needs world_model_config.motion_input")
@@ -624,7 +624,7 @@ def set_field(cfg: Any, dotted: str, value: Any) -> None:
 
 
 def parse_gate_settings(pairs: list[str], contact_floors: Sequence[float] = ()) -> dict[str, Any]:
-    """``KEY=VALUE`` strings (``--gate-set``) as :class:`GateConfig` settings of the field's type, e.g.
+    """``KEY=VALUE`` strings (``--set gate.KEY=VALUE``) as :class:`GateConfig` settings of the field's type, e.g.
     ``["hold_seconds=2"]`` -> ``{"hold_seconds": 2.0}``. Unknown names and unreadable values are a ValueError; the
     settings are validated where they meet a run's gate (:meth:`core.agents.LoadedAgent.gate_config`), since some
     need the run's own (``hold_seconds`` its ``step_seconds``). ``contact_floors``: the simulator's

@@ -128,7 +128,7 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
     """Logged highway scenario replay (``mode="normal"``) or CAT-style adversarial variants.
 
     Keyword overrides change the :class:`~sims.highway.config.HighwayConfig` with dotted names, e.g.
-    ``HighwayEnv(split="train", **{"expert.horizon": 1.0})`` (``sage train --env expert.horizon=1.0``).
+    ``HighwayEnv(split="train", **{"expert.horizon": 1.0})`` (``sage train --set env.expert.horizon=1.0``).
     """
 
     metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 - gymnasium's convention

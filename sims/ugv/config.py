@@ -105,7 +105,7 @@ class ExpertConfig:
     yield_to_movers: bool = True
     """False makes the expert a goal seeker blind to movers (the same planner and tracker): demonstrations that run
     into movers, the collision-rich data a world model needs to learn what a closing mover means (``sage train
-    --env expert.yield_to_movers=false``)."""
+    --set env.expert.yield_to_movers=false``)."""
     evade_turns: tuple[float, ...] = (0.3, 0.6, 1.0, 1.5, 2.0, 2.5)
     """Durations of the turns on the spot (either way) that precede a straight run among the evasive manoeuvres
     (s): a robot facing the wrong way, with no reverse gear, leaves a mover's sweep so. () keeps to arcs alone."""
@@ -125,7 +125,7 @@ class ExpertConfig:
 class ConflictConfig:
     """A step is a near miss with a mover (``info["conflict"]``; no cost, no reward) when the robot, holding its
     command, would touch a mover within ``ttc`` or is within ``gap`` of one now (:mod:`sims.ugv.interaction`),
-    reported where ``report`` is on (``--env conflict.report=true``)."""
+    reported where ``report`` is on (``--set env.conflict.report=true``)."""
 
     ttc: float = 2.0
     """Time to contact under which a step is a conflict (s): the horizon of the UGV world model's violation label

@@ -35,7 +35,7 @@ def test_a_bad_scenario_or_simulator_is_one_line(tmp_path: Path) -> None:
 
 
 def test_a_bad_gate_setting_is_one_line_before_any_banner() -> None:
-    code, out = run("--gate-set", "nope=1")
+    code, out = run("--set", "gate.nope=1")
     assert code == 2 and "nope" in out and "dashboard on" not in out and len(out.strip().splitlines()) == 1
-    code, out = run("--gate-set", "release=3")  # checked against the default policy's own gate
+    code, out = run("--set", "gate.release=3")  # checked against the default policy's own gate
     assert code == 2 and "release" in out and len(out.strip().splitlines()) == 1

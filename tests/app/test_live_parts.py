@@ -252,7 +252,7 @@ def test_the_highway_and_sumo_defaults_are_served_live_with_fear(sim: str, scena
 
 
 def test_the_dashboards_gate_settings_reach_every_policy_it_loads(tmp_path: Any) -> None:
-    """``sage serve --gate-set hold_seconds=2``: the committed UGV policy's gate (a 1 s hold, 10 steps) holds for
+    """``sage serve --set gate.hold_seconds=2``: the committed UGV policy's gate (a 1 s hold, 10 steps) holds for
     2 s there, and the live loop loads its policies through that loader."""
     from pathlib import Path
 

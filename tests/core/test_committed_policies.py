@@ -53,7 +53,7 @@ def test_adapting_from_the_default_ugv_policy_updates_it(tmp_path: Path) -> None
 
 @pytest.mark.parametrize("checkpoint", POLICIES, ids=[p.parent.name for p in POLICIES])
 def test_a_committed_policy_deploys_the_operating_point_it_chose(checkpoint: Path) -> None:
-    """``sage choose-scale`` ran on each default's training scenarios: its rows and choice lie beside the policy
+    """``sage gate choose-scale`` ran on each default's training scenarios: its rows and choice lie beside the policy
     (``tau_scale_choice.json``, where it changed the scale) or in ``docs/notes/choose_scale/<policy>.json``. The
     checkpoint deploys the scale chosen, which met the target on every scenario it was chosen on; where none met,
     the scale the policy had (1) stays."""

@@ -196,14 +196,14 @@ def test_merge_refuses_runs_it_cannot_merge(refits, tmp_path: Path) -> None:
     del policy
 
 
-def test_sage_merge_reports_what_it_wrote_and_errors_clearly(refits, tmp_path: Path) -> None:
+def test_sage_gate_merge_reports_what_it_wrote_and_errors_clearly(refits, tmp_path: Path) -> None:
     from app.cli import app
 
     _, runs = refits
     out = tmp_path / "m"
-    result = CliRunner().invoke(app, ["merge", *map(str, runs), "--out", str(out)])
+    result = CliRunner().invoke(app, ["gate", "merge", *map(str, runs), "--out", str(out)])
     assert result.exit_code == 0, result.output
     members = load_agent(out).world_model.members
     assert f"{members} members" in result.output and "τ" in result.output
-    failed = CliRunner().invoke(app, ["merge", str(runs[0]), "--out", str(tmp_path / "n")])
+    failed = CliRunner().invoke(app, ["gate", "merge", str(runs[0]), "--out", str(tmp_path / "n")])
     assert failed.exit_code == 2 and "at least two" in failed.output

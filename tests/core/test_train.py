@@ -264,7 +264,7 @@ def point_sim(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sims.SIMULATORS, "point", "tests.core.sage.envs")  # its DESCRIPTOR is all it takes
 
 
-def test_cli_train_eval_compare(point_sim, tmp_path: Path) -> None:
+def test_cli_train_and_eval_of_one_run_and_of_several(point_sim, tmp_path: Path) -> None:
     from app.cli import app
 
     cli = CliRunner()
@@ -296,7 +296,7 @@ def test_cli_train_eval_compare(point_sim, tmp_path: Path) -> None:
     result = cli.invoke(
         app,
         [
-            "compare",
+            "eval",
             str(first),
             str(second),
             "--episodes",
@@ -354,26 +354,26 @@ def test_a_run_records_its_simulators_contact_floors_for_fear_s_imagined_contact
 
 
 def test_eval_drives_with_the_gate_settings_it_is_given(point_sim, sage_run, tmp_path: Path) -> None:
-    """``sage eval --gate --expert --gate-set``: a threshold pinned at 0 hands every step to the expert, one pinned
-    out of reach none; wrong settings are refused by name."""
+    """``sage eval --gate --expert --set gate.KEY=VALUE``: a threshold pinned at 0 hands every step to the expert, one
+    pinned out of reach none; wrong settings are refused by name."""
     from app.cli import app
 
     run, _ = sage_run
-    pinned = ["--gate-set", "tau_from_data=false", "--gate-set", "use_curiosity=false"]
+    pinned = ["--set", "gate.tau_from_data=false", "--set", "gate.use_curiosity=false"]
 
     def takeover(level: str) -> float:
         rows = tmp_path / f"rows-{level}.jsonl"
         args = ["eval", str(run), "--scenario", "dynamic", "--episodes", "2", "--gate", "--expert", "--quiet"]
-        gate = [*pinned, "--gate-set", f"tau_min={level}", "--gate-set", f"tau_max={level}"]
+        gate = [*pinned, "--set", f"gate.tau_min={level}", "--set", f"gate.tau_max={level}"]
         result = CliRunner().invoke(app, [*args, *gate, "--save", str(rows)])
         assert result.exit_code == 0, result.output
         return float(np.mean([json.loads(line)["takeover_rate"] for line in rows.read_text().splitlines()]))
 
     assert takeover("0") == 1.0 and takeover("1000") == 0.0
-    for bad, message in ((["--gate-set", "nope=1"], "nope"), (["--gate-set", "release=2"], "release")):
+    for bad, message in ((["--set", "gate.nope=1"], "nope"), (["--set", "gate.release=2"], "release")):
         result = CliRunner().invoke(app, ["eval", str(run), "--scenario", "dynamic", "--gate", *bad])
         assert result.exit_code == 2 and message in result.output, result.output
-    result = CliRunner().invoke(app, ["eval", str(run), "--scenario", "dynamic", "--gate-set", "release=0"])
+    result = CliRunner().invoke(app, ["eval", str(run), "--scenario", "dynamic", "--set", "gate.release=0"])
     assert result.exit_code == 2 and "needs --gate" in result.output
 
 

@@ -1,4 +1,4 @@
-"""sage calibrate: labels, scores and the operating curve on the point world."""
+"""sage gate evaluate: labels, scores and the operating curve on the point world."""
 
 from __future__ import annotations
 
@@ -332,7 +332,8 @@ def test_gate_with_expert_runs_the_gate_with_the_settings_it_is_given(deployed: 
 
 
 def test_calibration_runs_the_gate_with_the_settings_it_is_given(deployed: Path) -> None:  # noqa: F811
-    """``sage calibrate --gate-set``: the watching gate, its operating curve and the lead replay all take them."""
+    """``sage gate evaluate --set gate.KEY=VALUE``: the watching gate, its operating curve and the lead replay all
+    take them."""
     from studies.calibrate import expert_lead
 
     make_env = functools.partial(envs.make, "dynamic")

@@ -52,7 +52,7 @@ def test_env_overrides_are_read_as_json_where_they_parse_and_reach_every_env() -
 
 
 def test_highway_takes_dotted_env_overrides_into_its_world_expert_and_adversary() -> None:
-    """``sage train --sim highway --env expert.horizon=0.5``: the override reaches the config the scripted expert
+    """``sage train --sim highway --set env.expert.horizon=0.5``: the override reaches the config the scripted expert
     and the CAT adversary read, on every env of the run; a typo is an error, not a silent default."""
     from studies.training import prepare_training
 

@@ -1,4 +1,4 @@
-"""``sage recalibrate``: the τ bounds measured again for another fear, β chosen from data, and a gate that would
+"""``sage gate refit-bounds``: the τ bounds measured again for another fear, β chosen from data, and a gate that would
 read bounds measured on another fear refused."""
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def test_recalibrated_bounds_are_the_fear_quantiles_of_the_drives_states(policy:
 def test_a_gate_that_changes_fear_over_bounds_measured_on_another_is_refused(policy: Path) -> None:
     agent = load_agent(policy)
     for setting in ({"beta": 0.8}, {"horizon": 3}, {"aggregate": "discounted_mean"}, {"tau_max_quantile": 0.95}):
-        with pytest.raises(ValueError, match=r"changes fear itself.*sage recalibrate"):
+        with pytest.raises(ValueError, match=r"changes fear itself.*sage gate refit-bounds"):
             agent.make_gate(**setting)
     # settings that leave fear and its bounds alone still go over the run's own
     assert agent.make_gate(hold_steps=2, tau_scale=0.5, release=0.5) is not None
@@ -110,13 +110,13 @@ def test_choosing_beta_scores_every_candidate_where_the_policy_met_a_violation(t
     assert not (tmp_path / "y").exists()
 
 
-def test_sage_recalibrate_reports_what_it_wrote_and_errors_clearly(tmp_path: Path) -> None:
+def test_sage_gate_refit_bounds_reports_what_it_wrote_and_errors_clearly(tmp_path: Path) -> None:
     from app.cli import app
 
     runner = CliRunner()
     out = tmp_path / "ugv"
-    result = runner.invoke(app, ["recalibrate", "policies/ugv-default", "--sim", "ugv", "--scenario", "1",
-                                 "--episodes", "2", "--gate-set", "beta=0.6", "--out", str(out)])  # fmt: skip
+    result = runner.invoke(app, ["gate", "refit-bounds", "policies/ugv-default", "--scenario", "1",
+                                 "--episodes", "2", "--set", "gate.beta=0.6", "--out", str(out)])  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "β 0.5 -> 0.6" in result.output and load_agent(out).config.gate.beta == 0.6
     for args, message in (
@@ -124,9 +124,9 @@ def test_sage_recalibrate_reports_what_it_wrote_and_errors_clearly(tmp_path: Pat
         (["--episodes", "1", "--out", str(tmp_path / "y")], "--scenario"),
         (["--scenario", "nowhere", "--out", str(tmp_path / "z")], "nowhere"),
         (["--scenario", "1", "--episodes", "1", "--out", str(out)], "already holds"),
-        (["--scenario", "1", "--gate-set", "beta=2", "--out", str(tmp_path / "w")], "beta"),
+        (["--scenario", "1", "--set", "gate.beta=2", "--out", str(tmp_path / "w")], "beta"),
     ):
-        result = runner.invoke(app, ["recalibrate", "policies/ugv-default", "--sim", "ugv", *args])
+        result = runner.invoke(app, ["gate", "refit-bounds", "policies/ugv-default", "--sim", "ugv", *args])
         assert result.exit_code == 2 and message in result.output, (args, result.output)
     assert not any((tmp_path / name).exists() for name in ("y", "z", "w"))
 
@@ -142,7 +142,7 @@ def test_a_run_of_no_episodes_keeps_no_fear_its_bounds_were_not_measured_on(poli
         train(run, dataclasses.replace(config, gate=dataclasses.replace(config.gate, **gate)), point_env, out,
               progress=False)  # fmt: skip
 
-    with pytest.raises(ValueError, match="sage recalibrate"):
+    with pytest.raises(ValueError, match="sage gate refit-bounds"):
         zero_run(tmp_path / "beta", beta=0.8)
     assert not (tmp_path / "beta" / "checkpoint.pt").exists()
     zero_run(tmp_path / "hold", hold_steps=2)
@@ -151,28 +151,28 @@ def test_a_run_of_no_episodes_keeps_no_fear_its_bounds_were_not_measured_on(poli
 
 def test_imagined_contact_is_another_fear_measured_again_with_the_simulators_floors(tmp_path: Path) -> None:
     """Switching fear's imagined contact on or off changes fear, so a run's bounds must be measured again for it:
-    refused over a run's own bounds (the committed UGV policy has it on), and ``sage recalibrate --gate-set
-    imagined_contact=false`` / ``=true`` writes a run without it / with it and the UGV's contact floors."""
+    refused over a run's own bounds (the committed UGV policy has it on), and ``sage gate refit-bounds --set
+    gate.imagined_contact=false`` / ``=true`` writes a run without it / with it and the UGV's contact floors."""
     import sims
     from app.cli import app
 
     floors = list(sims.descriptor("ugv").contact_floors)
     committed = load_agent("policies/ugv-default")
     assert committed.config.gate.imagined_contact and committed.config.gate.contact_floors == floors
-    with pytest.raises(ValueError, match=r"changes fear itself.*sage recalibrate"):
+    with pytest.raises(ValueError, match=r"changes fear itself.*sage gate refit-bounds"):
         committed.make_gate(imagined_contact=False)
     without = tmp_path / "without"
     args = ["--sim", "ugv", "--scenario", "1", "--episodes", "2"]
-    switch_off = ["--gate-set", "imagined_contact=false", "--out", str(without)]
-    result = CliRunner().invoke(app, ["recalibrate", "policies/ugv-default", *args, *switch_off])
+    switch_off = ["--set", "gate.imagined_contact=false", "--out", str(without)]
+    result = CliRunner().invoke(app, ["gate", "refit-bounds", "policies/ugv-default", *args, *switch_off])
     assert result.exit_code == 0, result.output
     agent = load_agent(without)
     assert not agent.config.gate.imagined_contact and not agent.make_gate().cfg.imagined_contact
-    with pytest.raises(ValueError, match=r"changes fear itself.*sage recalibrate"):
+    with pytest.raises(ValueError, match=r"changes fear itself.*sage gate refit-bounds"):
         agent.make_gate(imagined_contact=True, contact_floors=floors)
     out = tmp_path / "contact"
     result = CliRunner().invoke(
-        app, ["recalibrate", str(without), *args, "--gate-set", "imagined_contact=true", "--out", str(out)]
+        app, ["gate", "refit-bounds", str(without), *args, "--set", "gate.imagined_contact=true", "--out", str(out)]
     )
     assert result.exit_code == 0, result.output
     recalibrated = load_agent(out)

@@ -184,7 +184,7 @@ def test_a_slow_walker_going_the_robots_way_is_passed_not_trailed() -> None:
 
 
 def test_the_blind_movers_planner_drives_as_the_expert_of_an_env_blind_to_movers() -> None:
-    """``--demo-expert blind-movers`` gives the demonstrations of ``--env expert.yield_to_movers=false`` while the
+    """``--demo-expert blind-movers`` gives the demonstrations of ``--set env.expert.yield_to_movers=false`` while the
     env's own expert (the takeovers') still yields: the same actions, step for step, on a scenario with a mover."""
     from core.planners import make_planner
 
