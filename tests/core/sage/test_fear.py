@@ -291,7 +291,12 @@ def test_an_imagined_state_in_contact_is_a_violation_and_the_gate_kernel_agrees(
         (float(reference.fear), float(reference.cost), float(reference.sigma)), abs=1e-5
     )
     assert float(reference.cost) > float(without.cost)
-    assert np.array_equal(kernel.last_member_costs(), touched.cost[:, :, 0].numpy())
+    member_costs = kernel.last_member_costs()
+    assert (member_costs[in_contact[:, :, 0].numpy()] == 1.0).all()  # set, not computed: exact on both paths
+    # The kernel's preallocated addmm/baddbmm chain and the rollout's batched ops sum in another order, and a
+    # processor's vector width changes that order again (seen: AMD EPYC): float32 agreement is a few ulps of a
+    # probability in [0, 1] (eps 1.2e-7), so rtol 1e-5 / atol 1e-6 and not bit equality.
+    np.testing.assert_allclose(member_costs, touched.cost[:, :, 0].numpy(), rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="contact_floors"):
         fear(model.folded(), actor.deterministic, obs, action, dataclasses.replace(on, contact_floors=[0.0] * 7))
 
