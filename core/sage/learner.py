@@ -16,7 +16,7 @@ copying the gate's single-state rollouts: the gate must stay sub-millisecond and
 exists (the live dashboard), and batched rollouts give the actor the same imagined states at a fraction of
 the cost.
 
-A learner is a :class:`core.loop.Policy` (``act``) and a step listener (``observe``): the training driver
+A learner is a :class:`core.protocol.Policy` (``act``) and a step listener (``observe``): the training driver
 (:mod:`core.train`) puts it in a :class:`core.loop.Runner` and appends ``observe`` to the step listeners, so
 the one step loop feeds the buffer and triggers the updates. The algorithms themselves are one file each:
 :mod:`core.sage.sac` (SAC, FNI-RL, SAGE-SAC), :mod:`core.sage.td3`, :mod:`core.sage.hg_dagger`. A discrete
@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from core.loop import StepRecord
+from core.protocol import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.config import AgentConfig, GateConfig
 from core.sage.fear import CalibrationSample, PolicyFn, contact_terms, rollout, sample_member_transitions
@@ -97,7 +97,7 @@ def calibration_sample(
 
 
 class ActorPolicy:
-    """A :class:`core.loop.Policy` over an actor: its sample, or its deterministic action.
+    """A :class:`core.protocol.Policy` over an actor: its sample, or its deterministic action.
 
     The deterministic action runs on preallocated buffers through views of the actor's parameters (which
     stay valid while an optimiser updates them in place): a few tensor ops, no module dispatch."""
