@@ -210,7 +210,7 @@ def test_states_fear_looks_past_to_a_violation_are_not_familiar_for_the_bounds()
     and then the label's window ahead, so every state within that reach of a violation is left out, and only those
     (with a low cost)."""
     from core.replay import ReplayBuffer
-    from core.sage.learner import familiar_for_bounds
+    from core.sage.model_trainer import familiar_for_bounds
 
     buffer = ReplayBuffer(1, 1, 100)
     for t in range(40):  # one episode: the violation at step 30, a dense cost of 0.5 at step 5
@@ -229,7 +229,7 @@ def test_conflicts_are_not_familiar_for_the_bounds_where_the_model_learns_them()
     """With ``conflict_label_weight`` above 0 a conflict is a positive label, so its state is no familiar state for
     τ's bounds either; with 0 (the paper's ĉ) conflicts change nothing."""
     from core.replay import ReplayBuffer
-    from core.sage.learner import familiar_for_bounds
+    from core.sage.model_trainer import familiar_for_bounds
 
     buffer = ReplayBuffer(1, 1, 100)
     for t in range(20):  # no violation; conflicts at steps 8 and 9
