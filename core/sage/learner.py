@@ -7,7 +7,7 @@ SAGE gate built on them, the update schedule, the guarded update, demonstrations
 (:meth:`~BaseLearner.rollout_policy`) and how the environment's actions are written for its buffer and world
 model (:meth:`~BaseLearner.encode_action`: identity for continuous actions, one-hot for discrete ones).
 :class:`ActorLearner` adds the continuous actor that SAC, TD3 and HG-DAgger share; a value-based discrete learner
-(:mod:`core.sage.d3qn_learner`) subclasses the base directly.
+(:mod:`core.sage.d3qn`) subclasses the base directly.
 
 World model. A learner whose method trains one owns a :class:`~core.sage.model_trainer.WorldModelTrainer`
 (``model_trainer``; None otherwise): the fit and its schedule, the τ bounds on the familiar states, the fear
