@@ -154,8 +154,8 @@ class WorldModelTrainer:
         return self.ready() and env_steps - self.steps_at_last_rollout >= self.cfg.virtual_every
 
     def virtual_rollout(self, buffer: ReplayBuffer, virtual: VirtualBuffer, policy: PolicyFn, env_steps: int) -> None:
-        """Roll the model m steps from ``virtual_starts`` real states under ``policy`` into ``virtual`` (one member's
-        transition per start and step); nothing before a fit or with an empty buffer."""
+        """Roll the model m steps from ``virtual_starts`` real states under ``policy`` into ``virtual`` (a randomly
+        chosen member's imagined trajectory per start); nothing before a fit or with an empty buffer."""
         if not self.ready() or len(buffer) == 0:
             return
         starts = buffer.sample(self.cfg.virtual_starts, self.rng).obs
