@@ -109,7 +109,7 @@ def main() -> None:
         type=int,
         nargs="*",
         default=[],
-        help="also time the batched gate with ensembles of these sizes (a merged ensemble, sage merge)",
+        help="also time the batched gate with ensembles of these sizes (a merged ensemble, sage gate merge)",
     )
     parser.add_argument("--ego", action="store_true", help="also time the gate over the UGV's ego step")
     args = parser.parse_args()

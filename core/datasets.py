@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from core.loop import StepRecord
+from core.protocol import StepRecord
 
 MINARI_PREFIX = "minari:"
 

@@ -10,8 +10,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from core.loop import Actor, Expert, Policy, StepRecord
-from core.protocol import expert_engaged, simulator
+from core.protocol import Actor, Expert, Policy, StepRecord, expert_engaged, simulator
 
 
 class ScriptedExpert:

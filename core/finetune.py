@@ -47,8 +47,8 @@ import torch
 
 from core.agents import AgentMeta, load_checkpoint, meta_of, resolve_checkpoint, save_checkpoint
 from core.learners import make_learner
-from core.loop import StepRecord
 from core.promotion import is_promoted, read_verdict
+from core.protocol import StepRecord
 from core.sage.config import AgentConfig, apply_overrides, from_dict
 from core.sage.learner import BaseLearner
 from core.sessions import SessionStore

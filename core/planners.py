@@ -23,7 +23,7 @@ import gymnasium as gym
 import numpy as np
 
 from core.experts import ExpertPolicy
-from core.loop import Actor, Policy
+from core.protocol import Actor, Policy
 
 PlannerFactory = Callable[[gym.Env[Any, Any]], Policy]
 

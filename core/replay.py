@@ -14,8 +14,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from core.loop import StepRecord
 from core.motion import ScanAlignment, motion_between
+from core.protocol import StepRecord
 
 
 @dataclass

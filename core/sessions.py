@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from core.loop import EpisodeSummary, StepRecord
+from core.protocol import EpisodeSummary, StepRecord
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS session (

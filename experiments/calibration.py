@@ -1,4 +1,4 @@
-"""Does each committed default policy's fear predict danger? ``sage calibrate`` on every default that has a world
+"""Does each committed default policy's fear predict danger? ``sage gate evaluate`` on every default that has a world
 model, on the scenarios where its simulator's danger lives; writes ``docs/notes/calibration/README.md`` (the table
 docs/calibration.md quotes) and each run's figures, with the commit and the command that produced them.
 

@@ -1,7 +1,7 @@
 """Does the fear term act, and what does it do? Two results folders of one study compared: an arm and its control.
 
 Reads two folders written by ``sage study NAME`` (the same study, budget and seeds; typically one run as is and one
-with ``--learner-set fear_budget_from_data=false``) and prints, per arm:
+with ``--set learner.fear_budget_from_data=false``) and prints, per arm:
 
 * the fear term over training, from each trial's run folder (``runs/<method>-s<seed>/metrics.jsonl``): F_0 at the
   end, λ at the end, the share of logged episodes whose λ was above 0, and the mean fear of real states;

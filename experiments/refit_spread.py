@@ -14,12 +14,12 @@ refits are not kept (the report says which, and the commit they were measured at
         [--rows docs/notes/refit_spread/rows.json] \
         [--out DIR] [--readme docs/notes/calibration_history.md] [--block NAME] [--cpus N | --address HOST:PORT]
 
-``--rank-episodes N`` adds how well fear ranks the steps before a violation (``sage calibrate``'s first table: the
+``--rank-episodes N`` adds how well fear ranks the steps before a violation (``sage gate evaluate``'s first table: the
 policy alone with its gate watching, no expert, N episodes per scenario, "a violation within 1 s"): per arm and
 scenario the AUROC of fear for each refit, its mean with a 95% t-interval, and the share of the other steps on which
 the gate fires (its false alarms, what the takeover pays for).
 
-``--merge`` also merges each arm's refits into one ensemble of all their members (``sage merge``: bagging over
+``--merge`` also merges each arm's refits into one ensemble of all their members (``sage gate merge``: bagging over
 refits, :mod:`core.merge`) and drives its gate rows beside the single refits'. It needs refits that kept their
 calibration states (``calibration.npz``, since 1294db4); an arm whose refits are older is named and left unmerged.
 
@@ -313,7 +313,7 @@ def main() -> None:
     parser.add_argument(
         "--merge",
         action="store_true",
-        help="also merge each arm's refits into one ensemble (sage merge) and drive its gate rows",
+        help="also merge each arm's refits into one ensemble (sage gate merge) and drive its gate rows",
     )
     parser.add_argument("--deployed", action="store_true", help="also the committed policy's own gate rows")
     parser.add_argument("--block", help="--readme's block to write (default: refit-spread, -<sim> but ugv)")
@@ -625,7 +625,7 @@ def gate_row(folder: str, scenario: str, episodes: int, sim: str = "ugv", scale:
 
 def rank_row(folder: str, scenario: str, episodes: int, sim: str = "ugv") -> dict[str, Any]:
     """One Ray task: how well fear ranks the steps before "a violation within 1 s" with the policy alone and its gate
-    watching (:func:`studies.calibrate.calibrate_run`, ``sage calibrate``'s seeds), cached in the refit's folder.
+    watching (:func:`studies.calibrate.calibrate_run`, ``sage gate evaluate``'s seeds), cached in the refit's folder.
     AUROC is NaN where no episode had a violation."""
     from studies.calibrate import calibrate_run
 
@@ -678,7 +678,8 @@ def rank_report(args: argparse.Namespace, ranked: dict[tuple[str, int | str, str
         f"#### Fear's ranking of the steps before a violation (`--rank-episodes {args.rank_episodes}`)",
         "",
         f"The policy alone with its gate watching (no expert), {args.rank_episodes} episodes per scenario and refit "
-        "(`sage calibrate`'s seeds); label: a violation within 1 s. Per arm: fear's AUROC for each seed in the order "
+        "(`sage gate evaluate`'s seeds); label: a violation within 1 s. Per arm: fear's AUROC for each seed "
+        "in the order "
         "given, its mean ± 95% over seeds, and the share of the other steps on which the gate fires (false alarms: "
         "what the takeover pays for), mean over seeds.",
         "",
@@ -788,7 +789,7 @@ def report(
             else ""
         )
         + (
-            f"; merged: the arm's {len(args.seeds)} refits as one ensemble of all their members (`sage merge` of "
+            f"; merged: the arm's {len(args.seeds)} refits as one ensemble of all their members (`sage gate merge` of "
             "their folders, κ and τ set on the union of their calibration states"
             + (
                 f"; {', '.join(a for a in args.arms if a not in merged_arms)}: refits kept from before "

@@ -4,7 +4,7 @@ At every world-model fit the learner sets κ and the τ bounds from the fear of 
 (:func:`core.sage.fear.calibrate`): τ_max is the 99th percentile of fear on familiar states, a tail estimate. This
 bench drives a committed policy as a world-model refit does (its stochastic actions, no expert, no gate) on the
 scenarios its world model was refitted on, labels the familiar states as the learner does
-(:func:`core.sage.learner.familiar_for_bounds`), then repeats the calibration on independent draws of N of those
+(:func:`core.sage.model_trainer.familiar_for_bounds`), then repeats the calibration on independent draws of N of those
 states for several N: the spread of τ over draws is the sampling noise a single fit's estimate carries, and the
 time is what one calibration costs. The learner's sample size is ``GateConfig.calibration_states``.
 
@@ -30,7 +30,7 @@ from core.agents import LoadedAgent, load_agent
 from core.loop import NoGate, Runner
 from core.replay import ReplayBuffer
 from core.sage.fear import calibrate
-from core.sage.learner import familiar_for_bounds
+from core.sage.model_trainer import familiar_for_bounds
 from experiments.refit_spread import REFIT
 from studies.envs import parse_env_overrides
 from studies.readme import publish

@@ -9,5 +9,5 @@ descriptors) and learners; the app's commands are thin adapters over it.
 - :mod:`studies.route_shift` and :mod:`studies.route_shift_figures`: the SUMO route-shift protocol, its panels.
 - :mod:`studies.highway`: CAT-style closed-loop adversarial training and the normal / adversarial table.
 - :mod:`studies.cycles` and :mod:`studies.cycles_figures`: deploy -> takeover -> fine-tune cycles.
-- :mod:`studies.calibrate`: does fear predict danger? (``sage calibrate``)
+- :mod:`studies.calibrate`: does fear predict danger? (``sage gate evaluate``)
 """

@@ -5,7 +5,7 @@ A world model's τ bounds are quantiles of the fear of familiar states under the
 further ahead, or aggregates otherwise) needs the bounds measured again on its own fear: a gate loaded with such
 a setting over the run's own is refused (:data:`core.agents.FEAR_SHAPE`). This module drives the run's policy
 with no expert on the scenarios it was trained on, keeps the states as a fit keeps its buffer's
-(:func:`core.sage.learner.calibration_sample`: the familiar ones are those with no violation within all that fear
+(:func:`core.sage.model_trainer.calibration_sample`: the familiar ones are those with no violation within all that fear
 looks at), and sets κ and the τ bounds on them for the new settings. The world model's weights stay as they are.
 
 β. The paper leaves β open ("controls the relative contribution of predicted cost and uncertainty"). With
@@ -42,7 +42,7 @@ from core.loop import NoGate, Runner, StepRecord
 from core.metrics import auroc
 from core.replay import ReplayBuffer
 from core.sage.fear import CALIBRATION_FILE
-from core.sage.learner import calibration_sample
+from core.sage.model_trainer import calibration_sample
 from studies.calibrate import labels_within
 
 RECALIBRATION_FILE = "recalibration.json"

@@ -68,6 +68,24 @@ def test_imports_point_down_the_layers_only() -> None:
     assert not upward, "\n".join(sorted(upward))
 
 
+def test_the_sage_package_reaches_no_step_loop() -> None:
+    """core.sage (learners, gate, world model) implements the loop's protocols and reads its records from
+    core.protocol: no file of it imports core.loop, directly or through another project module."""
+    g = graph()
+    reaching = []
+    for source in sorted(name for name in g if name == "core.sage" or name.startswith("core.sage.")):
+        seen: set[str] = set()
+        todo = [source]
+        while todo:
+            for target in g.get(todo.pop(), ()):
+                if target not in seen:
+                    seen.add(target)
+                    todo.append(target)
+        if "core.loop" in seen:
+            reaching.append(source)
+    assert not reaching, "core.sage modules that import core.loop: " + ", ".join(reaching)
+
+
 def test_no_import_cycles_between_files() -> None:
     g = graph()
     # a package's __init__ re-exporting its own modules is not a cycle of files depending on each other

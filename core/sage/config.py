@@ -1,5 +1,6 @@
 """Typed configuration of every learner in :mod:`core.sage` (CleanRL style: one flat dataclass per concern,
-every field documented where it is declared).
+every field documented where it is declared: what it means and its unit; the measurements and history behind a
+value are in docs/notes/config_notes.md).
 
 ``AgentConfig`` carries the switches that turn the one SAC implementation into SAC, FNI-RL or SAGE-SAC,
 plus the settings of TD3 and HG-DAgger, which live in the same code (:mod:`core.sage.td3`,
@@ -44,8 +45,7 @@ class WorldModelConfig:
     members: int = 5
     """N, the number of ensemble members (each a diagonal-Gaussian MLP over (Δstate, cost))."""
     hidden: int = 64
-    """Width of every hidden layer of every member. 64 keeps the whole ensemble (~310 KB) in one core's L2
-    cache, which halves the gate step against 128, with the same fear discrimination on UGV data."""
+    """Width of every hidden layer of every member (units)."""
     layers: int = 2
     """Number of hidden layers per member."""
     lr: float = 1e-3
@@ -65,34 +65,27 @@ class WorldModelConfig:
     max_updates_per_fit: int = 3000
     """Gradient-step cap of one fit, which bounds its wall time on big buffers."""
     motion_input: bool = True
-    """The model also reads the last observed change of state (s_t - s_{t-1}; zero at an episode's start): one
-    lidar frame carries no motion, so without it a crossing mover is unforeseeable until it is close. The
-    policy's observation is unchanged; in a rollout the next step's motion is the model's own predicted Δ."""
+    """The model also reads the last observed change of state, s_t - s_{t-1} (zero at an episode's start); in a
+    rollout the next step's motion is the model's own predicted Δ."""
     motion_lag: int = 1
-    """k of the motion input (s_t - s_{t-k}) / k: the mean change per step over the last k steps (fewer at an
-    episode's start). Over one step a mover's approach is a few millimetres of lidar range, under the jitter of
-    a sector's minimum as the mover crosses rays; over k steps it is k times that. In a rollout the next step's
-    motion is ((k - 1) m + Δ) / k, Δ the model's own predicted change."""
+    """k of the motion input (s_t - s_{t-k}) / k, the mean change per step over the last k steps (fewer at an episode's
+    start); in a rollout the next step's motion is ((k - 1) m + Δ) / k, Δ the model's own predicted change."""
     scan_sectors: int = 0
-    """With the motion input: the first this-many observation channels are a range scan over evenly spaced
-    sectors (the UGV's lidar), and the previous frame is turned to the current heading before differencing
-    (:mod:`core.motion`), so the robot's own turn does not swamp a mover's motion. 0: plain differences.
-    Needs ``motion_lag`` 1. The UGV's layout: :func:`sims.ugv.env.scan_layout`."""
+    """With the motion input: the first this-many channels are a range scan over evenly spaced sectors, whose previous
+    frame is turned to the current heading before differencing (:mod:`core.motion`); 0: plain differences."""
     scan_turn_channel: int = -1
     """The observation channel holding the turn over the last step (the UGV's last yaw-rate command)."""
     scan_turn_sectors: float = 0.0
     """Sectors the heading turns by over one step per unit of ``scan_turn_channel`` (UGV: w_max dt / 5°)."""
     approach_start: int = 0
+    """First of the range channels [approach_start, approach_stop) whose approach rate the model also reads, with the
+    motion input (both 0: off)."""
     approach_stop: int = 0
-    """With the motion input: observation channels [approach_start, approach_stop) are ranges (a lidar's beams,
-    positive, shorter when nearer), and the model also reads each one's approach rate, max(0, -Δrange) / range
-    per step capped at 1 (:func:`core.motion.approach_rate`: a beam's inverse time to contact). Both 0: off.
-    The policy's observation is unchanged; highway's layout: :func:`sims.highway.env.approach_layout`."""
+    """End (exclusive) of those range channels (positive, shorter when nearer); a channel's approach rate is
+    max(0, -Δrange) / range per step, capped at 1 (:func:`core.motion.approach_rate`)."""
     ego_sectors: int = 0
-    """The first this-many observation channels are a range scan (in units of its reach) whose change under the
-    robot's own motion is computed, not learned: the model predicts the residual over that geometric step
-    (:class:`core.motion.EgoScanStep`). 0: off, the model learns the whole change. The fields below describe the
-    scan and how the action moves the robot; the UGV's: :func:`sims.ugv.env.ego_motion_layout`."""
+    """The first this-many channels are a range scan (in units of its reach) whose change under the robot's own motion
+    is computed (:class:`core.motion.EgoScanStep`) and the model learns the residual; 0: off."""
     ego_scan_start: float = 0.0
     """Bearing where sector 0 begins (rad from the heading, bearings increasing to the left)."""
     ego_sector_width: float = 0.0
@@ -100,32 +93,27 @@ class WorldModelConfig:
     ego_rays_per_sector: int = 1
     """Rays per sector, evenly spaced from the sector's start; a sector reads the nearest of them."""
     ego_forward_channel: int = 0
+    """The action channel that drives the robot forward in the ego step."""
     ego_forward_scale: float = 0.0
+    """Distance driven over one step per unit of that action (scan range units): action * scale + offset."""
     ego_forward_offset: float = 0.0
-    """Distance driven over one step, in the scan's range units: action[ego_forward_channel] * scale + offset."""
+    """Distance driven over one step at action 0 (scan range units)."""
     ego_turn_channel: int = 1
+    """The action channel that turns the heading in the ego step."""
     ego_turn_scale: float = 0.0
-    """Turn of the heading over one step (rad, positive to the left): action[ego_turn_channel] * scale."""
+    """Turn of the heading over one step per unit of that action (rad, positive to the left): action * scale."""
     violation_steps: int = 5
-    """The violation head predicts "a violation at this transition or within the next this-many steps"; the
-    fear rollout then looks m steps further along the policy's imagined path."""
+    """The violation head's label (steps): a violation at this transition or within the next this-many steps; the fear
+    rollout looks m steps further along the policy's imagined path."""
     cost_label_weight: float = 1.0
-    """Weight w of a dense safety cost in the violation head's label, max(w · cost, violation soon): 1 takes the
-    cost itself as a soft early warning (the UGV's proximity cost), 0 violations alone. Lower weights keep fear on
-    a safe close pass (a narrow passage) below the fear before a real violation, which data with violations in it
-    can teach."""
+    """Weight w in [0, 1] of a dense safety cost in the violation head's label, max(w · cost, violation soon): 1 takes
+    the cost itself as a soft early warning, 0 violations alone."""
     conflict_label_weight: float = 0.0
-    """Weight w of the simulator's traffic conflict flag (``info["conflict"]``, a near miss: highway's time to
-    contact under 3 s or a vehicle within 1.5 m) in the violation head's label, max(w · conflict, violation soon,
-    ...). 0: violations alone, the paper's ĉ. Above 0, ĉ also predicts conflicts, which precede most collisions
-    and happen far more often, so the head learns the approach to danger from many more positives; fear then means
-    "a violation or a near miss ahead", no longer a violation probability alone. The flag comes from the simulator
-    (privileged) at training time only: the model still reads the observation alone."""
+    """Weight w of the simulator's conflict flag (``info["conflict"]``, a near miss) in the violation head's label,
+    max(w · conflict, violation soon, ...); 0: violations alone (the paper's ĉ)."""
     conflict_steps: int = 1
-    """The conflict part of the label looks this many steps ahead, as ``violation_steps`` does for violations: 1
-    when a conflict is reported at this transition or within the next ``conflict_steps - 1``. 1 (a conflict at
-    this step) warns as far ahead as the fear rollout looks; a conflict is itself the last seconds before a
-    collision, so a warning of the conflict comes earlier than one of the collision."""
+    """Steps the conflict part of the label looks ahead, as ``violation_steps`` does for violations (1: a conflict at
+    this transition)."""
     logvar_bound_weight: float = 0.01
     """Weight of the PETS term ``sum(max_logvar) - sum(min_logvar)`` that keeps the learnable bounds tight."""
 
@@ -135,12 +123,10 @@ class GateConfig:
     """Fear, curiosity, threshold and takeover hold (:mod:`core.sage.fear`, :mod:`core.sage.gate`)."""
 
     beta: float = 0.5
-    """β of eq:fear: weight of the predicted cost ĉ against the normalised uncertainty σ̂ in F = βĉ + (1-β)σ̂.
-    The τ bounds are measured on fear at the fit's β: a loaded run's gate may not set another
-    (:data:`core.agents.FEAR_SHAPE`); ``sage recalibrate --gate-set beta=...`` measures them again, and
-    ``--choose-beta`` chooses β on the training scenarios (:mod:`studies.recalibrate`)."""
+    """β of eq:fear, in [0, 1]: weight of the predicted cost ĉ against the normalised uncertainty σ̂ in
+    F = βĉ + (1-β)σ̂."""
     horizon: int = 5
-    """m, the number of world-model steps rolled out under the current policy for the short-horizon fear."""
+    """m, the world-model steps rolled out under the current policy for the short-horizon fear."""
     aggregate: Literal["max", "discounted_mean"] = "max"
     """How per-step ĉ_k and σ̂_k are aggregated over the m steps (each separately, then combined by β)."""
     discount: float = 0.9
@@ -150,17 +136,12 @@ class GateConfig:
     tau_max: float = 0.45
     """τ_max: the threshold when curiosity is far below its recent average (familiar ground)."""
     tau_interpolation: Literal["linear", "geometric"] = "linear"
-    """How ρ places τ between its bounds: ``linear`` is eq:threshold, τ = τ_max - ρ(τ_max - τ_min); ``geometric`` is
-    the same equation on log τ, τ = τ_min^ρ τ_max^(1-ρ), so that a step of ρ moves τ by the same ratio whatever the
-    bounds' spread. Where the fear of familiar states has a long tail (SUMO's bounds lie a factor 10 apart: 0.056 and
-    0.576) the linear mean of the bounds sits above almost all of it, and curiosity that carries no danger (SUMO's
-    AUROC 0.51) leaves τ there; docs/calibration.md compares the two. The committed default policies
-    deploy ``geometric``; new runs and the studies keep the paper's ``linear``."""
+    """How ρ places τ between its bounds: ``linear``, eq:threshold, τ = τ_max - ρ(τ_max - τ_min); ``geometric``, the
+    same on log τ, τ = τ_min^ρ τ_max^(1-ρ)."""
     curiosity_ema: float = 0.02
     """Rate of the exponential moving average of curiosity that ρ compares the current curiosity with."""
     curiosity_sharpness: float = 2.0
-    """p in ρ = r^p / (1 + r^p), r = C_t / EMA(C): 1 is the plain ratio C / (C + EMA); 2 makes ρ ≈ 0.8 at twice
-    the usual curiosity and ≈ 0.2 at half of it, so that surprises move τ and everyday noise does not."""
+    """p in ρ = r^p / (1 + r^p), r = C_t / EMA(C); 1 is the plain ratio C / (C + EMA)."""
     tau_from_data: bool = True
     """Take τ_min and τ_max from the fear of familiar states at every world-model fit (quantiles below), per
     simulator and per model; False uses the constants above."""
@@ -169,16 +150,11 @@ class GateConfig:
     tau_max_quantile: float = 0.99
     """τ_max = this quantile of fear on real states under the policy (familiar ground)."""
     tau_scale: float = 1.0
-    """Multiplies both bounds in use (from data or the constants above), and so τ and the release level: the
-    gate's operating point on its curve, one number for the user's risk target. 1 is the bounds as measured;
-    ``sage choose-scale`` picks it on the scenarios a policy was trained on, from the gate + scripted expert's
-    violations and takeover rate against a target (:func:`studies.calibrate.choose_tau_scale`)."""
+    """Multiplies both τ bounds in use (from data or the constants), and so τ and the release level: the gate's
+    operating point (1: the bounds as measured)."""
     calibration_states: int = 16384
-    """Real states whose fear sets κ and the τ bounds at every world-model fit: drawn from the replay buffer
-    without replacement, or all of them when it holds fewer. τ_max is a tail quantile, so its estimate is noisy:
-    on the deployed UGV policy's states its sampling sd is 0.025 over 2048 states (the draw before this field),
-    where τ_max differs by up to 0.06 between refits, and 0.010 over 16384, for about a second a fit
-    (``experiments/tau_estimate.py``)."""
+    """Real states whose fear sets κ and the τ bounds at every world-model fit, drawn from the replay buffer without
+    replacement (all of them when it holds fewer)."""
     curiosity_smoothing: float = 0.3
     """Weight of the newest curiosity in the short moving average that ρ reads, so that τ does not jump with
     every noisy transition (1: no smoothing)."""
@@ -188,41 +164,23 @@ class GateConfig:
     """k: once the gate fires, expert control is held for this many steps (restarted by every new firing), unless
     ``hold_seconds`` is set."""
     hold_seconds: float | None = None
-    """The hold as a duration: when set, k = round(hold_seconds / step_seconds), at least 1, in place of
-    ``hold_steps``, so that the expert holds control for the same time on every simulator (5 steps are 0.5 s on
-    the UGV and highway, 2.5 s on SUMO and the pedestrian crossing). None: ``hold_steps``. An explicit
-    ``hold_steps`` override of a loaded run's gate (``make_gate(hold_steps=...)``) clears it."""
+    """The hold as a duration (s): when set, k = round(hold_seconds / step_seconds), at least 1, in place of
+    ``hold_steps``; None: ``hold_steps``."""
     step_seconds: float | None = None
-    """The simulator's step (s) that ``hold_seconds`` is counted in: every training run writes it from its
-    simulator's descriptor."""
+    """The simulator's step (s) that ``hold_seconds`` is counted in; every training run writes it from its simulator."""
     release: float = 0.0
     """Hysteresis of the hold, in [0, 1]: while the expert holds control, fear above τ_t - release (τ_t - τ_min)
-    restarts the hold. 0 (the paper's gate, the default of new runs and of the studies) hands back after
-    the hold's k steps under τ_t; 1 only after k steps under τ_min, the threshold of the most novel
-    ground. The committed default policies deploy 1 (docs/calibration.md: over 100 episodes a scenario it
-    left SUMO's routes 62 -> 38 episodes with a violation and the UGV's within noise, at a few points more takeover)."""
+    restarts the hold; 0: hand back after k steps under τ_t (the paper's gate), 1: after k steps under τ_min."""
 
     imagined_contact: bool = False
-    """Fear also reads the contact its imagined states show: a member's predicted state at step k whose channel i is at
-    or under ``contact_floors[i]`` (the ego touching something, as the simulator defines a collision: the UGV's
-    lidar range in a sector at or inside the robot's footprint) counts as a violation there: that member's
-    probability at that step is 1, whatever its head says. A learned head ranks what it saw in its data: trained
-    where the policy turns away from walls at the last moment, it gave a robot driving straight into a crossing
-    mover 0.002-0.01 while the same members' own predicted ranges fell through the footprint. ĉ stays a violation
-    probability, with the simulator's own definition of a violation applied to the predicted states; σ̂ stays the
-    members' disagreement about the learned danger (:func:`core.sage.fear.with_contact` says why). False: the
-    paper's fear (the learned head alone), the default of new runs and of the studies."""
+    """Fear also reads the contact its imagined states show: a member whose predicted channel i is at or under
+    ``contact_floors[i]`` at step k has violation probability 1 there. False: the learned head alone (the paper's)."""
     contact_needs_closing: bool = False
     """With ``imagined_contact``: a member's imagined contact in channel i counts only where the real last step shows
-    channel i closing (the motion input's change below 0), so that the imagined robot driving into a wall the real
-    one is not approaching does not count. On the UGV's training drives it keeps the imagined contact of nearly
-    every state before a violation and drops it from about one in eight of the states with none ahead
-    (docs/notes/calibration_history.md, "Imagined contact"). Needs the world model's motion input; where fear is
-    computed without it (the learner's batches), no contact counts."""
+    channel i closing (the motion input's change below 0)."""
     contact_floors: list[float] | None = None
-    """The observation's contact floors (channels [0, n), the observation's units): every training run writes them
-    from its simulator's descriptor (:attr:`core.descriptor.SimDescriptor.contact_floors`; None or empty where the
-    observation alone shows no violation), as it writes ``step_seconds``."""
+    """Per observation channel [0, n), the value at or under which the observation shows contact (its units); every
+    training run writes them from its simulator (None or empty: the observation shows none)."""
 
     @property
     def hold(self) -> int:
@@ -263,8 +221,7 @@ class DiffusionConfig:
     time_embedding: int = 16
     """Width of the sinusoidal noise-level embedding."""
     lr: float = 1e-3
-    """Adam learning rate of the denoiser (and of Diffusion-QL's critics). 3e-4 (Diffusion-QL's) left a bimodal
-    expert's modes blurred after the few thousand steps a CPU budget affords."""
+    """Adam learning rate of the denoiser (and of Diffusion-QL's critics)."""
     offline_steps: int = 4000
     """Gradient steps of offline training on the dataset."""
     q_weight: float = 0.0
@@ -288,15 +245,13 @@ class AgentConfig:
     violation_penalty: bool = True
     """A safety violation makes the transition terminal with the target -c* of eq:penalty."""
     c_star_floor: float = 1.0
-    """c* is never below this, nor below the largest reward magnitude recorded: with a narrow or unknown reward
-    range (highway at the start) eq:penalty gives c* = 0, and a violation's target would then beat its own
-    recorded penalty (the -10 off-road reward replaced by 0)."""
+    """Lower bound of c* of eq:penalty, which is also never below the largest reward magnitude recorded."""
     takeover: bool = True
     """The expert takes over while training: asked by the SAGE gate (``takeover_rule="gate"``: needs the world
     model) or of its own accord (``"supervisor"``)."""
     takeover_rule: Literal["gate", "supervisor"] = "gate"
-    """Who decides a takeover: the agent's SAGE gate (self-aware), or the supervisor, a person watching (headless:
-    a stand-in that intervenes when the step's safety cost reaches ``supervisor_cost``) as in human-guided RL."""
+    """Who decides a takeover: the agent's SAGE gate (self-aware), or the supervisor, a person watching (headless: a
+    stand-in that intervenes when a step's safety cost reaches ``supervisor_cost``)."""
     supervisor_cost: float = 0.5
     """The headless stand-in supervisor intervenes when a step's safety cost reaches this (or on a violation) and
     keeps control for the gate's hold (``GateConfig.hold``)."""
@@ -347,12 +302,8 @@ class AgentConfig:
     """F_0 of eq:fear_cmdp, the tolerated mean fear on real states, where ``fear_budget_from_data`` is off, and
     until a run's first world-model fit where it is on."""
     fear_budget_from_data: bool = True
-    """F_0 measured on each simulator's own scale at every world-model fit: the mean fear F(s, a), a the learner's
-    own action, over the fit's familiar states (those with no violation within what fear looks at, the states
-    the τ bounds come from). The budget is then the fear of driving that ended in no violation, and λ rises
-    while the real states carry more fear than that, whatever the simulator. A constant sits on no simulator's
-    scale: 0.2 lay above the mean fear of real states on all four (0.02-0.10), so λ fell to 0 within the first
-    thousand updates and the fear term never acted."""
+    """Measure F_0 at every world-model fit: the mean fear F(s, a), a the learner's own action, over the fit's familiar
+    states (no violation within what fear looks at; the states the τ bounds come from)."""
     lambda_init: float = 1.0
     """Initial value of the dual variable λ."""
     lambda_lr: float = 0.01
@@ -360,14 +311,12 @@ class AgentConfig:
     lambda_max: float = 100.0
     """Upper clip of λ, so that a long run above budget cannot make the fear term swamp the return."""
     learner_fear_horizon: int = 1
-    """Rollout steps of the fear inside the learner (critic target -λF_{t+1}, actor +λF, dual update). 1 is
-    eq:fear, as the paper's objective eq:fear_cmdp states; the critic's Bellman backup already carries fear
-    from later steps. The gate uses ``gate.horizon`` (m). Cost grows about linearly with this value."""
+    """Rollout steps of the fear inside the learner (critic target -λF_{t+1}, actor +λF, dual update); 1 is eq:fear,
+    as eq:fear_cmdp states it. The gate uses ``gate.horizon`` (m)."""
     safety_horizon: int = 10
     """H of eq:penalty: steps within which an unsafe progression surely ends in a violation."""
     reward_bounds: tuple[float, float] | None = None
-    """(r̲, r̄) of eq:penalty; None estimates them from the real buffer's non-terminal rewards (terminal
-    goal/collision bonuses happen once per episode, not at every step, so they do not bound the rate)."""
+    """(r̲, r̄) of eq:penalty; None estimates them from the real buffer's non-terminal rewards."""
 
     # -- imitation ---------------------------------------------------------------------------------
     bc_weight: float = 1.0

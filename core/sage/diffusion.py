@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from core.loop import StepRecord
+from core.protocol import StepRecord
 from core.sage.learner import BaseLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, soft_update
 

@@ -1,4 +1,4 @@
-"""The SAGE gate (implements :class:`core.loop.Gate`): fear against the curiosity-modulated threshold.
+"""The SAGE gate (implements :class:`core.protocol.Gate`): fear against the curiosity-modulated threshold.
 
 ``decide``: F^m_t of the policy's intended action a_RL (m-step rollout of the ensemble under the policy,
 :mod:`core.sage.fear`) against τ_t; Ξ_t = 1 when F^m_t > τ_t, and once fired the expert keeps control for
@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from core.loop import GateDecision
 from core.motion import motion_between
+from core.protocol import GateDecision
 from core.sage.config import GateConfig
 from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, contact_terms, fear_of, rollout
 from core.sage.networks import Actor

@@ -1,5 +1,5 @@
-"""What every learner shares: the real and virtual buffers, the world model and its schedule, the SAGE gate
-built on them, the update schedule, the guarded update, demonstrations and checkpoints.
+"""What every learner shares: the real and virtual buffers, the world model's trainer, the fear budget and λ, the
+SAGE gate built on them, the update schedule, the guarded update, demonstrations and checkpoints.
 
 :class:`BaseLearner` builds no network: what a method trains is its own (declared in
 :meth:`BaseLearner.declared_state`, which checkpoints and the guarded update read), and it says how it acts
@@ -7,16 +7,14 @@ built on them, the update schedule, the guarded update, demonstrations and check
 (:meth:`~BaseLearner.rollout_policy`) and how the environment's actions are written for its buffer and world
 model (:meth:`~BaseLearner.encode_action`: identity for continuous actions, one-hot for discrete ones).
 :class:`ActorLearner` adds the continuous actor that SAC, TD3 and HG-DAgger share; a value-based discrete learner
-(:mod:`core.sage.d3qn_learner`) subclasses the base directly.
+(:mod:`core.sage.d3qn`) subclasses the base directly.
 
-Virtual buffer. The paper stores the fear rollouts' imagined transitions in D_virtual. Here the learner
-rolls the same model, the same m steps under the same (current, deterministic) policy, from a batch of real
-states every ``virtual_every`` steps and after every fit (:meth:`BaseLearner.virtual_rollout`), instead of
-copying the gate's single-state rollouts: the gate must stay sub-millisecond and also runs where no learner
-exists (the live dashboard), and batched rollouts give the actor the same imagined states at a fraction of
-the cost.
+World model. A learner whose method trains one owns a :class:`~core.sage.model_trainer.WorldModelTrainer`
+(``model_trainer``; None otherwise): the fit and its schedule, the τ bounds on the familiar states, the fear
+budget's measurement and the virtual rollouts into D_virtual are the trainer's; the learner hands it its buffers,
+its rollout policy and its fear, and keeps what the algorithm trains (λ, the budget in use).
 
-A learner is a :class:`core.loop.Policy` (``act``) and a step listener (``observe``): the training driver
+A learner is a :class:`core.protocol.Policy` (``act``) and a step listener (``observe``): the training driver
 (:mod:`core.train`) puts it in a :class:`core.loop.Runner` and appends ``observe`` to the step listeners, so
 the one step loop feeds the buffer and triggers the updates. The algorithms themselves are one file each:
 :mod:`core.sage.sac` (SAC, FNI-RL, SAGE-SAC), :mod:`core.sage.td3`, :mod:`core.sage.hg_dagger`. A discrete
@@ -37,68 +35,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from core.loop import StepRecord
+from core.protocol import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.config import AgentConfig, GateConfig
-from core.sage.fear import CalibrationSample, PolicyFn, contact_terms, rollout, sample_member_transitions
+from core.sage.fear import CalibrationSample, PolicyFn
 from core.sage.gate import SageGate
+from core.sage.model_trainer import WorldModelTrainer, familiar_mean_fear
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel, FitReport
 
-SAFE_LABEL = 0.1
-"""A state counts as safe for the threshold bounds when no violation lies ahead and its cost is below this (a
-dense proximity cost of 0.3 near a wall is not a state the gate should learn to leave alone)."""
-
-
-def familiar_for_bounds(
-    buffer: ReplayBuffer, violation_steps: int, horizon: int, conflict_weight: float = 0.0, conflict_steps: int = 1
-) -> np.ndarray:
-    """Per stored row (the order of :meth:`ReplayBuffer.arrays`): whether the state counts as safe for the
-    threshold bounds, the states whose fear a gate should leave alone: cost below :data:`SAFE_LABEL`, and no
-    violation within all that fear looks at, the m = ``horizon`` rollout steps and then the violation label's own
-    ``violation_steps``. A state 1.2 s before a collision, where fear should rise, is not familiar; counted as
-    such (the label's window alone ends at 1 s), it lifts τ above the fear that warns of the collision. Where the
-    world model also learns conflicts (``conflict_weight``, its ``conflict_label_weight``), a conflict is no
-    familiar state either, nor one the label marks as ``conflict_steps`` before a conflict."""
-    ahead = buffer.violation_soon(violation_steps + horizon)
-    data = buffer.arrays()
-    conflict = conflict_weight * buffer.conflict_soon(conflict_steps)
-    return np.maximum.reduce([data["cost"], ahead, conflict]) < SAFE_LABEL
-
-
-def calibration_sample(
-    buffer: ReplayBuffer,
-    world_model: EnsembleWorldModel,
-    gate: GateConfig,
-    rng: np.random.Generator,
-    motion: np.ndarray | None = None,
-) -> CalibrationSample:
-    """Up to ``gate.calibration_states`` distinct rows of the real buffer (all of them when it holds fewer), each
-    marked familiar or not (:func:`familiar_for_bounds`), with the model's motion input (``motion``: the buffer's
-    :meth:`~core.replay.ReplayBuffer.previous_deltas`, computed here when None and the model reads it): the states a
-    fit sets κ and the τ bounds on (:meth:`CalibrationSample.calibrate`)."""
-    data = buffer.arrays()
-    wanted = gate.calibration_states
-    n = len(buffer)
-    # distinct states, as many as the config allows: τ_max is a tail quantile (see GateConfig)
-    idx = np.arange(n) if n <= wanted else np.sort(rng.choice(n, size=wanted, replace=False))
-    if motion is None and world_model.motion:
-        motion = buffer.previous_deltas(world_model.motion_lag, world_model.scan)
-    wm = world_model.cfg
-    familiar = familiar_for_bounds(
-        buffer, wm.violation_steps, gate.horizon, wm.conflict_label_weight, wm.conflict_steps
-    )
-    return CalibrationSample(
-        obs=data["obs"][idx],
-        action=data["action"][idx],
-        next_obs=data["next_obs"][idx],
-        familiar=familiar[idx],
-        motion=None if motion is None else motion[idx],
-    )
-
 
 class ActorPolicy:
-    """A :class:`core.loop.Policy` over an actor: its sample, or its deterministic action.
+    """A :class:`core.protocol.Policy` over an actor: its sample, or its deterministic action.
 
     The deterministic action runs on preallocated buffers through views of the actor's parameters (which
     stay valid while an optimiser updates them in place): a few tensor ops, no module dispatch."""
@@ -168,18 +116,14 @@ class BaseLearner:
         self.build_networks()
         width = self.model_action_dim
         self.buffer = ReplayBuffer(obs_dim, width, cfg.buffer_size)
-        self.world_model = self.new_world_model() if cfg.world_model else None
+        self.model_trainer = WorldModelTrainer(self.new_world_model(), cfg, self.rng) if cfg.world_model else None
+        """Fits the world model and measures what each fit sets (None: this method trains no world model)."""
         self.virtual = VirtualBuffer(obs_dim, width, cfg.virtual_size) if cfg.virtual_rollouts else None
         self.warm = False
         """True once the policy holds knowledge (loaded or pretrained): no random warm-up actions."""
         self.env_steps = 0
         self.updates = 0
         self._update_credit = 0.0
-        self._steps_at_last_fit: int | None = None
-        self._steps_at_last_rollout = 0
-        self.last_fit: FitReport | None = None
-        self.last_calibration: CalibrationSample | None = None
-        """The states the last fit calibrated κ and the τ bounds on (a run folder keeps them, for ``sage merge``)."""
         self.lam = float(cfg.lambda_init)
         """λ, the dual variable of the fear constraint (methods with a fear term train it; :meth:`dual_step`)."""
         self.measured_fear_budget = math.nan
@@ -190,6 +134,16 @@ class BaseLearner:
         self._inherited_gate: tuple[dict[str, float], int] | None = None
         """A loaded checkpoint's gate state (its curiosity average) and the model version it belongs to: the
         gates of this run start from it until the world model is refitted."""
+
+    @property
+    def world_model(self) -> EnsembleWorldModel | None:
+        """The world model (its trainer's; None when the method trains none)."""
+        return None if self.model_trainer is None else self.model_trainer.world_model
+
+    @property
+    def last_calibration(self) -> CalibrationSample | None:
+        """The states the last fit calibrated κ and the τ bounds on (kept by a run folder for ``sage gate merge``)."""
+        return None if self.model_trainer is None else self.model_trainer.last_calibration
 
     # -- what a method provides --------------------------------------------------------------------
     def build_networks(self) -> None:
@@ -352,16 +306,14 @@ class BaseLearner:
         return self.cfg.fear_budget
 
     def measure_fear_budget(self, sample: CalibrationSample) -> None:
-        """Set F_0 to the mean fear of ``sample``'s familiar states (``AgentConfig.fear_budget_from_data``); kept
-        as it was when the sample holds fewer than 20 of them."""
+        """Set F_0 to the mean fear of ``sample``'s familiar states (``AgentConfig.fear_budget_from_data``,
+        :func:`~core.sage.model_trainer.familiar_mean_fear`); kept as it was when the sample holds too few."""
         if not (self.cfg.fear_budget_from_data and self.fear_active()):
             return
-        familiar = np.asarray(sample.familiar, dtype=bool)
-        if int(familiar.sum()) < 20:
+        measured = familiar_mean_fear(sample, self.real_fear)
+        if measured is None:
             return
-        with torch.no_grad():
-            values = self.real_fear(torch.from_numpy(np.asarray(sample.obs[familiar], dtype=np.float32)))
-        self.measured_fear_budget = float(values.mean())
+        self.measured_fear_budget = measured
         self.info["fear_budget"] = self.measured_fear_budget
 
     def describe_fear_term(self) -> str | None:
@@ -384,68 +336,39 @@ class BaseLearner:
         self.lam = min(max(self.lam + self.cfg.lambda_lr * (fear_real - self.fear_budget()), 0.0), self.cfg.lambda_max)
         return self.lam
 
-    # -- world model -------------------------------------------------------------------------------
+    # -- world model (its trainer's: core.sage.model_trainer) ---------------------------------------
     def world_model_ready(self) -> bool:
-        return self.world_model is not None and bool(self.world_model.fitted)
+        return self.model_trainer is not None and self.model_trainer.ready()
 
     def maybe_fit_world_model(self) -> None:
-        if self.world_model is None or len(self.buffer) < self.cfg.wm_min_samples:
-            return
-        last = self._steps_at_last_fit
-        if last is None or self.env_steps - last >= self.cfg.wm_fit_every:
+        if self.model_trainer is not None and self.model_trainer.fit_due(self.buffer, self.env_steps):
             self.fit_world_model()
 
     def fit_world_model(self) -> FitReport | None:
-        """Fit on the whole real buffer, then recalibrate σ̂ and refresh the virtual buffer."""
-        if self.world_model is None:
+        """Fit on the whole real buffer (which recalibrates κ and the τ bounds), measure F_0 on the fit's familiar
+        states, and refresh the virtual buffer."""
+        if self.model_trainer is None:
             return None
-        data = self.buffer.arrays()
-        labels = self.buffer.violation_soon(self.world_model.cfg.violation_steps)
-        wm = self.world_model
-        motion = self.buffer.previous_deltas(wm.motion_lag, wm.scan) if wm.motion else None
-        report = self.world_model.fit(
-            data["obs"],
-            data["action"],
-            data["next_obs"],
-            data["cost"],
-            self.rng,
-            violation_soon=labels,
-            motion=motion,
-            conflict=self.buffer.conflict_soon(wm.cfg.conflict_steps),
-        )
-        self._steps_at_last_fit = self.env_steps
-        self.last_fit = report
-        self.last_calibration = calibration_sample(self.buffer, wm, self.cfg.gate, self.rng, motion)
-        self.last_calibration.calibrate(wm, self.rollout_policy, self.cfg.gate)
-        self.measure_fear_budget(self.last_calibration)
+        report = self.model_trainer.fit(self.buffer, self.rollout_policy, self.env_steps)
+        assert self.model_trainer.last_calibration is not None  # a fit always leaves one
+        self.measure_fear_budget(self.model_trainer.last_calibration)
         self.info.update(wm_holdout_nll=report.holdout_nll, wm_holdout_mse=report.holdout_mse, wm_epochs=report.epochs)
         self.virtual_rollout()
         return report
 
     def maybe_virtual_rollout(self) -> None:
-        if self.virtual is None or not self.world_model_ready():
-            return
-        if self.env_steps - self._steps_at_last_rollout >= self.cfg.virtual_every:
+        if (
+            self.virtual is not None
+            and self.model_trainer is not None
+            and self.model_trainer.rollout_due(self.env_steps)
+        ):
             self.virtual_rollout()
 
     def virtual_rollout(self) -> None:
         """Roll the model m steps from real states under the current policy into D_virtual."""
-        if self.virtual is None or not self.world_model_ready() or len(self.buffer) == 0:
+        if self.virtual is None or self.model_trainer is None:
             return
-        assert self.world_model is not None
-        starts = self.buffer.sample(self.cfg.virtual_starts, self.rng).obs
-        with torch.no_grad():
-            ro = rollout(
-                self.world_model.folded(),
-                self.rollout_policy,
-                starts,
-                self.rollout_policy(starts),
-                self.cfg.gate.horizon,
-                None,
-                *contact_terms(self.cfg.gate, None),  # no motion here: contact that needs closing counts none
-            )
-        self.virtual.add_batch(*sample_member_transitions(ro, self.rng))
-        self._steps_at_last_rollout = self.env_steps
+        self.model_trainer.virtual_rollout(self.buffer, self.virtual, self.rollout_policy, self.env_steps)
 
     # -- gate --------------------------------------------------------------------------------------
     def make_gate(
@@ -529,11 +452,11 @@ class BaseLearner:
             loaded.append("fear_budget")
         if self.acting_module in loaded:
             self.warm = True
-        if self.world_model is not None and "world_model" in loaded:
-            self._steps_at_last_fit = None  # refit on this run's data once there is enough of it
+        if self.model_trainer is not None and "world_model" in loaded:
+            self.model_trainer.schedule_refit()  # refit on this run's data once there is enough of it
             if "gate" in state:
                 saved = {k: float(torch.as_tensor(v)) for k, v in state["gate"].items()}
-                self._inherited_gate = (saved, self.world_model.version)
+                self._inherited_gate = (saved, self.model_trainer.world_model.version)
         return loaded
 
     def _load_optimizers(self, saved: dict[str, Any], strict: bool) -> list[str]:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from core.loop import StepRecord
+from core.protocol import StepRecord
 from core.sage.sac import SAC
 
 

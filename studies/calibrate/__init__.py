@@ -1,4 +1,4 @@
-"""Does fear predict danger? ``sage calibrate``: measure the self-awareness signals against what happened.
+"""Does fear predict danger? ``sage gate evaluate``: measure the self-awareness signals against what happened.
 
 The policy drives with its SAGE gate and **no expert**, so danger plays out. Every step is labelled "a violation
 happens within the next H seconds" (1 s by default; H / dt steps from the simulator's descriptor). Then:

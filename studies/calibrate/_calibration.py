@@ -1,5 +1,5 @@
-"""``sage calibrate``'s measurement: the policy drives with its gate and no expert, and fear, its parts and curiosity
-are scored against "a violation within H" (CalibrationReport, calibrate_run)."""
+"""``sage gate evaluate``'s measurement: the policy drives with its gate and no expert, and fear, its parts and
+curiosity are scored against "a violation within H" (CalibrationReport, calibrate_run)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The gate's operating point: the target of the gate table (GateTarget) and ``sage choose-scale``'s choice of
+"""The gate's operating point: the target of the gate table (GateTarget) and ``sage gate choose-scale``'s choice of
 ``gate.tau_scale`` on the training scenarios (choose_tau_scale)."""
 
 from __future__ import annotations

@@ -210,7 +210,7 @@ def test_states_fear_looks_past_to_a_violation_are_not_familiar_for_the_bounds()
     and then the label's window ahead, so every state within that reach of a violation is left out, and only those
     (with a low cost)."""
     from core.replay import ReplayBuffer
-    from core.sage.learner import familiar_for_bounds
+    from core.sage.model_trainer import familiar_for_bounds
 
     buffer = ReplayBuffer(1, 1, 100)
     for t in range(40):  # one episode: the violation at step 30, a dense cost of 0.5 at step 5
@@ -229,7 +229,7 @@ def test_conflicts_are_not_familiar_for_the_bounds_where_the_model_learns_them()
     """With ``conflict_label_weight`` above 0 a conflict is a positive label, so its state is no familiar state for
     τ's bounds either; with 0 (the paper's ĉ) conflicts change nothing."""
     from core.replay import ReplayBuffer
-    from core.sage.learner import familiar_for_bounds
+    from core.sage.model_trainer import familiar_for_bounds
 
     buffer = ReplayBuffer(1, 1, 100)
     for t in range(20):  # no violation; conflicts at steps 8 and 9
@@ -291,7 +291,12 @@ def test_an_imagined_state_in_contact_is_a_violation_and_the_gate_kernel_agrees(
         (float(reference.fear), float(reference.cost), float(reference.sigma)), abs=1e-5
     )
     assert float(reference.cost) > float(without.cost)
-    assert np.array_equal(kernel.last_member_costs(), touched.cost[:, :, 0].numpy())
+    member_costs = kernel.last_member_costs()
+    assert (member_costs[in_contact[:, :, 0].numpy()] == 1.0).all()  # set, not computed: exact on both paths
+    # The kernel's preallocated addmm/baddbmm chain and the rollout's batched ops sum in another order, and a
+    # processor's vector width changes that order again (seen: AMD EPYC): float32 agreement is a few ulps of a
+    # probability in [0, 1] (eps 1.2e-7), so rtol 1e-5 / atol 1e-6 and not bit equality.
+    np.testing.assert_allclose(member_costs, touched.cost[:, :, 0].numpy(), rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="contact_floors"):
         fear(model.folded(), actor.deterministic, obs, action, dataclasses.replace(on, contact_floors=[0.0] * 7))
 
