@@ -198,18 +198,27 @@ class LiveLoop:
         self._thread = threading.Thread(target=self._run, name="live-loop", daemon=True)
         self._thread.start()
 
-    def stop(self, timeout: float = 5.0) -> None:
+    def stop(self, timeout: float = 2.0, worker_timeout: float | None = None) -> None:
+        """End the loop thread (waiting up to ``timeout``), the episode, the session and the fine-tuning worker
+        (waiting up to ``worker_timeout``; None: until its own stop returned, a few seconds at most)."""
         self._stop = True
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
         if not self.running:  # the loop thread is gone: the running episode is ours to end, with its reason
             self.world.runner.end_episode(reason="server stopped")
+        # the worker is asked to stop while the session and the env close (it may still be importing torch, or be
+        # mid-round, for seconds); a process about to end need not wait: its worker ends with it (core.worker
+        # watches its parent; multiprocessing ends daemonic children at exit)
+        stopping = None
         if self.world.versions is not None:
-            self.world.versions.stop()
+            stopping = threading.Thread(target=self.world.versions.stop, name="finetune-stop", daemon=True)
+            stopping.start()
         if self.world.writer is not None:
             self.world.writer.close()
         self.world.env.close()
+        if stopping is not None:
+            stopping.join(worker_timeout)
 
     def submit(self, command: c.Command) -> concurrent.futures.Future[Any]:
         """Queue a command (:mod:`app.commands`) for the loop thread; the future holds its result or its

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import socket
+import time
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from app.cli import app
@@ -39,3 +43,50 @@ def test_a_bad_gate_setting_is_one_line_before_any_banner() -> None:
     assert code == 2 and "nope" in out and "dashboard on" not in out and len(out.strip().splitlines()) == 1
     code, out = run("--gate-set", "release=3")  # checked against the default policy's own gate
     assert code == 2 and "release" in out and len(out.strip().splitlines()) == 1
+
+
+def _one_line_before_anything(code: int, out: str, sessions: Path) -> None:
+    assert code == 2, out
+    assert len(out.strip().splitlines()) == 1, out
+    assert "dashboard on" not in out and "Traceback" not in out
+    assert not sessions.exists()  # no session recorded (and then listed) for a server that never ran
+
+
+def test_a_busy_port_is_one_line_before_the_banner_and_no_session(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        busy = taken.getsockname()[1]
+        started = time.monotonic()
+        code, out = run("--port", str(busy), "--sessions", str(tmp_path / "sessions"))
+    _one_line_before_anything(code, out, tmp_path / "sessions")
+    assert "in use" in out and "--port" in out
+    assert time.monotonic() - started < 10  # before any simulator or server starts
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (("--port", "70000"), "1..65535"),
+        (("--port", "-1"), "1..65535"),
+        (("--host", "no-such-host.invalid"), "does not resolve"),
+        (("--host", "192.0.2.1"), "not an address of this machine"),  # TEST-NET-1: never a local address
+    ],
+)
+def test_a_port_or_host_that_cannot_be_bound_is_one_line(tmp_path: Path, args: tuple[str, ...], said: str) -> None:
+    code, out = run(*args, "--sessions", str(tmp_path / "sessions"))
+    _one_line_before_anything(code, out, tmp_path / "sessions")
+    assert said in out
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may bind any port; the unbindable host case covers root")
+def test_a_privileged_port_is_one_line_for_a_user(tmp_path: Path) -> None:
+    code, out = run("--port", "80", "--sessions", str(tmp_path / "sessions"))
+    _one_line_before_anything(code, out, tmp_path / "sessions")
+    assert "not allowed" in out and "1024" in out
+
+
+def test_a_policy_of_another_simulator_is_one_line_before_the_server(tmp_path: Path) -> None:
+    code, out = run("--sim", "highway", "--policy", "policies/ugv-default", "--sessions", str(tmp_path / "sessions"))
+    _one_line_before_anything(code, out, tmp_path / "sessions")
+    assert "trained on ugv" in out and "--sim ugv" in out
