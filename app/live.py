@@ -281,6 +281,7 @@ class LiveLoop:
                 safe=safe_action(config.sim, env.action_space),
             )
             runner = Runner(env, loaded.policy, loaded.gate, expert, seed=config.seed)
+            runner.agent_action_filter = expert.hand_back  # the hand-back to the policy is bumpless too
         except Exception:
             env.close()
             raise
