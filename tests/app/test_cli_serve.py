@@ -70,7 +70,7 @@ def test_a_busy_port_is_one_line_before_the_banner_and_no_session(tmp_path: Path
         (("--port", "70000"), "1..65535"),
         (("--port", "-1"), "1..65535"),
         (("--host", "no-such-host.invalid"), "does not resolve"),
-        (("--host", "192.0.2.1"), "not an address of this machine"),  # TEST-NET-1: never a local address
+        (("--host", "203.0.113.7"), "not an address of this machine"),  # TEST-NET-3: never a local address
     ],
 )
 def test_a_port_or_host_that_cannot_be_bound_is_one_line(tmp_path: Path, args: tuple[str, ...], said: str) -> None:
