@@ -356,8 +356,10 @@ class LiveLoop:
 
     def _on_step(self, record: StepRecord) -> None:
         world = self.world
-        # why the scripted expert has the wheel this step (fear, the hold, its hysteresis, a manoeuvre to finish)
-        cause = takeover_cause(record, world.runner.gate) if record.actor == "expert" else None
+        # why the scripted expert has the wheel this step (fear, the hold, its hysteresis, a manoeuvre to finish),
+        # also when it drives as the fallback for a person who did not take hold
+        scripted = record.actor in ("expert", "fallback")
+        cause = takeover_cause(record, world.runner.gate) if scripted else None
         world.counters.on_step(record, cause)
         message = record.to_message()
         message["type"] = "step"

@@ -237,11 +237,11 @@ function renderStep(msg) {
   } else if (msg.takeover) {
     banner.hidden = false; banner.dataset.kind = msg.actor;
     const who = {
-      person: "Person in control", fallback: "Scripted fallback in control: operator not answering",
+      person: "Person in control", fallback: "Scripted fallback in control (nobody holding on)",
       expert: "Scripted expert in control",
     }[msg.actor] || `${msg.actor} in control`;
     // why the scripted expert still has the wheel (the gate's reason, or past its hold a manoeuvre to finish)
-    const why = msg.actor === "expert" ? TAKEOVER_WHY[msg.takeover_cause] : null;
+    const why = msg.actor === "expert" || msg.actor === "fallback" ? TAKEOVER_WHY[msg.takeover_cause] : null;
     banner.textContent = why ? `${who}: ${why}` : who;
   } else {
     banner.hidden = true;
