@@ -34,7 +34,14 @@ def register(app: typer.Typer) -> None:
                 "scripted expert when there is none. 'scripted' runs the scripted expert."
             ),
         ] = None,
-        expert: Annotated[str, typer.Option(help=f"Who answers a takeover: {', '.join(EXPERT_MODES)}.")] = "person",
+        expert: Annotated[
+            str,
+            typer.Option(
+                help="Who answers a takeover: person (the page asks you, and the scripted fallback drives until you "
+                "take hold with Space), person_fallback (the scripted expert answers; you may take over at any time) "
+                "or scripted (the scripted expert only)."
+            ),
+        ] = "person",
         speed: Annotated[float, typer.Option(min=0.1, max=20.0, help="Wall-clock speed multiplier.")] = 1.0,
         sessions: Annotated[Path, typer.Option(help="Folder where every live step is recorded.")] = Path("sessions"),
         paused: Annotated[bool, typer.Option(help="Start with the loop paused.")] = False,
