@@ -84,7 +84,8 @@ def check_cluster_address(address: str, timeout: float = ADDRESS_TIMEOUT) -> tup
     """``address`` (``HOST:PORT``, the head's GCS port that ``ray start --head`` printed) as host and port, after a
     TCP connection to it succeeded. Otherwise :class:`ClusterError` at once: ``ray.init`` would retry an address
     where nothing answers for about 14 minutes before failing with a double traceback."""
-    host, sep, port_text = address.strip().rpartition(":")
+    target = address.strip().removeprefix("ray://")  # a Ray Client address is checked the same way
+    host, sep, port_text = target.rpartition(":")
     host = host.strip("[]")  # an IPv6 address in brackets
     if not sep or not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
         raise ClusterError(

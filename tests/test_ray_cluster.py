@@ -5,6 +5,7 @@ cluster runs, refused in seconds with one line."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -43,6 +44,7 @@ def ray_head() -> Iterator[str]:
     if not ray_cli.exists():
         pytest.skip(f"no ray command beside {sys.executable}")
     port = free_port()
+    auth_mode = os.environ.get("RAY_AUTH_MODE")  # ensure_ray may set it for a token cluster: put it back after
     temp = tempfile.mkdtemp(prefix="rh", dir="/tmp")  # Ray's socket paths must stay short
     log = Path(temp, "start.log")
     head = subprocess.Popen(
@@ -73,6 +75,11 @@ def ray_head() -> Iterator[str]:
             except subprocess.TimeoutExpired:
                 os.killpg(head.pid, signal.SIGKILL)
                 head.wait(10)
+        shutil.rmtree(temp, ignore_errors=True)
+        if auth_mode is None:
+            os.environ.pop("RAY_AUTH_MODE", None)
+        else:
+            os.environ["RAY_AUTH_MODE"] = auth_mode
 
 
 def test_a_sweep_runs_on_a_cluster_started_with_ray_start(ray_head: str, tmp_path: Path) -> None:
