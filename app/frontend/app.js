@@ -35,6 +35,15 @@ const fearChart = new StripChart($("chart-fear"), {
     { key: "threshold", label: "threshold τ", color: color("--threshold"), width: 1.4, dash: [6, 4] },
   ],
   yMin: 0, bandColors,
+  // SUMO's first half-minute has no car near: fear is measured every step and lies near zero, which reads as a dead
+  // chart unless it says so
+  note: (chart) => {
+    const fear = (chart.values.fear || []).filter(Number.isFinite);
+    const tau = (chart.values.threshold || []).filter(Number.isFinite);
+    if (fear.length < 10 || !tau.length) return null;
+    const meanTau = tau.reduce((a, b) => a + b, 0) / tau.length;
+    return Math.max(...fear) < 0.05 * meanTau ? "fear near zero: nothing close enough to matter yet (? explains)" : null;
+  },
 });
 const curiosityChart = new StripChart($("chart-curiosity"), {
   title: "Curiosity",

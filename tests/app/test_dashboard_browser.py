@@ -294,17 +294,16 @@ def test_readme_screenshot_of_the_dashboard(browser: Any, tmp_path: Path) -> Non
         stop_server(live, thread)
 
 
-def test_readme_screenshot_of_the_pedestrian_crossing_on_a_laptop_screen(browser: Any, tmp_path: Path) -> None:
-    """docs/dashboard-pedestrian-1366x768.png: the pedestrian crossing with its committed policy at 1366x768, the
-    camera framing the road (the ego and the pedestrian large), the short-screen HUD, the fine-tuning card on
-    screen."""
+@pytest.mark.parametrize("sim", ["pedestrian", "sumo"])
+def test_readme_screenshot_on_a_laptop_screen(browser: Any, tmp_path: Path, sim: str) -> None:
+    """docs/dashboard-SIM-1366x768.png at 1366x768 with the committed policy: the short-screen HUD and the
+    fine-tuning card on screen; the pedestrian crossing framed by its road (the ego and the pedestrian large),
+    SUMO's first seconds with its fear chart saying why it is flat."""
     from app.server import ServerSettings
 
-    if not (ROOT / "policies" / "pedestrian-default").is_dir():
-        pytest.skip("no committed pedestrian policy")
-    settings = ServerSettings(
-        sim="pedestrian", sessions=tmp_path / "sessions", policy_roots=[ROOT / "policies", ROOT / "runs"]
-    )
+    if not (ROOT / "policies" / f"{sim}-default").is_dir():
+        pytest.skip(f"no committed {sim} policy")
+    settings = ServerSettings(sim=sim, sessions=tmp_path / "sessions", policy_roots=[ROOT / "policies", ROOT / "runs"])
     live, thread = start_server(settings)
     try:
         context = browser.new_context(viewport={"width": 1366, "height": 768}, device_scale_factor=1)
@@ -314,7 +313,7 @@ def test_readme_screenshot_of_the_pedestrian_crossing_on_a_laptop_screen(browser
         page.wait_for_timeout(800)
         tuning = page.locator("#card-finetune").bounding_box()
         assert tuning is not None and tuning["y"] + tuning["height"] <= 768
-        name = "dashboard-pedestrian-1366x768.png"
+        name = f"dashboard-{sim}-1366x768.png"
         out = ROOT / "docs" / name if os.environ.get("SAGE_UPDATE_SCREENSHOT") else tmp_path / name
         page.screenshot(path=str(out))
         assert out.stat().st_size > 50_000
@@ -586,4 +585,13 @@ def test_chart_y_scale_ignores_an_outlier_and_marks_it(browser: Any, calm_server
     scale = page.evaluate(script)
     assert scale["hi"] < 1.5 and scale["lo"] > 0.0, scale
     assert scale["clipped"] == 1
+    page.context.close()
+
+
+def test_a_fear_chart_near_zero_says_why_it_is_flat(browser: Any, calm_server: LiveServer) -> None:
+    """SUMO's fear lies near zero for its first half-minute (no car near): the chart says so rather than look dead."""
+    page = open_page(browser, calm_server)
+    note = "(v) => sage.charts.fear.options.note({values: {fear: Array(30).fill(v), threshold: Array(30).fill(0.3)}})"
+    assert "nothing close enough" in page.evaluate(note, 0.002)
+    assert page.evaluate(note, 0.2) is None  # fear that moves is left to speak for itself
     page.context.close()
