@@ -137,8 +137,7 @@ def bind_listener(host: str, port: int) -> socket.socket:
         if exc.errno == errno.EADDRNOTAVAIL:
             _fail(f"--host {host} is not an address of this machine: use 127.0.0.1, 0.0.0.0 or one of its own")
         _fail(f"cannot bind {where}: {exc.strerror or exc}")
-    listener.set_inheritable(True)
-    return listener
+    return listener  # not inheritable: a worker process must never keep the dashboard's port after the server
 
 
 def _fail(message: str) -> NoReturn:
