@@ -25,7 +25,8 @@ class SessionCounters:
     person_steps: int = 0
     fallback_steps: int = 0
     expert_steps_by_cause: dict[str, int] = field(default_factory=lambda: dict.fromkeys(TAKEOVER_CAUSES, 0))
-    """The scripted expert's steps by why it drove (:func:`core.loop.takeover_cause`)."""
+    """The scripted expert's steps by why it drove (:func:`core.loop.takeover_cause`), as the expert or as the
+    fallback for a person who did not take hold."""
     _seen_steps: int = 0
     _done_steps: int = 0
     _done_takeovers: int = 0
@@ -37,7 +38,7 @@ class SessionCounters:
         self._seen_steps += 1
         self.person_steps += int(record.actor == "person")
         self.fallback_steps += int(record.actor == "fallback")
-        if cause is not None and record.actor == "expert":
+        if cause is not None and record.actor in ("expert", "fallback"):  # the scripted expert, either way
             self.expert_steps_by_cause[cause] += 1
 
     def on_episode(self, summary: EpisodeSummary, final: EpisodeProgress) -> bool:

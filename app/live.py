@@ -198,18 +198,27 @@ class LiveLoop:
         self._thread = threading.Thread(target=self._run, name="live-loop", daemon=True)
         self._thread.start()
 
-    def stop(self, timeout: float = 5.0) -> None:
+    def stop(self, timeout: float = 2.0, worker_timeout: float | None = None) -> None:
+        """End the loop thread (waiting up to ``timeout``), the episode, the session and the fine-tuning worker
+        (waiting up to ``worker_timeout``; None: until its own stop returned, a few seconds at most)."""
         self._stop = True
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
         if not self.running:  # the loop thread is gone: the running episode is ours to end, with its reason
             self.world.runner.end_episode(reason="server stopped")
+        # the worker is asked to stop while the session and the env close (it may still be importing torch, or be
+        # mid-round, for seconds); a process about to end need not wait: its worker ends with it (core.worker
+        # watches its parent; multiprocessing ends daemonic children at exit)
+        stopping = None
         if self.world.versions is not None:
-            self.world.versions.stop()
+            stopping = threading.Thread(target=self.world.versions.stop, name="finetune-stop", daemon=True)
+            stopping.start()
         if self.world.writer is not None:
             self.world.writer.close()
         self.world.env.close()
+        if stopping is not None:
+            stopping.join(worker_timeout)
 
     def submit(self, command: c.Command) -> concurrent.futures.Future[Any]:
         """Queue a command (:mod:`app.commands`) for the loop thread; the future holds its result or its
@@ -272,6 +281,7 @@ class LiveLoop:
                 safe=safe_action(config.sim, env.action_space),
             )
             runner = Runner(env, loaded.policy, loaded.gate, expert, seed=config.seed)
+            runner.agent_action_filter = expert.hand_back  # the hand-back to the policy is bumpless too
         except Exception:
             env.close()
             raise
@@ -346,8 +356,10 @@ class LiveLoop:
 
     def _on_step(self, record: StepRecord) -> None:
         world = self.world
-        # why the scripted expert has the wheel this step (fear, the hold, its hysteresis, a manoeuvre to finish)
-        cause = takeover_cause(record, world.runner.gate) if record.actor == "expert" else None
+        # why the scripted expert has the wheel this step (fear, the hold, its hysteresis, a manoeuvre to finish),
+        # also when it drives as the fallback for a person who did not take hold
+        scripted = record.actor in ("expert", "fallback")
+        cause = takeover_cause(record, world.runner.gate) if scripted else None
         world.counters.on_step(record, cause)
         message = record.to_message()
         message["type"] = "step"

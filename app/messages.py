@@ -1,7 +1,8 @@
 """Messages a page may send over the dashboard websocket, validated by pydantic.
 
 Every message is a JSON object with a ``type`` field; pydantic picks the model from it (a discriminated
-union) and rejects unknown types, unknown fields, non-finite numbers and out-of-range values. A message
+union) and rejects unknown types, unknown fields, non-finite numbers and out-of-range values (every integer is
+bounded to what the server can store and use, so 2**63 is a validation error, not an overflow inside it). A message
 that fails validation gets an ``error`` reply naming the problem and never reaches the loop.
 
 Messages that act on the loop (``input``, ``presence``, ``control``, ``configure``, ``version``...) carry the control
@@ -30,7 +31,14 @@ MAX_DEPTH = 8
 MAX_NUMBER_CHARS = 32
 """Longest number literal accepted (a 5,000-digit integer would otherwise reach Python's int limits)."""
 
+MAX_INDEX = 2**31 - 1
+"""Largest episode, step or version number accepted: far beyond any session, and within every integer column
+the server stores it in (SQLite's are 64-bit; 2**63 raised OverflowError there)."""
+MAX_SEQ = 2**53 - 1
+"""Largest input sequence number: the page counts in JavaScript numbers, exact up to 2**53 - 1."""
+
 Axis = Annotated[float, Field(ge=-1.0, le=1.0)]
+Index = Annotated[int, Field(ge=0, le=MAX_INDEX)]
 
 
 class _Message(BaseModel):
@@ -56,7 +64,7 @@ class Input(_Operator):
     """The operator's latest manual controls. Sent on every change and as a heartbeat while focused."""
 
     type: Literal["input"]
-    seq: int = Field(ge=0)
+    seq: int = Field(ge=0, le=MAX_SEQ)
     ts: float = Field(ge=0, description="page clock when the input was read, ms since the epoch")
     held: bool = Field(description="takeover requested: Space held, sticky toggle on, or gamepad trigger")
     throttle: Axis = 0.0
@@ -124,12 +132,12 @@ class _Viewer(_Message):
 class ReplayOpen(_Viewer):
     type: Literal["replay_open"]
     session: str = Field(min_length=1, max_length=128)
-    episode: int = Field(ge=0)
+    episode: Index
 
 
 class ReplaySeek(_Viewer):
     type: Literal["replay_seek"]
-    t: int = Field(ge=0)
+    t: Index
 
 
 class ReplayClose(_Viewer):

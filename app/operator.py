@@ -13,9 +13,10 @@ take hold: never a neutral action, and the loop never waits. A person who vanish
 latched out for at least ``rejoin_after`` (so late heartbeats under load do not flip control step to step)
 and the scripted expert stays in charge rather than handing control back to the agent they were stopping.
 
-Handover is bumpless: for a ``Box`` action the person's (or fallback's) first actions after a handover move
-from the executed action towards the target by at most ``max_jump`` of the action range per step, and every
-handover's action jump and the handover latency (gate request -> the person taking hold) are measured.
+Handover is bumpless: for a ``Box`` action the person's (or fallback's) first actions after a handover, and the
+policy's first ones when control returns to it (:meth:`PersonExpert.hand_back`), move from the executed action
+towards the target by at most ``max_jump`` of the action range per step, and every handover's action jump and the
+handover latency (gate request -> the person taking hold) are measured.
 
 :class:`ControlDesk` issues the one control token: one operator at a time, any number of viewers.
 """
@@ -231,6 +232,12 @@ class PersonExpert:
         self._scripted_drove = True
         actor: Actor = "expert" if self.mode == "person_fallback" and not self.latched else "fallback"
         return self._bumpless(np.asarray(action), actor), actor
+
+    def hand_back(self, a_rl: np.ndarray) -> np.ndarray:
+        """The policy's action as executed when nobody takes over (:attr:`core.loop.Runner.agent_action_filter`):
+        right after a person, the fallback or the scripted expert drove, it moves from their last executed action
+        towards the policy's by at most ``max_jump`` of the range per step, as every other handover does."""
+        return self._bumpless(np.asarray(a_rl), "agent")
 
     def _bumpless(self, target: np.ndarray, actor: str) -> np.ndarray:
         """Move from the last executed action towards ``target`` by at most ``max_jump`` of the range per

@@ -28,6 +28,8 @@ GROUND_Z = 0.0
 TRAIL_POINTS = 600
 FOLLOW_LENGTHS = 14.0
 """The follow view frames a square this many ego lengths wide around the ego (a car: ~60 m; the UGV: ~8 m)."""
+ROAD_FOLLOW_LENGTHS = 9.0
+"""... along a road narrower than that window (the pedestrian crossing: ~40 m, the ego and the pedestrian large)."""
 FOLLOW_MIN = 4.0
 """... and at least this wide (m)."""
 RAY_FREE = (38, 110, 130)
@@ -296,12 +298,18 @@ class SceneDrawer:
         self._framed = None
 
     def follow_window(self, ego: dict[str, Any]) -> list[float]:
-        """The square around the ego that the follow view frames: FOLLOW_LENGTHS ego lengths (at least
-        FOLLOW_MIN m), never wider than the simulator's bounds."""
-        size = max(FOLLOW_LENGTHS * float(ego.get("length", 1.0)), FOLLOW_MIN)
-        size = min(size, max(self.bounds[2] - self.bounds[0], self.bounds[3] - self.bounds[1]))
+        """The window around the ego that the follow view frames: FOLLOW_LENGTHS ego lengths (at least
+        FOLLOW_MIN m) each way, but no wider and no taller than the simulator's bounds. A road narrower than the
+        window (the pedestrian crossing's 12 m) is framed by its own width and ROAD_FOLLOW_LENGTHS along it, not by
+        empty space beside it (the camera stood three times as far, the pedestrian a 4-pixel dot)."""
+        length = float(ego.get("length", 1.0))
+        size = max(FOLLOW_LENGTHS * length, FOLLOW_MIN)
+        world_height = max(self.bounds[3] - self.bounds[1], FOLLOW_MIN)
+        along = max(ROAD_FOLLOW_LENGTHS * length, FOLLOW_MIN) if world_height < size else size
+        width = min(along, max(self.bounds[2] - self.bounds[0], FOLLOW_MIN))
+        height = min(size, world_height)
         x, y = float(ego["x"]), float(ego["y"])
-        return [x - size / 2, y - size / 2, x + size / 2, y + size / 2]
+        return [x - width / 2, y - height / 2, x + width / 2, y + height / 2]
 
     def _frame_view(self, ego: dict[str, Any]) -> None:
         """Follow: keep the ego at the origin (the world slides) and frame its window once per view and size."""
@@ -312,7 +320,7 @@ class SceneDrawer:
             return
         window = self.follow_window(ego)
         self._follow(window)
-        size = round(window[2] - window[0], 3)
+        size = round(max(window[2] - window[0], window[3] - window[1]), 3)
         if self._framed != ("follow", size):
             self._frame_camera(bounds=window, move_origin=False)
             self._framed = ("follow", size)

@@ -121,6 +121,10 @@ class ServerSettings:
     :class:`core.sage.config.GateConfig` fields, applied to every policy with a world model that this dashboard
     loads, fine-tuned versions included."""
 
+    worker_stop_wait: float | None = None
+    """Seconds shutdown waits for the fine-tuning worker to stop; None: until it has (``sage serve`` waits
+    0.5 s, as the process ends right after and takes the worker with it, so that Ctrl+C is quick)."""
+
     def loader(self) -> PolicyLoader:
         """The policy loader with :attr:`gate_settings` applied."""
         if not self.gate_settings:
@@ -215,7 +219,7 @@ class Dashboard:
         return {"sims": list(catalogue.values()), "policies": policies, "expert_modes": list(m.EXPERT_MODES)}
 
     def close(self) -> None:
-        self.live.stop()
+        self.live.stop(worker_timeout=self.settings.worker_stop_wait)
         self.scene_view.close()
         self.viser.stop()
 

@@ -103,6 +103,9 @@ class Runner:
         self.deterministic = deterministic
         self.step_listeners: list[StepListener] = []
         self.episode_listeners: list[EpisodeListener] = []
+        self.agent_action_filter: Callable[[np.ndarray], np.ndarray] | None = None
+        """What the policy's action passes through before it is executed when nobody takes over (the dashboard's
+        bumpless hand-back from a person to the policy); the record keeps the policy's own proposal as ``a_rl``."""
         self.episode = -1
         self.t = 0
         self.obs: np.ndarray | None = None
@@ -192,6 +195,8 @@ class Runner:
                 a_expert, actor = expert.act(self.env, obs)
                 a_expert = np.asarray(a_expert)
                 action = a_expert
+            elif self.agent_action_filter is not None:
+                action = np.asarray(self.agent_action_filter(a_rl))
             next_obs, reward, terminated, truncated, info = self.env.step(action)
             executed = info.get("executed_action") if takeover else None
             if executed is not None:

@@ -25,6 +25,7 @@ import multiprocessing as mp
 import os
 import pickle
 import queue
+import signal
 import threading
 import time
 from collections import deque
@@ -74,6 +75,9 @@ def worker_main(spec: WorkerSpec, events: Any, commands: Any) -> None:
 
     Any error ends the process after reporting it (``{"kind": "error"}``); the service restarts it. The worker
     also ends when its parent dies (a ``kill -9`` of the server leaves no orphan training on)."""
+    # Ctrl+C in a terminal reaches the whole process group: the parent stops this worker itself (a stop command,
+    # then terminate), and a KeyboardInterrupt here only printed a traceback under the server's last line
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _watch_parent(spec.parent_pid or os.getppid())
     try:
         _work(spec, events, commands)

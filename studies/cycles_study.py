@@ -20,9 +20,11 @@ rate. The paper shows this study as curves, so no numbers stand beside.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from studies.budgets import Budget
 from studies.registry import StudyDef
 
 METHODS = ("frozen", "sage")
@@ -41,6 +43,16 @@ METRICS = (
 
 def cycles_for(train_steps: int) -> int:
     return max(2, min(9, train_steps // STEPS_PER_CYCLE))
+
+
+def budget_text(budget: Budget, settings: Mapping[str, Any]) -> str:
+    """What a budget runs here: cycles of episodes, not training steps and evaluation episodes."""
+    cycles = cycles_for(budget.train_steps)
+    episodes = int(settings.get("episodes_per_cycle", 3))
+    return (
+        f"{cycles} cycles of {episodes} episodes per method and seed: one cycle per {STEPS_PER_CYCLE} of its "
+        f"{budget.train_steps} environment steps, 2 to 9; no separate evaluation episodes"
+    )
 
 
 def trial(config: dict[str, Any]) -> dict[str, float]:
@@ -96,4 +108,5 @@ STUDY = StudyDef(
     ),
     settings={"sim": "ugv", "scenario": "3", "policy": str(DEFAULT_POLICY), "episodes_per_cycle": 3},
     learner_overrides=False,
+    budget_text=budget_text,
 )

@@ -61,6 +61,11 @@ class StudyDef:
     """Whether its trials train through :func:`studies.training.train_once` with their settings, and so take
     ``sage study --set learner.KEY=VALUE`` (the cycles study fine-tunes the committed policy on its own
     configuration: no)."""
+    budget_text: Callable[[Budget, Mapping[str, Any]], str] | None = None
+    """``budget_text(budget, settings) -> what it ran``, for the table's header, when the study spends the budget
+    otherwise than as training steps and evaluation episodes (the cycles study: cycles of episodes)."""
+    untrained: tuple[str, ...] = ()
+    """Methods that are not trained (planners): their table rows say that their ± is over evaluation episodes."""
     figures: Callable[[Path, dict[str, Any]], list[Path]] | None = None
     """``figures(results folder, settings) -> paths``: the study's own figures from its trials' run folders,
     drawn after the table."""
@@ -236,6 +241,8 @@ def run_study(
         budget=spent,
         wall_s=total_s,
         plot=study.plot,
+        budget_text=study.budget_text(spent, settings) if study.budget_text is not None else None,
+        untrained=study.untrained,
         notes=(
             *study.notes,
             *([f"Settings changed from the study's defaults: {', '.join(changed)}."] if changed else []),

@@ -59,12 +59,17 @@ def write_results(
     commit: str | None = None,
     plot: Sequence[str] = (),
     notes: Sequence[str] = (),
+    budget_text: str | None = None,
+    untrained: Sequence[str] = (),
 ) -> Path:
     """Write the results folder ``out`` for ``study`` and return the table's path.
 
     ``keys`` name a row (``("method",)`` or ``("split", "method", "condition")``), matched against the
     paper's table by :func:`studies.paper.paper_value`; ``plot`` lists the metrics to draw; ``notes`` are
-    printed under the table (what could not be run, and why).
+    printed under the table (what could not be run, and why). ``budget_text``: what the budget ran, when the study
+    spends it otherwise than as training steps and evaluation episodes (the cycles study: cycles of episodes).
+    ``untrained``: methods that are not trained (planners): each of their seeds is a set of evaluation episodes, so
+    their ± is a spread over evaluation episodes, and their rows say so.
     """
     if not rows:
         raise ValueError(f"study {study!r} produced no result rows")
@@ -80,12 +85,21 @@ def write_results(
     header = [*keys, "seeds"]
     for m in metrics:
         header += [m, f"paper {m}"]
+    spent = budget_text or (
+        f"{budget.train_steps} environment steps per method and seed, {budget.eval_episodes} evaluation episodes"
+    )
+    planners = [m for m in dict.fromkeys(str(r.get("method")) for r in rows) if m in untrained]
+    untrained_text = (
+        f" {', '.join(planners)}: not trained, so their seeds are only different evaluation episodes and their ± "
+        "(seeds column: eval) is a spread over evaluation episodes."
+        if planners
+        else ""
+    )
     lines = [
         f"# {study}: mean ± 95% CI over training seeds",
         "",
-        f"Budget `{budget.name}` ({budget.train_steps} environment steps per method and seed, "
-        f"{budget.eval_episodes} evaluation episodes), commit `{commit}`, wall time {wall_s / 60:.1f} min. "
-        "Paper columns are the paper's reported values (± is its spread over episodes, not a CI).",
+        f"Budget `{budget.name}` ({spent}), commit `{commit}`, wall time {wall_s / 60:.1f} min. "
+        f"Paper columns are the paper's reported values (± is its spread over episodes, not a CI).{untrained_text}",
         "",
         "| " + " | ".join(header) + " |",
         "|" + "---|" * len(header),
@@ -93,7 +107,8 @@ def write_results(
     data: list[dict[str, Any]] = []
     for key, cells in summary.items():
         n = next(iter(cells.values())).n
-        row_text = [*key, str(n)]
+        method = dict(zip(keys, key, strict=True)).get("method")
+        row_text = [*key, f"{n} eval" if method in planners else str(n)]
         entry: dict[str, Any] = {**dict(zip(keys, key, strict=True)), "seeds": n, "metrics": {}}
         for m in metrics:
             paper = paper_value(study, key, m)

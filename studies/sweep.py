@@ -15,6 +15,7 @@ trials do not oversubscribe the cores.
 from __future__ import annotations
 
 import os
+import socket
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -71,14 +72,96 @@ def _progress_callback(total: int) -> Any:
     return _Progress()
 
 
+class ClusterError(ValueError):
+    """The Ray cluster at ``--address`` cannot be reached or joined; ``str()`` is one line saying what to do."""
+
+
+ADDRESS_TIMEOUT = 3.0
+"""Seconds to wait for a TCP connection to a cluster's address before saying it cannot be reached."""
+
+
+def check_cluster_address(address: str, timeout: float = ADDRESS_TIMEOUT) -> tuple[str, int]:
+    """``address`` (``HOST:PORT``, the head's GCS port that ``ray start --head`` printed) as host and port, after a
+    TCP connection to it succeeded. Otherwise :class:`ClusterError` at once: ``ray.init`` would retry an address
+    where nothing answers for about 14 minutes before failing with a double traceback."""
+    target = address.strip().removeprefix("ray://")  # a Ray Client address is checked the same way
+    host, sep, port_text = target.rpartition(":")
+    host = host.strip("[]")  # an IPv6 address in brackets
+    if not sep or not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
+        raise ClusterError(
+            f"--address {address!r} is not HOST:PORT: give the address `ray start --head` printed, e.g. 10.0.0.5:6379"
+        )
+    port = int(port_text)
+    advice = f"start one there with `ray start --head --port {port}`, or give the address its head printed"
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as connection:
+            # the head's GCS is a gRPC server: it answers an HTTP/2 preface with a SETTINGS frame. A port that
+            # accepts and says nothing (another service, a proxy) would have ray.init retry for minutes
+            connection.sendall(HTTP2_PREFACE + HTTP2_EMPTY_SETTINGS)
+            frame = _read_exactly(connection, 9)
+    except OSError as exc:
+        reason = "timed out" if isinstance(exc, TimeoutError) else (exc.strerror or type(exc).__name__).lower()
+        raise ClusterError(
+            f"no Ray cluster answers at {host}:{port} ({reason} after {timeout:g} s): {advice}"
+        ) from None
+    if len(frame) < 9 or frame[3] != HTTP2_SETTINGS:
+        raise ClusterError(f"what answers at {host}:{port} is not a Ray cluster (it does not speak gRPC): {advice}")
+    return host, port
+
+
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
+HTTP2_EMPTY_SETTINGS = b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
+HTTP2_SETTINGS = 0x04
+"""The frame type a gRPC server sends first."""
+
+
+def _read_exactly(connection: socket.socket, size: int) -> bytes:
+    """Up to ``size`` bytes (fewer when the peer closes), within the connection's timeout."""
+    data = b""
+    while len(data) < size:
+        chunk = connection.recv(size - len(data))
+        if not chunk:
+            break
+        data += chunk
+    return data
+
+
+def token_auth_for_cluster() -> bool:
+    """Ask Ray for token authentication when a token is at hand and no mode was chosen: with ``~/.ray/auth_token``
+    present, ``ray start --head`` starts a token-auth cluster, and ``ray.init(address=...)`` is then refused
+    (InvalidAuthToken) unless ``RAY_AUTH_MODE=token`` is set. True when it was set here."""
+    if os.environ.get("RAY_AUTH_MODE"):
+        return False
+    path = os.environ.get("RAY_AUTH_TOKEN_PATH")
+    token_file = Path(path).expanduser() if path else Path.home() / ".ray" / "auth_token"
+    if not (os.environ.get("RAY_AUTH_TOKEN") or token_file.is_file()):
+        return False
+    os.environ["RAY_AUTH_MODE"] = "token"
+    try:  # Ray reads its settings once, when imported: read them again, as Ray itself does when it sets the mode
+        from ray._raylet import Config
+
+        Config.initialize("")
+    except (ImportError, AttributeError):  # pragma: no cover - another Ray version: the mode set before import
+        pass
+    return True
+
+
 def ensure_ray(address: str | None = None, cpus: int | None = None) -> None:
-    """Start local Ray with ``cpus`` cores (default: all), or join the cluster at ``address``."""
+    """Start local Ray with ``cpus`` cores (default: all), or join the cluster at ``address``
+    (:class:`ClusterError`, one line, when it cannot be reached or joined)."""
     import ray
 
     if ray.is_initialized():
         return
     if address is not None:
-        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        if address != "auto":  # "auto": the cluster this machine's `ray start` runs, which Ray finds itself
+            check_cluster_address(address)
+        token_auth_for_cluster()
+        try:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        except Exception as exc:  # Ray's own errors run to many lines; the first says what went wrong
+            first = next((line for line in str(exc).splitlines() if line.strip()), type(exc).__name__)
+            raise ClusterError(f"cannot join the Ray cluster at {address}: {type(exc).__name__}: {first}") from None
     else:
         ray.init(num_cpus=cpus or os.cpu_count() or 1, include_dashboard=False, log_to_driver=False)
 

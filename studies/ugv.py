@@ -135,5 +135,6 @@ STUDY = StudyDef(
         "training). The paper's numbers are real-robot field tests; ours are the pymunk re-creation.",
     ),
     settings={"scenarios": list(SCENARIOS), "min_eval_episodes": TRIALS},
+    untrained=PLANNERS,
     figures=figures,
 )

@@ -48,3 +48,28 @@ def test_rows_missing_a_metric_are_refused(tmp_path: Path) -> None:
         write_results(tmp_path, "highway", [{"method": "sage", "seed": 0}], ("method",), ("x",), budget("smoke"), 1.0)
     with pytest.raises(ValueError, match="no result rows"):
         write_results(tmp_path, "highway", [], ("method",), ("x",), budget("smoke"), 1.0)
+
+
+def test_the_header_states_what_was_run_and_planner_rows_their_spread(tmp_path: Path) -> None:
+    """A planner is not trained: its seeds only draw other evaluation episodes, and its row says so; a study that
+    spends its budget otherwise (cycles) states what it ran instead of steps and evaluation episodes it never used."""
+    rows = [
+        {"method": method, "seed": seed, "success": value}
+        for method, values in (("sage", [0.5, 0.7]), ("teb", [0.9, 1.0]))
+        for seed, value in enumerate(values)
+    ]
+    text = write_results(
+        tmp_path, "ugv", rows, ("method",), ("success",), budget("smoke"), 1.0, commit="abc", untrained=("teb",)
+    ).read_text()
+    assert "| sage | 2 |" in text and "| teb | 2 eval |" in text
+    assert "teb: not trained" in text and "spread over evaluation episodes" in text
+    from studies.cycles_study import STUDY as CYCLES
+
+    assert CYCLES.budget_text is not None
+    said = CYCLES.budget_text(budget("small"), CYCLES.settings)
+    text = write_results(
+        tmp_path, "cycles", rows[:2], ("method",), ("success",), budget("small"), 1.0, commit="abc", budget_text=said
+    ).read_text()
+    assert "9 cycles of 3 episodes per method and seed" in text
+    assert "no separate evaluation episodes" in text and "10 evaluation episodes" not in text
+    assert "6000 environment steps per method" not in text

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import errno
+import gc
+import socket
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NoReturn
 
 import typer
 
@@ -34,7 +37,14 @@ def register(app: typer.Typer) -> None:
                 "scripted expert when there is none. 'scripted' runs the scripted expert."
             ),
         ] = None,
-        expert: Annotated[str, typer.Option(help=f"Who answers a takeover: {', '.join(EXPERT_MODES)}.")] = "person",
+        expert: Annotated[
+            str,
+            typer.Option(
+                help="Who answers a takeover: person (the page asks you, and the scripted fallback drives until you "
+                "take hold with Space), person_fallback (the scripted expert answers; you may take over at any time) "
+                "or scripted (the scripted expert only)."
+            ),
+        ] = "person",
         speed: Annotated[float, typer.Option(min=0.1, max=20.0, help="Wall-clock speed multiplier.")] = 1.0,
         sessions: Annotated[Path, typer.Option(help="Folder where every live step is recorded.")] = Path("sessions"),
         paused: Annotated[bool, typer.Option(help="Start with the loop paused.")] = False,
@@ -61,6 +71,10 @@ def register(app: typer.Typer) -> None:
         refuse_retired(gate_set=gate_set)
         scenario_name, sim = one_scenario(scenario, "sage serve"), policy_sim(policy, sim)
         gate_settings = _check_startup(sim, scenario_name, policy, gate_pairs(set_))
+        # bound here, before the banner, the loop, the worker or a session exist: a busy or forbidden port is one
+        # line now, not uvicorn's error after a session was recorded; uvicorn then serves on this very socket
+        listener = bind_listener(host, port)
+        port = listener.getsockname()[1]  # --port 0: the port the system chose
         logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
         settings = ServerSettings(
             host=host,
@@ -75,12 +89,57 @@ def register(app: typer.Typer) -> None:
             finetune=finetune,
             allow_hosts=list(allow_host or []),
             gate_settings=gate_settings,
+            worker_stop_wait=0.5,
         )
         typer.echo(f"SAGE dashboard on http://{host}:{port}/  (Ctrl+C to stop)")
-        uvicorn.run(create_app(settings), host=host, port=port, log_level="warning", ws_max_size=1 << 20)
+        # open pages keep their websockets: give them a second to close, not an open-ended wait, on Ctrl+C
+        config = uvicorn.Config(
+            create_app(settings), log_level="warning", ws_max_size=1 << 20, timeout_graceful_shutdown=1
+        )
+        try:
+            uvicorn.Server(config).run(sockets=[listener])
+        except KeyboardInterrupt:  # uvicorn raises the Ctrl+C it handled again, once the lifespan closed down
+            code = 130
+        else:
+            code = 0
+        # the lifespan has closed what the server owns (the session's file, the fine-tuning worker, viser); the
+        # interpreter's teardown then collected torch's and the simulators' module graphs for seconds (8 s on a
+        # loaded machine): frozen, the objects are left to the process's end and Ctrl+C ends it in about one
+        gc.freeze()
+        raise typer.Exit(code)
 
 
-def _fail(message: str) -> None:
+def bind_listener(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host:port`` (what uvicorn would bind), or one clear line and exit 2 when it
+    cannot be: a port out of 0..65535, a host that does not resolve or is not this machine's, a port in use or
+    one this user may not bind."""
+    if not 0 <= port <= 65535:
+        _fail(f"--port {port} is not a port: choose one in 1..65535 (e.g. --port 8000)")
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(
+            host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )[0]
+    except (socket.gaierror, UnicodeError) as exc:
+        reason = getattr(exc, "strerror", None) or exc
+        _fail(f"--host {host!r} does not resolve ({reason}): give an address such as 127.0.0.1")
+    listener = socket.socket(family, kind, proto)
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn: a restart reuses the port at once
+    try:
+        listener.bind(address)
+    except OSError as exc:
+        listener.close()
+        where = f"{host}:{port}"
+        if exc.errno == errno.EADDRINUSE:
+            _fail(f"{where} is in use (another sage serve?): stop that server or choose another --port")
+        if exc.errno == errno.EACCES:
+            _fail(f"not allowed to bind {where} (ports below 1024 need root): choose --port 1024 or above, e.g. 8000")
+        if exc.errno == errno.EADDRNOTAVAIL:
+            _fail(f"--host {host} is not an address of this machine: use 127.0.0.1, 0.0.0.0 or one of its own")
+        _fail(f"cannot bind {where}: {exc.strerror or exc}")
+    return listener  # not inheritable: a worker process must never keep the dashboard's port after the server
+
+
+def _fail(message: str) -> NoReturn:
     """One clear line on stderr, before any banner, and a non-zero exit."""
     typer.secho(f"sage serve: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code=2)
@@ -92,7 +151,7 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
     import sims
     from app.policies import SCRIPTED, default_policy
     from app.server import ServerSettings
-    from core.agents import load_agent, load_checkpoint
+    from core.agents import load_agent, load_checkpoint, meta_of
     from core.sage.config import parse_gate_settings
 
     try:
@@ -101,9 +160,14 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
         _fail(str(exc))
     if policy is not None and policy != "scripted":
         try:
-            load_checkpoint(policy)
-        except (OSError, ValueError) as exc:
+            trained_on = meta_of(load_checkpoint(policy)).sim
+        except (OSError, ValueError, KeyError, TypeError) as exc:
             _fail(f"policy {policy!r} cannot be loaded: {_first_line(exc)}")
+        if trained_on != sim:
+            _fail(
+                f"policy {policy!r} was trained on {trained_on}, not {sim}: give --sim {trained_on}, or a {sim} "
+                f"policy (e.g. --policy {Path('policies') / f'{sim}-default'})"
+            )
     try:
         settings = parse_gate_settings(gate_set, sims.descriptor(sim).contact_floors)
     except ValueError as exc:

@@ -39,9 +39,15 @@ def register(app: typer.Typer) -> None:
     @app.command("study", cls=NamedChoicesCommand)
     def study(
         name: Annotated[str, typer.Argument(help="The study: {STUDIES}.", show_default=False)],
-        budget: Annotated[str, typer.Option(help="smoke | small | full (environment steps per method).")] = "small",
+        budget: Annotated[str, typer.Option(help=_budget_help())] = "small",
         out: Annotated[Path | None, typer.Option(help="Results folder (default: results/NAME-BUDGET).")] = None,
-        address: Annotated[str | None, typer.Option(help="Join this Ray cluster instead of running locally.")] = None,
+        address: Annotated[
+            str | None,
+            typer.Option(
+                help="Join the Ray cluster at HOST:PORT (what `ray start --head` printed) instead of running "
+                "locally; checked first, one line if nothing answers there."
+            ),
+        ] = None,
         cpus: Annotated[int | None, typer.Option(min=1, help="Local cores for trials (default: all).")] = None,
         max_concurrent: Annotated[int | None, typer.Option(min=1, help="Most trials at once.")] = None,
         results_doc: Annotated[
@@ -83,7 +89,8 @@ def register(app: typer.Typer) -> None:
         ] = None,
         learner_set: LearnerSetRetired = None,
     ) -> None:
-        """Run a paper study: every method, five seeds, equal budgets; results with 95% intervals."""
+        """Run a paper study: every method on each of the budget's seeds, the same environment steps for all;
+        results with 95% intervals."""
         from studies.budgets import BUDGET_NAMES
         from studies.registry import check_study_learner_overrides, get_study, run_study
 
@@ -107,6 +114,10 @@ def register(app: typer.Typer) -> None:
                     raise ValueError(f"--set {pair}: {key} is a setting of {name}, --set study.{pair}")
             if learner_overrides:
                 check_study_learner_overrides(name, learner_overrides)
+            if address is not None and address != "auto":
+                from studies.sweep import check_cluster_address
+
+                check_cluster_address(address)  # seconds, not Ray's 14 minutes of retries
         except ValueError as error:
             fail(str(error))
         results = out or Path("results") / f"{name}-{budget}"
@@ -137,6 +148,17 @@ def study_settings(name: str, known: dict[str, Any], pairs: list[str]) -> dict[s
             raise ValueError(f"--set study.{pair}: {name} has no setting {key!r}; its: {', '.join(known) or 'none'}")
         overrides[key] = setting_value(known[key], value, key)
     return overrides
+
+
+def _budget_help() -> str:
+    """What each budget runs, from the budgets themselves (per method: seeds, training steps, evaluation)."""
+    from studies.budgets import BUDGETS
+
+    runs = "; ".join(
+        f"{b.name}: {b.seeds} seeds x {b.train_steps:,} environment steps, {b.eval_episodes} evaluation episodes"
+        for b in BUDGETS.values()
+    )
+    return f"{' | '.join(BUDGETS)}, per method ({runs}; a study may evaluate more episodes)."
 
 
 def setting_value(default: Any, text: str, key: str) -> Any:

@@ -35,6 +35,15 @@ const fearChart = new StripChart($("chart-fear"), {
     { key: "threshold", label: "threshold τ", color: color("--threshold"), width: 1.4, dash: [6, 4] },
   ],
   yMin: 0, bandColors,
+  // SUMO's first half-minute has no car near: fear is measured every step and lies near zero, which reads as a dead
+  // chart unless it says so
+  note: (chart) => {
+    const fear = (chart.values.fear || []).filter(Number.isFinite);
+    const tau = (chart.values.threshold || []).filter(Number.isFinite);
+    if (fear.length < 10 || !tau.length) return null;
+    const meanTau = tau.reduce((a, b) => a + b, 0) / tau.length;
+    return Math.max(...fear) < 0.05 * meanTau ? "fear near zero: nothing close enough to matter yet (? explains)" : null;
+  },
 });
 const curiosityChart = new StripChart($("chart-curiosity"), {
   title: "Curiosity",
@@ -237,11 +246,11 @@ function renderStep(msg) {
   } else if (msg.takeover) {
     banner.hidden = false; banner.dataset.kind = msg.actor;
     const who = {
-      person: "Person in control", fallback: "Scripted fallback in control: operator not answering",
+      person: "Person in control", fallback: "Scripted fallback in control (nobody holding on)",
       expert: "Scripted expert in control",
     }[msg.actor] || `${msg.actor} in control`;
     // why the scripted expert still has the wheel (the gate's reason, or past its hold a manoeuvre to finish)
-    const why = msg.actor === "expert" ? TAKEOVER_WHY[msg.takeover_cause] : null;
+    const why = msg.actor === "expert" || msg.actor === "fallback" ? TAKEOVER_WHY[msg.takeover_cause] : null;
     banner.textContent = why ? `${who}: ${why}` : who;
   } else {
     banner.hidden = true;

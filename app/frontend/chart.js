@@ -246,6 +246,14 @@ class StripChart {
       ctx.fillText(text, lx + 18, 12);
       lx += 18 + ctx.measureText(text).width + 14;
     }
+    const note = n && !this.emptyText && options.note ? options.note(this) : null;
+    if (note) { // a flat line explained where it is drawn (e.g. fear near zero while nothing is close)
+      ctx.fillStyle = "#94a3b8";
+      ctx.textAlign = "center";
+      ctx.textBaseline = "middle";
+      ctx.font = "13px system-ui, sans-serif";
+      ctx.fillText(note, pad.left + w / 2, pad.top + h / 2);
+    }
     if (!n || this.emptyText) {
       ctx.fillStyle = "#64748b";
       ctx.textAlign = "center";

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import signal
 import traceback
 from dataclasses import replace
 from multiprocessing.connection import Connection
@@ -42,6 +43,9 @@ WORKER_METHODS = frozenset({"reset", "step", "expert_action", "scene", "metrics"
 
 def _worker(conn: Connection, config: dict[str, Any]) -> None:
     """The worker's loop (the spawn target): one SumoEnv, one request at a time, until ``close`` or EOF."""
+    # Ctrl+C in a terminal reaches the whole process group: the parent closes this worker (or its EOF ends it);
+    # a KeyboardInterrupt here only printed a traceback
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     env = SumoEnv(SumoConfig(**config))
     try:
         while True:

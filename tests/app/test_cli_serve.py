@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import socket
+import time
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from app.cli import app
@@ -39,3 +43,83 @@ def test_a_bad_gate_setting_is_one_line_before_any_banner() -> None:
     assert code == 2 and "nope" in out and "dashboard on" not in out and len(out.strip().splitlines()) == 1
     code, out = run("--set", "gate.release=3")  # checked against the default policy's own gate
     assert code == 2 and "release" in out and len(out.strip().splitlines()) == 1
+
+
+def _one_line_before_anything(code: int, out: str, sessions: Path) -> None:
+    assert code == 2, out
+    assert len(out.strip().splitlines()) == 1, out
+    assert "dashboard on" not in out and "Traceback" not in out
+    assert not sessions.exists()  # no session recorded (and then listed) for a server that never ran
+
+
+def test_a_busy_port_is_one_line_before_the_banner_and_no_session(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        busy = taken.getsockname()[1]
+        started = time.monotonic()
+        code, out = run("--port", str(busy), "--sessions", str(tmp_path / "sessions"))
+    _one_line_before_anything(code, out, tmp_path / "sessions")
+    assert "in use" in out and "--port" in out
+    assert time.monotonic() - started < 10  # before any simulator or server starts
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (("--port", "70000"), "1..65535"),
+        (("--port", "-1"), "1..65535"),
+        (("--host", "no-such-host.invalid"), "does not resolve"),
+        (("--host", "203.0.113.7"), "not an address of this machine"),  # TEST-NET-3: never a local address
+    ],
+)
+def test_a_port_or_host_that_cannot_be_bound_is_one_line(tmp_path: Path, args: tuple[str, ...], said: str) -> None:
+    code, out = run(*args, "--sessions", str(tmp_path / "sessions"))
+    _one_line_before_anything(code, out, tmp_path / "sessions")
+    assert said in out
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may bind any port; the unbindable host case covers root")
+def test_a_privileged_port_is_one_line_for_a_user(tmp_path: Path) -> None:
+    code, out = run("--port", "80", "--sessions", str(tmp_path / "sessions"))
+    _one_line_before_anything(code, out, tmp_path / "sessions")
+    assert "not allowed" in out and "1024" in out
+
+
+def test_a_policy_of_another_simulator_is_one_line_before_the_server(tmp_path: Path) -> None:
+    code, out = run("--sim", "highway", "--policy", "policies/ugv-default", "--sessions", str(tmp_path / "sessions"))
+    _one_line_before_anything(code, out, tmp_path / "sessions")
+    assert "trained on ugv" in out and "--sim ugv" in out
+
+
+def test_ctrl_c_ends_the_server_within_seconds(tmp_path: Path) -> None:
+    """Ctrl+C took 5.5-15 s (the fine-tuning worker's stop, then the interpreter collecting torch's modules)."""
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+
+    command = [sys.executable, "-m", "app.cli", "serve", "--port", "0", "--sessions", str(tmp_path / "sessions")]
+    server = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        banner = server.stdout.readline() if server.stdout else ""
+        assert "dashboard on http://127.0.0.1:" in banner, banner
+        url = banner.split("on ", 1)[1].split()[0] + "api/state"
+        deadline = time.monotonic() + 120
+        while True:  # the lifespan (the loop, the worker) is up once the state answers
+            try:
+                with urllib.request.urlopen(url, timeout=5) as reply:
+                    if reply.status == 200:
+                        break
+            except OSError:
+                assert time.monotonic() < deadline and server.poll() is None, "the server did not come up"
+                time.sleep(0.5)
+        time.sleep(2.0)  # a few steps in
+        started = time.monotonic()
+        server.send_signal(signal.SIGINT)
+        server.wait(30)
+        assert time.monotonic() - started < 5.0  # ~1.3 s measured on the loaded 2-core machine
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait(10)

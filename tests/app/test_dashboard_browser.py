@@ -294,6 +294,34 @@ def test_readme_screenshot_of_the_dashboard(browser: Any, tmp_path: Path) -> Non
         stop_server(live, thread)
 
 
+@pytest.mark.parametrize("sim", ["pedestrian", "sumo"])
+def test_readme_screenshot_on_a_laptop_screen(browser: Any, tmp_path: Path, sim: str) -> None:
+    """docs/dashboard-SIM-1366x768.png at 1366x768 with the committed policy: the short-screen HUD and the
+    fine-tuning card on screen; the pedestrian crossing framed by its road (the ego and the pedestrian large),
+    SUMO's first seconds with its fear chart saying why it is flat."""
+    from app.server import ServerSettings
+
+    if not (ROOT / "policies" / f"{sim}-default").is_dir():
+        pytest.skip(f"no committed {sim} policy")
+    settings = ServerSettings(sim=sim, sessions=tmp_path / "sessions", policy_roots=[ROOT / "policies", ROOT / "runs"])
+    live, thread = start_server(settings)
+    try:
+        context = browser.new_context(viewport={"width": 1366, "height": 768}, device_scale_factor=1)
+        page = context.new_page()
+        page.goto(live.url + "/?sceneDpr=0.8")
+        page.wait_for_function("window.sage && window.sage.role === 'operator' && sage.steps > 14", timeout=90_000)
+        page.wait_for_timeout(800)
+        tuning = page.locator("#card-finetune").bounding_box()
+        assert tuning is not None and tuning["y"] + tuning["height"] <= 768
+        name = f"dashboard-{sim}-1366x768.png"
+        out = ROOT / "docs" / name if os.environ.get("SAGE_UPDATE_SCREENSHOT") else tmp_path / name
+        page.screenshot(path=str(out))
+        assert out.stat().st_size > 50_000
+        context.close()
+    finally:
+        stop_server(live, thread)
+
+
 def test_the_page_alerts_the_operator_when_the_gate_asks_for_a_person(browser: Any, tmp_path: Path) -> None:
     live, thread = start_server(toy_settings(tmp_path, policy="wave"))  # fires on steps 20..29 of every 40
     try:
@@ -312,6 +340,23 @@ def test_the_page_alerts_the_operator_when_the_gate_asks_for_a_person(browser: A
             timeout=WAIT_MS,
         )
         page.keyboard.up("Space")
+        page.context.close()
+    finally:
+        stop_server(live, thread)
+
+
+def test_the_fallback_driving_counts_as_the_scripted_expert_driving(browser: Any, tmp_path: Path) -> None:
+    """Person mode, the operator present and not holding: the fallback answers the gate. The session card once
+    said "scripted expert drove: -" while the fallback had driven 117 steps."""
+    live, thread = start_server(toy_settings(tmp_path, policy="wave"))  # fires on steps 20..29 of every 40
+    try:
+        page = open_page(browser, live)
+        become_operator(page)
+        page.wait_for_function(
+            "/fallback [1-9]/.test(document.getElementById('st-person').textContent) && "
+            "/fear [1-9]/.test(document.getElementById('st-why').textContent)",
+            timeout=WAIT_MS,
+        )
         page.context.close()
     finally:
         stop_server(live, thread)
@@ -484,6 +529,14 @@ def test_layout_fits_the_screen_with_the_operator_card_and_readable_text(
     box = page.locator("#card-operator").bounding_box()
     assert box is not None and box["y"] >= 0 and box["y"] + box["height"] <= height, box
     assert box["x"] + box["width"] <= width, box
+    # the HUD over the 3D view once covered a fifth of it at 1366x768 (a 199x261 column)
+    scene, hud = page.locator("#scene-wrap").bounding_box(), page.locator(".hud").bounding_box()
+    assert scene is not None and hud is not None
+    hud_share = hud["width"] * hud["height"] / (scene["width"] * scene["height"])
+    assert hud_share < 0.12, f"the HUD covers {100 * hud_share:.0f}% of the 3D view"
+    if height <= 800:  # a laptop screen: the fine-tuning card was below the fold
+        tuning = page.locator("#card-finetune").bounding_box()
+        assert tuning is not None and tuning["y"] + tuning["height"] <= height, tuning
     small = page.evaluate(
         """() => [...document.querySelectorAll('body *')].filter((e) => e.offsetParent &&
              [...e.childNodes].some((n) => n.nodeType === 3 && n.textContent.trim()) &&
@@ -532,4 +585,13 @@ def test_chart_y_scale_ignores_an_outlier_and_marks_it(browser: Any, calm_server
     scale = page.evaluate(script)
     assert scale["hi"] < 1.5 and scale["lo"] > 0.0, scale
     assert scale["clipped"] == 1
+    page.context.close()
+
+
+def test_a_fear_chart_near_zero_says_why_it_is_flat(browser: Any, calm_server: LiveServer) -> None:
+    """SUMO's fear lies near zero for its first half-minute (no car near): the chart says so rather than look dead."""
+    page = open_page(browser, calm_server)
+    note = "(v) => sage.charts.fear.options.note({values: {fear: Array(30).fill(v), threshold: Array(30).fill(0.3)}})"
+    assert "nothing close enough" in page.evaluate(note, 0.002)
+    assert page.evaluate(note, 0.2) is None  # fear that moves is left to speak for itself
     page.context.close()

@@ -29,6 +29,7 @@ def hostile(rng: random.Random, n: int) -> list[str]:
         lambda: "".join(chr(rng.randint(0, 0x2FFF)) for _ in range(rng.randint(0, 200))),
         lambda: '{"type": "input", "a": ' + '{"b": ' * 30 + "1" + "}" * 30 + "}",
         lambda: json.dumps({"type": "replay_seek", "token": TOKEN, "t": 10**40}),
+        lambda: json.dumps({"type": "replay_open", "session": "s", "episode": rng.choice([2**63, 2**31, -1])}),
         lambda: '"' + "x" * 20_000 + '"',
         lambda: '{"type": "control", "token": "' + TOKEN + '", "op": "pause"' + ', "op": "step"' * 3 + "}",
     ]
@@ -44,7 +45,7 @@ def test_every_hostile_message_is_a_validation_error() -> None:
         except MessageError:
             refused += 1
     # only the duplicated-key control message (JSON keeps the last value) is a real, valid message
-    assert refused >= 1000 * (1 - 1 / 15) - 40
+    assert refused >= 1000 * (1 - 1 / 16) - 40
 
 
 def test_the_server_answers_hostile_messages_with_errors_and_keeps_stepping(live_server: LiveServer) -> None:
@@ -66,3 +67,24 @@ def test_the_server_answers_hostile_messages_with_errors_and_keeps_stepping(live
         assert internal == 0
         assert replies >= len(messages) - 10
         until(conn, lambda m: m["type"] == "step")  # the loop still streams
+
+
+def test_integers_beyond_what_the_server_can_use_are_validation_errors(live_server: LiveServer) -> None:
+    """A replay of episode 2**63 of the live session (any page may send it, no token) once reached SQLite and came
+    back as "internal error: OverflowError"; every integer field is bounded in the schema instead."""
+    with ws(live_server) as conn:
+        welcome = until(conn, lambda m: m["type"] == "welcome")
+        session = welcome["state"]["session"]
+        assert session
+        token = claim(conn)
+        hostile_integers = [
+            {"type": "replay_open", "session": session, "episode": 2**63},
+            {"type": "replay_open", "session": session, "episode": 2**64 + 5},
+            {"type": "replay_seek", "t": 2**63},
+            {"type": "input", "token": token, "seq": 2**63, "ts": 1.0, "held": False},
+            {"type": "version", "token": token, "op": "pin", "version": 2**63},
+        ]
+        for message in hostile_integers:
+            conn.send(json.dumps(message))
+            reply = until(conn, lambda m: m["type"] == "error")
+            assert "internal" not in reply["error"] and "less than or equal" in reply["error"], (message, reply)

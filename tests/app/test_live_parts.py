@@ -32,14 +32,15 @@ def test_every_message_class_has_a_handler_and_every_command_a_loop_handler() ->
         registry.dispatch(None, c.Resume())
 
 
-def make_loop(sent: list[dict[str, Any]], gate: Gate | None = None) -> LiveLoop:
-    """A paused live loop on the toy simulator: a constant policy, ``gate`` (none: never fires), scripted expert."""
+def make_loop(sent: list[dict[str, Any]], gate: Gate | None = None, expert_mode: str = "scripted") -> LiveLoop:
+    """A paused live loop on the toy simulator: a constant policy, ``gate`` (none: never fires), scripted expert
+    (or ``expert_mode``)."""
 
     def loader(choice: str, env: Any) -> LoadedPolicy:
         return LoadedPolicy(Constant(0.5), gate if gate is not None else NoGate(), "constant", {})
 
     return LiveLoop(
-        LiveConfig(sim="toy", policy="constant", expert_mode="scripted"),
+        LiveConfig(sim="toy", policy="constant", expert_mode=expert_mode),  # type: ignore[arg-type]
         env_factory=toy_env_factory,
         policy_loader=loader,
         console=OperatorConsole(),
@@ -96,6 +97,28 @@ def test_each_step_says_why_the_scripted_expert_drove_and_the_counters_add_it_up
         for cause in ("fear", "hold", "hysteresis", "manoeuvre"):
             assert shares[cause] == pytest.approx(causes.count(cause) / len(steps))
         assert sum(shares.values()) == pytest.approx(sum(s["takeover"] for s in steps) / len(steps))
+    finally:
+        loop.stop()
+
+
+def test_the_fallback_steps_count_as_the_scripted_expert_driving() -> None:
+    """In person mode with nobody holding, the scripted fallback answers the gate: the page once said "scripted
+    expert drove: -" while the fallback had driven 117 steps."""
+    from tests.app.fakesim import WaveGate
+
+    sent: list[dict[str, Any]] = []
+    loop = make_loop(sent, WaveGate(period=10, fire_from=3, fire_to=6), expert_mode="person")
+    loop.start()
+    try:
+        for _ in range(25):
+            loop.submit(c.StepOnce()).result(10)
+        steps = [s for s in sent if s["type"] == "step"]
+        fallback = [s for s in steps if s["actor"] == "fallback"]
+        assert fallback and all(s["takeover_cause"] in ("fear", "hold") for s in fallback)
+        counters = loop.state()["counters"]
+        assert counters["fallback_steps"] == len(fallback)
+        shares = counters["expert_share_by_cause"]
+        assert sum(shares.values()) == pytest.approx(len(fallback) / len(steps))
     finally:
         loop.stop()
 

@@ -246,3 +246,52 @@ def test_input_mapping_table_and_fallback_by_action_space() -> None:
     assert [int(to_action(InputMapping(0, None), discrete, t, 0.0)) for t in (-1.0, 0.0, 1.0)] == [0, 1, 2]
     with pytest.raises(TypeError, match="MultiBinary"):
         to_action(InputMapping(0, 1), gym.spaces.MultiBinary(2), 0.0, 0.0)
+
+
+class FullRight:
+    """A policy whose every action is far from the person's: full speed, steering hard right."""
+
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        return np.array([1.0, 1.0], np.float32)
+
+
+def test_handover_person_to_policy_and_back_moves_at_most_a_quarter_of_the_range_per_step() -> None:
+    """The hand-back to the policy once jumped 0.32 of the steering range in one step (the page showed "max
+    handover jump 32%"): the person's actions were ramped, the policy's first ones were not. Driven through the
+    live loop: policy, person (hard left, stopped), policy again, person again."""
+    from app.live import LiveConfig, LiveLoop
+    from app.policies import LoadedPolicy
+    from core.loop import NoGate
+    from tests.app.test_live_finetune import toy_env_factory
+
+    clock = Clock()
+    console = OperatorConsole(clock=clock, timeout=0.2)
+    records = []
+    loop = LiveLoop(
+        LiveConfig(sim="toy", policy="right", expert_mode="person"),
+        env_factory=toy_env_factory,
+        policy_loader=lambda choice, env: LoadedPolicy(FullRight(), NoGate(), "right", {}),
+        console=console,
+        publish=lambda text: None,
+        start_paused=True,
+    )
+    loop.world.runner.step_listeners.append(records.append)
+    console.connect()
+    seq = 0
+    for held, steps in ((False, 4), (True, 10), (False, 10), (True, 10)):
+        for _ in range(steps):
+            seq += 1
+            send(console, 1000.0 + seq, held=held, throttle=-1.0, steer=-1.0, seq=seq)
+            loop._step_once()
+    actors = [r.actor for r in records]
+    assert "person" in actors and actors[-1] == "person"
+    assert actors[:4] == ["agent"] * 4 and "agent" in actors[14:24]
+    actions = np.array([np.asarray(r.action, np.float64) for r in records])
+    assert records[0].episode == records[-1].episode  # one episode: every change below is a step of one drive
+    span = BOX2.high - BOX2.low
+    changes = np.abs(np.diff(actions, axis=0)) / span
+    assert changes.max() <= 0.25 + 1e-6, (changes.max(axis=1), actors)
+    assert np.allclose(actions[23], [1.0, 1.0])  # the policy drives its own action again once the ramp is over
+    assert all(np.allclose(r.a_rl, [1.0, 1.0]) for r in records)  # its proposal is recorded unramped
+    stats = loop.world.expert.handover_stats()
+    assert stats["handovers"] >= 3 and stats["handover_jump_max"] <= 0.25 + 1e-6

@@ -138,3 +138,21 @@ def test_the_follow_view_keeps_the_ego_centred_and_close_and_the_overview_is_one
     )
     with pytest.raises(ValueError, match="follow or overview"):
         drawer.set_view("sideways")
+
+
+def test_a_road_narrower_than_the_follow_window_is_framed_by_its_width_and_closer(server) -> None:
+    """The pedestrian crossing (a 12 m road, 93 m long) was framed as a 63 m square: the camera stood three times
+    as far as the road needs and the pedestrian was a 4-pixel dot."""
+    import math
+
+    drawer = SceneDrawer(server)
+    scene = scene_with_movers(1)
+    scene["ego"] = {**scene["ego"], "x": 20.0, "y": 2.0, "length": 4.5}
+    wide = {**scene, "bounds": [-5.0, -40.0, 88.0, 40.0], "static_key": "wide"}
+    drawer.draw(wide)
+    far = math.dist(server.initial_camera.position, (0, 0, 0))
+    road = {**scene, "bounds": [-5.0, -3.6, 88.0, 8.0], "static_key": "road"}
+    drawer.draw(road)
+    x0, y0, x1, y1 = drawer.follow_window(road["ego"])
+    assert y1 - y0 == pytest.approx(11.6) and x1 - x0 == pytest.approx(9 * 4.5)
+    assert math.dist(server.initial_camera.position, (0, 0, 0)) < far / 2.5
