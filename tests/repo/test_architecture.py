@@ -9,7 +9,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LAYERS = ("core", "sims", "studies", "app")
 RANK = {name: i for i, name in enumerate(LAYERS)}
 

@@ -10,7 +10,7 @@ import pytest
 
 from studies.readme import SUMMARY_KEY, included, section, summary_table
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 RESULTS_DOC = ROOT / "docs" / "results.md"
 CALIBRATION_DOC = ROOT / "docs" / "calibration.md"
