@@ -12,5 +12,6 @@ def test_no_test_module_lies_at_the_root_of_tests() -> None:
 
 
 def test_no_test_edits_sys_path() -> None:
-    offenders = [str(p.relative_to(TESTS)) for p in TESTS.rglob("*.py") if "sys.path.insert" in p.read_text()]
+    needle = "sys.path." + "insert"  # spelt apart so that this file does not match itself
+    offenders = [str(p.relative_to(TESTS)) for p in TESTS.rglob("*.py") if needle in p.read_text()]
     assert offenders == []
