@@ -74,6 +74,8 @@ def fast(**overrides: Any) -> FinetuneConfig:
         "min_takeover_samples": 4,
         "wm_min_steps": 40,
         "report_every": 10,
+        "updates_per_step": None,  # a fixed number of updates: the tests count them
+        "holdout_share": 0.0,
     }
     values.update(overrides)
     return FinetuneConfig(**values)
