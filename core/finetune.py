@@ -168,6 +168,36 @@ class FinetuneConfig:
         if not self.tau_drift > 0:
             raise ValueError(f"tau_drift must be > 0, got {self.tau_drift}")
 
+    @classmethod
+    def legacy(cls, **overrides: Any) -> FinetuneConfig:
+        """The rounds as they were before these fields (issue 62), for comparisons: the checkpoint's own method,
+        400 updates a round whatever the data, the session's data only, no held-out takeovers, τ bounds refitted
+        every round. The optimiser states were carried then too."""
+        values: dict[str, Any] = {
+            "adapt_as_sage": False,
+            "updates_per_step": None,
+            "updates": 400,
+            "prior_episodes": 0,
+            "holdout_share": 0.0,
+            "tau_bounds": "refit",
+        }
+        return cls(**{**values, **overrides})
+
+    def with_settings(self, pairs: Iterable[str]) -> FinetuneConfig:
+        """A copy with ``key=value`` settings of these fields (``updates_per_step=2``; ``none`` for None), checked as
+        the constructor checks them; an unknown field or an unreadable value is a ValueError naming it."""
+        from core.sage.config import set_field
+
+        edited = dataclasses.replace(self)
+        for pair in pairs:
+            if "=" not in pair:
+                raise ValueError(f"fine-tuning setting {pair!r} is not of the form key=value")
+            key, value = (part.strip() for part in pair.split("=", 1))
+            if key == "overrides":
+                raise ValueError("learner overrides are --set learner settings, not finetune.overrides")
+            set_field(edited, key, value)
+        return dataclasses.replace(edited)  # runs __post_init__'s checks on the edited values
+
     def round_updates(self, new_steps: int) -> int:
         """The updates a round runs after ingesting ``new_steps`` environment steps."""
         if self.updates_per_step is None:

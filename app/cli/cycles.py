@@ -1,10 +1,12 @@
 """``sage cycles``: deploy → takeover → fine-tune cycles, headless, and the paper's continual-adaptation figures.
 
     sage cycles --sim ugv --scenario 3 --cycles 9 --episodes-per-cycle 3 --policy policies/ugv-default --out DIR
+    sage cycles ... --steps-per-cycle 1500 --set finetune.updates_per_step=2 --legacy-rounds
 
 Each cycle deploys the current policy version with its SAGE gate and the scripted expert, records the session, then
 fine-tunes on it with the same function the live server's worker runs (:mod:`core.finetune`) and deploys the new
-version in the next cycle (:mod:`studies.cycles`). Writes the per-cycle table (``table.md``), ``cycles.json``,
+version in the next cycle (:mod:`studies.cycles`); every cycle also drives the version alone on the scenario and on
+an unseen one of the same kind. Writes the per-cycle table (``table.md``), ``cycles.json``,
 and the figures (:mod:`studies.cycles_figures`): ``trajectories.png`` (paths over the cycles, coloured by cycle),
 ``signals_cycle<K>.png`` (fear, threshold and takeover intervals in cycle K, ``--show-cycle K``, repeatable) and
 ``cycles_summary.png``.
@@ -32,6 +34,17 @@ def register(app: typer.Typer) -> None:
         scenario: Annotated[str, typer.Option(help="Scenario of every cycle (UGV 3: a crossing vehicle).")] = "3",
         cycles: Annotated[int, typer.Option(min=1, help="Deployment cycles (fine-tuning rounds between them).")] = 9,
         episodes_per_cycle: Annotated[int, typer.Option(min=1, help="Episodes deployed per cycle.")] = 3,
+        steps_per_cycle: Annotated[
+            int | None,
+            typer.Option(min=1, help="Deploy exactly this many environment steps a cycle (not --episodes-per-cycle)."),
+        ] = None,
+        alone_episodes: Annotated[
+            int, typer.Option(min=0, help="Per cycle, episodes of the version alone (no gate, no expert) per scenario.")
+        ] = 10,
+        unseen_scenario: Annotated[
+            str | None,
+            typer.Option(help="Scenario of the same kind never deployed, driven alone (default: UGV 4 for 3)."),
+        ] = None,
         policy: Annotated[
             str | None, typer.Option(help="Run folder or checkpoint deployed first (default: policies/<sim>-default).")
         ] = None,
@@ -41,11 +54,21 @@ def register(app: typer.Typer) -> None:
             list[int] | None,
             typer.Option(help="Cycle whose fear / threshold / takeovers are drawn (repeatable; default: the first)."),
         ] = None,
-        updates: Annotated[int, typer.Option(min=0, help="Gradient updates per fine-tuning round.")] = 400,
+        updates: Annotated[
+            int | None, typer.Option(min=0, help="Most gradient updates a round (default: finetune.updates).")
+        ] = None,
         set_: Annotated[
             list[str] | None,
-            typer.Option("--set", help="Learner config override for fine-tuning, key=value (repeatable)."),
+            typer.Option(
+                "--set",
+                help="Override, key=value (repeatable): finetune.KEY a round's setting (core.finetune.FinetuneConfig, "
+                "e.g. finetune.updates_per_step=2), any other key the learner's config.",
+            ),
         ] = None,
+        legacy_rounds: Annotated[
+            bool,
+            typer.Option(help="Fine-tune as before issue 62 (the base's own method, 400 updates, session data only)."),
+        ] = False,
         stochastic: Annotated[bool, typer.Option(help="Deploy the sampled policy instead of its mean action.")] = False,
         max_episode_steps: Annotated[int | None, typer.Option(min=1, help="Cut episodes at this many steps.")] = None,
         figures: Annotated[Path | None, typer.Option(help="Folder for the figures (default: the run folder).")] = None,
@@ -68,21 +91,29 @@ def register(app: typer.Typer) -> None:
         if not Path(policy_path).exists():
             _fail(f"no policy at {policy_path!r} (give --policy a run folder or a checkpoint)")
         folder = out or Path("runs") / f"cycles-{sim}-{scenario}-s{seed}"
+        pairs = list(set_ or ())
+        round_settings = [p.removeprefix("finetune.") for p in pairs if p.startswith("finetune.")]
+        learner_settings = tuple(p for p in pairs if not p.startswith("finetune."))
         try:
             make_env = env_factory(sim)
+            # each cycle is the unit of data the user chose (see CyclesConfig.finetune)
+            fixed = {"overrides": learner_settings, "seed": seed, "min_steps": 1, "min_takeover_samples": 0}
+            if updates is not None:
+                fixed["updates"] = updates
+            rounds = FinetuneConfig.legacy(**fixed) if legacy_rounds else FinetuneConfig(**fixed)
             config = CyclesConfig(
                 sim=sim,
                 scenario=scenario,
                 policy=policy_path,
                 cycles=cycles,
                 episodes_per_cycle=episodes_per_cycle,
+                steps_per_cycle=steps_per_cycle,
+                alone_episodes=alone_episodes,
+                unseen_scenario=unseen_scenario,
                 seed=seed,
                 deterministic=not stochastic,
                 max_episode_steps=max_episode_steps,
-                # each cycle is the unit of data the user chose (see CyclesConfig.finetune)
-                finetune=FinetuneConfig(
-                    updates=updates, overrides=tuple(set_ or ()), seed=seed, min_steps=1, min_takeover_samples=0
-                ),
+                finetune=rounds.with_settings(round_settings),
             )
             result = run_cycles(config, folder, make_env, progress=None if quiet else typer.echo)
         except (ValueError, FileNotFoundError, FileExistsError, FinetuneError) as exc:
