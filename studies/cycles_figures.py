@@ -241,6 +241,7 @@ def improvement(runs: dict[str, list[dict[str, Any]]]) -> Figure:
         raise ValueError("no runs to draw")
     fig = Figure(figsize=(10.0, 3.9), layout="constrained")
     alone_ax, takeover_ax = fig.subplots(1, 2)
+    most = max((len(d["cycles"]) for datas in runs.values() for d in datas), default=1)
     for i, (method, datas) in enumerate(sorted(runs.items(), key=lambda item: item[0] != "sage")):
         colour = METHOD_COLOURS[i % len(METHOD_COLOURS)]
         for key, ax, style, label in (
@@ -267,6 +268,7 @@ def improvement(runs: dict[str, list[dict[str, Any]]]) -> Figure:
     takeover_ax.set_title("under supervision", fontsize=10)
     for ax in (alone_ax, takeover_ax):
         ax.set_xlabel("cycle")
+        ax.set_xticks(range(1, most + 1))
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle("Does the policy get better over the deployment / fine-tuning cycles?", fontsize=11)
