@@ -642,6 +642,8 @@ class Finetuner:
         self.prior = prior
         self.prior_steps: int | None = None
         """Steps of the base policy's own drives in the buffer (None until collected)."""
+        self.prior_error: str | None = None
+        """Why the base policy's drives could not be collected (the rounds then learn from the session alone)."""
         self.done: list[int] = []
         self.rounds = 0
         self.session_meta = {"episodes_total": 0, "takeover_samples": 0}
@@ -699,7 +701,12 @@ class Finetuner:
         self.prior_steps = 0
         if self.prior is None or self.cfg.prior_episodes == 0 or self.cfg.prior_share == 0:
             return 0
-        steps = self.prior(self.versions.get(0).path, self.cfg.prior_episodes, self.cfg.seed + 5_000_000)
+        try:
+            steps = self.prior(self.versions.get(0).path, self.cfg.prior_episodes, self.cfg.seed + 5_000_000)
+        except Exception as exc:  # a scenario that no longer builds must not stop adaptation: the session's data
+            self.prior_error = f"{type(exc).__name__}: {exc}"
+            _log.warning("the base policy's own drives are missing from fine-tuning: %s", self.prior_error)
+            return 0
         self.buffer.adding_prior = True
         try:
             for record in steps:
@@ -864,6 +871,7 @@ class Finetuner:
             "episodes_total": self.session_meta["episodes_total"],
             "steps": self.session_steps(),
             "prior_steps": self.prior_steps or 0,
+            "prior_error": self.prior_error,
             "takeover_samples": self.session_meta["takeover_samples"],
             "heldout_takeover_samples": len(self.heldout_obs),
             "updates_planned": planned,

@@ -407,6 +407,12 @@ def test_the_base_policys_own_drives_are_sampled_in_equal_shares_with_the_sessio
     assert result.version.metrics["prior_steps"] == finetuner.buffer.prior_count() > 0
     assert result.version.metrics["steps"] == result.ingested.steps  # the session's steps, counted apart
 
+    def broken(path: Path, episodes: int, seed: int) -> list[Any]:
+        raise ValueError("no scenario 'gone.yaml'")
+
+    alone = Finetuner(versions, store, session, fast(), prior=broken).round().version  # adapts on the session alone
+    assert alone is not None and alone.metrics["prior_steps"] == 0 and "gone.yaml" in alone.metrics["prior_error"]
+
 
 def test_updates_scale_with_the_data_and_stop_early_on_held_out_takeovers(setup) -> None:
     assert FinetuneConfig(updates_per_step=0.5, updates=1000).round_updates(300) == 150
