@@ -65,6 +65,9 @@ def register(app: typer.Typer) -> None:
                 "e.g. finetune.updates_per_step=2), any other key the learner's config.",
             ),
         ] = None,
+        frozen: Annotated[
+            bool, typer.Option(help="The control: deploy the first version in every cycle, never fine-tuned.")
+        ] = False,
         legacy_rounds: Annotated[
             bool,
             typer.Option(help="Fine-tune as before issue 62 (the base's own method, 400 updates, session data only)."),
@@ -108,6 +111,7 @@ def register(app: typer.Typer) -> None:
                 cycles=cycles,
                 episodes_per_cycle=episodes_per_cycle,
                 steps_per_cycle=steps_per_cycle,
+                fine_tune=not frozen,
                 alone_episodes=alone_episodes,
                 unseen_scenario=unseen_scenario,
                 seed=seed,

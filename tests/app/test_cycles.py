@@ -167,6 +167,13 @@ def test_cycles_spend_a_step_budget_measure_the_policy_alone_and_keep_the_old_ro
     data = read_cycles(legacy)
     assert "NOT the paper's fear-regularised SAGE" in data["method"] and data["alone"] == []
     assert data["rounds"][0]["updates"] == 10
+    control = tmp_path / "frozen"
+    args = ["cycles", "--sim", "ugv", "--cycles", "2", "--episodes-per-cycle", "1", "--frozen", "--alone-episodes", "1"]
+    args += ["--policy", str(policy), "--out", str(control), "--max-episode-steps", "30", "--quiet"]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    data = read_cycles(control)
+    assert data["rounds"] == [] and [c["version"] for c in data["cycles"]] == [0, 0]
+    assert len(data["alone"]) == 4  # measured alone in every cycle, as the fine-tuned runs are
     bad = CliRunner().invoke(
         app, ["cycles", "--policy", str(policy), "--set", "finetune.nope=1", "--out", str(tmp_path / "n")]
     )
