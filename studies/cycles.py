@@ -38,8 +38,10 @@ from core.agents import LoadedAgent, load_agent
 from core.experts import ScriptedExpert
 from core.finetune import FinetuneConfig, Finetuner, VersionStore, drive_alone
 from core.loop import Gate, NoGate, Runner
+from core.promotion import PromotionConfig, evaluate_version
 from core.protocol import simulator
 from core.sessions import SessionStore
+from core.worker import judge
 
 RESULT_FILE = "cycles.json"
 
@@ -78,6 +80,11 @@ class CyclesConfig:
     fine_tune: bool = True
     """Fine-tune between cycles; False deploys the first version throughout (the control: the same situations,
     gate and expert, no learning)."""
+    promotion: PromotionConfig | None = None
+    """Judge every fine-tuned version as the live worker does before it may drive (:mod:`core.promotion`: beside
+    the version in control, on the cycle's scenario with gate and expert, on the promotion's own seeds): a
+    version not promoted is not deployed, and the next round continues from the version in control. None: every
+    published version is deployed in the next cycle."""
     finetune: FinetuneConfig = field(default_factory=lambda: FinetuneConfig(min_steps=1, min_takeover_samples=0))
     """Each cycle is the unit of data the study chose, so its round runs whatever its size (the live worker's
     minimum-data rule guards rounds that nobody asked for)."""
@@ -343,6 +350,13 @@ def run_cycles(
                 if result.version is None:
                     say(f"  fine-tuning published nothing: {result.reason}")
                     continue
+                if cfg.promotion is not None:
+                    evaluator = functools.partial(evaluate_version, make_env=functools.partial(make_env, cfg.scenario))
+                    verdict = judge(versions, result.version.number, evaluator, cfg.promotion)
+                    rounds[-1]["promotion"] = {"promoted": verdict["promoted"], "reason": verdict["reason"]}
+                    if not verdict["promoted"]:
+                        say(f"  {result.version.name} not promoted ({verdict['reason']}): v{version:04d} drives on")
+                        continue
                 agent = load_agent(result.version.path)
                 # the runner is between episodes: the new policy and its gate start with the next one
                 runner.set_policy_at_boundary(agent.policy, gate_for(agent))
@@ -398,9 +412,7 @@ def _cycle_line(row: dict[str, Any]) -> str:
 
 
 def _config_dict(cfg: CyclesConfig) -> dict[str, Any]:
-    data = dataclasses.asdict(cfg)
-    data["finetune"] = dataclasses.asdict(cfg.finetune)
-    return data
+    return dataclasses.asdict(cfg)
 
 
 def _json_default(value: Any) -> Any:

@@ -65,6 +65,10 @@ def register(app: typer.Typer) -> None:
                 "e.g. finetune.updates_per_step=2), any other key the learner's config.",
             ),
         ] = None,
+        promote: Annotated[
+            bool,
+            typer.Option(help="Judge each version as the live worker does; deploy only promoted ones (15 episodes)."),
+        ] = False,
         frozen: Annotated[
             bool, typer.Option(help="The control: deploy the first version in every cycle, never fine-tuned.")
         ] = False,
@@ -81,6 +85,7 @@ def register(app: typer.Typer) -> None:
         import torch
 
         from core.finetune import FinetuneConfig, FinetuneError
+        from core.promotion import PromotionConfig
         from studies.cycles import CyclesConfig, format_cycle_table, read_cycles, run_cycles
         from studies.cycles_figures import write_figures
         from studies.envs import env_factory
@@ -112,6 +117,9 @@ def register(app: typer.Typer) -> None:
                 episodes_per_cycle=episodes_per_cycle,
                 steps_per_cycle=steps_per_cycle,
                 fine_tune=not frozen,
+                promotion=(
+                    PromotionConfig(max_steps=max_episode_steps or PromotionConfig().max_steps) if promote else None
+                ),
                 alone_episodes=alone_episodes,
                 unseen_scenario=unseen_scenario,
                 seed=seed,

@@ -178,3 +178,32 @@ def test_cycles_spend_a_step_budget_measure_the_policy_alone_and_keep_the_old_ro
         app, ["cycles", "--policy", str(policy), "--set", "finetune.nope=1", "--out", str(tmp_path / "n")]
     )
     assert bad.exit_code == 2 and "nope" in bad.output
+
+
+def test_with_promotion_a_rejected_version_never_drives_and_the_next_round_continues_the_one_in_control(
+    policy: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import studies.cycles as cycles_module
+    from core.promotion import PromotionConfig, write_verdict
+
+    def reject_first(versions: VersionStore, number: int, evaluator: Any, promotion: Any) -> dict[str, Any]:
+        verdict = {"promoted": number != 1, "reason": "judged by the test"}
+        write_verdict(versions.get(number).path, verdict)
+        return verdict
+
+    monkeypatch.setattr(cycles_module, "judge", reject_first)
+    cfg = CyclesConfig(
+        sim="ugv",
+        scenario="3",
+        policy=str(policy),
+        cycles=3,
+        episodes_per_cycle=1,
+        max_episode_steps=30,
+        alone_episodes=0,
+        promotion=PromotionConfig(episodes=1, max_steps=30),
+        finetune=FinetuneConfig(updates=5, updates_per_step=None, min_steps=1, min_takeover_samples=0),
+    )
+    result = run_cycles(cfg, tmp_path / "promoted", env_factory("ugv"))
+    assert [c["version"] for c in result.cycles] == [0, 0, 2]  # v0001 was rejected: v0000 drove on
+    assert [r["promotion"]["promoted"] for r in result.rounds] == [False, True]
+    assert VersionStore(result.out / "versions").get(2).parent == 0  # not continued from the rejected v0001
