@@ -758,6 +758,7 @@ class Finetuner:
             return {}
         stats = {"wm_holdout_nll": fit.holdout_nll, "wm_holdout_mse": fit.holdout_mse}
         new = wm.tau_bounds.detach().clone()
+        stats["tau_min_refit"], stats["tau_max_refit"] = (float(v) for v in new)  # what the refit measured
         keep_held = bool(torch.isfinite(held).all()) and (
             self.cfg.tau_bounds == "hold"
             or (

@@ -350,6 +350,10 @@ def run_cycles(
                 if result.version is None:
                     say(f"  fine-tuning published nothing: {result.reason}")
                     continue
+                say(
+                    f"  fine-tuned {result.version.name}: {result.updates} updates ({result.skipped} skipped), "
+                    f"{result.ingested.takeovers} takeover samples, {result.seconds:.1f} s"
+                )
                 if cfg.promotion is not None:
                     evaluator = functools.partial(evaluate_version, make_env=functools.partial(make_env, cfg.scenario))
                     verdict = judge(versions, result.version.number, evaluator, cfg.promotion)
@@ -361,10 +365,6 @@ def run_cycles(
                 # the runner is between episodes: the new policy and its gate start with the next one
                 runner.set_policy_at_boundary(agent.policy, gate_for(agent))
                 version = result.version.number
-                say(
-                    f"  fine-tuned v{version:04d}: {result.updates} updates ({result.skipped} skipped), "
-                    f"{result.ingested.takeovers} takeover samples, {result.seconds:.1f} s"
-                )
         finally:
             writer.close()
     finally:
