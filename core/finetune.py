@@ -6,15 +6,23 @@ supervision → the deployed policy improves, cycle after cycle. Here one *round
 (:mod:`core.worker`, its own process) and ``sage cycles`` (in-process, between deployment cycles).
 
 A round
+  0. starts from the promoted line: when the version the last round published was rejected by the promotion check
+     (:mod:`core.promotion`) or rolled back, it continues from the newest version not rejected instead
+     (:func:`line_head`), keeping the data;
   1. reads the session's episodes that are over (finished, or followed by a later one) from the session store
      (:class:`core.sessions.SessionStore`; SQLite in WAL mode, so reading while the loop writes is safe) into
      the learner's real replay buffer: the agent's own transitions and the takeover segments, whose rows carry
-     the expert's action (Ξ = 1, the intervention samples the value-weighted imitation draws from);
+     the expert's action (Ξ = 1, the intervention samples the value-weighted imitation draws from). Beside them
+     lie the base policy's own drives (``prior``, collected once: what it learned on its training scenarios, so
+     that it is not forgotten), and every sampled batch takes ``prior_share`` of its rows from those
+     (:class:`SharedReplayBuffer`). The takeover rows of some episodes are held out of imitation to measure it;
   2. refits the world model on that buffer (so that fear and curiosity learn the new ground; the gate of the
-     next version is built on it);
-  3. runs ``updates`` gradient updates of the learner (for SAGE: fear-regularised SAC plus value-weighted
-     imitation of the takeovers, :mod:`core.sage.sac`), each one guarded: an update whose losses or weights
-     come out NaN or infinite is undone (:func:`guarded_update`), as if it had never run;
+     next version is built on it), the τ bounds held or refitted by ``tau_bounds``;
+  3. runs ``updates_per_step`` gradient updates per new step (at most ``updates``) of the learner: with
+     ``adapt_as_sage`` (the default) fear-regularised SAGE with value-weighted imitation of the takeovers whatever
+     the base was trained as (:func:`adaptation_config`), its optimiser states continued; each update guarded (an
+     update whose losses or weights come out NaN or infinite is undone, :func:`guarded_update`), the round stopped
+     early when the held-out takeovers' imitation error stops falling, and the weights of its lowest error kept;
   4. publishes a new version when the round stayed healthy (all weights finite, at most
      ``max_skipped_fraction`` of its updates undone). A failed round publishes nothing, so the last good
      version stays the latest.
@@ -40,7 +48,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -49,6 +57,7 @@ from core.agents import AgentMeta, load_checkpoint, meta_of, resolve_checkpoint,
 from core.learners import make_learner
 from core.promotion import is_promoted, read_verdict
 from core.protocol import StepRecord
+from core.replay import Batch, ReplayBuffer
 from core.sage.config import AgentConfig, apply_overrides, from_dict
 from core.sage.learner import BaseLearner
 from core.sessions import SessionStore
@@ -67,12 +76,54 @@ class FinetuneError(RuntimeError):
     """A fine-tuning set-up that cannot work (no such version, a policy of other dimensions, ...)."""
 
 
+TauBoundsRule = Literal["hold", "refit", "drift"]
+
+
 @dataclass
 class FinetuneConfig:
-    """One round of fine-tuning on recorded session data (the learner's own settings come from the checkpoint)."""
+    """One round of fine-tuning on recorded session data (the learner's hyperparameters come from the checkpoint;
+    with ``adapt_as_sage`` its method becomes SAGE's)."""
 
-    updates: int = 400
-    """Gradient updates per round (critic + actor with value-weighted imitation, for SAGE)."""
+    adapt_as_sage: bool = True
+    """Adapt as fear-regularised SAGE whatever the base was trained as: the checkpoint's configuration with SAGE's
+    switches on (fear regularisation, the c* penalty, virtual rollouts, value-weighted imitation; its
+    hyperparameters kept), so a policy trained as plain SAC adapts as SAGE-SAC and one trained as D3QN as SAGE-D3QN
+    (:data:`SAGE_COUNTERPART`). A method without a SAGE counterpart (TD3, HG-DAgger, diffusion) keeps its own and
+    the round says so. False: continue the checkpoint's own configuration (the behaviour before this field)."""
+    updates_per_step: float | None = 1.0
+    """Update-to-data ratio: gradient updates per environment step the round ingested (updates per step; RLPD and
+    HIL-SERL scale updates to the data this way), at most ``updates``. None: exactly ``updates`` a round."""
+    updates: int = 2000
+    """Gradient updates per round: the cap of ``updates_per_step`` (a round's wall time stays bounded), or the
+    round's fixed number when ``updates_per_step`` is None."""
+    prior_share: float = 0.5
+    """Share of every sampled batch (critic, actor, virtual-rollout starts) drawn from the base policy's own
+    drives (:func:`drive_alone`, when the fine-tuner is given a ``prior`` source), the rest from the session's data
+    (takeovers and the agent's own steps): RLPD / HIL-SERL's equal shares, so that what the base learned on its
+    own scenarios stays in every update instead of being forgotten. Ignored while either part is empty."""
+    prior_episodes: int = 8
+    """Episodes the base policy (``v0000``) drives alone, deterministic, over its training scenarios in turn, to
+    fill the prior part of the buffer (once per fine-tuner; 0: none)."""
+    holdout_share: float = 0.2
+    """Share of the session's episodes with takeovers whose takeover rows are held out of imitation (every
+    ``round(1 / share)``-th such episode, in recording order) to measure how imitation transfers to takeover
+    states it did not train on. 0: no held-out takeovers, no early stopping."""
+    early_stop_every: int = 50
+    """Updates between measurements of the held-out takeovers' imitation error, mean ||π(s) - a_E||² (the
+    squared distance in the learner's action encoding)."""
+    early_stop_patience: int = 4
+    """Measurements without a new lowest held-out error before the round stops; the weights of the lowest
+    measurement (the round's starting weights count as the first) are the ones published."""
+    tau_bounds: TauBoundsRule = "hold"
+    """What a world-model refit does to the gate's threshold bounds (τ_min, τ_max, measured on the fear of
+    familiar states): ``hold`` keeps the base's within the run of rounds, so that a change in takeover rate is the
+    policy's, not the gate's; ``refit`` takes the refit's every round (the behaviour before this field); ``drift``
+    takes the refit's only when its τ_max differs from the held one by more than ``tau_drift`` (relative)."""
+    tau_drift: float = 0.5
+    """With ``tau_bounds="drift"``: the relative change of τ_max (|new - held| / held) that adopts new bounds."""
+    carry_optimizer: bool = True
+    """Continue the checkpoint's optimiser states (Adam's moments and step count) where it holds them, rather than
+    a fresh Adam whose first steps are the largest. False: fresh optimisers."""
     min_new_episodes: int = 1
     """Episodes that must have ended since the last round before the next one starts."""
     min_steps: int = 200
@@ -81,7 +132,8 @@ class FinetuneConfig:
     min_takeover_samples: int = 50
     """Takeover (expert-labelled) steps needed before the first round: they are what imitation learns from."""
     refit_world_model: bool = True
-    """Refit the world model on the session's data at every round (fear and curiosity learn the new ground)."""
+    """Refit the world model on the buffer (the base's drives and the session's) at every round, so that fear and
+    curiosity learn the new ground (the τ bounds then follow ``tau_bounds``)."""
     wm_min_steps: int = 100
     """Steps in the buffer before the world model is refitted (a fit on fewer overfits the hold-out split)."""
     max_skipped_fraction: float = 0.25
@@ -89,7 +141,8 @@ class FinetuneConfig:
     report_every: int = 20
     """Updates between progress events."""
     overrides: tuple[str, ...] = ()
-    """``key=value`` edits of the checkpoint's :class:`~core.sage.config.AgentConfig` (``bc_weight=2``)."""
+    """``key=value`` edits of the round's :class:`~core.sage.config.AgentConfig` (``bc_weight=2``), applied after
+    the SAGE switches."""
     seed: int = 0
     """Seeds the learner's sampling (torch and numpy)."""
 
@@ -100,6 +153,56 @@ class FinetuneConfig:
             raise ValueError(f"min_takeover_samples must be >= 0, got {self.min_takeover_samples}")
         if not 0.0 <= self.max_skipped_fraction <= 1.0:
             raise ValueError(f"max_skipped_fraction must be in [0, 1], got {self.max_skipped_fraction}")
+        if self.updates_per_step is not None and not (
+            math.isfinite(self.updates_per_step) and self.updates_per_step > 0
+        ):
+            raise ValueError(f"updates_per_step must be a number > 0 or None, got {self.updates_per_step}")
+        if not 0.0 <= self.prior_share < 1.0:
+            raise ValueError(f"prior_share must be in [0, 1), got {self.prior_share}")
+        if not 0.0 <= self.holdout_share <= 0.5:
+            raise ValueError(f"holdout_share must be in [0, 0.5], got {self.holdout_share}")
+        if self.prior_episodes < 0 or self.early_stop_every < 1 or self.early_stop_patience < 1:
+            raise ValueError("prior_episodes >= 0, early_stop_every >= 1 and early_stop_patience >= 1 are needed")
+        if self.tau_bounds not in ("hold", "refit", "drift"):
+            raise ValueError(f"tau_bounds must be hold, refit or drift, got {self.tau_bounds!r}")
+        if not self.tau_drift > 0:
+            raise ValueError(f"tau_drift must be > 0, got {self.tau_drift}")
+
+    @classmethod
+    def legacy(cls, **overrides: Any) -> FinetuneConfig:
+        """The rounds as they were before these fields (issue 62), for comparisons: the checkpoint's own method,
+        400 updates a round whatever the data, the session's data only, no held-out takeovers, τ bounds refitted
+        every round. The optimiser states were carried then too."""
+        values: dict[str, Any] = {
+            "adapt_as_sage": False,
+            "updates_per_step": None,
+            "updates": 400,
+            "prior_episodes": 0,
+            "holdout_share": 0.0,
+            "tau_bounds": "refit",
+        }
+        return cls(**{**values, **overrides})
+
+    def with_settings(self, pairs: Iterable[str]) -> FinetuneConfig:
+        """A copy with ``key=value`` settings of these fields (``updates_per_step=2``; ``none`` for None), checked as
+        the constructor checks them; an unknown field or an unreadable value is a ValueError naming it."""
+        from core.sage.config import set_field
+
+        edited = dataclasses.replace(self)
+        for pair in pairs:
+            if "=" not in pair:
+                raise ValueError(f"fine-tuning setting {pair!r} is not of the form key=value")
+            key, value = (part.strip() for part in pair.split("=", 1))
+            if key == "overrides":
+                raise ValueError("learner overrides are --set learner settings, not finetune.overrides")
+            set_field(edited, key, value)
+        return dataclasses.replace(edited)  # runs __post_init__'s checks on the edited values
+
+    def round_updates(self, new_steps: int) -> int:
+        """The updates a round runs after ingesting ``new_steps`` environment steps."""
+        if self.updates_per_step is None:
+            return self.updates
+        return min(self.updates, math.ceil(self.updates_per_step * new_steps))
 
 
 # -- versions --------------------------------------------------------------------------------------------------
@@ -242,6 +345,96 @@ class VersionStore:
         return Version(number, final, metrics)
 
 
+def rejected(version: Version) -> bool:
+    """Whether ``version`` was judged unfit to drive: its evaluation did not promote it, or it was rolled back
+    live (:mod:`core.promotion`). A version never judged (a ``sage cycles`` run evaluates none) is not rejected."""
+    if version.number == 0:
+        return False
+    verdict = read_verdict(version.path)
+    return bool(verdict) and (not verdict.get("promoted") or bool(verdict.get("rolled_back")))
+
+
+def line_head(versions: VersionStore) -> Version | None:
+    """The version a round continues: the newest one not rejected (the version in control, or a newer one not
+    judged yet), so that a rejected version is never the start of another."""
+    for version in reversed(versions.versions()):
+        if not rejected(version):
+            return version
+    return None
+
+
+# -- the base policy's own drives ---------------------------------------------------------------------------------
+PriorSource = Callable[[Path, int, int], list[StepRecord]]
+"""``prior(version_folder, episodes, seed) -> steps``: the version driving alone (no gate, no expert) over its
+training scenarios (picklable for the worker: a partial of :func:`drive_alone`)."""
+
+
+def drive_alone(
+    path: Path,
+    episodes: int,
+    seed: int,
+    *,
+    make_env: Callable[[str], Any],
+    scenarios: Iterable[str] | None = None,
+    max_steps: int | None = None,
+) -> list[StepRecord]:
+    """``episodes`` episodes of the policy at ``path`` alone (deterministic, no gate, no expert) over ``scenarios``
+    in turn (default: the ones it was trained on, from its checkpoint), episode ``i`` on seed ``seed + i``."""
+    from core.agents import load_agent
+    from core.experts import ScriptedExpert
+    from core.loop import NoGate, Runner
+
+    agent = load_agent(path)
+    names = list(scenarios) if scenarios is not None else [str(s) for s in agent.meta.scenarios]
+    if not names:
+        raise FinetuneError(f"{path} names no training scenario to drive the base policy on")
+    steps: list[StepRecord] = []
+    for i in range(episodes):
+        env = make_env(names[i % len(names)])
+        try:
+            runner = Runner(env, agent.policy, NoGate(), ScriptedExpert(), seed=seed + i, deterministic=True)
+            runner.step_listeners.append(steps.append)
+            runner.run_episode(max_steps=max_steps)
+        finally:
+            env.close()
+    return steps
+
+
+class SharedReplayBuffer(ReplayBuffer):
+    """The round's real buffer: the base policy's own drives (prior rows) beside the session's rows, every sample
+    drawn in fixed shares from the two (``prior_share`` from the prior rows), as RLPD and HIL-SERL sample offline
+    or intervention data beside online data. Everything else (world-model fits, takeover samples) sees all rows."""
+
+    def __init__(self, obs_dim: int, act_dim: int, capacity: int, prior_share: float) -> None:
+        super().__init__(obs_dim, act_dim, capacity)
+        self.prior = np.zeros(capacity, bool)
+        self.prior_share = prior_share
+        self.adding_prior = False
+        """Rows added while this is True are prior rows."""
+
+    def add(self, *args: Any, **kwargs: Any) -> None:
+        row = self.pos
+        super().add(*args, **kwargs)
+        self.prior[row] = self.adding_prior
+
+    def prior_count(self) -> int:
+        return int(self.prior[: self.size].sum())
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
+        prior = np.flatnonzero(self.prior[: self.size])
+        own = np.flatnonzero(~self.prior[: self.size])
+        n_prior = round(self.prior_share * batch_size)
+        if len(prior) == 0 or len(own) == 0 or n_prior == 0:
+            return super().sample(batch_size, rng)
+        idx = np.concatenate(
+            [
+                prior[rng.integers(0, len(prior), size=n_prior)],
+                own[rng.integers(0, len(own), size=batch_size - n_prior)],
+            ]
+        )
+        return self._batch(idx)
+
+
 # -- guarded updates ---------------------------------------------------------------------------------------------
 def weights_finite(learner: BaseLearner) -> bool:
     """Whether every trained value the learner declares (and its world model) is finite."""
@@ -368,24 +561,46 @@ def missing_sage_parts(cfg: AgentConfig) -> list[str]:
     return [words for name, words in SAGE_PARTS.items() if not getattr(cfg, name)]
 
 
-def describe_method(cfg: AgentConfig) -> str:
-    """What a fine-tuning round on ``cfg`` runs, in words, naming every SAGE part it leaves out.
+#: The SAGE method each base method adapts as (``FinetuneConfig.adapt_as_sage``): the same learner class, SAGE's
+#: switches. Methods not here (TD3, HG-DAgger, diffusion policies) have no SAGE counterpart and keep their own.
+SAGE_COUNTERPART: dict[str, str] = {
+    "sage": "sage",
+    "sac": "sage",
+    "fni-rl": "sage",
+    "multi-hug": "sage",
+    "sage-d3qn": "sage-d3qn",
+    "d3qn": "sage-d3qn",
+}
 
-    Fine-tuning continues the checkpoint's own configuration, so a policy trained as plain SAC is fine-tuned
-    as plain SAC; this line says so (the worker shows it and every published version records it) instead of
-    letting it pass silently as SAGE.
-    """
+
+def adaptation_config(cfg: AgentConfig) -> AgentConfig:
+    """``cfg`` with the switches of its SAGE counterpart (:data:`SAGE_COUNTERPART`), every hyperparameter kept;
+    ``cfg`` itself (a copy) where the method has none."""
+    from core.learners import preset
+
+    target = SAGE_COUNTERPART.get(cfg.method)
+    if target is None:
+        return from_dict(dataclasses.asdict(cfg))
+    return preset(target, base=cfg)
+
+
+def describe_method(cfg: AgentConfig, base_method: str | None = None) -> str:
+    """What a fine-tuning round on ``cfg`` runs, in words, naming every SAGE part it leaves out (and the method the
+    base was trained as, where it differs), so that a round that is not SAGE never passes silently as SAGE."""
     missing = missing_sage_parts(cfg)
+    trained = f" on a base trained as {base_method}" if base_method and base_method != cfg.method else ""
     if not missing:
-        return f"{cfg.method}: fear-regularised SAGE (the paper's fine-tuning)"
-    return f"{cfg.method}: NOT the paper's fear-regularised SAGE, without {', '.join(missing)}"
+        return f"{cfg.method}: fear-regularised SAGE (the paper's fine-tuning){trained}"
+    return f"{cfg.method}: NOT the paper's fear-regularised SAGE, without {', '.join(missing)}{trained}"
 
 
 class Finetuner:
     """Fine-tunes one base version on one session's data. See the module docstring for what a round does.
 
-    ``base``: the version to continue from (default: the latest). After a rollback the worker is rebuilt on the
-    version rolled back to, and new versions continue that line (their ``parent`` says which).
+    ``base``: the version to continue from (default: :func:`line_head`, the newest version not rejected). Before
+    every round the line is checked: when the version the last round published was rejected by the promotion check
+    (or rolled back), the round starts again from the line's head, the version in control, keeping the data.
+    ``prior``: where the base policy's own drives come from (:data:`PriorSource`); None: the session's data only.
     """
 
     def __init__(
@@ -395,23 +610,25 @@ class Finetuner:
         session_id: str,
         cfg: FinetuneConfig | None = None,
         base: int | None = None,
+        prior: PriorSource | None = None,
     ) -> None:
         self.versions, self.store, self.session_id = versions, store, session_id
         self.cfg = cfg or FinetuneConfig()
         versions.clean()
-        start = versions.latest() if base is None else versions.get(base)
+        start = line_head(versions) if base is None else versions.get(base)
         if start is None:
             raise FinetuneError(f"{versions.root} holds no version to fine-tune (call ensure_initial first)")
         self.base = start
         payload = load_checkpoint(start.path)
         self.meta = meta_of(payload)
-        agent_cfg: AgentConfig = from_dict(payload["agent_config"])
+        trained: AgentConfig = from_dict(payload["agent_config"])
+        agent_cfg = adaptation_config(trained) if self.cfg.adapt_as_sage else trained
         try:
             apply_overrides(agent_cfg, list(self.cfg.overrides))
         except ValueError as exc:
             raise FinetuneError(f"fine-tuning overrides: {exc}") from None
-        self.method = describe_method(agent_cfg)
-        """What the rounds run (the checkpoint's configuration with the overrides), in words."""
+        self.method = describe_method(agent_cfg, trained.method)
+        """What the rounds run (the checkpoint's configuration, SAGE's switches, the overrides), in words."""
         if missing_sage_parts(agent_cfg):
             _log.warning("fine-tuning %s runs %s", start.path, self.method)
         torch.manual_seed(self.cfg.seed)
@@ -420,13 +637,40 @@ class Finetuner:
         self.learner = make_learner(
             agent_cfg.method, agent_cfg, self.meta.obs_dim, self.meta.act_dim, low, high, self.cfg.seed
         )
-        try:
-            self.learner.load_state_dict(payload["state"], strict=False)
-        except RuntimeError as exc:
-            raise FinetuneError(f"{start.path}: weights do not match their config: {exc}") from None
+        old = self.learner.buffer
+        self.buffer = SharedReplayBuffer(old.obs_dim, old.act_dim, old.capacity, self.cfg.prior_share)
+        self.learner.buffer = self.buffer
+        self._load(payload, start)
+        self.prior = prior
+        self.prior_steps: int | None = None
+        """Steps of the base policy's own drives in the buffer (None until collected)."""
+        self.prior_error: str | None = None
+        """Why the base policy's drives could not be collected (the rounds then learn from the session alone)."""
         self.done: list[int] = []
         self.rounds = 0
         self.session_meta = {"episodes_total": 0, "takeover_samples": 0}
+        self._takeover_episodes = 0
+        self.heldout_obs = np.zeros((0, self.meta.obs_dim), np.float32)
+        self.heldout_expert = np.zeros((0, old.act_dim), np.float32)
+        """Takeover rows held out of imitation (observations, the expert's encoded actions)."""
+
+    def _load(self, payload: dict[str, Any], version: Version) -> None:
+        state = payload["state"]
+        if not self.cfg.carry_optimizer:
+            state = {k: v for k, v in state.items() if k != "optimizers"}
+        try:
+            self.learner.load_state_dict(state, strict=False)
+        except RuntimeError as exc:
+            raise FinetuneError(f"{version.path}: weights do not match their config: {exc}") from None
+
+    def rebase(self, number: int) -> None:
+        """Continue from version ``number`` (its weights, optimisers, λ, world model and τ bounds), keeping the data
+        recorded so far: the next round starts from it."""
+        version = self.versions.get(number)
+        payload = load_checkpoint(version.path)
+        self._load(payload, version)
+        self.meta = meta_of(payload)
+        self.base = version
 
     # -- data ------------------------------------------------------------------------------------------------
     def pending_episodes(self) -> list[int]:
@@ -436,18 +680,100 @@ class Finetuner:
         except LookupError:
             return []
 
+    def session_steps(self) -> int:
+        return len(self.buffer) - self.buffer.prior_count()
+
     def ready(self) -> bool:
         """Whether a round has enough new data to run."""
         pending = self.pending_episodes()
         if len(pending) < self.cfg.min_new_episodes:
             return False
-        buffer = self.learner.buffer
-        if len(buffer) >= self.cfg.min_steps and buffer.takeover_count() >= self.cfg.min_takeover_samples:
+        buffer = self.buffer
+        if self.session_steps() >= self.cfg.min_steps and buffer.takeover_count() >= self.cfg.min_takeover_samples:
             return True
         rows = [r for r in self.store.episodes(self.session_id) if r["episode"] in set(pending)]
-        steps = len(buffer) + sum(r["steps"] for r in rows)
+        steps = self.session_steps() + sum(r["steps"] for r in rows)
         takeovers = buffer.takeover_count() + sum(r["takeovers"] for r in rows)
         return steps >= self.cfg.min_steps and takeovers >= self.cfg.min_takeover_samples
+
+    def collect_prior(self) -> int:
+        """Fill the prior part of the buffer with the base policy's own drives (once); returns its steps."""
+        if self.prior_steps is not None:
+            return self.prior_steps
+        self.prior_steps = 0
+        if self.prior is None or self.cfg.prior_episodes == 0 or self.cfg.prior_share == 0:
+            return 0
+        try:
+            steps = self.prior(self.versions.get(0).path, self.cfg.prior_episodes, self.cfg.seed + 5_000_000)
+        except Exception as exc:  # a scenario that no longer builds must not stop adaptation: the session's data
+            self.prior_error = f"{type(exc).__name__}: {exc}"
+            _log.warning("the base policy's own drives are missing from fine-tuning: %s", self.prior_error)
+            return 0
+        self.buffer.adding_prior = True
+        try:
+            for record in steps:
+                # a step of the base alone: no takeover, no expert label (its encoding is the learner's own)
+                self.learner.store(dataclasses.replace(record, takeover=False, a_expert=None))
+        finally:
+            self.buffer.adding_prior = False
+        self.prior_steps = len(steps)
+        return self.prior_steps
+
+    def _ingest(self, episodes: list[int]) -> Ingested:
+        """Ingest the episodes one by one, holding the takeover rows of every ``round(1 / holdout_share)``-th
+        episode with takeovers out of imitation (kept for the critic and the world model)."""
+        total = Ingested()
+        every = round(1 / self.cfg.holdout_share) if self.cfg.holdout_share > 0 else 0
+        for episode in episodes:
+            got = ingest(self.learner, self.store, self.session_id, [episode])
+            total.episodes += got.episodes
+            total.steps += got.steps
+            total.takeovers += got.takeovers
+            total.dropped += got.dropped
+            if got.takeovers == 0 or every == 0:
+                continue
+            self._takeover_episodes += 1
+            if self._takeover_episodes % every:
+                continue
+            rows = (self.buffer.pos - 1 - np.arange(got.steps)) % self.buffer.capacity
+            rows = rows[self.buffer.takeover[rows]]
+            self.heldout_obs = np.concatenate([self.heldout_obs, self.buffer.obs[rows]])
+            self.heldout_expert = np.concatenate([self.heldout_expert, self.buffer.a_expert[rows]])
+            self.buffer.takeover[rows] = False  # not imitated: measured
+        return total
+
+    def heldout_error(self) -> float | None:
+        """Mean ||π(s) - a_E||² over the held-out takeover rows (None when there are none)."""
+        if len(self.heldout_obs) == 0:
+            return None
+        with torch.no_grad():
+            action = self.learner.rollout_policy(torch.from_numpy(self.heldout_obs))
+        return float((action - torch.from_numpy(self.heldout_expert)).pow(2).sum(-1).mean())
+
+    def _refit_world_model(self) -> dict[str, float]:
+        """Refit the world model; keep or take the τ bounds by ``tau_bounds``."""
+        learner, wm = self.learner, self.learner.world_model
+        assert wm is not None
+        held = wm.tau_bounds.detach().clone()
+        fit = learner.fit_world_model()
+        if fit is None:
+            return {}
+        stats = {"wm_holdout_nll": fit.holdout_nll, "wm_holdout_mse": fit.holdout_mse}
+        new = wm.tau_bounds.detach().clone()
+        stats["tau_min_refit"], stats["tau_max_refit"] = (float(v) for v in new)  # what the refit measured
+        keep_held = bool(torch.isfinite(held).all()) and (
+            self.cfg.tau_bounds == "hold"
+            or (
+                self.cfg.tau_bounds == "drift"
+                and abs(float(new[1] - held[1])) <= self.cfg.tau_drift * abs(float(held[1]))
+            )
+        )
+        if keep_held:
+            wm.tau_bounds.copy_(held)
+            wm.touch()
+        stats["tau_min"], stats["tau_max"] = (float(v) for v in wm.tau_bounds)
+        stats["tau_refitted"] = float(not keep_held)
+        return stats
 
     # -- a round -------------------------------------------------------------------------------------------------
     def round(self, progress: Progress | None = None, should_stop: ShouldStop | None = None) -> RoundResult:
@@ -456,12 +782,20 @@ class Finetuner:
         report = progress or (lambda event: None)
         stop = should_stop or (lambda: False)
         cfg, learner = self.cfg, self.learner
+        if rejected(self.base):
+            head = line_head(self.versions)
+            if head is not None and head.number != self.base.number:
+                report({"phase": f"continuing from {head.name}: {self.base.name} was not promoted"})
+                self.rebase(head.number)
         report({"phase": "ingesting"})
-        ingested = ingest(learner, self.store, self.session_id, self.pending_episodes())
+        if self.prior_steps is None:
+            report({"phase": "driving the base policy alone"})
+            self.collect_prior()
+        ingested = self._ingest(self.pending_episodes())
         self.done.extend(ingested.episodes)
         result = RoundResult(None, ingested=ingested)
-        if len(learner.buffer) < cfg.min_steps:
-            result.reason = f"only {len(learner.buffer)} usable steps recorded, {cfg.min_steps} needed"
+        if self.session_steps() < cfg.min_steps:
+            result.reason = f"only {self.session_steps()} usable steps recorded, {cfg.min_steps} needed"
             return result
         if learner.buffer.takeover_count() < cfg.min_takeover_samples:
             result.reason = (
@@ -471,12 +805,16 @@ class Finetuner:
         wm_stats: dict[str, float] = {}
         if cfg.refit_world_model and learner.world_model is not None and len(learner.buffer) >= cfg.wm_min_steps:
             report({"phase": "fitting world model"})
-            fit = learner.fit_world_model()
-            if fit is not None:
-                wm_stats = {"wm_holdout_nll": fit.holdout_nll, "wm_holdout_mse": fit.holdout_mse}
+            wm_stats = self._refit_world_model()
+        planned = cfg.round_updates(ingested.steps)
+        lam_start = learner.lam
+        best_error = self.heldout_error()
+        best_snapshot = learner._snapshot() if best_error is not None else None
+        best_at, since_best, stopped_early = 0, 0, False
+        virtual_every = max(1, learner.cfg.virtual_every)
         sums: dict[str, float] = {}
         counts: dict[str, int] = {}
-        for k in range(cfg.updates):
+        for k in range(planned):
             if stop():
                 result.reason = "stopped"
                 return result
@@ -489,18 +827,35 @@ class Finetuner:
                         counts[key] = counts.get(key, 0) + 1
             else:
                 result.skipped += 1
-            if (k + 1) % cfg.report_every == 0 or k + 1 == cfg.updates:
+            if learner.virtual is not None and (k + 1) % virtual_every == 0:
+                learner.virtual_rollout()  # imagined states under the policy as it is now, as training refreshes them
+            if (k + 1) % cfg.report_every == 0 or k + 1 == planned:
                 means = {key: sums[key] / counts[key] for key in sums}
                 report(
                     {
                         "phase": "training",
                         "update": k + 1,
-                        "updates": cfg.updates,
+                        "updates": planned,
                         "skipped": result.skipped,
                         "losses": means,
                     }
                 )
+            if best_error is not None and (k + 1) % cfg.early_stop_every == 0:
+                error = self.heldout_error()
+                if error is not None and error < best_error:
+                    best_error, best_at, since_best = error, k + 1, 0
+                    best_snapshot = learner._snapshot()
+                else:
+                    since_best += 1
+                    if since_best >= cfg.early_stop_patience:
+                        stopped_early = True
+                        break
+        if best_snapshot is not None and best_at != result.updates + result.skipped:
+            learner._restore(best_snapshot)  # the weights of the lowest held-out imitation error
         result.losses = {key: sums[key] / counts[key] for key in sums} | wm_stats
+        result.losses["lam_start"], result.losses["lam_end"] = lam_start, learner.lam
+        if best_error is not None:
+            result.losses["heldout_imitation_error"] = best_error
         result.seconds = time.time() - started
         attempted = result.updates + result.skipped
         if attempted and result.skipped > cfg.max_skipped_fraction * attempted:
@@ -517,9 +872,15 @@ class Finetuner:
             "session": self.session_id,
             "episodes": ingested.episodes,
             "episodes_total": self.session_meta["episodes_total"],
-            "steps": len(learner.buffer),
+            "steps": self.session_steps(),
+            "prior_steps": self.prior_steps or 0,
+            "prior_error": self.prior_error,
             "takeover_samples": self.session_meta["takeover_samples"],
+            "heldout_takeover_samples": len(self.heldout_obs),
+            "updates_planned": planned,
             "updates": result.updates,
+            "kept_update": best_at if best_snapshot is not None else result.updates + result.skipped,
+            "stopped_early": stopped_early,
             "skipped": result.skipped,
             "dropped_rows": ingested.dropped,
             "losses": result.losses,
@@ -528,7 +889,7 @@ class Finetuner:
             "method": self.method,
         }
         result.version = self.versions.publish(learner, self._meta(ingested, result.updates), metrics)
-        self.base = result.version  # the next round continues this line
+        self.base = result.version  # the next round continues this line (unless the promotion check rejects it)
         self.rounds += 1
         result.seconds = time.time() - started
         return result

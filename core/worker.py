@@ -3,7 +3,9 @@
 The live loop steps at 10 Hz on a 2-core machine, so training must never share its interpreter (the GIL) or its
 core budget: the worker is a separate process (``multiprocessing`` spawn, ``torch.set_num_threads(1)``, a lower
 scheduling priority). It watches the session the loop records, runs a round whenever new episodes are over, and
-publishes numbered versions (:class:`core.finetune.VersionStore`).
+publishes numbered versions (:class:`core.finetune.VersionStore`). Every version is judged against the version in
+control before it may drive (:func:`judge`, :mod:`core.promotion`); a round after a rejected version starts again
+from the version in control (:meth:`core.finetune.Finetuner.round`), so rejected versions never form a line.
 
 :class:`FinetuneService` lives in the loop's process. Its monitor thread reads the worker's events (phase,
 progress, losses, rounds), restarts a worker that died (exponential backoff, reset once a worker has lived a
@@ -64,6 +66,10 @@ class WorkerSpec:
     marked "not evaluated" and promoted as they come (headless tools only; the live server always passes one)."""
     promotion: Any = None
     """A :class:`core.promotion.PromotionConfig` (None: its defaults)."""
+    prior: Any = None
+    """A :data:`core.finetune.PriorSource` (picklable, e.g. a partial of :func:`core.finetune.drive_alone` with the
+    simulator's ``make_env``): the base policy's own drives, kept beside the session's data in every round. None:
+    the session's data only."""
     parent_pid: int | None = None
     """The process that started the worker (set by :class:`FinetuneService`): the worker ends when it is gone,
     even if that happened while the worker was still starting."""
@@ -138,7 +144,7 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
     versions = VersionStore(spec.versions)
     store = SessionStore(spec.sessions)
     config = spec.config or FinetuneConfig()
-    finetuner = Finetuner(versions, store, spec.session_id, config, spec.base)
+    finetuner = Finetuner(versions, store, spec.session_id, config, spec.base, prior=spec.prior)
     emit({"kind": "ready", "base": finetuner.base.number})
     waiting_said = False
     while True:
@@ -149,7 +155,7 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
                 emit({"kind": "stopped"})
                 return
             if op == "rebase":
-                finetuner = Finetuner(versions, store, spec.session_id, config, int(arg))
+                finetuner = Finetuner(versions, store, spec.session_id, config, int(arg), prior=spec.prior)
                 emit({"kind": "ready", "base": finetuner.base.number})
                 waiting_said = False
             continue
@@ -176,6 +182,11 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
             emit({"kind": "phase", "phase": f"evaluating {result.version.name} before it may drive"})
             verdict = judge(versions, result.version.number, spec.evaluator, spec.promotion)
             emit({"kind": "promotion", "version": result.version.number, **verdict})
+            if not verdict.get("promoted"):
+                # the next round starts from the version in control, not from this one (Finetuner.round)
+                against = verdict.get("against")
+                then = f": the next round continues from v{against:04d}" if isinstance(against, int) else ""
+                emit({"kind": "phase", "phase": f"{result.version.name} not promoted{then}"})
 
 
 def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> dict[str, Any]:
@@ -194,7 +205,13 @@ def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> 
     if incumbent is None:
         incumbent = versions.get(0)
     cached = read_verdict(incumbent.path) or {}
-    if isinstance(cached.get("evaluation"), dict) and cached.get("evaluation_seed") == cfg.seed:
+    record = cached.get("evaluation")
+    if (
+        isinstance(record, dict)
+        and cached.get("evaluation_seed") == cfg.seed
+        and record.get("episodes") == cfg.episodes
+        and record.get("episode_takeover")  # the paired test reads each episode's share
+    ):
         before = Evaluation.from_dict(cached["evaluation"])
     else:
         before = evaluator(incumbent.path, cfg)

@@ -7,6 +7,9 @@
 - :func:`cycle_signals` (Fig. field_test_1 c): fear, the curiosity-modulated threshold and the takeover intervals
   over time, for each episode of one chosen cycle.
 - :func:`cycle_summary`: takeover rate, success and collision per cycle.
+- :func:`improvement`: whether the policy got better: its success ALONE (no gate, no expert) on the cycle's scenario
+  and on the unseen one, and the takeover rate under supervision, over the cycles (one line per method, the mean
+  over its runs, with each run faint behind it).
 
 Everything comes from plain scene data (:mod:`core.scene`, the ego's pose per step, the static layout per
 episode) and the recorded signals, so any top-down 2D simulator draws the same way; shapes are drawn by the UGV
@@ -228,6 +231,50 @@ def cycle_summary(rows: list[dict[str, Any]]) -> Figure:
     return fig
 
 
+METHOD_COLOURS = ("#2b7de0", "#7f7f7f", "#d62728", "#2ca02c", "#9467bd")
+
+
+def improvement(runs: dict[str, list[dict[str, Any]]]) -> Figure:
+    """Alone success (the cycle's scenario solid, the unseen one dashed) and supervised takeover rate per cycle;
+    ``runs``: method -> the ``cycles.json`` of each of its runs (seeds)."""
+    if not runs:
+        raise ValueError("no runs to draw")
+    fig = Figure(figsize=(10.0, 3.9), layout="constrained")
+    alone_ax, takeover_ax = fig.subplots(1, 2)
+    most = max((len(d["cycles"]) for datas in runs.values() for d in datas), default=1)
+    for i, (method, datas) in enumerate(sorted(runs.items(), key=lambda item: item[0] != "sage")):
+        colour = METHOD_COLOURS[i % len(METHOD_COLOURS)]
+        for key, ax, style, label in (
+            ("alone_success", alone_ax, "-", f"{method}: scenario"),
+            ("unseen_success", alone_ax, "--", f"{method}: unseen"),
+            ("takeover_rate", takeover_ax, "-", method),
+        ):
+            curves = [[100 * float(r[key]) if r.get(key) is not None else np.nan for r in d["cycles"]] for d in datas]
+            if not curves or all(np.isnan(v) for curve in curves for v in curve):
+                continue
+            length = max(len(c) for c in curves)
+            padded = np.full((len(curves), length), np.nan)
+            for row, curve in enumerate(curves):
+                padded[row, : len(curve)] = curve
+            cycles = np.arange(1, length + 1)
+            if len(curves) > 1:
+                for curve in padded:
+                    ax.plot(cycles, curve, color=colour, ls=style, lw=0.6, alpha=0.25)
+            ax.plot(cycles, np.nanmean(padded, axis=0), color=colour, ls=style, lw=1.8, marker="o", ms=3, label=label)
+    alone_ax.set_ylabel("success alone (% of episodes)")
+    alone_ax.set_ylim(-5, 105)
+    alone_ax.set_title("the policy alone: no gate, no expert", fontsize=10)
+    takeover_ax.set_ylabel("takeover rate (% of steps)")
+    takeover_ax.set_title("under supervision", fontsize=10)
+    for ax in (alone_ax, takeover_ax):
+        ax.set_xlabel("cycle")
+        ax.set_xticks(range(1, most + 1))
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Does the policy get better over the deployment / fine-tuning cycles?", fontsize=11)
+    return fig
+
+
 def save(fig: Figure, path: Path, dpi: int = 110) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -237,7 +284,8 @@ def save(fig: Figure, path: Path, dpi: int = 110) -> Path:
 
 def write_figures(out: Path, data: dict[str, Any], show_cycles: list[int], figures: Path | None = None) -> list[Path]:
     """Draw the figures of the run in ``out`` (its ``cycles.json`` is ``data``) into ``figures``: the trajectories,
-    the signals of each cycle in ``show_cycles``, and the summary."""
+    the signals of each cycle in ``show_cycles``, the summary, and the improvement (where the run measured the
+    policy alone)."""
     figures = Path(figures or out)
     store = SessionStore(Path(out) / "sessions")
     paths = load_paths(store, data["session"], data["episodes"])
@@ -248,4 +296,6 @@ def write_figures(out: Path, data: dict[str, Any], show_cycles: list[int], figur
     for cycle in show_cycles:
         written.append(save(cycle_signals(paths, cycle, dt), figures / f"signals_cycle{cycle}.png"))
     written.append(save(cycle_summary(data["cycles"]), figures / "cycles_summary.png"))
+    if any(row.get("alone_success") is not None for row in data["cycles"]):
+        written.append(save(improvement({"this run": [data]}), figures / "improvement.png"))
     return written

@@ -4,17 +4,23 @@ Deploy → takeover → fine-tune cycles (:func:`studies.cycles.run_cycles`, the
 against a control that deploys the same starting policy through the same situations with the same gate and
 expert but never fine-tunes:
 
-- ``sage``: after every cycle the policy is fine-tuned on what the session recorded (takeover segments through
-  value-weighted imitation, its own transitions through the fear-regularised critic) and the next cycle deploys
-  the new version;
-- ``frozen``: the control, no fine-tuning.
+- ``sage``: after every cycle the policy is fine-tuned on what the session recorded (as fear-regularised SAGE
+  whatever the base was trained as: takeover segments through value-weighted imitation, its own transitions and the
+  base policy's own drives through the fear-regularised critic) and the next cycle deploys the new version;
+- ``frozen``: the control, a policy never fine-tuned, evaluated the same way.
 
 Both start from ``policy`` (default ``policies/ugv-default``) on ``scenario`` (default UGV 3, the crossing, where the
-starting policy alone collides), ``episodes_per_cycle`` episodes per cycle; the training seed picks the situations
-(episode seeds) and the fine-tuning's randomness. The budget sets the number of cycles: one per 600 environment
-steps of the budget, 2 to 9 (the paper's field test ran 9). The table reports, per method, mean ± 95% interval over
-seeds: the takeover rate, collision and success rates of the first and the last cycle, and the change in takeover
-rate. The paper shows this study as curves, so no numbers stand beside.
+starting policy alone collides). The budget is stated in environment steps and is the same for both methods: its
+``train_steps`` are the deployment steps of a seed, split into ``cycles_for(train_steps)`` cycles (one per
+:data:`STEPS_PER_CYCLE` steps, 2 to 9; the paper's field test ran 9) of exactly ``train_steps // cycles`` steps each
+(the last episode of a cycle cut at it). Its ``eval_episodes`` are the policy-alone episodes of every cycle, on the
+scenario and on an unseen one of the same kind (UGV 4 for 3). The training seed picks the situations (episode
+seeds) and the fine-tuning's randomness.
+
+The table reports, per method, mean ± 95% interval over seeds: the policy ALONE (no gate, no expert) in the first
+and the last cycle, on the cycle's scenario and on the unseen one; takeover rate and collisions under supervision in
+the first and the last cycle; the change in takeover rate. The paper shows this study as curves, so no numbers
+stand beside; the figure ``cycles_improvement.png`` draws alone success and takeover over the cycles.
 """
 
 from __future__ import annotations
@@ -31,27 +37,35 @@ METHODS = ("frozen", "sage")
 STEPS_PER_CYCLE = 600
 DEFAULT_POLICY = Path(__file__).resolve().parents[1] / "policies" / "ugv-default"
 METRICS = (
+    "alone_success_first",
+    "alone_success_last",
+    "unseen_success_first",
+    "unseen_success_last",
     "takeover_first",
     "takeover_last",
     "takeover_change",
     "collision_first",
     "collision_last",
-    "success_first",
-    "success_last",
 )
 
 
 def cycles_for(train_steps: int) -> int:
+    """Cycles a budget of ``train_steps`` deployment steps buys: one per :data:`STEPS_PER_CYCLE`, 2 to 9."""
     return max(2, min(9, train_steps // STEPS_PER_CYCLE))
 
 
+def steps_per_cycle(train_steps: int) -> int:
+    """Deployment steps of every cycle: the budget split evenly over :func:`cycles_for` cycles."""
+    return max(1, train_steps // cycles_for(train_steps))
+
+
 def budget_text(budget: Budget, settings: Mapping[str, Any]) -> str:
-    """What a budget runs here: cycles of episodes, not training steps and evaluation episodes."""
+    """What a budget runs here: cycles of deployment steps, and the versions alone on the evaluation episodes."""
     cycles = cycles_for(budget.train_steps)
-    episodes = int(settings.get("episodes_per_cycle", 3))
     return (
-        f"{cycles} cycles of {episodes} episodes per method and seed: one cycle per {STEPS_PER_CYCLE} of its "
-        f"{budget.train_steps} environment steps, 2 to 9; no separate evaluation episodes"
+        f"{cycles} cycles of {steps_per_cycle(budget.train_steps)} deployment steps per method and seed "
+        f"({budget.train_steps} environment steps); each cycle's version alone on {budget.eval_episodes} evaluation "
+        "episodes of the scenario and of an unseen one"
     )
 
 
@@ -65,32 +79,53 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     out = Path(config["runs_dir"]) / f"{method}-s{seed}"
     if not (out / "cycles.json").is_file():
         shutil.rmtree(out, ignore_errors=True)
+        budget = int(config["train_steps"])
         cfg = CyclesConfig(
             sim=sim,
             scenario=str(config.get("scenario", "3")),
             policy=str(config.get("policy", DEFAULT_POLICY)),
-            cycles=cycles_for(int(config["train_steps"])),
-            episodes_per_cycle=int(config.get("episodes_per_cycle", 3)),
+            cycles=cycles_for(budget),
+            steps_per_cycle=steps_per_cycle(budget),
+            alone_episodes=int(config["eval_episodes"]),
             seed=1000 * seed,
             fine_tune=method != "frozen",
+            max_episode_steps=config.get("max_episode_steps"),
         )
         run_cycles(cfg, out, env_factory(sim))
     rows = read_cycles(out)["cycles"]
     first, last = rows[0], rows[-1]
 
     def value(row: dict[str, Any], key: str) -> float:
-        return float(row[key] or 0.0)
+        return float(row.get(key) or 0.0)
 
     return {
+        "alone_success_first": value(first, "alone_success"),
+        "alone_success_last": value(last, "alone_success"),
+        "unseen_success_first": value(first, "unseen_success"),
+        "unseen_success_last": value(last, "unseen_success"),
         "takeover_first": value(first, "takeover_rate"),
         "takeover_last": value(last, "takeover_rate"),
         "takeover_change": value(last, "takeover_rate") - value(first, "takeover_rate"),
         "collision_first": value(first, "collision"),
         "collision_last": value(last, "collision"),
-        "success_first": value(first, "success"),
-        "success_last": value(last, "success"),
         "cycles": float(len(rows)),
+        "steps": float(sum(int(row["steps"]) for row in rows)),
     }
+
+
+def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
+    """Alone success (the scenario and the unseen one) and takeover over the cycles, mean over seeds per method."""
+    from studies.cycles import read_cycles
+    from studies.cycles_figures import improvement, save
+
+    runs: dict[str, list[dict[str, Any]]] = {}
+    for folder in sorted(Path(settings["runs_dir"]).glob("*-s*")):
+        if (folder / "cycles.json").is_file():
+            method = folder.name.rsplit("-s", 1)[0]
+            runs.setdefault(method, []).append(read_cycles(folder))
+    if not runs:
+        return []
+    return [save(improvement(runs), Path(out) / "cycles_improvement.png")]
 
 
 STUDY = StudyDef(
@@ -98,15 +133,21 @@ STUDY = StudyDef(
     methods=METHODS,
     trial=trial,
     metrics=METRICS,
-    plot=("takeover_last", "collision_last"),
+    plot=("alone_success_last", "takeover_last"),
     notes=(
         "Both methods deploy the same starting policy with its SAGE gate and the scripted expert through the same "
-        "situations each cycle; sage fine-tunes between cycles on what was recorded (the live server's round), "
-        f"frozen never does. Cycles: one per {STEPS_PER_CYCLE} environment steps of the budget, 2 to 9.",
-        "first / last: the first and the last cycle (the first is the same policy for both methods). Collisions end "
-        "the episode. The paper shows this study as curves (Fig. field_test_1), so no paper numbers stand beside.",
+        "situations each cycle; sage fine-tunes between cycles on what was recorded (the live server's round, "
+        "fear-regularised SAGE whatever the base was trained as), frozen never does. The budget's environment "
+        f"steps are the deployment steps of a seed: one cycle per {STEPS_PER_CYCLE} of them (2 to 9), each cycle "
+        "exactly budget / cycles steps, the same for both methods.",
+        "alone: the cycle's version with no gate and no expert, deterministic, on the budget's evaluation episodes "
+        "of the cycle's scenario (seeds apart from deployment) and of an unseen scenario of the same kind (UGV 4 for "
+        "UGV 3). takeover and collision: under supervision, over the cycle's deployment steps. first / last: the first "
+        "and the last cycle (the first is the same policy for both methods). Collisions end the episode. The paper "
+        "shows this study as curves (Fig. field_test_1), so no paper numbers stand beside.",
     ),
-    settings={"sim": "ugv", "scenario": "3", "policy": str(DEFAULT_POLICY), "episodes_per_cycle": 3},
+    settings={"sim": "ugv", "scenario": "3", "policy": str(DEFAULT_POLICY)},
     learner_overrides=False,
     budget_text=budget_text,
+    figures=figures,
 )

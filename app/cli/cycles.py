@@ -1,10 +1,12 @@
 """``sage cycles``: deploy → takeover → fine-tune cycles, headless, and the paper's continual-adaptation figures.
 
     sage cycles --scenario 3 --cycles 9 --episodes-per-cycle 3 --policy policies/ugv-default --out DIR
+    sage cycles ... --steps-per-cycle 1500 --set finetune.updates_per_step=2 --legacy-rounds
 
 Each cycle deploys the current policy version with its SAGE gate and the scripted expert, records the session, then
 fine-tunes on it with the same function the live server's worker runs (:mod:`core.finetune`) and deploys the new
-version in the next cycle (:mod:`studies.cycles`). Writes the per-cycle table (``table.md``), ``cycles.json``,
+version in the next cycle (:mod:`studies.cycles`); every cycle also drives the version alone on the scenario and on
+an unseen one of the same kind. Writes the per-cycle table (``table.md``), ``cycles.json``,
 and the figures (:mod:`studies.cycles_figures`): ``trajectories.png`` (paths over the cycles, coloured by cycle),
 ``signals_cycle<K>.png`` (fear, threshold and takeover intervals in cycle K, ``--show-cycle K``, repeatable) and
 ``cycles_summary.png``.
@@ -26,6 +28,7 @@ from app.cli.options import (
     routed_settings,
     runs_sim,
 )
+from core.dotted import Section
 
 
 def register(app: typer.Typer) -> None:
@@ -41,6 +44,17 @@ def register(app: typer.Typer) -> None:
         ] = None,
         cycles: Annotated[int, typer.Option(min=1, help="Deployment cycles (fine-tuning rounds between them).")] = 9,
         episodes_per_cycle: Annotated[int, typer.Option(min=1, help="Episodes deployed per cycle.")] = 3,
+        steps_per_cycle: Annotated[
+            int | None,
+            typer.Option(min=1, help="Deploy exactly this many environment steps a cycle (not --episodes-per-cycle)."),
+        ] = None,
+        alone_episodes: Annotated[
+            int, typer.Option(min=0, help="Per cycle, episodes of the version alone (no gate, no expert) per scenario.")
+        ] = 10,
+        unseen_scenario: Annotated[
+            str | None,
+            typer.Option(help="Scenario of the same kind never deployed, driven alone (default: UGV 4 for 3)."),
+        ] = None,
         policy: Annotated[
             str | None, typer.Option(help="Run folder or checkpoint deployed first (default: policies/<sim>-default).")
         ] = None,
@@ -50,11 +64,28 @@ def register(app: typer.Typer) -> None:
             list[int] | None,
             typer.Option(help="Cycle whose fear / threshold / takeovers are drawn (repeatable; default: the first)."),
         ] = None,
-        updates: Annotated[int, typer.Option(min=0, help="Gradient updates per fine-tuning round.")] = 400,
+        updates: Annotated[
+            int | None, typer.Option(min=0, help="Most gradient updates a round (default: finetune.updates).")
+        ] = None,
         set_: Annotated[
             list[str] | None,
-            typer.Option("--set", help=f"A learner setting for fine-tuning (repeatable), {LEARNER_SET_HELP}."),
+            typer.Option(
+                "--set",
+                help="A setting (repeatable): finetune.KEY a round's (core.finetune.FinetuneConfig, e.g. "
+                f"finetune.updates_per_step=2), else {LEARNER_SET_HELP}.",
+            ),
         ] = None,
+        promote: Annotated[
+            bool,
+            typer.Option(help="Judge each version as the live worker does; deploy only promoted ones (15 episodes)."),
+        ] = False,
+        frozen: Annotated[
+            bool, typer.Option(help="The control: deploy the first version in every cycle, never fine-tuned.")
+        ] = False,
+        legacy_rounds: Annotated[
+            bool,
+            typer.Option(help="Fine-tune as before issue 62 (the base's own method, 400 updates, session data only)."),
+        ] = False,
         stochastic: Annotated[bool, typer.Option(help="Deploy the sampled policy instead of its mean action.")] = False,
         max_episode_steps: Annotated[int | None, typer.Option(min=1, help="Cut episodes at this many steps.")] = None,
         figures: Annotated[Path | None, typer.Option(help="Folder for the figures (default: the run folder).")] = None,
@@ -64,6 +95,7 @@ def register(app: typer.Typer) -> None:
         import torch
 
         from core.finetune import FinetuneConfig, FinetuneError
+        from core.promotion import PromotionConfig
         from studies.cycles import CyclesConfig, format_cycle_table, read_cycles, run_cycles
         from studies.cycles_figures import write_figures
         from studies.envs import env_factory
@@ -73,7 +105,8 @@ def register(app: typer.Typer) -> None:
         for k in shown:
             if not 1 <= k <= cycles:
                 fail(f"--show-cycle {k} is not one of the cycles (1-{cycles})")
-        overrides = routed_settings(set_, LEARNER_SECTIONS, other="learner").get("learner", [])
+        routed = routed_settings(set_, {**LEARNER_SECTIONS, "finetune": Section("finetune")}, other="learner")
+        round_settings, learner_settings = routed.get("finetune", []), tuple(routed.get("learner", []))
         name = one_scenario(scenario, "sage cycles") or "3"
         policy_path = policy or f"policies/{sim or 'ugv'}-default"
         if not Path(policy_path).exists():
@@ -82,19 +115,28 @@ def register(app: typer.Typer) -> None:
         folder = out or Path("runs") / f"cycles-{sim}-{name}-s{seed}"
         try:
             make_env = env_factory(sim)
+            # each cycle is the unit of data the user chose (see CyclesConfig.finetune)
+            fixed = {"overrides": learner_settings, "seed": seed, "min_steps": 1, "min_takeover_samples": 0}
+            if updates is not None:
+                fixed["updates"] = updates
+            rounds = FinetuneConfig.legacy(**fixed) if legacy_rounds else FinetuneConfig(**fixed)
             config = CyclesConfig(
                 sim=sim,
                 scenario=name,
                 policy=policy_path,
                 cycles=cycles,
                 episodes_per_cycle=episodes_per_cycle,
+                steps_per_cycle=steps_per_cycle,
+                fine_tune=not frozen,
+                promotion=(
+                    PromotionConfig(max_steps=max_episode_steps or PromotionConfig().max_steps) if promote else None
+                ),
+                alone_episodes=alone_episodes,
+                unseen_scenario=unseen_scenario,
                 seed=seed,
                 deterministic=not stochastic,
                 max_episode_steps=max_episode_steps,
-                # each cycle is the unit of data the user chose (see CyclesConfig.finetune)
-                finetune=FinetuneConfig(
-                    updates=updates, overrides=tuple(overrides), seed=seed, min_steps=1, min_takeover_samples=0
-                ),
+                finetune=rounds.with_settings(round_settings),
             )
             result = run_cycles(config, folder, make_env, progress=None if quiet else typer.echo)
         except (ValueError, FileNotFoundError, FileExistsError, FinetuneError) as exc:

@@ -94,28 +94,29 @@ def test_cycle_rows_weigh_takeovers_by_steps() -> None:
 
 
 def test_deployment_and_fine_tuning_cycles_learn_from_the_takeovers(policy: Path, tmp_path: Path) -> None:
-    """The paper's field test 3 in small: the same two crossings deployed four times, fine-tuned in between
-    (about 40 s on an idle core). The deployed policy never met a moving obstacle, and its world model never met this
-    crossing (it was refitted on a field of random movers), but its fear carries over to it: the gate hands the
-    crossing to the expert in every cycle, and fine-tuning learns from those takeovers: on every state where the
-    expert took over, in any cycle, the last version acts closest to the expert of all four, and at least a quarter
-    closer than the deployed one (mean action gap; 4 cycle seeds, when measured: 0.43 -> 0.10, 0.57 -> 0.12,
-    0.99 -> 0.70, 0.74 -> 0.23).
-    At two episodes a cycle the takeover rate and the collisions are noise (the last cycle asked less than the first
-    in 1 of those 4 seeds, with the expert before detours too); the five-seed study measures them
-    (docs/results.md, "Deploy / fine-tune cycles", ``sage study cycles``)."""
+    """The paper's field test 3 in small: the same two crossings deployed four times, fine-tuned in between as
+    fear-regularised SAGE (the default policy was trained as plain SAC). The deployed policy never met a moving
+    obstacle, and its world model never met this crossing (it was refitted on a field of random movers), but its fear
+    carries over to it: the gate hands the crossing to the expert in the first cycle, and fine-tuning learns from
+    those takeovers: the last version acts closer to the expert on the states where the expert took over than the
+    deployed one (mean action gap), and alone (no gate, no expert) it succeeds on the crossing more often than the
+    deployed one. When written (one seed, 10 episodes alone a cycle): alone success on UGV 3 1 -> 7 -> 9 -> 8 of 10,
+    on the unseen UGV 4 1 -> 5 -> 9 -> 7, supervised takeover 36% -> 3% -> 0% -> 7%. One seed decides nothing about
+    the size of the gain; the five-seed study measures it (``sage study cycles``)."""
     cfg = CyclesConfig(
         sim="ugv",
         scenario="3",
         policy=str(policy),
         cycles=4,
         episodes_per_cycle=2,
-        finetune=FinetuneConfig(updates=300, min_steps=1, min_takeover_samples=0),
+        finetune=FinetuneConfig(min_steps=1, min_takeover_samples=0),
     )
     result = run_cycles(cfg, tmp_path / "cycles", env_factory("ugv"))
     table = json.dumps(result.cycles, indent=1)
-    assert all(row["takeover_rate"] > 0 for row in result.cycles), table  # the gate asks on the crossing
+    assert result.cycles[0]["takeover_rate"] > 0, table  # the gate asks on the crossing
     assert [row["version"] for row in result.cycles] == [0, 1, 2, 3]
+    first, last = result.cycles[0], result.cycles[-1]
+    assert last["alone_success"] > first["alone_success"], table  # the policy itself got better
     taken = SessionStore(result.out / "sessions").steps(result.session, takeover_only=True)
     labelled = ~np.isnan(taken["a_expert"]).any(axis=1)
     assert labelled.sum() >= 50, int(labelled.sum())
@@ -125,4 +126,84 @@ def test_deployment_and_fine_tuning_cycles_learn_from_the_takeovers(policy: Path
         acting = load_agent(version.path).policy
         actions = np.stack([np.asarray(acting.act(o, True), dtype=np.float32) for o in obs])
         gaps.append(float(np.abs(actions - expert).mean()))
-    assert len(gaps) == 4 and min(gaps) == gaps[-1] and gaps[-1] < 0.75 * gaps[0], gaps
+    assert len(gaps) == 4 and gaps[-1] < 0.75 * gaps[0], gaps
+
+
+def test_cycles_spend_a_step_budget_measure_the_policy_alone_and_keep_the_old_rounds_as_a_switch(
+    policy: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "budget"
+    args = ["cycles", "--sim", "ugv", "--scenario", "3", "--cycles", "2", "--steps-per-cycle", "40"]
+    args += ["--policy", str(policy), "--out", str(out), "--max-episode-steps", "30", "--alone-episodes", "1"]
+    args += ["--set", "finetune.prior_episodes=1", "--set", "finetune.updates_per_step=0.5", "--quiet"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = read_cycles(out)
+    assert [sum(e["steps"] for e in data["episodes"] if e["cycle"] == c) for c in (1, 2)] == [40, 40]
+    assert data["rounds"][0]["updates"] == 20  # half an update per new step
+    assert data["method"].startswith("sage: fear-regularised SAGE") and "trained as sac" in data["method"]
+    assert {(a["scenario"], a["seen"]) for a in data["alone"]} == {("3", True), ("4", False)}
+    assert "alone: success" in result.output and (out / "improvement.png").is_file()
+    version = VersionStore(out / "versions").get(1)
+    assert version.metrics["prior_steps"] > 0 and version.metrics["config"]["prior_episodes"] == 1
+
+    legacy = tmp_path / "legacy"
+    args = [
+        "cycles",
+        "--sim",
+        "ugv",
+        "--scenario",
+        "3",
+        "--cycles",
+        "2",
+        "--episodes-per-cycle",
+        "1",
+        "--legacy-rounds",
+    ]
+    args += ["--policy", str(policy), "--out", str(legacy), "--max-episode-steps", "30", "--alone-episodes", "0"]
+    args += ["--updates", "10", "--quiet"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = read_cycles(legacy)
+    assert "NOT the paper's fear-regularised SAGE" in data["method"] and data["alone"] == []
+    assert data["rounds"][0]["updates"] == 10
+    control = tmp_path / "frozen"
+    args = ["cycles", "--sim", "ugv", "--cycles", "2", "--episodes-per-cycle", "1", "--frozen", "--alone-episodes", "1"]
+    args += ["--policy", str(policy), "--out", str(control), "--max-episode-steps", "30", "--quiet"]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    data = read_cycles(control)
+    assert data["rounds"] == [] and [c["version"] for c in data["cycles"]] == [0, 0]
+    assert len(data["alone"]) == 4  # measured alone in every cycle, as the fine-tuned runs are
+    bad = CliRunner().invoke(
+        app, ["cycles", "--policy", str(policy), "--set", "finetune.nope=1", "--out", str(tmp_path / "n")]
+    )
+    assert bad.exit_code == 2 and "nope" in bad.output
+
+
+def test_with_promotion_a_rejected_version_never_drives_and_the_next_round_continues_the_one_in_control(
+    policy: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import studies.cycles as cycles_module
+    from core.promotion import PromotionConfig, write_verdict
+
+    def reject_first(versions: VersionStore, number: int, evaluator: Any, promotion: Any) -> dict[str, Any]:
+        verdict = {"promoted": number != 1, "reason": "judged by the test"}
+        write_verdict(versions.get(number).path, verdict)
+        return verdict
+
+    monkeypatch.setattr(cycles_module, "judge", reject_first)
+    cfg = CyclesConfig(
+        sim="ugv",
+        scenario="3",
+        policy=str(policy),
+        cycles=3,
+        episodes_per_cycle=1,
+        max_episode_steps=30,
+        alone_episodes=0,
+        promotion=PromotionConfig(episodes=1, max_steps=30),
+        finetune=FinetuneConfig(updates=5, updates_per_step=None, min_steps=1, min_takeover_samples=0),
+    )
+    result = run_cycles(cfg, tmp_path / "promoted", env_factory("ugv"))
+    assert [c["version"] for c in result.cycles] == [0, 0, 2]  # v0001 was rejected: v0000 drove on
+    assert [r["promotion"]["promoted"] for r in result.rounds] == [False, True]
+    assert VersionStore(result.out / "versions").get(2).parent == 0  # not continued from the rejected v0001

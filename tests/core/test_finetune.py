@@ -74,6 +74,8 @@ def fast(**overrides: Any) -> FinetuneConfig:
         "min_takeover_samples": 4,
         "wm_min_steps": 40,
         "report_every": 10,
+        "updates_per_step": None,  # a fixed number of updates: the tests count them
+        "holdout_share": 0.0,
     }
     values.update(overrides)
     return FinetuneConfig(**values)
@@ -310,3 +312,156 @@ def test_fine_tuning_says_what_it_runs(setup, caplog: pytest.LogCaptureFixture) 
     published = plain.round().version
     assert published is not None
     assert published.metrics["method"] == plain.method
+
+
+# -- adaptation that sticks (issue 62) ---------------------------------------------------------------------------
+def as_trained_by(method: str, source: Path, folder: Path) -> Path:
+    """A copy of ``source`` whose configuration says it was trained as ``method`` (same weights: same learner)."""
+    from core.sage.config import for_method, from_dict, to_dict
+
+    payload = load_checkpoint(source)
+    cfg = for_method(method, base=from_dict(payload["agent_config"]))
+    cfg.world_model = True  # as the committed default policies: trained as SAC, a world model fitted for the gate
+    payload["agent_config"] = to_dict(cfg)
+    payload["meta"]["method"] = method
+    folder.mkdir(parents=True)
+    torch.save({k: v for k, v in payload.items() if k != "file"}, folder / CHECKPOINT_FILE)
+    return folder
+
+
+def test_a_sac_trained_policy_adapts_as_sage_with_its_fear_term_acting(deployed: Path, tmp_path: Path) -> None:
+    sac = as_trained_by("sac", deployed / "checkpoint.pt", tmp_path / "sac-policy")
+    versions = VersionStore(tmp_path / "versions")
+    versions.ensure_initial(sac)
+    store = SessionStore(tmp_path / "sessions")
+    session = record(store, versions.get(0).path, episodes=4)
+    finetuner = Finetuner(versions, store, session, fast())
+    cfg = finetuner.learner.cfg
+    assert cfg.method == "sage" and cfg.fear_regularisation and cfg.violation_penalty and cfg.virtual_rollouts
+    assert cfg.imitation and finetuner.method.startswith("sage: fear-regularised SAGE")
+    assert "trained as sac" in finetuner.method
+    lam = finetuner.learner.lam
+    result = finetuner.round()
+    assert result.version is not None
+    losses = result.version.metrics["losses"]
+    assert "fear_real" in losses and abs(losses["lam_end"] - lam) > 1e-6  # the fear term ran and λ moved
+    assert load_checkpoint(result.version.path)["agent_config"]["fear_regularisation"] is True
+    # the old behaviour is one switch away, and says what it is
+    plain = Finetuner(versions, store, session, fast(adapt_as_sage=False), base=0)
+    assert plain.learner.cfg.method == "sac" and "NOT the paper's" in plain.method
+
+
+def test_a_d3qn_base_adapts_as_sage_d3qn_and_a_method_without_a_counterpart_keeps_its_own() -> None:
+    from core.finetune import adaptation_config
+    from core.learners import preset
+
+    d3qn = adaptation_config(preset("d3qn"))
+    assert d3qn.method == "sage-d3qn" and d3qn.fear_regularisation and d3qn.imitation and d3qn.virtual_rollouts
+    tuned = preset("sac", hidden=48)
+    assert adaptation_config(tuned).hidden == 48  # hyperparameters are the base's
+    assert adaptation_config(preset("td3")).method == "td3"
+
+
+def test_after_a_rejected_version_the_next_round_starts_from_the_promoted_one(setup) -> None:
+    from core.promotion import write_verdict
+
+    versions, store, session = setup
+    finetuner = Finetuner(versions, store, session, fast(refit_world_model=False))
+    first = finetuner.round().version
+    assert first is not None and finetuner.base.number == 1
+    write_verdict(first.path, {"promoted": False, "reason": "asked for help more often"})
+    promoted_actor = load_checkpoint(versions.get(0).path)["state"]["actor"]
+    at_start: dict[str, bool] = {}
+
+    def watch(event: dict[str, Any]) -> None:
+        if event["phase"] == "ingesting":
+            actor = finetuner.learner.actor.state_dict()
+            at_start["promoted"] = all(torch.equal(actor[k], promoted_actor[k]) for k in actor)
+
+    second = finetuner.round(progress=watch).version
+    assert at_start == {"promoted": True}
+    assert second is not None and second.parent == 0 and second.number == 2
+    # a fresh fine-tuner (a restarted worker) never starts from the rejected version either
+    assert Finetuner(versions, store, session, fast()).base.number == 2
+
+
+def test_the_base_policys_own_drives_are_sampled_in_equal_shares_with_the_session(setup) -> None:
+    import functools
+
+    from core.finetune import SharedReplayBuffer, drive_alone
+
+    buffer = SharedReplayBuffer(2, 1, 1000, prior_share=0.5)
+    buffer.adding_prior = True
+    for _ in range(10):
+        buffer.add(np.ones(2), np.zeros(1), 0.0, np.ones(2), False)
+    buffer.adding_prior = False
+    for _ in range(300):
+        buffer.add(np.zeros(2), np.zeros(1), 0.0, np.zeros(2), False)
+    batch = buffer.sample(256, np.random.default_rng(0))
+    assert int(batch.obs[:, 0].sum()) == 128  # 10 prior rows among 310 still fill half of every batch
+
+    versions, store, session = setup
+    prior = functools.partial(drive_alone, make_env=point_env, scenarios=["static"])
+    finetuner = Finetuner(versions, store, session, fast(prior_episodes=2), prior=prior)
+    result = finetuner.round()
+    assert result.version is not None
+    assert result.version.metrics["prior_steps"] == finetuner.buffer.prior_count() > 0
+    assert result.version.metrics["steps"] == result.ingested.steps  # the session's steps, counted apart
+
+    def broken(path: Path, episodes: int, seed: int) -> list[Any]:
+        raise ValueError("no scenario 'gone.yaml'")
+
+    alone = Finetuner(versions, store, session, fast(), prior=broken).round().version  # adapts on the session alone
+    assert alone is not None and alone.metrics["prior_steps"] == 0 and "gone.yaml" in alone.metrics["prior_error"]
+
+
+def test_updates_scale_with_the_data_and_stop_early_on_held_out_takeovers(setup) -> None:
+    assert FinetuneConfig(updates_per_step=0.5, updates=1000).round_updates(300) == 150
+    assert FinetuneConfig(updates_per_step=4.0, updates=1000).round_updates(300) == 1000  # the cap
+    assert FinetuneConfig(updates_per_step=None, updates=70).round_updates(300) == 70
+    with pytest.raises(ValueError, match="updates_per_step"):
+        FinetuneConfig(updates_per_step=0.0)
+    versions, store, session = setup
+    scaled = Finetuner(versions, store, session, fast(updates_per_step=0.25, updates=10_000))
+    result = scaled.round()
+    assert result.updates + result.skipped == math.ceil(0.25 * result.ingested.steps)
+
+    cfg = fast(updates=400, holdout_share=0.5, early_stop_every=10, early_stop_patience=2)
+    finetuner = Finetuner(versions, store, session, cfg)
+    result = finetuner.round()
+    assert result.version is not None and len(finetuner.heldout_obs) > 0
+    metrics = result.version.metrics
+    assert metrics["heldout_takeover_samples"] == len(finetuner.heldout_obs)
+    # the held-out rows are not imitated: fewer takeover samples than the session recorded
+    assert metrics["takeover_samples"] + len(finetuner.heldout_obs) == result.ingested.takeovers
+    # the published weights are those of the lowest held-out error measured
+    with torch.no_grad():
+        action = load_agent(result.version.path).actor.deterministic(torch.from_numpy(finetuner.heldout_obs))
+    error = float((action - torch.from_numpy(finetuner.heldout_expert)).pow(2).sum(-1).mean())
+    assert error == pytest.approx(metrics["losses"]["heldout_imitation_error"], rel=1e-4)
+    assert metrics["kept_update"] <= metrics["updates_planned"]
+
+
+def test_the_gates_tau_bounds_are_held_unless_a_refit_is_chosen(setup) -> None:
+    versions, store, session = setup
+
+    def bounds(path: Path) -> list[float]:
+        return load_checkpoint(path)["state"]["world_model"]["tau_bounds"].tolist()
+
+    held = Finetuner(versions, store, session, fast(tau_bounds="hold")).round().version
+    assert held is not None and bounds(held.path) == bounds(versions.get(0).path)
+    assert held.metrics["losses"]["tau_refitted"] == 0.0
+    refit = Finetuner(versions, store, session, fast(tau_bounds="refit"), base=0).round().version
+    assert refit is not None and refit.metrics["losses"]["tau_refitted"] == 1.0
+    assert bounds(refit.path) != bounds(versions.get(0).path)
+    with pytest.raises(ValueError, match="tau_bounds"):
+        FinetuneConfig(tau_bounds="sometimes")  # type: ignore[arg-type]
+
+
+def test_the_checkpoints_optimiser_states_are_carried_over(setup) -> None:
+    versions, store, session = setup
+    assert load_checkpoint(versions.get(0).path)["state"]["optimizers"]["actor_optimizer"]["state"]
+    carried = Finetuner(versions, store, session, fast()).learner
+    assert carried.actor_optimizer.state_dict()["state"]  # Adam's moments and step, not a fresh Adam
+    fresh = Finetuner(versions, store, session, fast(carry_optimizer=False)).learner
+    assert not fresh.actor_optimizer.state_dict()["state"]

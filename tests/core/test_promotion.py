@@ -6,6 +6,7 @@ import functools
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -128,3 +129,51 @@ def test_fine_tuning_waits_for_enough_takeover_samples(deployed: Path, tmp_path:
     assert result.version is None and "takeover samples" in (result.reason or "")
     enough = Finetuner(versions, store, session, FinetuneConfig(updates=5, min_steps=1, min_takeover_samples=takeovers))
     assert enough.ready()
+
+
+def paired(takeovers: list[float], collided: int = 0) -> Evaluation:
+    n = len(takeovers)
+    return Evaluation(
+        n, collided, sum(takeovers) / n, 1.0, 100 * n, 0.1, list(range(n)), takeovers, [i < collided for i in range(n)]
+    )
+
+
+def test_the_takeover_test_is_a_paired_sign_test_over_the_episodes() -> None:
+    cfg = PromotionConfig()
+    incumbent = paired([0.3, 0.3, 0.3, 0.3, 0.3])
+    # less help on 3 seeds, more on 2: passes, although its overall rate is higher
+    better_mostly = paired([0.2, 0.2, 0.2, 0.9, 0.9])
+    assert better_mostly.takeover_rate > incumbent.takeover_rate and decide(better_mostly, incumbent, cfg).promoted
+    worse_mostly = paired([0.1, 0.1, 0.4, 0.4, 0.4])
+    refused = decide(worse_mostly, incumbent, cfg)
+    assert not refused.promoted and "3 of 5 paired episodes" in refused.reason
+    # differences inside the margin are ties
+    assert decide(worse_mostly, incumbent, PromotionConfig(takeover_margin=0.2)).promoted
+    assert not decide(paired([0.1] * 5, collided=1), incumbent, cfg).promoted  # collisions first
+
+
+def test_the_promotion_rule_passes_a_better_version_in_most_rounds_and_a_worse_one_almost_never() -> None:
+    from core.promotion import collision_pass_probability, takeover_pass_probability
+
+    episodes = PromotionConfig().episodes
+    # the numbers the module docstring states, from the rule itself (exact binomial)
+    assert takeover_pass_probability(0.7, 0.3, episodes) == pytest.approx(0.95, abs=0.005)
+    assert takeover_pass_probability(0.3, 0.7, episodes) == pytest.approx(0.05, abs=0.005)
+    assert takeover_pass_probability(0.7, 0.3, 5) == pytest.approx(0.84, abs=0.005)
+    assert takeover_pass_probability(0.3, 0.7, 5) == pytest.approx(0.16, abs=0.005)
+    assert collision_pass_probability(0.3, 0.1, episodes) == pytest.approx(0.95, abs=0.005)
+    assert collision_pass_probability(0.3, 0.5, episodes) == pytest.approx(0.17, abs=0.005)
+    # an equal version passes the sign test half the time (15 episodes: wins and losses cannot tie)
+    assert takeover_pass_probability(0.5, 0.5, episodes) == pytest.approx(0.5)
+    assert takeover_pass_probability(0.5, 0.5, 4) > 0.5  # an even count: a tie of wins and losses passes
+    # the calculation against the rule: simulate rounds of decide() on random paired episodes
+    rng = np.random.default_rng(0)
+    incumbent = paired([0.5] * episodes)
+    cfg = PromotionConfig()
+
+    def passes(p_win: float) -> float:
+        shares = lambda: [0.4 if rng.random() < p_win else 0.6 for _ in range(episodes)]  # noqa: E731
+        return float(np.mean([decide(paired(shares()), incumbent, cfg).promoted for _ in range(2000)]))
+
+    assert passes(0.7) == pytest.approx(takeover_pass_probability(0.7, 0.3, episodes), abs=0.02)
+    assert passes(0.3) == pytest.approx(takeover_pass_probability(0.3, 0.7, episodes), abs=0.02)

@@ -1,25 +1,39 @@
-"""`sage study cycles`: fine-tuning cycles against the frozen control, the same situations for both."""
+"""`sage study cycles`: fine-tuning cycles against the frozen control, the same situations and steps for both."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-from studies.cycles_study import METRICS, cycles_for, trial
+from studies.cycles_study import METRICS, cycles_for, figures, steps_per_cycle, trial
 from studies.registry import get_study
 
 
-def test_the_cycles_study_compares_fine_tuning_with_a_frozen_control(tmp_path: Path) -> None:
+def test_the_cycles_study_compares_fine_tuning_with_a_frozen_control_alone_and_supervised(tmp_path: Path) -> None:
     assert get_study("cycles").methods == ("frozen", "sage")
     assert (cycles_for(200), cycles_for(6000), cycles_for(10**6)) == (2, 9, 9)
-    config = {"seed": 0, "train_steps": 200, "eval_episodes": 1, "episodes_per_cycle": 1, "runs_dir": str(tmp_path)}
+    assert steps_per_cycle(6000) == 666 and steps_per_cycle(200) == 100  # the budget, in environment steps
+    config = {"seed": 0, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
     results = {method: trial({**config, "method": method}) for method in ("frozen", "sage")}
     for result in results.values():
         assert set(METRICS) <= set(result) and result["cycles"] == 2
+        assert result["steps"] == 120  # both methods deploy exactly the budget's steps
     frozen = json.loads((tmp_path / "frozen-s0" / "cycles.json").read_text())
     tuned = json.loads((tmp_path / "sage-s0" / "cycles.json").read_text())
     assert frozen["rounds"] == [] and [c["version"] for c in frozen["cycles"]] == [0, 0]
     assert len(tuned["rounds"]) == 1 and tuned["cycles"][-1]["version"] > 0
+    assert tuned["method"].startswith("sage: fear-regularised SAGE")  # the SAC-trained default adapts as SAGE
+    # every cycle measures its version alone, on the scenario and on the unseen one of the same kind
+    assert {(a["cycle"], a["scenario"], a["seen"]) for a in tuned["alone"]} == {
+        (1, "3", True),
+        (1, "4", False),
+        (2, "3", True),
+        (2, "4", False),
+    }
+    assert all(c["alone_success"] is not None and c["unseen_success"] is not None for c in tuned["cycles"])
     # the first cycle is the same policy in the same situation for both
     assert results["frozen"]["takeover_first"] == results["sage"]["takeover_first"]
+    assert results["frozen"]["alone_success_first"] == results["sage"]["alone_success_first"]
     assert trial({**config, "method": "frozen"}) == results["frozen"]  # a finished folder is read back
+    drawn = figures(tmp_path / "results", {"runs_dir": str(tmp_path)})
+    assert [p.name for p in drawn] == ["cycles_improvement.png"] and drawn[0].read_bytes()[:4] == b"\x89PNG"
