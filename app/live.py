@@ -557,7 +557,14 @@ class LiveLoop:
         make_env = functools.partial(self.env_factory, world.config.sim, world.config.scenario)
         load = labelled_loader(self.policy_loader, world.env, world.loaded.label)
         return VersionFollower.start(
-            settings, store.root, writer.session_id, world.config.policy, make_env, load, changed
+            settings,
+            store.root,
+            writer.session_id,
+            world.config.policy,
+            make_env,
+            load,
+            changed,
+            scenario_env=functools.partial(self.env_factory, world.config.sim),
         )
 
     def _finetune_state(self, world: World) -> dict[str, Any] | None:

@@ -21,7 +21,7 @@ import gymnasium as gym
 
 from app.commands import CommandError
 from app.policies import LoadedPolicy
-from core.finetune import FinetuneConfig, FinetuneError, VersionStore
+from core.finetune import FinetuneConfig, FinetuneError, VersionStore, drive_alone
 from core.loop import Runner
 from core.promotion import PromotionConfig, evaluate_version
 from core.worker import FinetuneService, WorkerSpec
@@ -58,6 +58,7 @@ class VersionFollower:
         make_env: Callable[[], gym.Env[Any, Any]],
         load: Callable[[Path], LoadedPolicy],
         on_change: Callable[[], None],
+        scenario_env: Callable[[str], gym.Env[Any, Any]] | None = None,
     ) -> VersionFollower:
         """Start the session's fine-tuning worker, with ``policy`` as version 0."""
         versions = VersionStore(settings.runs / session_id / "versions")
@@ -71,6 +72,8 @@ class VersionFollower:
             settings.config,
             evaluator=functools.partial(evaluate_version, make_env=make_env),
             promotion=settings.promotion,
+            # the base policy's own drives beside the session's takeovers in every round (core.finetune.drive_alone)
+            prior=None if scenario_env is None else functools.partial(drive_alone, make_env=scenario_env),
         )
         return cls(FinetuneService(spec, load, backoff=settings.backoff, on_change=on_change).start())
 

@@ -226,6 +226,9 @@ def test_a_trained_policy_is_fine_tuned_live_and_the_operator_pins_and_rolls_bac
             assert ft["alive"] and ft["versions"][1]["parent"] == 0 and ft["rounds"][0]["updates"] == 10
             assert any(e["version"] == 0 for e in ft["episodes"]) and ft["in_control"] == version
             assert f"v{version:04d}" in live.state()["policy_label"]
+            # the live rounds learn as sage cycles' do: the base policy's own drives sit beside the takeovers
+            first = json.loads((tmp_path / "runs" / session / "versions" / "v0001" / "metrics.json").read_text())
+            assert first["prior_steps"] > 0 and first["prior_error"] is None
             verdict = ft["versions"][version]["promotion"]  # it drives because its evaluation promoted it
             assert verdict["evaluated"] and verdict["promoted"] and verdict["evaluation"]["episodes"] >= 1
 
