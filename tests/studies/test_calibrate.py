@@ -502,10 +502,10 @@ def test_the_curves_points_run_apart_on_ray_give_the_curve_run_in_turn(
 
     make_env = functools.partial(envs.make, "dynamic")
     scales = (0.5, 2.0)
-    in_turn = operating_curve(deployed, make_env, 3, scales)
-    on_ray = operating_curve(deployed, make_env, 3, scales, cpus=2)
+    in_turn = operating_curve(deployed, make_env, 2, scales)
+    on_ray = operating_curve(deployed, make_env, 2, scales, cpus=2)
     plan = CurvePlan(scales)
-    common = {"run": deployed, "make_env": make_env, "episodes": 3}
+    common = {"run": deployed, "make_env": make_env, "episodes": 2}
     first = [curve_point(**common, call=call) for call in reversed(plan.first())][::-1]
 
     def shown(curve: dict[str, list[dict[str, float]]]) -> dict[str, list[dict[str, float | None]]]:

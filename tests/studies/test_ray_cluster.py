@@ -71,7 +71,7 @@ def ray_head() -> Iterator[str]:
         if head.poll() is None:
             os.killpg(head.pid, signal.SIGTERM)  # --block: the head stops the processes it started
             try:
-                head.wait(30)
+                head.wait(5)  # it lingers ~30 s after SIGTERM: what it left is killed with the group
             except subprocess.TimeoutExpired:
                 os.killpg(head.pid, signal.SIGKILL)
                 head.wait(10)

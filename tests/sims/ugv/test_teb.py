@@ -71,7 +71,15 @@ def drive(env: Any, planner: Any, seeds: range) -> list[str]:
     return outcomes
 
 
-@pytest.mark.parametrize("scenario", ["1", "2", str(Path(sims.__file__).parent / "ugv/scenarios/clutter.yaml")])
+# scenario 1 runs by default; the barrier and the clutter field drive the same planner path for 30 s more (-m slow)
+@pytest.mark.parametrize(
+    "scenario",
+    [
+        "1",
+        pytest.param("2", marks=pytest.mark.slow),
+        pytest.param(str(Path(sims.__file__).parent / "ugv/scenarios/clutter.yaml"), marks=pytest.mark.slow),
+    ],
+)
 def test_teb_reaches_the_goal_on_static_layouts_without_collision(scenario: str) -> None:
     """Through the offset gaps (1), around the barrier (2) and among lone obstacles placed anew every episode, seeing
     the layout only through the lidar (the planner gets a proxy with nothing but the robot's sensing)."""
