@@ -17,6 +17,7 @@ the model's prediction). The policy's observation is unchanged.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -64,7 +65,7 @@ class ScanAlignment:
         change of state with the robot's own turn taken out of the scan (any leading shape, (..., D))."""
         s = self.sectors
         shift = current[..., self.turn_channel : self.turn_channel + 1] * self.sectors_per_unit
-        position = torch.add(_sector_index(s, previous.dtype), shift).clamp_(0.0, s - 1.0)
+        position = torch.add(_sector_index(s, previous.dtype, previous.device), shift).clamp_(0.0, s - 1.0)
         low = position.floor()
         index = low.long()
         frac = position.sub_(low)
@@ -76,15 +77,15 @@ class ScanAlignment:
         return out
 
 
-_INDEX: dict[tuple[int, torch.dtype], Tensor] = {}
+_INDEX: dict[tuple[int, torch.dtype, torch.device], Tensor] = {}
 
 
-def _sector_index(sectors: int, dtype: torch.dtype) -> Tensor:
+def _sector_index(sectors: int, dtype: torch.dtype, device: torch.device | None = None) -> Tensor:
     """0, 1, ..., sectors - 1 (cached: the gate aligns a scan at every imagined step)."""
-    key = (sectors, dtype)
+    key = (sectors, dtype, torch.device("cpu") if device is None else device)
     if key not in _INDEX:
         with torch.inference_mode(False):  # a normal tensor, whichever mode asks first: autograd reads it too
-            _INDEX[key] = torch.arange(sectors, dtype=dtype)
+            _INDEX[key] = torch.arange(sectors, dtype=dtype, device=key[2])
     return _INDEX[key]
 
 
@@ -215,10 +216,17 @@ class EgoScanStep:
         channels after the scan are unchanged. Differentiable almost everywhere in the action."""
         if state.numel() == 0:
             return state.clone()
+        if state.device.type != "cpu":  # the compiled kernel reads numpy: on a GPU the tensor version, batched
+            grad = torch.is_grad_enabled() and (state.requires_grad or action.requires_grad)
+            with contextlib.nullcontext() if grad else torch.no_grad():
+                return self._apply_tensors(state, action)
         if not (torch.is_grad_enabled() and (state.requires_grad or action.requires_grad)):
             out = torch.empty(state.shape, dtype=state.dtype)
             self.apply_into(state, action, out)
             return out
+        return self._apply_tensors(state, action)
+
+    def _apply_tensors(self, state: Tensor, action: Tensor) -> Tensor:
         s = self.sectors
         lead = state.shape[:-1]
         ranges = state[..., :s].reshape(-1, s)
@@ -254,7 +262,7 @@ class EgoScanStep:
     def _scan(self, ranges: Tensor, action: Tensor) -> Tensor:
         """(B, S) ranges and (B, A) actions -> (B, S) ranges seen after the step."""
         s = self.sectors
-        geometry = _geometry(self, ranges.dtype)
+        geometry = _geometry(self, ranges.dtype, ranges.device)
         distance = action[:, self.forward_channel : self.forward_channel + 1] * self.forward_scale + self.forward_offset
         turn = action[:, self.turn_channel : self.turn_channel + 1] * self.turn_scale
         half = 0.5 * turn
@@ -274,7 +282,7 @@ class EgoScanStep:
         # after takes the change between the two casts, in which that error cancels; one it newly covers, the cast.
         before = _cast(x0, y0, joined, geometry, geometry.own)
         after = _cast(x, y, joined, geometry, geometry.candidates)
-        inf = torch.full((), float("inf"), dtype=ranges.dtype)
+        inf = torch.full((), float("inf"), dtype=ranges.dtype, device=ranges.device)
         both = torch.isfinite(before) & torch.isfinite(after)
         seen = torch.where(both, ranges + (after - torch.where(both, before, inf.new_zeros(()))), after)
         # a return at the end of a surface, or on none (an object's edge, a post), lands in the sector its bearing
@@ -284,7 +292,7 @@ class EgoScanStep:
         sector = torch.floor((torch.atan2(y, x) - self.start) / self.width)
         lands = hit & ~inside & (sector >= 0) & (sector < s)
         sector = torch.where(lands, sector, torch.full_like(sector, s)).long()  # the rest go to an extra bin
-        landed = torch.full((len(ranges), s + 1), float("inf"), dtype=ranges.dtype)
+        landed = torch.full((len(ranges), s + 1), float("inf"), dtype=ranges.dtype, device=ranges.device)
         landed = landed.scatter_reduce(1, sector, torch.where(lands, torch.hypot(x, y), inf), "amin")[:, :s]
         nearest = torch.minimum(seen, landed)
         return torch.where(torch.isinf(nearest), ranges, nearest.clamp(0.0, 1.0))
@@ -303,7 +311,7 @@ def _cast(x: Tensor, y: Tensor, joined: Tensor, geometry: _EgoGeometry, idx: Ten
     along = (ax * ey - ay * ex) / den
     across = (ax * uy - ay * ux) / den
     meets = joined[:, idx].unsqueeze(-1) & ~flat & (across >= 0.0) & (across <= 1.0) & (along > 0.0)
-    return torch.where(meets, along, torch.full((), float("inf"), dtype=x.dtype)).amin(dim=(2, 3))
+    return torch.where(meets, along, torch.full((), float("inf"), dtype=x.dtype, device=x.device)).amin(dim=(2, 3))
 
 
 @dataclass(frozen=True)
@@ -321,12 +329,12 @@ class _EgoGeometry:
     joint_ratio: float
 
 
-_GEOMETRY: dict[tuple[EgoScanStep, torch.dtype], _EgoGeometry] = {}
+_GEOMETRY: dict[tuple[EgoScanStep, torch.dtype, torch.device], _EgoGeometry] = {}
 
 
-def _geometry(step: EgoScanStep, dtype: torch.dtype) -> _EgoGeometry:
-    """The step's fixed bearings and candidate segments (cached per step and dtype)."""
-    key = (step, dtype)
+def _geometry(step: EgoScanStep, dtype: torch.dtype, device: torch.device | None = None) -> _EgoGeometry:
+    """The step's fixed bearings and candidate segments (cached per step, dtype and device)."""
+    key = (step, dtype, torch.device("cpu") if device is None else device)
     if key not in _GEOMETRY:
         with torch.inference_mode(False):
             s, k, w = step.sectors, step.rays, step.window
@@ -336,13 +344,14 @@ def _geometry(step: EgoScanStep, dtype: torch.dtype) -> _EgoGeometry:
             offsets = torch.arange(-w, w)
             candidates = (torch.arange(s)[:, None] + offsets).clamp(0, s - 2)
             own = (torch.arange(s)[:, None] + torch.arange(-1, 1)).clamp(0, s - 2)
+            to = key[2]
             _GEOMETRY[key] = _EgoGeometry(
-                point.cos().to(dtype),
-                point.sin().to(dtype),
-                ray.cos().to(dtype)[:, None, :],
-                ray.sin().to(dtype)[:, None, :],
-                candidates,
-                own,
+                point.cos().to(to, dtype),
+                point.sin().to(to, dtype),
+                ray.cos().to(to, dtype)[:, None, :],
+                ray.sin().to(to, dtype)[:, None, :],
+                candidates.to(to),
+                own.to(to),
                 1.0 + float(np.tan(np.radians(GRAZING_DEG))) * step.width,
             )
     return _GEOMETRY[key]

@@ -122,7 +122,7 @@ class D3QN(BaseLearner):
                 f"with {self.n_actions} choices"
             )
         cfg = self.cfg
-        self.q = DuelingQNetwork(self.obs_dim, self.n_actions, cfg.hidden, cfg.layers)
+        self.q = DuelingQNetwork(self.obs_dim, self.n_actions, cfg.hidden, cfg.layers).to(self.device)
         self.q_target = copy.deepcopy(self.q).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.critic_lr)
 
@@ -161,10 +161,15 @@ class D3QN(BaseLearner):
         if not deterministic and self.rng.random() < self.epsilon():
             return self.random_action()
         with torch.inference_mode():
-            q = self.q(torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1))
+            q = self.acting_network()(torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1))
         return self._index(int(q.argmax(-1)))
 
     def rollout_policy(self, obs: Tensor) -> Tensor:
+        q = self.acting_network()
+        assert isinstance(q, DuelingQNetwork)
+        return q.greedy_one_hot(obs)
+
+    def fear_policy(self, obs: Tensor) -> Tensor:
         return self.q.greedy_one_hot(obs)
 
     # -- learning --------------------------------------------------------------------------------------
@@ -185,11 +190,12 @@ class D3QN(BaseLearner):
         """F(s, greedy a) through the frozen world model."""
         assert self.world_model is not None
         with torch.no_grad():
+            obs = obs.to(self.device)
             return fear(
-                self.world_model.folded(),
-                self.rollout_policy,
+                self.update_folded(),
+                self.fear_policy,
                 obs,
-                self.rollout_policy(obs),
+                self.fear_policy(obs),
                 self.cfg.gate,
                 horizon=self.cfg.learner_fear_horizon,
             ).fear
@@ -251,6 +257,7 @@ class D3QN(BaseLearner):
             loss.backward()
             optimizer.step()
         self.q_target.load_state_dict(self.q.state_dict())
+        self.refresh_acting()
         return float(loss.detach())
 
     def declared_state(self) -> DeclaredState:

@@ -82,7 +82,7 @@ def advantage_weights(
     q_expert: Tensor, q_agent: Tensor, q_scale: Tensor | float, temperature: float, clip: float
 ) -> Tensor:
     """ω = exp(clip((Q(s,a_E) - Q(s,a_RL)) / (T · max(1, q_scale)), -clip, clip)) (eq:qa_weight, bounded)."""
-    scale = temperature * torch.clamp(torch.as_tensor(q_scale, dtype=q_expert.dtype), min=1.0)
+    scale = temperature * torch.clamp(torch.as_tensor(q_scale, dtype=q_expert.dtype, device=q_expert.device), min=1.0)
     return torch.exp(((q_expert - q_agent) / scale).clamp(-clip, clip))
 
 
@@ -97,13 +97,15 @@ class SAC(ActorLearner):
         action_low: np.ndarray | None = None,
         action_high: np.ndarray | None = None,
         seed: int = 0,
+        *,
+        device: str | torch.device = "cpu",
     ) -> None:
-        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed)
-        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, cfg.critics)
+        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed, device=device)
+        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, cfg.critics).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
-        self.log_alpha = torch.tensor(math.log(cfg.init_alpha), requires_grad=True)
+        self.log_alpha = torch.tensor(math.log(cfg.init_alpha), device=self.device, requires_grad=True)
         self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=cfg.alpha_lr)
         self.target_entropy = -float(act_dim) if cfg.target_entropy is None else cfg.target_entropy
 
@@ -123,10 +125,10 @@ class SAC(ActorLearner):
         """F(s, a) through the frozen world model (differentiable w.r.t. ``action`` under grad mode)."""
         assert self.world_model is not None
         return fear(
-            self.world_model.folded(),
-            self.rollout_policy,
-            obs,
-            action,
+            self.update_folded(),
+            self.fear_policy,
+            obs.to(self.device),
+            action.to(self.device),
             self.cfg.gate,
             horizon=self.cfg.learner_fear_horizon,
         ).fear
@@ -254,12 +256,12 @@ class SAC(ActorLearner):
 
     def regress_critic(self, returns: np.ndarray, steps: int) -> float:
         """Monte-Carlo regression of every critic onto the demonstrations' returns-to-go."""
-        targets = torch.as_tensor(returns, dtype=torch.float32)
+        targets = torch.as_tensor(returns, dtype=torch.float32, device=self.device)
         loss = torch.tensor(math.nan)
         for _ in range(steps):
             idx = self.rng.integers(0, len(returns), size=self.cfg.batch_size)
-            obs = torch.from_numpy(self.buffer.obs[idx])
-            action = torch.from_numpy(self.buffer.action[idx])
+            obs = torch.from_numpy(self.buffer.obs[idx]).to(self.device)
+            action = torch.from_numpy(self.buffer.action[idx]).to(self.device)
             q = self.critic(obs, action)
             loss = F.mse_loss(q, targets[idx].unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
             self.critic_optimizer.zero_grad(set_to_none=True)
@@ -272,7 +274,7 @@ class SAC(ActorLearner):
     # -- checkpoints -----------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         state = super().state_dict()  # the declared modules (actor, critics), world model, optimisers
-        state.update(log_alpha=self.log_alpha.detach().clone(), lam=torch.tensor(self.lam))
+        state.update(log_alpha=self.log_alpha.detach().cpu().clone(), lam=torch.tensor(self.lam))
         return state
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
