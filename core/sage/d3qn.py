@@ -29,7 +29,7 @@ from torch import Tensor, nn
 
 from core.sage.fear import fear
 from core.sage.learner import BaseLearner, DeclaredState
-from core.sage.networks import soft_update
+from core.sage.networks import adam, soft_update
 from core.sage.sac import advantage_weights, penalty_c_star
 
 
@@ -124,7 +124,7 @@ class D3QN(BaseLearner):
         cfg = self.cfg
         self.q = DuelingQNetwork(self.obs_dim, self.n_actions, cfg.hidden, cfg.layers).to(self.device)
         self.q_target = copy.deepcopy(self.q).requires_grad_(False)
-        self.q_optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.critic_lr)
+        self.q_optimizer = adam(self.q.parameters(), cfg.critic_lr, self.captures)
 
     # -- actions ---------------------------------------------------------------------------------------
     @property

@@ -77,6 +77,22 @@ class ActorPolicy:
             return action[0].numpy()
 
 
+OPTIMIZER_SETTINGS = ("lr", "fused", "foreach", "capturable")
+"""What a loaded optimiser keeps of its own (a checkpoint gives only its memory: moments and step counts)."""
+
+
+def _place_step_counts(optimizer: torch.optim.Optimizer) -> None:
+    """Adam keeps its step count on the CPU unless capturable or fused, where it must sit beside the parameter: move
+    the loaded counts to where this optimiser's implementation needs them."""
+    for group in optimizer.param_groups:
+        on_device = bool(group.get("capturable") or group.get("fused"))
+        for param in group["params"]:
+            state = optimizer.state.get(param)
+            if state and isinstance(state.get("step"), torch.Tensor):
+                where = param.device if on_device else torch.device("cpu")
+                state["step"] = state["step"].to(where, torch.float32)
+
+
 @dataclass(frozen=True)
 class DeclaredState:
     """What :meth:`BaseLearner.update` trains, by attribute name (Stable-Baselines3 style): checkpoints save and
@@ -117,6 +133,9 @@ class BaseLearner:
         self.device = self._resolve_device(device)
         """Where the update runs: the trained networks, their optimisers and the sampled batches
         (:func:`core.device.resolve_device`). What acts in the loop and the world model's fit stay on the CPU."""
+        self.captures = cfg.cuda_graph and self.device.type == "cuda"
+        """Whether the update is captured once as a CUDA graph and replayed (``AgentConfig.cuda_graph`` on CUDA:
+        :mod:`core.sage.captured`); its optimisers are then capturable."""
         self._acting_copy: torch.nn.Module | None = None
         self._device_folded: tuple[int, FoldedModel] | None = None
         torch.manual_seed(seed)
@@ -527,15 +546,18 @@ class BaseLearner:
             if name not in saved:
                 continue
             optimizer: torch.optim.Optimizer = getattr(self, name)
-            rates = [group["lr"] for group in optimizer.param_groups]
+            # this run's rates and implementation (fused on the CPU, capturable for a CUDA graph), whatever the
+            # checkpoint's run used: only the optimiser's memory is restored
+            kept = [{k: group[k] for k in OPTIMIZER_SETTINGS if k in group} for group in optimizer.param_groups]
             try:
                 optimizer.load_state_dict(saved[name])
             except (ValueError, KeyError) as exc:
                 if strict:
                     raise ValueError(f"optimizer {name!r} does not fit this learner: {exc}") from None
                 continue
-            for group, lr in zip(optimizer.param_groups, rates, strict=True):
-                group["lr"] = lr
+            for group, settings in zip(optimizer.param_groups, kept, strict=True):
+                group.update(settings)
+            _place_step_counts(optimizer)
             loaded.append(f"optimizers.{name}")
         return loaded
 

@@ -47,7 +47,7 @@ from core.replay import Batch
 from core.sage.config import AgentConfig
 from core.sage.fear import fear
 from core.sage.learner import ActorLearner, DeclaredState
-from core.sage.networks import EnsembleCritic, soft_update
+from core.sage.networks import EnsembleCritic, adam, soft_update
 
 
 def penalty_c_star(
@@ -103,10 +103,10 @@ class SAC(ActorLearner):
         super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed, device=device)
         self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, cfg.critics).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
+        self.actor_optimizer = adam(self.actor.parameters(), cfg.actor_lr, self.captures)
+        self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr, self.captures)
         self.log_alpha = torch.tensor(math.log(cfg.init_alpha), device=self.device, requires_grad=True)
-        self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=cfg.alpha_lr)
+        self.alpha_optimizer = adam([self.log_alpha], cfg.alpha_lr, self.captures)
         self.target_entropy = -float(act_dim) if cfg.target_entropy is None else cfg.target_entropy
 
     # -- pieces ------------------------------------------------------------------------------------

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 
 from core.sage.config import AgentConfig
 from core.sage.learner import ActorLearner, DeclaredState
-from core.sage.networks import EnsembleCritic, soft_update
+from core.sage.networks import EnsembleCritic, adam, soft_update
 
 
 class TD3(ActorLearner):
@@ -36,8 +36,8 @@ class TD3(ActorLearner):
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, max(2, cfg.critics)).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
+        self.actor_optimizer = adam(self.actor.parameters(), cfg.actor_lr)
+        self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr)
         self.scale = (self.action_high - self.action_low) / 2.0
         # the action bounds where the update's target actions are clipped
         bounds = (self.action_low, self.action_high, self.scale)
