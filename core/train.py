@@ -51,6 +51,7 @@ from core.experts import CostSupervisor, PolicyExpert, ScriptedExpert
 from core.learners import make_learner
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
 from core.planners import PlannerExpert, PlannerFactory, checked_entry, is_planner
+from core.sage.captured import require_cuda
 from core.sage.config import AgentConfig, to_dict, world_model_refit
 from core.sage.fear import CALIBRATION_FILE
 from core.sage.gate import AlwaysGate
@@ -218,6 +219,8 @@ class Trainer:
         self.learner = make_learner(
             agent.method, agent, self.obs_dim, self.act_dim, self.low, self.high, run.seed, device=run.device
         )
+        if agent.cuda_graph:
+            require_cuda(self.learner.device)  # one clear line before any episode, not at the first update
         if run.demo_noise > 0 and self.learner.encodes_actions:
             raise ValueError("--demo-noise perturbs continuous actions; this learner's actions are discrete")
         self.expert = self._make_expert(run.expert)

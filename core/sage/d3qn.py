@@ -27,6 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from core.sage.captured import CapturedD3QNUpdate, CapturedUpdate
 from core.sage.fear import fear
 from core.sage.learner import BaseLearner, DeclaredState
 from core.sage.networks import adam, soft_update
@@ -61,7 +62,10 @@ class DuelingQNetwork(nn.Module):
 
     def greedy_one_hot(self, obs: Tensor) -> Tensor:
         """The greedy action as a one-hot float vector: the policy that world-model rollouts (fear) follow."""
-        return torch.nn.functional.one_hot(self.greedy(obs), self.n_actions).to(obs.dtype)
+        # scatter rather than F.one_hot, which checks its indices on the host (a sync, and no CUDA graph capture)
+        greedy = self.greedy(obs).unsqueeze(-1)
+        one_hot = torch.zeros(*greedy.shape[:-1], self.n_actions, dtype=obs.dtype, device=obs.device)
+        return one_hot.scatter_(-1, greedy, 1.0)
 
 
 def double_q_target(
@@ -73,15 +77,15 @@ def double_q_target(
     gamma: float,
     *,
     fear_next: Tensor | None = None,
-    lam: float = 0.0,
+    lam: float | Tensor = 0.0,
     violation: Tensor | None = None,
-    c_star: float = 0.0,
+    c_star: float | Tensor = 0.0,
 ) -> Tensor:
     """y = r' - λ F(s') + γ (1 - done) Q_target(s', argmax_a Q_online(s', a)), r' = -c* on violations."""
     with torch.no_grad():
         best = online(next_obs).argmax(-1, keepdim=True)
         next_q = target(next_obs).gather(-1, best).squeeze(-1)
-        r = reward if violation is None else torch.where(violation > 0.5, torch.full_like(reward, -c_star), reward)
+        r = reward if violation is None else torch.where(violation > 0.5, -c_star, reward)
         if fear_next is not None:
             r = r - lam * fear_next
         return r + gamma * (1.0 - terminated) * next_q
@@ -200,7 +204,12 @@ class D3QN(BaseLearner):
                 horizon=self.cfg.learner_fear_horizon,
             ).fear
 
+    def make_captured(self) -> CapturedUpdate:
+        return CapturedD3QNUpdate(self)
+
     def update(self) -> dict[str, float]:
+        if self.cfg.cuda_graph:
+            return self.captured_update()
         cfg = self.cfg
         batch = self.buffer.sample(cfg.batch_size, self.rng)
         actions = batch.action.argmax(-1, keepdim=True)

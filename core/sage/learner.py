@@ -38,6 +38,7 @@ from torch import Tensor
 from core.device import DeviceError, resolve_device, to_cpu
 from core.protocol import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
+from core.sage.captured import CapturedUpdate, require_cuda
 from core.sage.config import AgentConfig, GateConfig
 from core.sage.fear import CalibrationSample, PolicyFn
 from core.sage.gate import SageGate
@@ -93,6 +94,19 @@ def _place_step_counts(optimizer: torch.optim.Optimizer) -> None:
                 state["step"] = state["step"].to(where, torch.float32)
 
 
+def _restore_in_place(optimizer: torch.optim.Optimizer, saved: dict[str, Any]) -> None:
+    """An optimiser's state as ``saved`` (its ``state_dict``) copied into its own tensors."""
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    with torch.no_grad():
+        for index, values in saved["state"].items():
+            own = optimizer.state[params[index]]
+            for key, value in values.items():
+                if isinstance(own.get(key), torch.Tensor):
+                    own[key].copy_(value)
+                else:
+                    own[key] = value
+
+
 @dataclass(frozen=True)
 class DeclaredState:
     """What :meth:`BaseLearner.update` trains, by attribute name (Stable-Baselines3 style): checkpoints save and
@@ -136,6 +150,7 @@ class BaseLearner:
         self.captures = cfg.cuda_graph and self.device.type == "cuda"
         """Whether the update is captured once as a CUDA graph and replayed (``AgentConfig.cuda_graph`` on CUDA:
         :mod:`core.sage.captured`); its optimisers are then capturable."""
+        self._captured: CapturedUpdate | None = None
         self._acting_copy: torch.nn.Module | None = None
         self._device_folded: tuple[int, FoldedModel] | None = None
         torch.manual_seed(seed)
@@ -204,6 +219,18 @@ class BaseLearner:
         if self._device_folded is None or self._device_folded[0] != version:
             self._device_folded = (version, folded.to(self.device))
         return self._device_folded[1]
+
+    def make_captured(self) -> CapturedUpdate:
+        """The method's update as a CUDA graph (:mod:`core.sage.captured`; methods without one refuse
+        ``learner.cuda_graph``)."""
+        raise DeviceError(f"learner.cuda_graph: method {self.cfg.method!r} has no captured update (SAC and D3QN do)")
+
+    def captured_update(self) -> dict[str, float]:
+        """One update replayed from its CUDA graph (``AgentConfig.cuda_graph``): a DeviceError off CUDA."""
+        if self._captured is None:
+            require_cuda(self.device)
+            self._captured = self.make_captured()
+        return self._captured()
 
     def fear_policy(self, obs: Tensor) -> Tensor:
         """The rollout policy on :attr:`device`, which the update's fear terms roll out (with gradients through the
@@ -335,6 +362,12 @@ class BaseLearner:
         """Whether every declared trained value (and the world model) is finite."""
         declared = self.declared_state()
         modules = [getattr(self, name) for name in declared.modules]
+        if self.device.type != "cpu":  # one host sync for all the device's weights, not one per tensor
+            trained = [p.detach() for module in modules for p in module.parameters()]
+            trained += [getattr(self, name).detach().reshape(-1) for name in declared.tensors]
+            if not bool(torch.stack([torch.isfinite(t).all() for t in trained]).all()):
+                return False
+            modules = []
         if self.world_model is not None:
             modules.append(self.world_model)
         for module in modules:
@@ -359,7 +392,10 @@ class BaseLearner:
         for name, saved in snapshot["modules"].items():
             getattr(self, name).load_state_dict(saved)  # copies in place: views of the weights (ActorPolicy) stay valid
         for name, saved in snapshot["optimizers"].items():
-            getattr(self, name).load_state_dict(saved)
+            if self.captures:  # in place: a CUDA graph reads the moments where it recorded them
+                _restore_in_place(getattr(self, name), saved)
+            else:
+                getattr(self, name).load_state_dict(saved)
         with torch.no_grad():
             for name, saved in snapshot["tensors"].items():
                 getattr(self, name).copy_(saved)
@@ -525,6 +561,8 @@ class BaseLearner:
             elif strict:
                 raise KeyError(f"checkpoint has no {name!r} (it has {', '.join(sorted(state))})")
         loaded.extend(self._load_optimizers(state.get("optimizers", {}), strict))
+        if self._captured is not None:
+            self._captured.drop()  # new optimiser memory: capture again
         if "fear_budget" in state:
             self.measured_fear_budget = float(torch.as_tensor(state["fear_budget"]))
             loaded.append("fear_budget")

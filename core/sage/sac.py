@@ -44,6 +44,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from core.replay import Batch
+from core.sage.captured import CapturedSACUpdate, CapturedUpdate
 from core.sage.config import AgentConfig
 from core.sage.fear import fear
 from core.sage.learner import ActorLearner, DeclaredState
@@ -233,7 +234,12 @@ class SAC(ActorLearner):
         return stats
 
     # -- the update ----------------------------------------------------------------------------------
+    def make_captured(self) -> CapturedUpdate:
+        return CapturedSACUpdate(self)
+
     def update(self) -> dict[str, float]:
+        if self.cfg.cuda_graph:
+            return self.captured_update()
         batch = self.buffer.sample(self.cfg.batch_size, self.rng)
         stats = self.critic_step(batch)
         stats.update(self.actor_step(batch))
