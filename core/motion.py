@@ -224,7 +224,60 @@ class EgoScanStep:
             out = torch.empty(state.shape, dtype=state.dtype)
             self.apply_into(state, action, out)
             return out
-        return self._apply_tensors(state, action)
+        return self._apply_chosen(state, action)
+
+    def _apply_chosen(self, state: Tensor, action: Tensor) -> Tensor:
+        """:meth:`apply` with gradients on the CPU: the compiled kernel finds which segment and ray gave each reading
+        (``core._ego_kernel.scan_with_choices``), and torch recomputes only those, differentiably, from the same
+        formulas as :meth:`_scan`. The value and the gradient are the tensor version's (the minimum over candidates
+        passes its gradient to the one it chose) at a few operations per sector instead of one per candidate: the
+        actor's fear term over the ego step, the bulk of a SAGE-SAC update on the UGV (bench/bench_sac.py --ego)."""
+        from core import _ego_kernel as kernel
+
+        s, d = self.sectors, state.shape[-1]
+        lead = state.shape[:-1]
+        ranges = state[..., :s].reshape(-1, s)
+        actions = action.expand(*lead, action.shape[-1]).reshape(-1, action.shape[-1])
+        rows = len(ranges)
+        choices = np.empty((rows, s, kernel.CHOICE_FIELDS), dtype=np.int64)
+        reading = np.empty((rows, d), dtype=np.float64)
+        with torch.no_grad():
+            kernel.scan_with_choices(
+                state.detach().reshape(-1, d).numpy(), actions.detach().numpy(), reading, choices,
+                *_kernel_geometry(self),
+            )  # fmt: skip
+        chosen = torch.from_numpy(choices)
+        kind = chosen[..., 0]
+        g = _geometry(self, ranges.dtype)
+        distance = (
+            actions[:, self.forward_channel : self.forward_channel + 1] * self.forward_scale + self.forward_offset
+        )
+        turn = actions[:, self.turn_channel : self.turn_channel + 1] * self.turn_scale
+        half = 0.5 * turn
+        small = half.abs() <= 1e-6
+        safe = torch.where(small, torch.ones_like(half), half)
+        chord = distance * torch.where(small, torch.ones_like(half), torch.sin(safe) / safe)
+        x0, y0 = ranges * g.cos, ranges * g.sin
+        x, y = x0 - chord * torch.cos(half), y0 - chord * torch.sin(half)
+        c, n = torch.cos(turn), torch.sin(turn)
+        x, y = c * x + n * y, c * y - n * x
+        ray_cos, ray_sin = g.ray_cos[:, 0].expand(rows, -1, -1), g.ray_sin[:, 0].expand(rows, -1, -1)  # (B, S, rays)
+        after = _chosen_cast(x, y, chosen[..., 1], chosen[..., 2], ray_cos, ray_sin)
+        before = _chosen_cast(x0, y0, chosen[..., 3], chosen[..., 4], ray_cos, ray_sin)
+        source = chosen[..., 5]
+        found = source >= 0
+        at = source.clamp_min(0)
+        lx, ly = x.gather(1, at), y.gather(1, at)
+        landed = torch.hypot(torch.where(found, lx, torch.ones_like(lx)), torch.where(found, ly, torch.zeros_like(ly)))
+        seen = ranges + (after - before)
+        clamped = torch.from_numpy(reading[:, :s]).to(ranges.dtype)
+        scan = torch.where(
+            kind == kernel.KIND_SEEN, seen,
+            torch.where(kind == kernel.KIND_AFTER, after,
+                        torch.where(kind == kernel.KIND_LANDED, landed,
+                                    torch.where(kind == kernel.KIND_RANGE, ranges, clamped))),
+        )  # fmt: skip
+        return torch.cat([scan.reshape(*lead, s), state[..., s:]], dim=-1)
 
     def _apply_tensors(self, state: Tensor, action: Tensor) -> Tensor:
         s = self.sectors
@@ -296,6 +349,21 @@ class EgoScanStep:
         landed = landed.scatter_reduce(1, sector, torch.where(lands, torch.hypot(x, y), inf), "amin")[:, :s]
         nearest = torch.minimum(seen, landed)
         return torch.where(torch.isinf(nearest), ranges, nearest.clamp(0.0, 1.0))
+
+
+def _chosen_cast(x: Tensor, y: Tensor, segment: Tensor, ray: Tensor, ray_cos: Tensor, ray_sin: Tensor) -> Tensor:
+    """(B, S) where each sector's chosen ray meets its chosen segment (index of its first return; -1: none, then a
+    finite stand-in whose gradient is zero), :func:`_cast`'s arithmetic on one candidate per sector."""
+    found = segment >= 0
+    first = segment.clamp_min(0)
+    ax, ay = x.gather(1, first), y.gather(1, first)
+    ex, ey = x.gather(1, first + 1) - ax, y.gather(1, first + 1) - ay
+    which = ray.clamp_min(0).unsqueeze(-1)
+    ux, uy = ray_cos.gather(2, which).squeeze(-1), ray_sin.gather(2, which).squeeze(-1)
+    den = ux * ey - uy * ex
+    den = torch.where(found, den, torch.ones_like(den))  # a found hit has |den| > 1e-9
+    along = (ax * ey - ay * ex) / den
+    return torch.where(found, along, torch.zeros_like(along))
 
 
 def _cast(x: Tensor, y: Tensor, joined: Tensor, geometry: _EgoGeometry, idx: Tensor) -> Tensor:

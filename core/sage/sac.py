@@ -120,6 +120,7 @@ class SAC(ActorLearner):
 
     def real_fear(self, obs: Tensor) -> Tensor:
         """F(s, a), a ~ π(·|s): the fear the actor's loss and the dual update read on real states."""
+        obs = obs.to(self.device)  # the fit's calibration states come from numpy, on the CPU
         return self.learner_fear(obs, self.actor.sample(obs)[0])
 
     def learner_fear(self, obs: Tensor, action: Tensor) -> Tensor:
