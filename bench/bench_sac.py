@@ -215,6 +215,10 @@ def main() -> None:
             "SAGE-SAC over the ego step / SAGE-SAC update time: "
             f"{median['SAGE-SAC'] / median['SAGE-SAC, ego step']:.2f}x"
         )
+        print(
+            "SAGE-SAC over the ego step / our SAC update time:   "
+            f"{median['our SAC'] / median['SAGE-SAC, ego step']:.2f}x  (target <= 2.0x)"
+        )
     print(f"load average while measuring: {', '.join(f'{x:.2f}' for x in _loadavg())}")
     if args.device:
         device_rows(args.rounds, args.updates)
