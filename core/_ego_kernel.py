@@ -132,9 +132,9 @@ def scan(
 
 
 CHOICE_FIELDS = 6
-"""Per (row, sector), what :func:`scan_with_choices` records: the output's kind (``KIND_*``), the segment (index of its
-first return) and ray that gave the cast after the step, the two that gave the cast before it, and the return that
-landed in the sector (-1 where none)."""
+"""Per (row, sector), what :func:`scan_with_choices` records, each field a contiguous (B, S) plane: the output's kind
+(``KIND_*``), the segment (index of its first return) and ray (``sector * rays + ray``) that gave the cast after the
+step, the two that gave the cast before it, and the return that landed in the sector (-1 where none)."""
 KIND_RANGE, KIND_CLAMPED, KIND_SEEN, KIND_AFTER, KIND_LANDED = 0, 1, 2, 3, 4
 """The reading is the range itself (nothing seen); a clamp's bound (0 or 1); the range moved by the change between
 the casts; the cast after the step; a return that landed in the sector."""
@@ -151,7 +151,7 @@ def scan_with_choices(
     numbers: np.ndarray,
     channels: np.ndarray,
 ) -> None:
-    """:func:`scan`, also writing into ``choices`` (B, S, :data:`CHOICE_FIELDS`) int64 which candidate gave each
+    """:func:`scan`, also writing into ``choices`` (:data:`CHOICE_FIELDS`, B, S) int64 which candidate gave each
     reading: a gradient then needs only the chosen segment and ray per sector (``core.motion.EgoScanStep.apply`` with
     gradients recomputes those in torch), not every sector's rays at every candidate."""
     k = (directions.shape[1] - 2) // 2
@@ -168,7 +168,7 @@ def scan_with_choices(
     spacing = width / k
     for b in range(rows):
         out[b, s:] = states[b, s:]
-        choices[b, :, :] = -1
+        choices[:, b, :] = -1
         distance = actions[b, forward_channel] * forward_scale + forward_offset
         turn = actions[b, turn_channel] * turn_scale
         half = 0.5 * turn
@@ -194,7 +194,7 @@ def scan_with_choices(
                     distance_j = math.hypot(x[j], y[j])
                     if distance_j < landed[sector]:
                         landed[sector] = distance_j
-                        choices[b, sector, 5] = j
+                        choices[5, b, sector] = j
         for j in range(s - 1):
             if not joined[j]:
                 continue
@@ -213,8 +213,8 @@ def scan_with_choices(
                     along = _meet(ax, ay, ex, ey, ray_cos[i, q], ray_sin[i, q])
                     if along < after[i]:
                         after[i] = along
-                        choices[b, i, 1] = j
-                        choices[b, i, 2] = q
+                        choices[1, b, i] = j
+                        choices[2, b, i] = ray
         for i in range(s):
             before = math.inf
             for idx in own[i]:
@@ -224,8 +224,8 @@ def scan_with_choices(
                         along = _meet(ax, ay, x0[idx + 1] - ax, y0[idx + 1] - ay, ray_cos[i, q], ray_sin[i, q])
                         if along < before:
                             before = along
-                            choices[b, i, 3] = idx
-                            choices[b, i, 4] = q
+                            choices[3, b, i] = idx
+                            choices[4, b, i] = i * k + q
             after_i = after[i]
             both = math.isfinite(before) and math.isfinite(after_i)
             seen = r[i] + (after_i - before) if both else after_i
@@ -239,4 +239,4 @@ def scan_with_choices(
                 out[b, i] = min(max(nearest, 0.0), 1.0)
                 if nearest < 0.0 or nearest > 1.0:
                     kind = KIND_CLAMPED
-            choices[b, i, 0] = kind
+            choices[0, b, i] = kind

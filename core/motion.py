@@ -239,7 +239,7 @@ class EgoScanStep:
         ranges = state[..., :s].reshape(-1, s)
         actions = action.expand(*lead, action.shape[-1]).reshape(-1, action.shape[-1])
         rows = len(ranges)
-        choices = np.empty((rows, s, kernel.CHOICE_FIELDS), dtype=np.int64)
+        choices = np.empty((kernel.CHOICE_FIELDS, rows, s), dtype=np.int64)
         reading = np.empty((rows, d), dtype=np.float64)
         with torch.no_grad():
             kernel.scan_with_choices(
@@ -247,11 +247,10 @@ class EgoScanStep:
                 *_kernel_geometry(self),
             )  # fmt: skip
         chosen = torch.from_numpy(choices)
-        kind = chosen[..., 0]
+        kind = chosen[0]
         g = _geometry(self, ranges.dtype)
-        distance = (
-            actions[:, self.forward_channel : self.forward_channel + 1] * self.forward_scale + self.forward_offset
-        )
+        forward = actions[:, self.forward_channel : self.forward_channel + 1]
+        distance = forward * self.forward_scale + self.forward_offset
         turn = actions[:, self.turn_channel : self.turn_channel + 1] * self.turn_scale
         half = 0.5 * turn
         small = half.abs() <= 1e-6
@@ -261,10 +260,10 @@ class EgoScanStep:
         x, y = x0 - chord * torch.cos(half), y0 - chord * torch.sin(half)
         c, n = torch.cos(turn), torch.sin(turn)
         x, y = c * x + n * y, c * y - n * x
-        ray_cos, ray_sin = g.ray_cos[:, 0].expand(rows, -1, -1), g.ray_sin[:, 0].expand(rows, -1, -1)  # (B, S, rays)
-        after = _chosen_cast(x, y, chosen[..., 1], chosen[..., 2], ray_cos, ray_sin)
-        before = _chosen_cast(x0, y0, chosen[..., 3], chosen[..., 4], ray_cos, ray_sin)
-        source = chosen[..., 5]
+        ray_cos, ray_sin = g.ray_cos.reshape(-1), g.ray_sin.reshape(-1)  # sector * rays + ray
+        after = _chosen_cast(x, y, chosen[1], chosen[2], ray_cos, ray_sin)
+        before = _chosen_cast(x0, y0, chosen[3], chosen[4], ray_cos, ray_sin)
+        source = chosen[5]
         found = source >= 0
         at = source.clamp_min(0)
         lx, ly = x.gather(1, at), y.gather(1, at)
@@ -352,14 +351,15 @@ class EgoScanStep:
 
 
 def _chosen_cast(x: Tensor, y: Tensor, segment: Tensor, ray: Tensor, ray_cos: Tensor, ray_sin: Tensor) -> Tensor:
-    """(B, S) where each sector's chosen ray meets its chosen segment (index of its first return; -1: none, then a
-    finite stand-in whose gradient is zero), :func:`_cast`'s arithmetic on one candidate per sector."""
+    """(B, S) where each sector's chosen ray (``ray``: index into the flat ``ray_cos`` / ``ray_sin``) meets its chosen
+    segment (index of its first return; -1: none, then a finite stand-in whose gradient is zero), :func:`_cast`'s
+    arithmetic on one candidate per sector."""
     found = segment >= 0
     first = segment.clamp_min(0)
     ax, ay = x.gather(1, first), y.gather(1, first)
     ex, ey = x.gather(1, first + 1) - ax, y.gather(1, first + 1) - ay
-    which = ray.clamp_min(0).unsqueeze(-1)
-    ux, uy = ray_cos.gather(2, which).squeeze(-1), ray_sin.gather(2, which).squeeze(-1)
+    which = ray.clamp_min(0)
+    ux, uy = ray_cos.take(which), ray_sin.take(which)
     den = ux * ey - uy * ex
     den = torch.where(found, den, torch.ones_like(den))  # a found hit has |den| > 1e-9
     along = (ax * ey - ay * ex) / den
