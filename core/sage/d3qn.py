@@ -27,7 +27,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from core.sage.captured import CapturedD3QNUpdate, CapturedUpdate
+from core.replay import Batch
+from core.sage.captured import CapturedUpdate, fill_batch, static_batch
 from core.sage.fear import fear
 from core.sage.learner import BaseLearner, DeclaredState
 from core.sage.networks import adam, soft_update
@@ -326,3 +327,79 @@ class DiscreteHGDAgger(D3QN):
                 break
             loss = torch.tensor(stats["bc_loss"])
         return float(loss)
+
+
+class CapturedD3QNUpdate(CapturedUpdate):
+    """:meth:`core.sage.d3qn.D3QN.update` as one graph per structure."""
+
+    learner: D3QN
+
+    def __call__(self) -> dict[str, float]:
+        learner, cfg = self.learner, self.learner.cfg
+        assert isinstance(learner, D3QN)
+        batch = learner.buffer.sample(cfg.batch_size, learner.rng)
+        fear_on = learner.fear_active()
+        imitation = learner.buffer.sample_takeovers(cfg.bc_batch_size, learner.rng) if cfg.imitation else None
+        if fear_on:
+            self.static_folded()
+        key = (fear_on, imitation is not None)
+        if key not in self.inputs:
+            imitation_inputs = None if imitation is None else static_batch(imitation)
+            self.inputs[key] = {"batch": static_batch(batch), "imitation": imitation_inputs}
+        inputs = self.inputs[key]
+        fill_batch(inputs["batch"], batch)
+        if imitation is not None:
+            fill_batch(inputs["imitation"], imitation)
+        self.scalars["lam"].fill_(learner.lam)
+        self.scalars["c_star"].fill_(learner.c_star() if cfg.violation_penalty else 0.0)
+        self.scalars["fear_budget"].fill_(learner.fear_budget())
+        stats = self.run(key, lambda: self.body(inputs["batch"], inputs["imitation"], fear_on))
+        stats["epsilon"] = learner.epsilon()
+        if fear_on:
+            stats["fear_budget"] = learner.fear_budget()
+        else:
+            stats.pop("lam", None)
+        return stats
+
+    def body(self, batch: Batch, imitation: Batch | None, fear_on: bool) -> dict[str, Tensor]:
+        learner, cfg, lam = self.learner, self.learner.cfg, self.scalars["lam"]
+        actions = batch.action.argmax(-1, keepdim=True)
+        fear_next = None
+        if fear_on:
+            with torch.no_grad():
+                fear_next = self.fear(batch.next_obs, learner.fear_policy(batch.next_obs), learner.fear_policy)
+        y = double_q_target(
+            learner.q, learner.q_target, batch.reward, batch.next_obs, batch.terminated, cfg.gamma,
+            fear_next=fear_next, lam=lam, violation=batch.violation if cfg.violation_penalty else None,
+            c_star=self.scalars["c_star"],
+        )  # fmt: skip
+        q_all = learner.q(batch.obs)
+        q = q_all.gather(-1, actions).squeeze(-1)
+        loss = F.smooth_l1_loss(q, y)
+        stats: dict[str, Tensor] = {"q_loss": loss.detach(), "q_mean": q.detach().mean()}
+        if imitation is not None:
+            q_scale = q_all.detach().abs().mean().clamp_min(1.0)
+            q_imitation = learner.q(imitation.obs)
+            expert = imitation.a_expert.argmax(-1)
+            with torch.no_grad():
+                q_expert = q_imitation.gather(-1, expert.view(-1, 1)).squeeze(-1)
+                q_agent = q_imitation.gather(-1, imitation.a_rl.argmax(-1).view(-1, 1)).squeeze(-1)
+                scale = cfg.advantage_temperature * q_scale
+                omega = torch.exp(((q_expert - q_agent) / scale).clamp(-cfg.advantage_clip, cfg.advantage_clip))
+            margin = weighted_margin_loss(q_imitation, expert, omega, cfg.discrete.margin)
+            loss = loss + cfg.bc_weight * margin
+            stats.update(bc_loss=margin.detach(), omega_mean=omega.mean())
+        self.zero(learner.q_optimizer)
+        loss.backward()
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(learner.q.parameters(), cfg.max_grad_norm)
+        learner.q_optimizer.step()
+        soft_update(learner.q_target, learner.q, cfg.polyak)
+        if fear_on:
+            with torch.no_grad():
+                fear_real = self.fear(batch.obs, learner.fear_policy(batch.obs), learner.fear_policy).mean()
+            stats["fear_real"] = fear_real
+            stats["lam"] = (lam + cfg.lambda_lr * (fear_real - self.scalars["fear_budget"])).clamp(0.0, cfg.lambda_max)
+        else:
+            stats["lam"] = lam
+        return stats

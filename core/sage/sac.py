@@ -44,7 +44,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from core.replay import Batch
-from core.sage.captured import CapturedSACUpdate, CapturedUpdate
+from core.sage.captured import CapturedUpdate, fill_batch, static_batch
 from core.sage.config import AgentConfig
 from core.sage.fear import fear
 from core.sage.learner import ActorLearner, DeclaredState
@@ -306,3 +306,111 @@ class SAC(ActorLearner):
             tensors=("log_alpha",),
             scalars=("lam",),
         )
+
+
+class CapturedSACUpdate(CapturedUpdate):
+    """:meth:`core.sage.sac.SAC.update` (critic, actor, α, λ) as one graph per structure."""
+
+    learner: SAC
+
+    def __call__(self) -> dict[str, float]:
+        sac, cfg = self.learner, self.learner.cfg
+        batch = sac.buffer.sample(cfg.batch_size, sac.rng)
+        fear_on = sac.fear_active()
+        imitation = sac.imitation_batch()
+        n_virtual = 0
+        if sac.virtual is not None and len(sac.virtual) > 0 and cfg.virtual_ratio > 0:
+            n_virtual = round(cfg.virtual_ratio * len(batch))
+        virtual = None if n_virtual == 0 else sac.virtual.sample_obs(n_virtual, sac.rng)  # type: ignore[union-attr]
+        if fear_on:
+            self.static_folded()
+        key = (fear_on, imitation is not None, n_virtual)
+        if key not in self.inputs:
+            self.inputs[key] = {
+                "batch": static_batch(batch),
+                "imitation": None if imitation is None else static_batch(imitation),
+                "virtual": None if virtual is None else virtual.clone(),
+            }
+        inputs = self.inputs[key]
+        fill_batch(inputs["batch"], batch)
+        if imitation is not None:
+            fill_batch(inputs["imitation"], imitation)
+        if virtual is not None:
+            inputs["virtual"].copy_(virtual, non_blocking=True)
+        self.scalars["lam"].fill_(sac.lam)
+        self.scalars["c_star"].fill_(sac.c_star() if cfg.violation_penalty else 0.0)
+        self.scalars["fear_budget"].fill_(sac.fear_budget())
+        return self.run(key, lambda: self.body(inputs["batch"], inputs["imitation"], inputs["virtual"], fear_on))
+
+    def alpha(self) -> Tensor | float:
+        sac = self.learner
+        return sac.log_alpha.detach().exp() if sac.cfg.autotune_alpha else sac.cfg.init_alpha
+
+    def body(self, batch: Batch, imitation: Batch | None, virtual: Tensor | None, fear_on: bool) -> dict[str, Tensor]:
+        """One SAC update on the static inputs, kernels only: :meth:`SAC.critic_step` then :meth:`SAC.actor_step`."""
+        sac, cfg, lam = self.learner, self.learner.cfg, self.scalars["lam"]
+        stats: dict[str, Tensor] = {}
+        # critic (SAC.critic_target_values, SAC.critic_step)
+        with torch.no_grad():
+            next_action, next_log_prob = sac.actor.sample(batch.next_obs)
+            next_q = sac.critic_target(batch.next_obs, next_action).min(0).values - self.alpha() * next_log_prob
+            if fear_on:
+                next_q = next_q - lam * self.fear(batch.next_obs, next_action, sac.fear_policy)
+            y = batch.reward + cfg.gamma * (1.0 - batch.terminated) * next_q
+            if cfg.violation_penalty:
+                y = torch.where(batch.violation > 0.5, -self.scalars["c_star"], y)
+        q = sac.critic(batch.obs, batch.action)
+        critic_loss = F.mse_loss(q, y.unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
+        self.zero(sac.critic_optimizer)
+        critic_loss.backward()
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(sac.critic.parameters(), cfg.max_grad_norm)
+        sac.critic_optimizer.step()
+        soft_update(sac.critic_target, sac.critic, cfg.polyak)
+        stats.update(critic_loss=critic_loss.detach(), q_mean=q.detach().mean())
+        # actor (SAC.actor_loss, SAC.actor_step)
+        states = batch.obs if virtual is None else torch.cat([batch.obs[: len(batch.obs) - len(virtual)], virtual])
+        n_real = len(states) if virtual is None else len(states) - len(virtual)
+        sac.critic.requires_grad_(False)
+        try:
+            action, log_prob = sac.actor.sample(states)
+            q_pi = sac.critic(states, action).min(0).values
+            actor_loss = (self.alpha() * log_prob - q_pi).mean()
+            fear_real = None
+            if fear_on:
+                fear_values = self.fear(states, action, sac.fear_policy)
+                actor_loss = actor_loss + lam * fear_values.mean()
+                fear_real = fear_values[:n_real].mean()
+                stats.update(fear_real=fear_real.detach(), fear_budget=self.scalars["fear_budget"])
+            q_scale = q_pi.detach().abs().mean().clamp_min(1.0)
+            if imitation is not None:
+                with torch.no_grad():
+                    q_expert = sac.critic(imitation.obs, imitation.a_expert).min(0).values
+                    q_agent = sac.critic(imitation.obs, imitation.a_rl).min(0).values
+                    scale = cfg.advantage_temperature * q_scale
+                    omega = torch.exp(((q_expert - q_agent) / scale).clamp(-cfg.advantage_clip, cfg.advantage_clip))
+                error = (sac.actor.deterministic(imitation.obs) - imitation.a_expert).pow(2).sum(-1)
+                bc = (omega * error).mean()
+                actor_loss = actor_loss + cfg.bc_weight * q_scale * bc
+                stats.update(bc_loss=bc.detach(), omega_mean=omega.mean())
+            self.zero(sac.actor_optimizer)
+            actor_loss.backward()
+        finally:
+            sac.critic.requires_grad_(True)
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(sac.actor.parameters(), cfg.max_grad_norm)
+        sac.actor_optimizer.step()
+        if cfg.autotune_alpha:
+            alpha_loss = -(sac.log_alpha * (log_prob.detach() + sac.target_entropy)).mean()
+            self.zero(sac.alpha_optimizer)
+            alpha_loss.backward()
+            sac.alpha_optimizer.step()
+        new_lam = lam
+        if fear_real is not None:  # the dual step (BaseLearner.dual_step) on the device
+            step = cfg.lambda_lr * (fear_real.detach() - self.scalars["fear_budget"])
+            new_lam = (lam + step).clamp(0.0, cfg.lambda_max)
+        stats.update(
+            actor_loss=actor_loss.detach(), alpha=torch.as_tensor(self.alpha(), device=self.device), lam=new_lam,
+            entropy=-log_prob.detach().mean(),
+        )  # fmt: skip
+        return stats

@@ -11,9 +11,10 @@ import torch
 
 from core.device import DeviceError
 from core.learners import make_learner
-from core.sage.captured import CapturedD3QNUpdate, CapturedSACUpdate
 from core.sage.config import for_method
+from core.sage.d3qn import CapturedD3QNUpdate
 from core.sage.learner import BaseLearner
+from core.sage.sac import CapturedSACUpdate
 
 torch.set_num_threads(1)
 OBS, ACT = 6, 2
