@@ -190,6 +190,9 @@ def main() -> None:
     print(
         f"target: median <= {TARGET_MS} ms on one core: CPU {batched_cpu:.3f} ms {verdict}; wall {batched_wall:.3f} ms"
     )
+    from core.device import processor_name
+
+    print(f"processor: {processor_name()}")
     load = os.getloadavg()
     print(
         f"load average while measuring: {', '.join(f'{x:.2f}' for x in load)} on {os.cpu_count()} cores"

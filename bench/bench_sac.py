@@ -6,11 +6,14 @@ the frozen 5-member world model, the dual step, value-weighted imitation on inte
 batches from real and virtual buffers). The methods run in interleaved rounds so that a busy machine
 slows them alike; the printed ratios come from the same run.
 
-    .venv/bin/python bench/bench_sac.py [--rounds 5] [--updates 200] [--ego]
+    .venv/bin/python bench/bench_sac.py [--rounds 5] [--updates 200] [--ego] [--device]
 
 ``--ego`` adds SAGE-SAC over the ego step (the UGV default's world model, ``sims.ugv.env.ego_motion_layout``): there
 the actor loss's fear term sends gradients through the step's tensor version (the gate and targets use its compiled
 one).
+
+``--device`` adds SAC and SAGE-SAC on CUDA, eager and replayed as a CUDA graph (``learner.cuda_graph``), beside the CPU,
+where torch sees a GPU; elsewhere it says so. ``bench/gpu_check.py`` measures batches 256 to 4096.
 """
 
 from __future__ import annotations
@@ -52,13 +55,18 @@ def fill(learner: BaseLearner, n: int, rng: np.random.Generator, takeover_every:
 
 
 def ours(
-    method: str, rng: np.random.Generator, world_model: dict[str, Any] | None = None, **overrides: object
+    method: str,
+    rng: np.random.Generator,
+    world_model: dict[str, Any] | None = None,
+    batch: int = BATCH,
+    device: str = "cpu",
+    **overrides: object,
 ) -> BaseLearner:
-    cfg = for_method(method, hidden=HIDDEN, batch_size=BATCH, critics=2, **overrides)
+    cfg = for_method(method, hidden=HIDDEN, batch_size=batch, critics=2, **overrides)
     cfg.world_model_config.max_updates_per_fit = 200
     for key, value in (world_model or {}).items():
         setattr(cfg.world_model_config, key, value)
-    learner = make_learner(cfg.method, cfg, OBS_DIM, ACT_DIM, seed=0)
+    learner = make_learner(cfg.method, cfg, OBS_DIM, ACT_DIM, seed=0, device=device)
     fill(learner, 20_000, rng)
     learner.warm = True
     if learner.world_model is not None:
@@ -106,11 +114,49 @@ def sb3(rng: np.random.Generator) -> Any:
     return model
 
 
-def rate(fn: Callable[[], None], n: int) -> float:
+def rate(fn: Callable[[], None], n: int, sync: Callable[[], None] | None = None) -> float:
+    """Updates per second over ``n`` calls (``sync``: wait for the device's queued work before reading the clock)."""
+    if sync is not None:
+        sync()
     start = time.perf_counter()
     for _ in range(n):
         fn()
+    if sync is not None:
+        sync()
     return n / (time.perf_counter() - start)
+
+
+def device_rows(rounds: int, updates: int) -> None:
+    """``--device``: SAC and SAGE-SAC updates on the CPU (one thread), on CUDA, and on CUDA replayed as a graph
+    (``learner.cuda_graph``), side by side, or a line saying that this machine has no CUDA."""
+    from core.device import cuda_available, device_name, processor_name
+
+    if not cuda_available():
+        print(
+            f"--device: no CUDA device here (torch {torch.__version__}, "
+            f"{'CPU-only build' if torch.version.cuda is None else 'CUDA ' + torch.version.cuda}); only the CPU "
+            f"({processor_name()}) was measured. bench/gpu_check.py measures the GPU where one is."
+        )
+        return
+    cuda = torch.device("cuda")
+    print(f"--device: CPU {processor_name()} (one thread) against {device_name(cuda)}, batch {BATCH}:")
+    for method in ("sac", "sage"):
+        rng = np.random.default_rng(0)
+        variants = {
+            "cpu": ours(method, rng),
+            "cuda": ours(method, rng, device="cuda"),
+            "cuda graph": ours(method, rng, device="cuda", cuda_graph=True),
+        }
+        median: dict[str, float] = {}
+        for name, learner in variants.items():
+            sync = torch.cuda.synchronize if name != "cpu" else None
+            rate(learner.update, 10, sync)  # warm-up (and the graph's capture)
+            median[name] = statistics.median(rate(learner.update, updates, sync) for _ in range(rounds))
+        cells = "   ".join(f"{name} {1000.0 / value:7.2f} ms" for name, value in median.items())
+        ratios = "   ".join(
+            f"{name}/cpu {value / median['cpu']:6.1f}x" for name, value in median.items() if name != "cpu"
+        )
+        print(f"  {method:5s} {cells}   {ratios}")
 
 
 def main() -> None:
@@ -123,8 +169,16 @@ def main() -> None:
         help="also SAGE-SAC over the ego step (the UGV default's world model: the actor's fear term takes the step's "
         "tensor path, with gradients; sims.ugv.env.ego_motion_layout)",
     )
+    parser.add_argument(
+        "--device",
+        action="store_true",
+        help="also the updates on CUDA, eager and as a CUDA graph, beside the CPU's (says so where there is no CUDA)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
+    from core.device import processor_name
+
+    print(f"processor: {processor_name()}")
     rng = np.random.default_rng(0)
     sac, sage, reference = ours("sac", rng), ours("sage", rng), sb3(rng)
     sac_unclipped = ours("sac", rng, max_grad_norm=None)  # SB3's SAC clips no gradients
@@ -161,7 +215,13 @@ def main() -> None:
             "SAGE-SAC over the ego step / SAGE-SAC update time: "
             f"{median['SAGE-SAC'] / median['SAGE-SAC, ego step']:.2f}x"
         )
+        print(
+            "SAGE-SAC over the ego step / our SAC update time:   "
+            f"{median['our SAC'] / median['SAGE-SAC, ego step']:.2f}x  (target <= 2.0x)"
+        )
     print(f"load average while measuring: {', '.join(f'{x:.2f}' for x in _loadavg())}")
+    if args.device:
+        device_rows(args.rounds, args.updates)
 
 
 def _loadavg() -> tuple[float, ...]:

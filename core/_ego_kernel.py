@@ -129,3 +129,114 @@ def scan(
             seen = r[i] + (after_i - before) if math.isfinite(before) and math.isfinite(after_i) else after_i
             nearest = min(seen, landed[i])
             out[b, i] = r[i] if math.isinf(nearest) else min(max(nearest, 0.0), 1.0)
+
+
+CHOICE_FIELDS = 6
+"""Per (row, sector), what :func:`scan_with_choices` records, each field a contiguous (B, S) plane: the output's kind
+(``KIND_*``), the segment (index of its first return) and ray (``sector * rays + ray``) that gave the cast after the
+step, the two that gave the cast before it, and the return that landed in the sector (-1 where none)."""
+KIND_RANGE, KIND_CLAMPED, KIND_SEEN, KIND_AFTER, KIND_LANDED = 0, 1, 2, 3, 4
+"""The reading is the range itself (nothing seen); a clamp's bound (0 or 1); the range moved by the change between
+the casts; the cast after the step; a return that landed in the sector."""
+
+
+@numba.njit(cache=True, nogil=True)
+def scan_with_choices(
+    states: np.ndarray,
+    actions: np.ndarray,
+    out: np.ndarray,
+    choices: np.ndarray,
+    directions: np.ndarray,
+    segments: np.ndarray,
+    numbers: np.ndarray,
+    channels: np.ndarray,
+) -> None:
+    """:func:`scan`, also writing into ``choices`` (:data:`CHOICE_FIELDS`, B, S) int64 which candidate gave each
+    reading: a gradient then needs only the chosen segment and ray per sector (``core.motion.EgoScanStep.apply`` with
+    gradients recomputes those in torch), not every sector's rays at every candidate."""
+    k = (directions.shape[1] - 2) // 2
+    cos, sin, ray_cos, ray_sin = directions[:, 0], directions[:, 1], directions[:, 2 : 2 + k], directions[:, 2 + k :]
+    last_candidate, own = segments.shape[1] - 3, segments[:, -2:]
+    start, width, forward_scale, forward_offset, turn_scale, joint_ratio = numbers
+    forward_channel, turn_channel = channels
+    rows, s = states.shape[0], directions.shape[0]
+    r, x0, y0 = np.empty(s), np.empty(s), np.empty(s)
+    x, y = np.empty(s), np.empty(s)
+    hit = np.empty(s, dtype=np.bool_)
+    joined = np.zeros(s - 1, dtype=np.bool_)
+    landed, after, bearing = np.empty(s), np.empty(s), np.empty(s)
+    spacing = width / k
+    for b in range(rows):
+        out[b, s:] = states[b, s:]
+        choices[:, b, :] = -1
+        distance = actions[b, forward_channel] * forward_scale + forward_offset
+        turn = actions[b, turn_channel] * turn_scale
+        half = 0.5 * turn
+        chord = distance if abs(half) <= 1e-6 else distance * (math.sin(half) / half)
+        shift_x, shift_y = chord * math.cos(half), chord * math.sin(half)
+        c, n = math.cos(turn), math.sin(turn)
+        for j in range(s):
+            r[j] = states[b, j]
+            x0[j], y0[j] = r[j] * cos[j], r[j] * sin[j]
+            px, py = x0[j] - shift_x, y0[j] - shift_y
+            x[j], y[j] = c * px + n * py, c * py - n * px
+            hit[j] = r[j] < 1.0
+            bearing[j] = math.atan2(y[j], x[j])
+            landed[j], after[j] = math.inf, math.inf
+        for j in range(s - 1):
+            near, far = min(r[j], r[j + 1]), max(r[j], r[j + 1])
+            joined[j] = hit[j] and hit[j + 1] and far <= joint_ratio * near
+        for j in range(s):
+            inside = 0 < j < s - 1 and joined[j - 1] and joined[j]
+            if hit[j] and not inside:
+                sector = math.floor((bearing[j] - start) / width)
+                if 0 <= sector < s:
+                    distance_j = math.hypot(x[j], y[j])
+                    if distance_j < landed[sector]:
+                        landed[sector] = distance_j
+                        choices[5, b, sector] = j
+        for j in range(s - 1):
+            if not joined[j]:
+                continue
+            ax, ay, ex, ey = x[j], y[j], x[j + 1] - x[j], y[j + 1] - y[j]
+            a = (bearing[j] - start) % (2.0 * math.pi)
+            e = (bearing[j + 1] - start) % (2.0 * math.pi)
+            lo, hi = min(a, e), max(a, e)
+            if hi - lo <= math.pi:
+                first = max(0, math.floor(lo / spacing) - 1)
+                last = min(s * k - 1, math.ceil(hi / spacing) + 1)
+            else:
+                first, last = 0, s * k - 1
+            for ray in range(first, last + 1):
+                i, q = ray // k, ray % k
+                if segments[i, 0] <= j <= segments[i, last_candidate]:
+                    along = _meet(ax, ay, ex, ey, ray_cos[i, q], ray_sin[i, q])
+                    if along < after[i]:
+                        after[i] = along
+                        choices[1, b, i] = j
+                        choices[2, b, i] = ray
+        for i in range(s):
+            before = math.inf
+            for idx in own[i]:
+                if joined[idx]:
+                    ax, ay = x0[idx], y0[idx]
+                    for q in range(k):
+                        along = _meet(ax, ay, x0[idx + 1] - ax, y0[idx + 1] - ay, ray_cos[i, q], ray_sin[i, q])
+                        if along < before:
+                            before = along
+                            choices[3, b, i] = idx
+                            choices[4, b, i] = i * k + q
+            after_i = after[i]
+            both = math.isfinite(before) and math.isfinite(after_i)
+            seen = r[i] + (after_i - before) if both else after_i
+            kind = KIND_SEEN if both else KIND_AFTER
+            nearest = seen
+            if landed[i] < seen:
+                nearest, kind = landed[i], KIND_LANDED
+            if math.isinf(nearest):
+                out[b, i], kind = r[i], KIND_RANGE
+            else:
+                out[b, i] = min(max(nearest, 0.0), 1.0)
+                if nearest < 0.0 or nearest > 1.0:
+                    kind = KIND_CLAMPED
+            choices[0, b, i] = kind

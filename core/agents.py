@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from core.device import to_cpu
 from core.sage.config import AgentConfig, GateConfig, from_dict, set_field, to_dict, validate
 from core.sage.gate import SageGate
 from core.sage.learner import BaseLearner
@@ -98,7 +99,7 @@ def save_checkpoint(
     learner config to record, when it is not the one the learner ran with (a world-model-only refit)."""
     if dtype not in ("float32", "float16"):
         raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
-    state = learner.state_dict()
+    state = to_cpu(learner.state_dict())  # device-free: a run trained on a GPU loads on a CPU and back
     if dtype == "float16":
         state = halved(state)
     payload = {

@@ -145,6 +145,8 @@ class FinetuneConfig:
     the SAGE switches."""
     seed: int = 0
     """Seeds the learner's sampling (torch and numpy)."""
+    device: str = "auto"
+    """Where the rounds' updates run (``auto``, ``cpu``, ``cuda``: :func:`core.device.resolve_device`)."""
 
     def __post_init__(self) -> None:
         if self.updates < 0 or self.min_new_episodes < 1 or self.min_steps < 1 or self.report_every < 1:
@@ -635,7 +637,14 @@ class Finetuner:
         low = np.asarray(self.meta.action_low, np.float32)
         high = np.asarray(self.meta.action_high, np.float32)
         self.learner = make_learner(
-            agent_cfg.method, agent_cfg, self.meta.obs_dim, self.meta.act_dim, low, high, self.cfg.seed
+            agent_cfg.method,
+            agent_cfg,
+            self.meta.obs_dim,
+            self.meta.act_dim,
+            low,
+            high,
+            self.cfg.seed,
+            device=self.cfg.device,
         )
         old = self.learner.buffer
         self.buffer = SharedReplayBuffer(old.obs_dim, old.act_dim, old.capacity, self.cfg.prior_share)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import torch
 
 from core.sage.config import AgentConfig, note_method, set_field, validate
 from core.sage.learner import BaseLearner
@@ -89,9 +90,12 @@ def make_learner(
     action_low: np.ndarray | None = None,
     action_high: np.ndarray | None = None,
     seed: int = 0,
+    *,
+    device: str | torch.device = "cpu",
 ) -> BaseLearner:
-    """A fresh learner of method ``name`` built from ``cfg``."""
-    return learner_entry(name).cls(cfg, obs_dim, act_dim, action_low, action_high, seed)
+    """A fresh learner of method ``name`` built from ``cfg``, its update on ``device`` (``auto``, ``cpu``, ``cuda``:
+    :func:`core.device.resolve_device`)."""
+    return learner_entry(name).cls(cfg, obs_dim, act_dim, action_low, action_high, seed, device=device)
 
 
 _BUILTINS_DONE = False

@@ -17,6 +17,7 @@ the model's prediction). The policy's observation is unchanged.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -64,7 +65,7 @@ class ScanAlignment:
         change of state with the robot's own turn taken out of the scan (any leading shape, (..., D))."""
         s = self.sectors
         shift = current[..., self.turn_channel : self.turn_channel + 1] * self.sectors_per_unit
-        position = torch.add(_sector_index(s, previous.dtype), shift).clamp_(0.0, s - 1.0)
+        position = torch.add(_sector_index(s, previous.dtype, previous.device), shift).clamp_(0.0, s - 1.0)
         low = position.floor()
         index = low.long()
         frac = position.sub_(low)
@@ -76,15 +77,15 @@ class ScanAlignment:
         return out
 
 
-_INDEX: dict[tuple[int, torch.dtype], Tensor] = {}
+_INDEX: dict[tuple[int, torch.dtype, torch.device], Tensor] = {}
 
 
-def _sector_index(sectors: int, dtype: torch.dtype) -> Tensor:
+def _sector_index(sectors: int, dtype: torch.dtype, device: torch.device | None = None) -> Tensor:
     """0, 1, ..., sectors - 1 (cached: the gate aligns a scan at every imagined step)."""
-    key = (sectors, dtype)
+    key = (sectors, dtype, torch.device("cpu") if device is None else device)
     if key not in _INDEX:
         with torch.inference_mode(False):  # a normal tensor, whichever mode asks first: autograd reads it too
-            _INDEX[key] = torch.arange(sectors, dtype=dtype)
+            _INDEX[key] = torch.arange(sectors, dtype=dtype, device=key[2])
     return _INDEX[key]
 
 
@@ -215,10 +216,69 @@ class EgoScanStep:
         channels after the scan are unchanged. Differentiable almost everywhere in the action."""
         if state.numel() == 0:
             return state.clone()
+        if state.device.type != "cpu":  # the compiled kernel reads numpy: on a GPU the tensor version, batched
+            grad = torch.is_grad_enabled() and (state.requires_grad or action.requires_grad)
+            with contextlib.nullcontext() if grad else torch.no_grad():
+                return self._apply_tensors(state, action)
         if not (torch.is_grad_enabled() and (state.requires_grad or action.requires_grad)):
             out = torch.empty(state.shape, dtype=state.dtype)
             self.apply_into(state, action, out)
             return out
+        return self._apply_chosen(state, action)
+
+    def _apply_chosen(self, state: Tensor, action: Tensor) -> Tensor:
+        """:meth:`apply` with gradients on the CPU: the compiled kernel finds which segment and ray gave each reading
+        (``core._ego_kernel.scan_with_choices``), and torch recomputes only those, differentiably, from the same
+        formulas as :meth:`_scan`. The value and the gradient are the tensor version's (the minimum over candidates
+        passes its gradient to the one it chose) at a few operations per sector instead of one per candidate: the
+        actor's fear term over the ego step, the bulk of a SAGE-SAC update on the UGV (bench/bench_sac.py --ego)."""
+        from core import _ego_kernel as kernel
+
+        s, d = self.sectors, state.shape[-1]
+        lead = state.shape[:-1]
+        ranges = state[..., :s].reshape(-1, s)
+        actions = action.expand(*lead, action.shape[-1]).reshape(-1, action.shape[-1])
+        rows = len(ranges)
+        choices = np.empty((kernel.CHOICE_FIELDS, rows, s), dtype=np.int64)
+        reading = np.empty((rows, d), dtype=np.float64)
+        with torch.no_grad():
+            kernel.scan_with_choices(
+                state.detach().reshape(-1, d).numpy(), actions.detach().numpy(), reading, choices,
+                *_kernel_geometry(self),
+            )  # fmt: skip
+        chosen = torch.from_numpy(choices)
+        kind = chosen[0]
+        g = _geometry(self, ranges.dtype)
+        forward = actions[:, self.forward_channel : self.forward_channel + 1]
+        distance = forward * self.forward_scale + self.forward_offset
+        turn = actions[:, self.turn_channel : self.turn_channel + 1] * self.turn_scale
+        half = 0.5 * turn
+        small = half.abs() <= 1e-6
+        safe = torch.where(small, torch.ones_like(half), half)
+        chord = distance * torch.where(small, torch.ones_like(half), torch.sin(safe) / safe)
+        x0, y0 = ranges * g.cos, ranges * g.sin
+        x, y = x0 - chord * torch.cos(half), y0 - chord * torch.sin(half)
+        c, n = torch.cos(turn), torch.sin(turn)
+        x, y = c * x + n * y, c * y - n * x
+        ray_cos, ray_sin = g.ray_cos.reshape(-1), g.ray_sin.reshape(-1)  # sector * rays + ray
+        after = _chosen_cast(x, y, chosen[1], chosen[2], ray_cos, ray_sin)
+        before = _chosen_cast(x0, y0, chosen[3], chosen[4], ray_cos, ray_sin)
+        source = chosen[5]
+        found = source >= 0
+        at = source.clamp_min(0)
+        lx, ly = x.gather(1, at), y.gather(1, at)
+        landed = torch.hypot(torch.where(found, lx, torch.ones_like(lx)), torch.where(found, ly, torch.zeros_like(ly)))
+        seen = ranges + (after - before)
+        clamped = torch.from_numpy(reading[:, :s]).to(ranges.dtype)
+        scan = torch.where(
+            kind == kernel.KIND_SEEN, seen,
+            torch.where(kind == kernel.KIND_AFTER, after,
+                        torch.where(kind == kernel.KIND_LANDED, landed,
+                                    torch.where(kind == kernel.KIND_RANGE, ranges, clamped))),
+        )  # fmt: skip
+        return torch.cat([scan.reshape(*lead, s), state[..., s:]], dim=-1)
+
+    def _apply_tensors(self, state: Tensor, action: Tensor) -> Tensor:
         s = self.sectors
         lead = state.shape[:-1]
         ranges = state[..., :s].reshape(-1, s)
@@ -254,7 +314,7 @@ class EgoScanStep:
     def _scan(self, ranges: Tensor, action: Tensor) -> Tensor:
         """(B, S) ranges and (B, A) actions -> (B, S) ranges seen after the step."""
         s = self.sectors
-        geometry = _geometry(self, ranges.dtype)
+        geometry = _geometry(self, ranges.dtype, ranges.device)
         distance = action[:, self.forward_channel : self.forward_channel + 1] * self.forward_scale + self.forward_offset
         turn = action[:, self.turn_channel : self.turn_channel + 1] * self.turn_scale
         half = 0.5 * turn
@@ -274,7 +334,7 @@ class EgoScanStep:
         # after takes the change between the two casts, in which that error cancels; one it newly covers, the cast.
         before = _cast(x0, y0, joined, geometry, geometry.own)
         after = _cast(x, y, joined, geometry, geometry.candidates)
-        inf = torch.full((), float("inf"), dtype=ranges.dtype)
+        inf = torch.full((), float("inf"), dtype=ranges.dtype, device=ranges.device)
         both = torch.isfinite(before) & torch.isfinite(after)
         seen = torch.where(both, ranges + (after - torch.where(both, before, inf.new_zeros(()))), after)
         # a return at the end of a surface, or on none (an object's edge, a post), lands in the sector its bearing
@@ -284,10 +344,26 @@ class EgoScanStep:
         sector = torch.floor((torch.atan2(y, x) - self.start) / self.width)
         lands = hit & ~inside & (sector >= 0) & (sector < s)
         sector = torch.where(lands, sector, torch.full_like(sector, s)).long()  # the rest go to an extra bin
-        landed = torch.full((len(ranges), s + 1), float("inf"), dtype=ranges.dtype)
+        landed = torch.full((len(ranges), s + 1), float("inf"), dtype=ranges.dtype, device=ranges.device)
         landed = landed.scatter_reduce(1, sector, torch.where(lands, torch.hypot(x, y), inf), "amin")[:, :s]
         nearest = torch.minimum(seen, landed)
         return torch.where(torch.isinf(nearest), ranges, nearest.clamp(0.0, 1.0))
+
+
+def _chosen_cast(x: Tensor, y: Tensor, segment: Tensor, ray: Tensor, ray_cos: Tensor, ray_sin: Tensor) -> Tensor:
+    """(B, S) where each sector's chosen ray (``ray``: index into the flat ``ray_cos`` / ``ray_sin``) meets its chosen
+    segment (index of its first return; -1: none, then a finite stand-in whose gradient is zero), :func:`_cast`'s
+    arithmetic on one candidate per sector."""
+    found = segment >= 0
+    first = segment.clamp_min(0)
+    ax, ay = x.gather(1, first), y.gather(1, first)
+    ex, ey = x.gather(1, first + 1) - ax, y.gather(1, first + 1) - ay
+    which = ray.clamp_min(0)
+    ux, uy = ray_cos.take(which), ray_sin.take(which)
+    den = ux * ey - uy * ex
+    den = torch.where(found, den, torch.ones_like(den))  # a found hit has |den| > 1e-9
+    along = (ax * ey - ay * ex) / den
+    return torch.where(found, along, torch.zeros_like(along))
 
 
 def _cast(x: Tensor, y: Tensor, joined: Tensor, geometry: _EgoGeometry, idx: Tensor) -> Tensor:
@@ -303,7 +379,7 @@ def _cast(x: Tensor, y: Tensor, joined: Tensor, geometry: _EgoGeometry, idx: Ten
     along = (ax * ey - ay * ex) / den
     across = (ax * uy - ay * ux) / den
     meets = joined[:, idx].unsqueeze(-1) & ~flat & (across >= 0.0) & (across <= 1.0) & (along > 0.0)
-    return torch.where(meets, along, torch.full((), float("inf"), dtype=x.dtype)).amin(dim=(2, 3))
+    return torch.where(meets, along, torch.full((), float("inf"), dtype=x.dtype, device=x.device)).amin(dim=(2, 3))
 
 
 @dataclass(frozen=True)
@@ -321,12 +397,12 @@ class _EgoGeometry:
     joint_ratio: float
 
 
-_GEOMETRY: dict[tuple[EgoScanStep, torch.dtype], _EgoGeometry] = {}
+_GEOMETRY: dict[tuple[EgoScanStep, torch.dtype, torch.device], _EgoGeometry] = {}
 
 
-def _geometry(step: EgoScanStep, dtype: torch.dtype) -> _EgoGeometry:
-    """The step's fixed bearings and candidate segments (cached per step and dtype)."""
-    key = (step, dtype)
+def _geometry(step: EgoScanStep, dtype: torch.dtype, device: torch.device | None = None) -> _EgoGeometry:
+    """The step's fixed bearings and candidate segments (cached per step, dtype and device)."""
+    key = (step, dtype, torch.device("cpu") if device is None else device)
     if key not in _GEOMETRY:
         with torch.inference_mode(False):
             s, k, w = step.sectors, step.rays, step.window
@@ -336,13 +412,14 @@ def _geometry(step: EgoScanStep, dtype: torch.dtype) -> _EgoGeometry:
             offsets = torch.arange(-w, w)
             candidates = (torch.arange(s)[:, None] + offsets).clamp(0, s - 2)
             own = (torch.arange(s)[:, None] + torch.arange(-1, 1)).clamp(0, s - 2)
+            to = key[2]
             _GEOMETRY[key] = _EgoGeometry(
-                point.cos().to(dtype),
-                point.sin().to(dtype),
-                ray.cos().to(dtype)[:, None, :],
-                ray.sin().to(dtype)[:, None, :],
-                candidates,
-                own,
+                point.cos().to(to, dtype),
+                point.sin().to(to, dtype),
+                ray.cos().to(to, dtype)[:, None, :],
+                ray.sin().to(to, dtype)[:, None, :],
+                candidates.to(to),
+                own.to(to),
                 1.0 + float(np.tan(np.radians(GRAZING_DEG))) * step.width,
             )
     return _GEOMETRY[key]

@@ -42,7 +42,7 @@ class Batch:
 class ReplayBuffer:
     """D_actual: a ring of executed transitions with Ξ, a_RL and a_expert."""
 
-    def __init__(self, obs_dim: int, act_dim: int, capacity: int) -> None:
+    def __init__(self, obs_dim: int, act_dim: int, capacity: int, device: torch.device | str = "cpu") -> None:
         if capacity < 1:
             raise ValueError(f"replay capacity must be >= 1, got {capacity}")
         self.obs_dim, self.act_dim, self.capacity = obs_dim, act_dim, capacity
@@ -59,6 +59,8 @@ class ReplayBuffer:
         """The simulator's traffic conflict flag (``info["conflict"]``: a near miss, e.g. highway's time to contact
         under 3 s; 0 where the simulator reports none): a label the world model may learn besides violations."""
         self.takeover = np.zeros(capacity, bool)
+        self.device = torch.device(device)
+        """Where sampled batches go (the learner's update device; the rows themselves stay in numpy)."""
         self.size = 0
         self.pos = 0
         self.total = 0
@@ -119,7 +121,10 @@ class ReplayBuffer:
 
     # -- sampling --------------------------------------------------------------------------------
     def _batch(self, idx: np.ndarray) -> Batch:
-        t = torch.from_numpy
+        def t(rows: np.ndarray) -> Tensor:
+            tensor = torch.from_numpy(rows)
+            return tensor if self.device.type == "cpu" else tensor.to(self.device, non_blocking=True)
+
         return Batch(
             obs=t(self.obs[idx]),
             action=t(self.action[idx]),
@@ -243,8 +248,10 @@ class ReplayBuffer:
 class VirtualBuffer:
     """D_virtual: model-generated transitions (state, action, next state, predicted cost)."""
 
-    def __init__(self, obs_dim: int, act_dim: int, capacity: int) -> None:
+    def __init__(self, obs_dim: int, act_dim: int, capacity: int, device: torch.device | str = "cpu") -> None:
         self.capacity = capacity
+        self.device = torch.device(device)
+        """Where sampled states go (the learner's update device)."""
         self.obs = np.zeros((capacity, obs_dim), np.float32)
         self.action = np.zeros((capacity, act_dim), np.float32)
         self.next_obs = np.zeros((capacity, obs_dim), np.float32)
@@ -273,4 +280,5 @@ class VirtualBuffer:
     def sample_obs(self, batch_size: int, rng: np.random.Generator) -> Tensor:
         if self.size == 0:
             raise ValueError("cannot sample from an empty virtual buffer")
-        return torch.from_numpy(self.obs[rng.integers(0, self.size, size=batch_size)])
+        states = torch.from_numpy(self.obs[rng.integers(0, self.size, size=batch_size)])
+        return states if self.device.type == "cpu" else states.to(self.device, non_blocking=True)

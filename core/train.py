@@ -51,6 +51,7 @@ from core.experts import CostSupervisor, PolicyExpert, ScriptedExpert
 from core.learners import make_learner
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
 from core.planners import PlannerExpert, PlannerFactory, checked_entry, is_planner
+from core.sage.captured import require_cuda
 from core.sage.config import AgentConfig, to_dict, world_model_refit
 from core.sage.fear import CALIBRATION_FILE
 from core.sage.gate import AlwaysGate
@@ -118,6 +119,9 @@ class RunConfig:
     world_model_only: bool = False
     """Refit only the world model of ``init`` (:func:`core.sage.config.world_model_refit`): the policy drives and
     nothing else learns; checkpoints keep the learner config given (the policy's own schedule)."""
+    device: str = "auto"
+    """Where the learner's updates run (``auto``: CUDA when torch sees one, else the CPU; ``cpu``; ``cuda``):
+    :func:`core.device.resolve_device`. The loop's policy, the gate and the world model's fit stay on the CPU."""
     refit_gated_share: float = 0.0
     """A world-model-only refit: the share of its episodes (of each scenario, spread evenly) driven as the policy
     is deployed, its gate handing control to the expert; the others, the policy alone. The deployed loop visits
@@ -212,7 +216,11 @@ class Trainer:
         for s, env in self.envs.items():
             if _dims(env)[:2] != (self.obs_dim, self.act_dim):
                 raise ValueError(f"scenario {s} has other observation/action sizes than {run.scenarios[0]}")
-        self.learner = make_learner(agent.method, agent, self.obs_dim, self.act_dim, self.low, self.high, run.seed)
+        self.learner = make_learner(
+            agent.method, agent, self.obs_dim, self.act_dim, self.low, self.high, run.seed, device=run.device
+        )
+        if agent.cuda_graph:
+            require_cuda(self.learner.device)  # one clear line before any episode, not at the first update
         if run.demo_noise > 0 and self.learner.encodes_actions:
             raise ValueError("--demo-noise perturbs continuous actions; this learner's actions are discrete")
         self.expert = self._make_expert(run.expert)

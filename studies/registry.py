@@ -23,7 +23,7 @@ from typing import Any
 
 from studies.budgets import Budget, budget
 from studies.results import write_results
-from studies.sweep import TrialFn, run_sweep
+from studies.sweep import TrialFn, run_sweep, trial_gpu_share
 
 
 @dataclass(frozen=True)
@@ -163,13 +163,16 @@ def run_study(
     methods: Sequence[str] | None = None,
     train_steps: int | None = None,
     learner_overrides: Sequence[str] = (),
+    device: str = "cpu",
 ) -> Path:
     """Train and evaluate every method of study ``name`` on every seed, write ``out``; returns the table path.
 
     ``methods``: only these of the study's methods (default: all); ``train_steps``: this many environment steps per
     method and seed instead of the budget's (e.g. a longer comparison of two methods); both are stated under the
     table. ``learner_overrides``: ``key=value`` learner settings every trained method takes after its own (an
-    ablation at the same budgets and seeds), stated under the table too. The Ray experiment state lives in
+    ablation at the same budgets and seeds), stated under the table too. ``device``: where every trial's updates
+    run (resolved, ``cpu`` or ``cuda``: :func:`core.device.resolve_device`); on CUDA each trial asks Ray for a share of
+    the GPU. The table states it. The Ray experiment state lives in
     ``out/sweep``: rerunning the same command resumes it.
     """
     study = get_study(name)
@@ -200,6 +203,9 @@ def run_study(
         from studies.training import LEARNER_OVERRIDES
 
         settings[LEARNER_OVERRIDES] = list(learner_overrides)
+    from studies.training import STUDY_DEVICE
+
+    settings[STUDY_DEVICE] = device
     start = time.perf_counter()
     prepared_notes: list[str] = []
     if study.prepare is not None:
@@ -219,6 +225,7 @@ def run_study(
         address=address,
         cpus=cpus,
         max_concurrent=max_concurrent,
+        gpu_share=trial_gpu_share(device, max_concurrent or cpus),
     )
     wall_s = time.perf_counter() - start
     runs = _log_wall_time(out / "sweep" / "wall_times.json", wall_s, max_concurrent)
@@ -259,6 +266,7 @@ def run_study(
             ),
             *prepared_notes,
             timing,
+            f"The learners' updates ran on {_device_words(device)}.",
         ),
     )
     if study.figures is not None:
@@ -285,3 +293,14 @@ def _log_wall_time(path: Path, wall_s: float, max_concurrent: int | None) -> lis
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(runs, indent=1))
     return runs
+
+
+def _device_words(device: str) -> str:
+    """``the CPU (AMD EPYC ...)`` / ``CUDA (NVIDIA H200)``: what a study table says ran the updates."""
+    import torch
+
+    from core.device import device_name
+
+    resolved = torch.device(device)
+    where = "the CPU" if resolved.type == "cpu" else str(resolved).upper()
+    return f"{where} ({device_name(resolved)})"

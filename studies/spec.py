@@ -79,6 +79,9 @@ class TrainSpec:
     world_model_only: bool = False
     """Refit only the world model of --init: the policy drives (stochastic, no takeover) and nothing else learns;
     the checkpoint keeps the policy's own config, --set world_model_config.* included (e.g. violation_steps)."""
+    device: str = "auto"
+    """Where the learner's updates run: auto (CUDA when torch sees a GPU, else the CPU), cpu or cuda. The loop's
+    policy, the gate and the world model's fit stay on the CPU."""
     refit_gated_share: float = 0.0
     """--world-model-only: the share of the refit's episodes driven as deployed, the policy's gate handing control
     to the expert (the rest: the policy alone), so the model also sees what the policy does where the expert hands

@@ -211,6 +211,16 @@ def run_tasks(
     return results
 
 
+def trial_gpu_share(device: str, concurrent: int | None) -> float:
+    """What part of a GPU each trial asks Ray for: none on the CPU; on CUDA one GPU shared by the trials that run
+    at once (``concurrent``; default: one per core), so that Ray packs them on it rather than queueing them."""
+    if not device.startswith("cuda"):
+        return 0.0
+    import os
+
+    return 1.0 / max(1, concurrent or os.cpu_count() or 1)
+
+
 def run_sweep(
     trial: TrialFn,
     methods: Sequence[str],
@@ -221,8 +231,10 @@ def run_sweep(
     address: str | None = None,
     cpus: int | None = None,
     max_concurrent: int | None = None,
+    gpu_share: float = 0.0,
 ) -> list[dict[str, Any]]:
     """Run ``trial`` for every (method, seed), resuming ``storage/name`` if it exists; one row per trial.
+    ``gpu_share``: the part of a GPU each trial asks Ray for (:func:`trial_gpu_share`; 0: none, CPU trials).
 
     Each row holds ``method``, ``seed``, ``trial_seconds`` (the trial's own run time, also for trials restored from
     an earlier run) and the trial's metrics, sorted by method then seed. ``settings``
@@ -239,7 +251,8 @@ def run_sweep(
     ensure_ray(address, cpus)
     storage = Path(storage).resolve()
     storage.mkdir(parents=True, exist_ok=True)
-    trainable = tune.with_resources(tune.with_parameters(_run_trial, trial=trial), {"cpu": 1})
+    resources = {"cpu": 1, **({"gpu": gpu_share} if gpu_share > 0 else {})}
+    trainable = tune.with_resources(tune.with_parameters(_run_trial, trial=trial), resources)
     path = storage / name
     total = len(methods) * len(seeds)
     run_config = tune.RunConfig(storage_path=str(storage), name=name, callbacks=[_progress_callback(total)], verbose=0)

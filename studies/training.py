@@ -153,6 +153,7 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
         datasets=list(spec.dataset),
         world_model_only=spec.world_model_only,
         refit_gated_share=spec.refit_gated_share,
+        device=spec.device,
         env=env,
     )
     trainer = Trainer(run_cfg, agent_cfg, setup.make_env, out, progress, setup.hooks)
@@ -173,6 +174,8 @@ def run_training(spec: TrainSpec, progress: bool = False) -> TrainOutcome:
     return TrainOutcome(result, out, setup, notes + setup.finish(out))
 
 
+STUDY_DEVICE = "device"
+"""The study setting that carries ``sage study --device`` to every trial (resolved: ``cpu`` or ``cuda``)."""
 LEARNER_OVERRIDES = "learner_overrides"
 """The study setting that carries ``sage study --set learner.KEY=VALUE`` to every trial: learner ``key=value``
 overrides."""
@@ -182,7 +185,11 @@ def with_study_overrides(spec: TrainSpec, config: Mapping[str, Any]) -> TrainSpe
     """``spec`` with the study's learner overrides (``sage study --set learner.KEY=VALUE``) after its own: an
     ablation of every method of a study at the same budgets, seeds and evaluation."""
     extra = [str(pair) for pair in config.get(LEARNER_OVERRIDES, ())]
-    return spec.replace(overrides=[*spec.overrides, *extra]) if extra else spec
+    if extra:
+        spec = spec.replace(overrides=[*spec.overrides, *extra])
+    if STUDY_DEVICE in config:  # sage study --device: every trial's updates there
+        spec = spec.replace(device=str(config[STUDY_DEVICE]))
+    return spec
 
 
 def check_learner_overrides(pairs: Sequence[str]) -> list[str]:

@@ -40,6 +40,7 @@ from app.cli.options import (
     GATE_SET_HELP,
     GateSetRetired,
     NamedChoicesCommand,
+    checked_device,
     fail,
     gate_pairs,
     one_scenario,
@@ -54,6 +55,14 @@ SetOption = Annotated[list[str] | None, typer.Option("--set", help=GATE_SET_HELP
 MaxStepsOption = Annotated[int | None, typer.Option(help="Cut episodes at this many steps.")]
 CpusOption = Annotated[
     int | None, typer.Option(min=1, help="Drive the rows or curve points at once as Ray tasks on this many cores.")
+]
+GateDeviceOption = Annotated[
+    str,
+    typer.Option(
+        "--device",
+        help="auto, cpu or cuda, checked here (cuda without CUDA: an error). The gate reads one state per step, where "
+        "a GPU only adds transfers: its rollouts, the policy and the world model run on the CPU whatever this says.",
+    ),
 ]
 AddressOption = Annotated[str | None, typer.Option(help="... or on the Ray cluster at this address (HOST:PORT).")]
 ERRORS: tuple[type[Exception], ...] = (ValueError, FileNotFoundError, LookupError)
@@ -240,6 +249,7 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path | None, typer.Option(help="Folder for report.json and the PNG figures.")] = None,
         cpus: CpusOption = None,
         address: AddressOption = None,
+        device: GateDeviceOption = "auto",
         gate_set: GateSetRetired = None,
     ) -> None:
         """Run the policy with its gate and no expert; report how well fear ranks the steps before a
@@ -247,6 +257,7 @@ def register(app: typer.Typer) -> None:
         from studies.sweep import SweepError
 
         chosen = one_scenario(scenario, "sage gate evaluate")
+        checked_device(device)
         setup = gate_setup(run, sim, [chosen] if chosen else [], set_, gate_set)
         name = chosen or setup.descriptor.default_scenario
         single_threaded()
@@ -288,6 +299,7 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path | None, typer.Option(help="Write the measured rows and the choice here (JSON).")] = None,
         cpus: CpusOption = None,
         address: AddressOption = None,
+        device: GateDeviceOption = "auto",
         gate_set: GateSetRetired = None,
     ) -> None:
         """Choose gate.tau_scale, the gate's operating point: the largest scale at which the gate with the scripted
@@ -298,6 +310,7 @@ def register(app: typer.Typer) -> None:
         names = scenario_list(scenario)
         if not names:
             fail("give the scenarios to choose on with --scenario (those the policy was trained on)")
+        checked_device(device)
         setup = gate_setup(run, sim, names, set_, gate_set)
         single_threaded()
         choice = _one_line(
@@ -351,6 +364,7 @@ def register(app: typer.Typer) -> None:
         max_steps: MaxStepsOption = None,
         checkpoint_dtype: Annotated[str, typer.Option(help="float32, or float16 (half the file).")] = "float32",
         out: Annotated[Path | None, typer.Option(help="The new run folder.")] = None,
+        device: GateDeviceOption = "auto",
         gate_set: GateSetRetired = None,
     ) -> None:
         """Measure the gate's τ bounds (and κ) again, for other fear settings or a chosen β: the run with its world
@@ -362,6 +376,7 @@ def register(app: typer.Typer) -> None:
             fail("give the scenarios to drive with --scenario (those the policy was trained on)")
         if out is None:
             fail("give the new run folder with --out")
+        checked_device(device)
         setup = gate_setup(run, sim, names, set_, gate_set)
         single_threaded()
         result = _one_line(

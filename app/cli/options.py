@@ -1,5 +1,5 @@
-"""What every ``sage`` command reads the same way: ``--set``, ``--scenario``, the simulator of a run, the retired
-spellings, the one-line error, and help that names every method, planner, simulator and study.
+"""What every ``sage`` command reads the same way: ``--set``, ``--scenario``, ``--device``, the simulator of a run, the
+retired spellings, the one-line error, and help that names every method, planner, simulator and study.
 
 - ``--set section.key=value`` (repeatable) is read by :func:`core.dotted.route_settings`, one parser for every
   command: ``gate.`` (the gate's settings, :class:`core.sage.config.GateConfig`), ``env.`` (the simulator's config),
@@ -40,6 +40,34 @@ LEARNER_SET_HELP = (
     "learner.KEY=VALUE: any field of core.sage.config.AgentConfig by its path (learner. may be left out: hidden=16, "
     "gate.tau_max=0.7, world_model.violation_steps=3 for world_model_config.violation_steps)"
 )
+
+
+DEVICE_HELP = (
+    "Where the learner's updates run: auto (CUDA when torch sees a GPU, else the CPU), cpu or cuda. The loop's policy, "
+    "the gate and the world model's fit stay on the CPU."
+)
+DeviceOption = Annotated[str, typer.Option("--device", help=DEVICE_HELP)]
+
+
+def checked_device(value: str) -> str:
+    """``--device`` resolved (``auto`` becomes ``cpu`` or ``cuda``), or one line and exit 2 where this machine cannot
+    give it (``--device cuda`` without CUDA)."""
+    from core.device import DeviceError, resolve_device
+
+    try:
+        return str(resolve_device(value))
+    except DeviceError as exc:
+        fail(str(exc))
+
+
+def describe_device(device: Any) -> str:
+    """``cpu (AMD EPYC ...)`` / ``cuda (NVIDIA H200)``: the device and what it is."""
+    import torch
+
+    from core.device import device_name
+
+    resolved = torch.device(device)
+    return f"{resolved} ({device_name(resolved)})"
 
 
 def fail(message: str) -> NoReturn:

@@ -25,8 +25,10 @@ from app.cli.options import (
     LEARNER_SECTIONS,
     LEARNER_SET_HELP,
     STUDY_SECTIONS,
+    DeviceOption,
     LearnerSetRetired,
     NamedChoicesCommand,
+    checked_device,
     fail,
     refuse_retired,
     routed_settings,
@@ -87,6 +89,7 @@ def register(app: typer.Typer) -> None:
             int | None,
             typer.Option(min=1, help="Environment steps per method and seed instead of the budget's."),
         ] = None,
+        device: DeviceOption = "auto",
         learner_set: LearnerSetRetired = None,
     ) -> None:
         """Run a paper study: every method on each of the budget's seeds, the same environment steps for all;
@@ -95,6 +98,7 @@ def register(app: typer.Typer) -> None:
         from studies.registry import check_study_learner_overrides, get_study, run_study
 
         refuse_retired(learner_set=learner_set)
+        resolved_device = checked_device(device)
         settings = routed_settings(set_, STUDY_SECTIONS | LEARNER_SECTIONS, other="learner")
         learner_overrides = settings.get("learner", [])
         try:
@@ -123,7 +127,7 @@ def register(app: typer.Typer) -> None:
         results = out or Path("results") / f"{name}-{budget}"
         run_study(
             name, budget, results, address, cpus, max_concurrent, overrides=overrides, methods=chosen,
-            train_steps=train_steps, learner_overrides=learner_overrides,
+            train_steps=train_steps, learner_overrides=learner_overrides, device=resolved_device,
         )  # fmt: skip
         if results_doc is not None:
             from studies.readme import RESULTS_DOC, SUMMARY_README, update_results, update_summary

@@ -37,6 +37,8 @@ from app.cli.options import (
     EnvRetired,
     GateSetRetired,
     NamedChoicesCommand,
+    checked_device,
+    describe_device,
     fail,
     gate_pairs,
     refuse_retired,
@@ -124,6 +126,7 @@ def register(app: typer.Typer) -> None:
             sim = runs_sim([spec.init], sim)  # a warm start drives the simulator its run was trained on
         names = scenario_list(scenario)
         spec = spec.replace(
+            device=checked_device(spec.device),
             sim=sim or TrainSpec.sim,
             scenario=",".join(names) if names else None,
             env=settings.get("env", []),
@@ -139,7 +142,8 @@ def register(app: typer.Typer) -> None:
         method, scenarios = result.learner.cfg.method, ",".join(outcome.setup.scenarios)
         typer.echo(
             f"trained {method} on {spec.sim} {scenarios}: {len(rows)} episodes, "
-            f"{result.learner.env_steps} steps, {result.learner.updates} updates in {result.seconds:.0f} s"
+            f"{result.learner.env_steps} steps, {result.learner.updates} updates in {result.seconds:.0f} s "
+            f"(updates on {describe_device(result.learner.device)})"
         )
         if tail:
             named = {f"last {len(tail)} episodes": tail}

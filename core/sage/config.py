@@ -294,6 +294,9 @@ class AgentConfig:
     """Real transitions collected before updates start (uniform random actions until then, without ``init``)."""
     updates_per_step: float = 1.0
     """Gradient updates per environment step (fractions mean one update every 1/x steps)."""
+    cuda_graph: bool = False
+    """Capture the update once as a CUDA graph and replay it (``--device cuda`` only; an error elsewhere): the
+    small-batch update is bound by kernel launches on a GPU, which a graph removes (:mod:`core.sage.captured`)."""
     max_grad_norm: float | None = 10.0
     """Gradient-norm clip of actor and critic updates (protects against the rare huge -c* targets); None: off."""
 

@@ -27,9 +27,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from core.replay import Batch
+from core.sage.captured import CapturedUpdate, fill_batch, static_batch
 from core.sage.fear import fear
 from core.sage.learner import BaseLearner, DeclaredState
-from core.sage.networks import soft_update
+from core.sage.networks import adam, soft_update
 from core.sage.sac import advantage_weights, penalty_c_star
 
 
@@ -61,7 +63,10 @@ class DuelingQNetwork(nn.Module):
 
     def greedy_one_hot(self, obs: Tensor) -> Tensor:
         """The greedy action as a one-hot float vector: the policy that world-model rollouts (fear) follow."""
-        return torch.nn.functional.one_hot(self.greedy(obs), self.n_actions).to(obs.dtype)
+        # scatter rather than F.one_hot, which checks its indices on the host (a sync, and no CUDA graph capture)
+        greedy = self.greedy(obs).unsqueeze(-1)
+        one_hot = torch.zeros(*greedy.shape[:-1], self.n_actions, dtype=obs.dtype, device=obs.device)
+        return one_hot.scatter_(-1, greedy, 1.0)
 
 
 def double_q_target(
@@ -73,15 +78,15 @@ def double_q_target(
     gamma: float,
     *,
     fear_next: Tensor | None = None,
-    lam: float = 0.0,
+    lam: float | Tensor = 0.0,
     violation: Tensor | None = None,
-    c_star: float = 0.0,
+    c_star: float | Tensor = 0.0,
 ) -> Tensor:
     """y = r' - λ F(s') + γ (1 - done) Q_target(s', argmax_a Q_online(s', a)), r' = -c* on violations."""
     with torch.no_grad():
         best = online(next_obs).argmax(-1, keepdim=True)
         next_q = target(next_obs).gather(-1, best).squeeze(-1)
-        r = reward if violation is None else torch.where(violation > 0.5, torch.full_like(reward, -c_star), reward)
+        r = reward if violation is None else torch.where(violation > 0.5, -c_star, reward)
         if fear_next is not None:
             r = r - lam * fear_next
         return r + gamma * (1.0 - terminated) * next_q
@@ -122,9 +127,9 @@ class D3QN(BaseLearner):
                 f"with {self.n_actions} choices"
             )
         cfg = self.cfg
-        self.q = DuelingQNetwork(self.obs_dim, self.n_actions, cfg.hidden, cfg.layers)
+        self.q = DuelingQNetwork(self.obs_dim, self.n_actions, cfg.hidden, cfg.layers).to(self.device)
         self.q_target = copy.deepcopy(self.q).requires_grad_(False)
-        self.q_optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.critic_lr)
+        self.q_optimizer = adam(self.q.parameters(), cfg.critic_lr, self.captures)
 
     # -- actions ---------------------------------------------------------------------------------------
     @property
@@ -161,10 +166,15 @@ class D3QN(BaseLearner):
         if not deterministic and self.rng.random() < self.epsilon():
             return self.random_action()
         with torch.inference_mode():
-            q = self.q(torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1))
+            q = self.acting_network()(torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1))
         return self._index(int(q.argmax(-1)))
 
     def rollout_policy(self, obs: Tensor) -> Tensor:
+        q = self.acting_network()
+        assert isinstance(q, DuelingQNetwork)
+        return q.greedy_one_hot(obs)
+
+    def fear_policy(self, obs: Tensor) -> Tensor:
         return self.q.greedy_one_hot(obs)
 
     # -- learning --------------------------------------------------------------------------------------
@@ -185,16 +195,22 @@ class D3QN(BaseLearner):
         """F(s, greedy a) through the frozen world model."""
         assert self.world_model is not None
         with torch.no_grad():
+            obs = obs.to(self.device)
             return fear(
-                self.world_model.folded(),
-                self.rollout_policy,
+                self.update_folded(),
+                self.fear_policy,
                 obs,
-                self.rollout_policy(obs),
+                self.fear_policy(obs),
                 self.cfg.gate,
                 horizon=self.cfg.learner_fear_horizon,
             ).fear
 
+    def make_captured(self) -> CapturedUpdate:
+        return CapturedD3QNUpdate(self)
+
     def update(self) -> dict[str, float]:
+        if self.cfg.cuda_graph:
+            return self.captured_update()
         cfg = self.cfg
         batch = self.buffer.sample(cfg.batch_size, self.rng)
         actions = batch.action.argmax(-1, keepdim=True)
@@ -251,6 +267,7 @@ class D3QN(BaseLearner):
             loss.backward()
             optimizer.step()
         self.q_target.load_state_dict(self.q.state_dict())
+        self.refresh_acting()
         return float(loss.detach())
 
     def declared_state(self) -> DeclaredState:
@@ -310,3 +327,79 @@ class DiscreteHGDAgger(D3QN):
                 break
             loss = torch.tensor(stats["bc_loss"])
         return float(loss)
+
+
+class CapturedD3QNUpdate(CapturedUpdate):
+    """:meth:`core.sage.d3qn.D3QN.update` as one graph per structure."""
+
+    learner: D3QN
+
+    def __call__(self) -> dict[str, float]:
+        learner, cfg = self.learner, self.learner.cfg
+        assert isinstance(learner, D3QN)
+        batch = learner.buffer.sample(cfg.batch_size, learner.rng)
+        fear_on = learner.fear_active()
+        imitation = learner.buffer.sample_takeovers(cfg.bc_batch_size, learner.rng) if cfg.imitation else None
+        if fear_on:
+            self.static_folded()
+        key = (fear_on, imitation is not None)
+        if key not in self.inputs:
+            imitation_inputs = None if imitation is None else static_batch(imitation)
+            self.inputs[key] = {"batch": static_batch(batch), "imitation": imitation_inputs}
+        inputs = self.inputs[key]
+        fill_batch(inputs["batch"], batch)
+        if imitation is not None:
+            fill_batch(inputs["imitation"], imitation)
+        self.scalars["lam"].fill_(learner.lam)
+        self.scalars["c_star"].fill_(learner.c_star() if cfg.violation_penalty else 0.0)
+        self.scalars["fear_budget"].fill_(learner.fear_budget())
+        stats = self.run(key, lambda: self.body(inputs["batch"], inputs["imitation"], fear_on))
+        stats["epsilon"] = learner.epsilon()
+        if fear_on:
+            stats["fear_budget"] = learner.fear_budget()
+        else:
+            stats.pop("lam", None)
+        return stats
+
+    def body(self, batch: Batch, imitation: Batch | None, fear_on: bool) -> dict[str, Tensor]:
+        learner, cfg, lam = self.learner, self.learner.cfg, self.scalars["lam"]
+        actions = batch.action.argmax(-1, keepdim=True)
+        fear_next = None
+        if fear_on:
+            with torch.no_grad():
+                fear_next = self.fear(batch.next_obs, learner.fear_policy(batch.next_obs), learner.fear_policy)
+        y = double_q_target(
+            learner.q, learner.q_target, batch.reward, batch.next_obs, batch.terminated, cfg.gamma,
+            fear_next=fear_next, lam=lam, violation=batch.violation if cfg.violation_penalty else None,
+            c_star=self.scalars["c_star"],
+        )  # fmt: skip
+        q_all = learner.q(batch.obs)
+        q = q_all.gather(-1, actions).squeeze(-1)
+        loss = F.smooth_l1_loss(q, y)
+        stats: dict[str, Tensor] = {"q_loss": loss.detach(), "q_mean": q.detach().mean()}
+        if imitation is not None:
+            q_scale = q_all.detach().abs().mean().clamp_min(1.0)
+            q_imitation = learner.q(imitation.obs)
+            expert = imitation.a_expert.argmax(-1)
+            with torch.no_grad():
+                q_expert = q_imitation.gather(-1, expert.view(-1, 1)).squeeze(-1)
+                q_agent = q_imitation.gather(-1, imitation.a_rl.argmax(-1).view(-1, 1)).squeeze(-1)
+                scale = cfg.advantage_temperature * q_scale
+                omega = torch.exp(((q_expert - q_agent) / scale).clamp(-cfg.advantage_clip, cfg.advantage_clip))
+            margin = weighted_margin_loss(q_imitation, expert, omega, cfg.discrete.margin)
+            loss = loss + cfg.bc_weight * margin
+            stats.update(bc_loss=margin.detach(), omega_mean=omega.mean())
+        self.zero(learner.q_optimizer)
+        loss.backward()
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(learner.q.parameters(), cfg.max_grad_norm)
+        learner.q_optimizer.step()
+        soft_update(learner.q_target, learner.q, cfg.polyak)
+        if fear_on:
+            with torch.no_grad():
+                fear_real = self.fear(batch.obs, learner.fear_policy(batch.obs), learner.fear_policy).mean()
+            stats["fear_real"] = fear_real
+            stats["lam"] = (lam + cfg.lambda_lr * (fear_real - self.scalars["fear_budget"])).clamp(0.0, cfg.lambda_max)
+        else:
+            stats["lam"] = lam
+        return stats

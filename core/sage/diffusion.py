@@ -68,6 +68,7 @@ class DiffusionPolicy(BaseLearner):
 
     uses_random_warmup = False
     acting_module = "denoiser"
+    device_capable = False  # its sampler and Q-weighting build CPU tensors: trains on the CPU (auto falls back)
 
     def build_networks(self) -> None:
         dcfg = self.cfg.diffusion

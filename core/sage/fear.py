@@ -103,9 +103,9 @@ def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None, clo
         return probability
     if floors.shape[0] > states.shape[-1]:
         raise ValueError(f"gate.contact_floors has {floors.shape[0]} channels, the observation {states.shape[-1]}")
-    touching = states[..., : floors.shape[0]] <= floors
+    touching = states[..., : floors.shape[0]] <= floors.to(states.device)
     if closing is not None:
-        touching = touching & closing
+        touching = touching & closing.to(states.device)
     return torch.maximum(probability, touching.any(-1).to(probability.dtype))
 
 
@@ -193,14 +193,14 @@ def aggregate(per_step: Tensor, how: str, discount: float) -> Tensor:
     if how == "max":
         return per_step.max(0).values
     if how == "discounted_mean":
-        weights = discount ** torch.arange(per_step.shape[0], dtype=per_step.dtype)
+        weights = discount ** torch.arange(per_step.shape[0], dtype=per_step.dtype, device=per_step.device)
         return (weights[:, None] * per_step).sum(0) / weights.sum()
     raise ValueError(f"unknown fear aggregation {how!r}; use 'max' or 'discounted_mean'")
 
 
 def step_scales(scale: Tensor, horizon: int) -> Tensor:
     """κ_k for k < horizon as a (horizon, 1) column (steps beyond the stored ones reuse the last)."""
-    idx = torch.arange(horizon).clamp_max(scale.shape[0] - 1)
+    idx = torch.arange(horizon, device=scale.device).clamp_max(scale.shape[0] - 1)
     return scale[idx].clamp_min(1e-8).unsqueeze(1)
 
 

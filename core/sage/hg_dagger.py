@@ -33,8 +33,10 @@ class HGDAgger(ActorLearner):
         action_low: np.ndarray | None = None,
         action_high: np.ndarray | None = None,
         seed: int = 0,
+        *,
+        device: str | torch.device = "cpu",
     ) -> None:
-        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed)
+        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed, device=device)
         self.optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.dagger_lr)
 
     def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:

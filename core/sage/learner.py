@@ -35,14 +35,16 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from core.device import DeviceError, resolve_device, to_cpu
 from core.protocol import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
+from core.sage.captured import CapturedUpdate, require_cuda
 from core.sage.config import AgentConfig, GateConfig
 from core.sage.fear import CalibrationSample, PolicyFn
 from core.sage.gate import SageGate
 from core.sage.model_trainer import WorldModelTrainer, familiar_mean_fear
 from core.sage.networks import Actor
-from core.sage.world_model import EnsembleWorldModel, FitReport
+from core.sage.world_model import EnsembleWorldModel, FitReport, FoldedModel
 
 
 class ActorPolicy:
@@ -76,6 +78,35 @@ class ActorPolicy:
             return action[0].numpy()
 
 
+OPTIMIZER_SETTINGS = ("lr", "fused", "foreach", "capturable")
+"""What a loaded optimiser keeps of its own (a checkpoint gives only its memory: moments and step counts)."""
+
+
+def _place_step_counts(optimizer: torch.optim.Optimizer) -> None:
+    """Adam keeps its step count on the CPU unless capturable or fused, where it must sit beside the parameter: move
+    the loaded counts to where this optimiser's implementation needs them."""
+    for group in optimizer.param_groups:
+        on_device = bool(group.get("capturable") or group.get("fused"))
+        for param in group["params"]:
+            state = optimizer.state.get(param)
+            if state and isinstance(state.get("step"), torch.Tensor):
+                where = param.device if on_device else torch.device("cpu")
+                state["step"] = state["step"].to(where, torch.float32)
+
+
+def _restore_in_place(optimizer: torch.optim.Optimizer, saved: dict[str, Any]) -> None:
+    """An optimiser's state as ``saved`` (its ``state_dict``) copied into its own tensors."""
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    with torch.no_grad():
+        for index, values in saved["state"].items():
+            own = optimizer.state[params[index]]
+            for key, value in values.items():
+                if isinstance(own.get(key), torch.Tensor):
+                    own[key].copy_(value)
+                else:
+                    own[key] = value
+
+
 @dataclass(frozen=True)
 class DeclaredState:
     """What :meth:`BaseLearner.update` trains, by attribute name (Stable-Baselines3 style): checkpoints save and
@@ -97,6 +128,9 @@ class BaseLearner:
     """Act uniformly at random until ``learning_starts`` transitions (unless warm-started)."""
     acting_module = "actor"
     """The declared module a checkpoint must hold for the learner to act (the actor, a Q-network, ...)."""
+    device_capable = True
+    """Whether the method's update can run on a CUDA device (:mod:`core.device`); one that cannot trains on the CPU
+    under ``auto`` and refuses an explicit ``cuda``."""
 
     def __init__(
         self,
@@ -106,8 +140,19 @@ class BaseLearner:
         action_low: np.ndarray | None = None,
         action_high: np.ndarray | None = None,
         seed: int = 0,
+        *,
+        device: str | torch.device = "cpu",
     ) -> None:
         self.cfg, self.obs_dim, self.act_dim, self.seed = cfg, obs_dim, act_dim, seed
+        self.device = self._resolve_device(device)
+        """Where the update runs: the trained networks, their optimisers and the sampled batches
+        (:func:`core.device.resolve_device`). What acts in the loop and the world model's fit stay on the CPU."""
+        self.captures = cfg.cuda_graph and self.device.type == "cuda"
+        """Whether the update is captured once as a CUDA graph and replayed (``AgentConfig.cuda_graph`` on CUDA:
+        :mod:`core.sage.captured`); its optimisers are then capturable."""
+        self._captured: CapturedUpdate | None = None
+        self._acting_copy: torch.nn.Module | None = None
+        self._device_folded: tuple[int, FoldedModel] | None = None
         torch.manual_seed(seed)
         self.rng = np.random.default_rng(seed)
         low = torch.as_tensor(-np.ones(act_dim) if action_low is None else action_low, dtype=torch.float32)
@@ -115,10 +160,12 @@ class BaseLearner:
         self.action_low, self.action_high = low, high
         self.build_networks()
         width = self.model_action_dim
-        self.buffer = ReplayBuffer(obs_dim, width, cfg.buffer_size)
+        self.buffer = ReplayBuffer(obs_dim, width, cfg.buffer_size, device=self.device)
         self.model_trainer = WorldModelTrainer(self.new_world_model(), cfg, self.rng) if cfg.world_model else None
         """Fits the world model and measures what each fit sets (None: this method trains no world model)."""
-        self.virtual = VirtualBuffer(obs_dim, width, cfg.virtual_size) if cfg.virtual_rollouts else None
+        self.virtual = (
+            VirtualBuffer(obs_dim, width, cfg.virtual_size, device=self.device) if cfg.virtual_rollouts else None
+        )
         self.warm = False
         """True once the policy holds knowledge (loaded or pretrained): no random warm-up actions."""
         self.env_steps = 0
@@ -134,6 +181,61 @@ class BaseLearner:
         self._inherited_gate: tuple[dict[str, float], int] | None = None
         """A loaded checkpoint's gate state (its curiosity average) and the model version it belongs to: the
         gates of this run start from it until the world model is refitted."""
+
+    def _resolve_device(self, device: str | torch.device) -> torch.device:
+        resolved = resolve_device(device)
+        if resolved.type == "cpu" or self.device_capable:
+            return resolved
+        if str(device) == "auto":
+            return torch.device("cpu")
+        raise DeviceError(f"--device {device}: method {self.cfg.method!r} trains on the CPU only")
+
+    def acting_network(self) -> torch.nn.Module:
+        """The :attr:`acting_module` as the loop's policy and the SAGE gate read it, one state at a time: the trained
+        module itself on the CPU; on another device a CPU copy, refreshed in place after each update
+        (:meth:`refresh_acting`), so that views of its weights (the gate's kernel, :class:`ActorPolicy`) stay valid."""
+        module: torch.nn.Module = getattr(self, self.acting_module)
+        if self.device.type == "cpu":
+            return module
+        if self._acting_copy is None:
+            self._acting_copy = copy.deepcopy(module).cpu().requires_grad_(False)
+        return self._acting_copy
+
+    def refresh_acting(self) -> None:
+        """Copy the trained acting module's weights into its CPU copy (a no-op on the CPU, where they are one)."""
+        if self.device.type == "cpu" or self._acting_copy is None:
+            return
+        with torch.no_grad():
+            self._acting_copy.load_state_dict(getattr(self, self.acting_module).state_dict())
+
+    def update_folded(self) -> FoldedModel:
+        """The world model's folded weights on :attr:`device`, for the fear terms of the update (the CPU ones on the
+        CPU; a device copy otherwise, made again when the model changes)."""
+        assert self.world_model is not None
+        folded = self.world_model.folded()
+        if self.device.type == "cpu":
+            return folded
+        version = self.world_model.version
+        if self._device_folded is None or self._device_folded[0] != version:
+            self._device_folded = (version, folded.to(self.device))
+        return self._device_folded[1]
+
+    def make_captured(self) -> CapturedUpdate:
+        """The method's update as a CUDA graph (:mod:`core.sage.captured`; methods without one refuse
+        ``learner.cuda_graph``)."""
+        raise DeviceError(f"learner.cuda_graph: method {self.cfg.method!r} has no captured update (SAC and D3QN do)")
+
+    def captured_update(self) -> dict[str, float]:
+        """One update replayed from its CUDA graph (``AgentConfig.cuda_graph``): a DeviceError off CUDA."""
+        if self._captured is None:
+            require_cuda(self.device)
+            self._captured = self.make_captured()
+        return self._captured()
+
+    def fear_policy(self, obs: Tensor) -> Tensor:
+        """The rollout policy on :attr:`device`, which the update's fear terms roll out (with gradients through the
+        trained network where the loss asks for them); :meth:`rollout_policy` on the CPU."""
+        return self.rollout_policy(obs)
 
     @property
     def world_model(self) -> EnsembleWorldModel | None:
@@ -250,14 +352,22 @@ class BaseLearner:
         finite = all(math.isfinite(float(v)) for v in stats.values() if isinstance(v, int | float))
         if finite and self.weights_finite():
             self.updates += 1
+            self.refresh_acting()
             return stats, True
         self._restore(snapshot)
+        self.refresh_acting()
         return stats, False
 
     def weights_finite(self) -> bool:
         """Whether every declared trained value (and the world model) is finite."""
         declared = self.declared_state()
         modules = [getattr(self, name) for name in declared.modules]
+        if self.device.type != "cpu":  # one host sync for all the device's weights, not one per tensor
+            trained = [p.detach() for module in modules for p in module.parameters()]
+            trained += [getattr(self, name).detach().reshape(-1) for name in declared.tensors]
+            if not bool(torch.stack([torch.isfinite(t).all() for t in trained]).all()):
+                return False
+            modules = []
         if self.world_model is not None:
             modules.append(self.world_model)
         for module in modules:
@@ -282,7 +392,10 @@ class BaseLearner:
         for name, saved in snapshot["modules"].items():
             getattr(self, name).load_state_dict(saved)  # copies in place: views of the weights (ActorPolicy) stay valid
         for name, saved in snapshot["optimizers"].items():
-            getattr(self, name).load_state_dict(saved)
+            if self.captures:  # in place: a CUDA graph reads the moments where it recorded them
+                _restore_in_place(getattr(self, name), saved)
+            else:
+                getattr(self, name).load_state_dict(saved)
         with torch.no_grad():
             for name, saved in snapshot["tensors"].items():
                 getattr(self, name).copy_(saved)
@@ -407,6 +520,7 @@ class BaseLearner:
         if self.buffer.takeover_count() > 0 and self.cfg.pretrain_bc_steps > 0:
             stats["pretrain_bc_loss"] = self.behaviour_clone(self.cfg.pretrain_bc_steps)
             self.warm = True
+        self.refresh_acting()  # the fit's rollouts read the cloned policy
         if self.world_model is not None and len(self.buffer) >= 10:
             self.fit_world_model()
         self.info.update(stats)
@@ -432,7 +546,7 @@ class BaseLearner:
             state["optimizers"] = {name: getattr(self, name).state_dict() for name in optimizers}
         if math.isfinite(self.measured_fear_budget):  # a warm start keeps it until its own first fit
             state["fear_budget"] = torch.tensor(self.measured_fear_budget)
-        return state
+        return to_cpu(state)  # device-free: a checkpoint loads on either
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
         """Load what matches; returns the names of the parts loaded. ``strict`` refuses missing parts
@@ -447,11 +561,14 @@ class BaseLearner:
             elif strict:
                 raise KeyError(f"checkpoint has no {name!r} (it has {', '.join(sorted(state))})")
         loaded.extend(self._load_optimizers(state.get("optimizers", {}), strict))
+        if self._captured is not None:
+            self._captured.drop()  # new optimiser memory: capture again
         if "fear_budget" in state:
             self.measured_fear_budget = float(torch.as_tensor(state["fear_budget"]))
             loaded.append("fear_budget")
         if self.acting_module in loaded:
             self.warm = True
+            self.refresh_acting()
         if self.model_trainer is not None and "world_model" in loaded:
             self.model_trainer.schedule_refit()  # refit on this run's data once there is enough of it
             if "gate" in state:
@@ -467,15 +584,18 @@ class BaseLearner:
             if name not in saved:
                 continue
             optimizer: torch.optim.Optimizer = getattr(self, name)
-            rates = [group["lr"] for group in optimizer.param_groups]
+            # this run's rates and implementation (fused on the CPU, capturable for a CUDA graph), whatever the
+            # checkpoint's run used: only the optimiser's memory is restored
+            kept = [{k: group[k] for k in OPTIMIZER_SETTINGS if k in group} for group in optimizer.param_groups]
             try:
                 optimizer.load_state_dict(saved[name])
             except (ValueError, KeyError) as exc:
                 if strict:
                     raise ValueError(f"optimizer {name!r} does not fit this learner: {exc}") from None
                 continue
-            for group, lr in zip(optimizer.param_groups, rates, strict=True):
-                group["lr"] = lr
+            for group, settings in zip(optimizer.param_groups, kept, strict=True):
+                group.update(settings)
+            _place_step_counts(optimizer)
             loaded.append(f"optimizers.{name}")
         return loaded
 
@@ -493,19 +613,29 @@ class ActorLearner(BaseLearner):
     def build_networks(self) -> None:
         self.actor = Actor(
             self.obs_dim, self.act_dim, self.cfg.hidden, self.cfg.layers, self.action_low, self.action_high
-        )
+        ).to(self.device)
         self._policy: ActorPolicy | None = None
+
+    @property
+    def acting_actor(self) -> Actor:
+        """The actor the loop and the gate read (:meth:`acting_network`: the trained one on the CPU)."""
+        actor = self.acting_network()
+        assert isinstance(actor, Actor)
+        return actor
 
     def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
         if self._policy is None:
-            self._policy = ActorPolicy(self.actor)
+            self._policy = ActorPolicy(self.acting_actor)
         return self._policy.act(obs, deterministic)
 
     def rollout_policy(self, obs: Tensor) -> Tensor:
+        return self.acting_actor.deterministic(obs)
+
+    def fear_policy(self, obs: Tensor) -> Tensor:
         return self.actor.deterministic(obs)
 
     def gate_policy(self) -> Actor | PolicyFn:
-        return self.actor  # the gate's preallocated fast path, always the current weights
+        return self.acting_actor  # the gate's preallocated fast path, always the current weights
 
     def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
         """Plain regression of the deterministic action onto the expert's (intervention samples)."""
@@ -519,4 +649,5 @@ class ActorLearner(BaseLearner):
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
+        self.refresh_acting()
         return float(loss.detach())

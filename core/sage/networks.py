@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterable
 
 import torch
 from torch import Tensor, nn
@@ -100,6 +101,19 @@ class Actor(nn.Module):
 
 
 def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
+    """target ← target + τ (source - target), every parameter in one foreach call (a loop of lerp_ per tensor costs a
+    dispatch each; the values are the same)."""
     with torch.no_grad():
-        for t, s in zip(target.parameters(), source.parameters(), strict=True):
-            t.lerp_(s, tau)
+        targets, sources = list(target.parameters()), list(source.parameters())
+        if len(targets) != len(sources):
+            raise ValueError(f"soft_update: {len(targets)} target parameters, {len(sources)} source parameters")
+        torch._foreach_lerp_(targets, sources, tau)
+
+
+def adam(params: Iterable[Tensor], lr: float, capturable: bool = False) -> torch.optim.Adam:
+    """The update's Adam: ``fused`` (one kernel over every tensor: ~6% of a SAC update on one CPU thread, measured
+    with bench/bench_sac.py), or ``capturable`` (its step count on the device, no host sync) for an update captured
+    as a CUDA graph (:mod:`core.sage.captured`)."""
+    if capturable:
+        return torch.optim.Adam(params, lr=lr, capturable=True, foreach=True)
+    return torch.optim.Adam(params, lr=lr, fused=True)

@@ -44,10 +44,11 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from core.replay import Batch
+from core.sage.captured import CapturedUpdate, fill_batch, static_batch
 from core.sage.config import AgentConfig
 from core.sage.fear import fear
 from core.sage.learner import ActorLearner, DeclaredState
-from core.sage.networks import EnsembleCritic, soft_update
+from core.sage.networks import EnsembleCritic, adam, soft_update
 
 
 def penalty_c_star(
@@ -82,7 +83,7 @@ def advantage_weights(
     q_expert: Tensor, q_agent: Tensor, q_scale: Tensor | float, temperature: float, clip: float
 ) -> Tensor:
     """ω = exp(clip((Q(s,a_E) - Q(s,a_RL)) / (T · max(1, q_scale)), -clip, clip)) (eq:qa_weight, bounded)."""
-    scale = temperature * torch.clamp(torch.as_tensor(q_scale, dtype=q_expert.dtype), min=1.0)
+    scale = temperature * torch.clamp(torch.as_tensor(q_scale, dtype=q_expert.dtype, device=q_expert.device), min=1.0)
     return torch.exp(((q_expert - q_agent) / scale).clamp(-clip, clip))
 
 
@@ -97,14 +98,16 @@ class SAC(ActorLearner):
         action_low: np.ndarray | None = None,
         action_high: np.ndarray | None = None,
         seed: int = 0,
+        *,
+        device: str | torch.device = "cpu",
     ) -> None:
-        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed)
-        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, cfg.critics)
+        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed, device=device)
+        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, cfg.critics).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
-        self.log_alpha = torch.tensor(math.log(cfg.init_alpha), requires_grad=True)
-        self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=cfg.alpha_lr)
+        self.actor_optimizer = adam(self.actor.parameters(), cfg.actor_lr, self.captures)
+        self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr, self.captures)
+        self.log_alpha = torch.tensor(math.log(cfg.init_alpha), device=self.device, requires_grad=True)
+        self.alpha_optimizer = adam([self.log_alpha], cfg.alpha_lr, self.captures)
         self.target_entropy = -float(act_dim) if cfg.target_entropy is None else cfg.target_entropy
 
     # -- pieces ------------------------------------------------------------------------------------
@@ -117,16 +120,17 @@ class SAC(ActorLearner):
 
     def real_fear(self, obs: Tensor) -> Tensor:
         """F(s, a), a ~ π(·|s): the fear the actor's loss and the dual update read on real states."""
+        obs = obs.to(self.device)  # the fit's calibration states come from numpy, on the CPU
         return self.learner_fear(obs, self.actor.sample(obs)[0])
 
     def learner_fear(self, obs: Tensor, action: Tensor) -> Tensor:
         """F(s, a) through the frozen world model (differentiable w.r.t. ``action`` under grad mode)."""
         assert self.world_model is not None
         return fear(
-            self.world_model.folded(),
-            self.rollout_policy,
-            obs,
-            action,
+            self.update_folded(),
+            self.fear_policy,
+            obs.to(self.device),
+            action.to(self.device),
             self.cfg.gate,
             horizon=self.cfg.learner_fear_horizon,
         ).fear
@@ -231,7 +235,12 @@ class SAC(ActorLearner):
         return stats
 
     # -- the update ----------------------------------------------------------------------------------
+    def make_captured(self) -> CapturedUpdate:
+        return CapturedSACUpdate(self)
+
     def update(self) -> dict[str, float]:
+        if self.cfg.cuda_graph:
+            return self.captured_update()
         batch = self.buffer.sample(self.cfg.batch_size, self.rng)
         stats = self.critic_step(batch)
         stats.update(self.actor_step(batch))
@@ -254,12 +263,12 @@ class SAC(ActorLearner):
 
     def regress_critic(self, returns: np.ndarray, steps: int) -> float:
         """Monte-Carlo regression of every critic onto the demonstrations' returns-to-go."""
-        targets = torch.as_tensor(returns, dtype=torch.float32)
+        targets = torch.as_tensor(returns, dtype=torch.float32, device=self.device)
         loss = torch.tensor(math.nan)
         for _ in range(steps):
             idx = self.rng.integers(0, len(returns), size=self.cfg.batch_size)
-            obs = torch.from_numpy(self.buffer.obs[idx])
-            action = torch.from_numpy(self.buffer.action[idx])
+            obs = torch.from_numpy(self.buffer.obs[idx]).to(self.device)
+            action = torch.from_numpy(self.buffer.action[idx]).to(self.device)
             q = self.critic(obs, action)
             loss = F.mse_loss(q, targets[idx].unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
             self.critic_optimizer.zero_grad(set_to_none=True)
@@ -272,7 +281,7 @@ class SAC(ActorLearner):
     # -- checkpoints -----------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         state = super().state_dict()  # the declared modules (actor, critics), world model, optimisers
-        state.update(log_alpha=self.log_alpha.detach().clone(), lam=torch.tensor(self.lam))
+        state.update(log_alpha=self.log_alpha.detach().cpu().clone(), lam=torch.tensor(self.lam))
         return state
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:
@@ -297,3 +306,111 @@ class SAC(ActorLearner):
             tensors=("log_alpha",),
             scalars=("lam",),
         )
+
+
+class CapturedSACUpdate(CapturedUpdate):
+    """:meth:`core.sage.sac.SAC.update` (critic, actor, α, λ) as one graph per structure."""
+
+    learner: SAC
+
+    def __call__(self) -> dict[str, float]:
+        sac, cfg = self.learner, self.learner.cfg
+        batch = sac.buffer.sample(cfg.batch_size, sac.rng)
+        fear_on = sac.fear_active()
+        imitation = sac.imitation_batch()
+        n_virtual = 0
+        if sac.virtual is not None and len(sac.virtual) > 0 and cfg.virtual_ratio > 0:
+            n_virtual = round(cfg.virtual_ratio * len(batch))
+        virtual = None if n_virtual == 0 else sac.virtual.sample_obs(n_virtual, sac.rng)  # type: ignore[union-attr]
+        if fear_on:
+            self.static_folded()
+        key = (fear_on, imitation is not None, n_virtual)
+        if key not in self.inputs:
+            self.inputs[key] = {
+                "batch": static_batch(batch),
+                "imitation": None if imitation is None else static_batch(imitation),
+                "virtual": None if virtual is None else virtual.clone(),
+            }
+        inputs = self.inputs[key]
+        fill_batch(inputs["batch"], batch)
+        if imitation is not None:
+            fill_batch(inputs["imitation"], imitation)
+        if virtual is not None:
+            inputs["virtual"].copy_(virtual, non_blocking=True)
+        self.scalars["lam"].fill_(sac.lam)
+        self.scalars["c_star"].fill_(sac.c_star() if cfg.violation_penalty else 0.0)
+        self.scalars["fear_budget"].fill_(sac.fear_budget())
+        return self.run(key, lambda: self.body(inputs["batch"], inputs["imitation"], inputs["virtual"], fear_on))
+
+    def alpha(self) -> Tensor | float:
+        sac = self.learner
+        return sac.log_alpha.detach().exp() if sac.cfg.autotune_alpha else sac.cfg.init_alpha
+
+    def body(self, batch: Batch, imitation: Batch | None, virtual: Tensor | None, fear_on: bool) -> dict[str, Tensor]:
+        """One SAC update on the static inputs, kernels only: :meth:`SAC.critic_step` then :meth:`SAC.actor_step`."""
+        sac, cfg, lam = self.learner, self.learner.cfg, self.scalars["lam"]
+        stats: dict[str, Tensor] = {}
+        # critic (SAC.critic_target_values, SAC.critic_step)
+        with torch.no_grad():
+            next_action, next_log_prob = sac.actor.sample(batch.next_obs)
+            next_q = sac.critic_target(batch.next_obs, next_action).min(0).values - self.alpha() * next_log_prob
+            if fear_on:
+                next_q = next_q - lam * self.fear(batch.next_obs, next_action, sac.fear_policy)
+            y = batch.reward + cfg.gamma * (1.0 - batch.terminated) * next_q
+            if cfg.violation_penalty:
+                y = torch.where(batch.violation > 0.5, -self.scalars["c_star"], y)
+        q = sac.critic(batch.obs, batch.action)
+        critic_loss = F.mse_loss(q, y.unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
+        self.zero(sac.critic_optimizer)
+        critic_loss.backward()
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(sac.critic.parameters(), cfg.max_grad_norm)
+        sac.critic_optimizer.step()
+        soft_update(sac.critic_target, sac.critic, cfg.polyak)
+        stats.update(critic_loss=critic_loss.detach(), q_mean=q.detach().mean())
+        # actor (SAC.actor_loss, SAC.actor_step)
+        states = batch.obs if virtual is None else torch.cat([batch.obs[: len(batch.obs) - len(virtual)], virtual])
+        n_real = len(states) if virtual is None else len(states) - len(virtual)
+        sac.critic.requires_grad_(False)
+        try:
+            action, log_prob = sac.actor.sample(states)
+            q_pi = sac.critic(states, action).min(0).values
+            actor_loss = (self.alpha() * log_prob - q_pi).mean()
+            fear_real = None
+            if fear_on:
+                fear_values = self.fear(states, action, sac.fear_policy)
+                actor_loss = actor_loss + lam * fear_values.mean()
+                fear_real = fear_values[:n_real].mean()
+                stats.update(fear_real=fear_real.detach(), fear_budget=self.scalars["fear_budget"])
+            q_scale = q_pi.detach().abs().mean().clamp_min(1.0)
+            if imitation is not None:
+                with torch.no_grad():
+                    q_expert = sac.critic(imitation.obs, imitation.a_expert).min(0).values
+                    q_agent = sac.critic(imitation.obs, imitation.a_rl).min(0).values
+                    scale = cfg.advantage_temperature * q_scale
+                    omega = torch.exp(((q_expert - q_agent) / scale).clamp(-cfg.advantage_clip, cfg.advantage_clip))
+                error = (sac.actor.deterministic(imitation.obs) - imitation.a_expert).pow(2).sum(-1)
+                bc = (omega * error).mean()
+                actor_loss = actor_loss + cfg.bc_weight * q_scale * bc
+                stats.update(bc_loss=bc.detach(), omega_mean=omega.mean())
+            self.zero(sac.actor_optimizer)
+            actor_loss.backward()
+        finally:
+            sac.critic.requires_grad_(True)
+        if cfg.max_grad_norm is not None:
+            torch.nn.utils.clip_grad_norm_(sac.actor.parameters(), cfg.max_grad_norm)
+        sac.actor_optimizer.step()
+        if cfg.autotune_alpha:
+            alpha_loss = -(sac.log_alpha * (log_prob.detach() + sac.target_entropy)).mean()
+            self.zero(sac.alpha_optimizer)
+            alpha_loss.backward()
+            sac.alpha_optimizer.step()
+        new_lam = lam
+        if fear_real is not None:  # the dual step (BaseLearner.dual_step) on the device
+            step = cfg.lambda_lr * (fear_real.detach() - self.scalars["fear_budget"])
+            new_lam = (lam + step).clamp(0.0, cfg.lambda_max)
+        stats.update(
+            actor_loss=actor_loss.detach(), alpha=torch.as_tensor(self.alpha(), device=self.device), lam=new_lam,
+            entropy=-log_prob.detach().mean(),
+        )  # fmt: skip
+        return stats

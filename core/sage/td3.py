@@ -17,7 +17,7 @@ import torch.nn.functional as F
 
 from core.sage.config import AgentConfig
 from core.sage.learner import ActorLearner, DeclaredState
-from core.sage.networks import EnsembleCritic, soft_update
+from core.sage.networks import EnsembleCritic, adam, soft_update
 
 
 class TD3(ActorLearner):
@@ -29,18 +29,23 @@ class TD3(ActorLearner):
         action_low: np.ndarray | None = None,
         action_high: np.ndarray | None = None,
         seed: int = 0,
+        *,
+        device: str | torch.device = "cpu",
     ) -> None:
-        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed)
+        super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed, device=device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
-        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, max(2, cfg.critics))
+        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, max(2, cfg.critics)).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
+        self.actor_optimizer = adam(self.actor.parameters(), cfg.actor_lr)
+        self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr)
         self.scale = (self.action_high - self.action_low) / 2.0
+        # the action bounds where the update's target actions are clipped
+        bounds = (self.action_low, self.action_high, self.scale)
+        self._low, self._high, self._scale = (t.to(self.device) for t in bounds)
 
     def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
         with torch.inference_mode():
-            action = self.actor.deterministic(torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1))[0]
+            action = self.acting_actor.deterministic(torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1))[0]
             if not deterministic:
                 action = action + torch.randn_like(action) * self.cfg.td3_exploration_noise * self.scale
                 action = torch.max(torch.min(action, self.action_high), self.action_low)
@@ -53,8 +58,8 @@ class TD3(ActorLearner):
             noise = (torch.randn_like(batch.action) * cfg.td3_policy_noise).clamp(
                 -cfg.td3_noise_clip, cfg.td3_noise_clip
             )
-            next_action = self.actor_target.deterministic(batch.next_obs) + noise * self.scale
-            next_action = torch.max(torch.min(next_action, self.action_high), self.action_low)
+            next_action = self.actor_target.deterministic(batch.next_obs) + noise * self._scale
+            next_action = torch.max(torch.min(next_action, self._high), self._low)
             next_q = self.critic_target(batch.next_obs, next_action).min(0).values
             y = batch.reward + cfg.gamma * (1.0 - batch.terminated) * next_q
         q = self.critic(batch.obs, batch.action)

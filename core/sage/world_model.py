@@ -98,6 +98,20 @@ class FoldedModel:
         """What the predicted Δ is added to: the state, or with an ego step the state moved by it."""
         return state if self.ego is None else self.ego.apply(state, action)
 
+    def to(self, device: torch.device) -> FoldedModel:
+        """A copy with every tensor on ``device`` (the learner's update device: :mod:`core.device`)."""
+        return dataclasses.replace(
+            self,
+            hidden=[(w.to(device), b.to(device)) for w, b in self.hidden],
+            out_weight=self.out_weight.to(device),
+            out_bias=self.out_bias.to(device),
+            max_logvar=self.max_logvar.to(device),
+            min_logvar=self.min_logvar.to(device),
+            inv_delta_var=self.inv_delta_var.to(device),
+            inv_obs_std=self.inv_obs_std.to(device),
+            sigma_scale=self.sigma_scale.to(device),
+        )
+
 
 @dataclass
 class FitReport:

@@ -258,8 +258,9 @@ def test_the_ego_step_moves_any_batch_shape_and_passes_gradients_to_the_action()
     rows = torch.stack([step.apply(states[i, j][None], actions[i, j][None])[0] for i in range(3) for j in range(5)])
     assert torch.allclose(whole.reshape(15, -1), rows)
     chunk, motion.EGO_CHUNK = motion.EGO_CHUNK, 4
-    try:  # an input that asks for a gradient takes the tensor version, in chunks of EGO_CHUNK rows
-        assert torch.allclose(step.apply(states.clone().requires_grad_(True), actions), whole)
+    try:  # the tensor version (a GPU's path), in chunks of EGO_CHUNK rows
+        assert torch.allclose(step._apply_tensors(states.clone().requires_grad_(True), actions), whole)
+        assert torch.allclose(step.apply(states.clone().requires_grad_(True), actions), whole)  # the CPU's, with grad
     finally:
         motion.EGO_CHUNK = chunk
     action = actions[0, :1].clone().requires_grad_(True)
@@ -298,13 +299,52 @@ def test_the_compiled_step_is_the_tensor_step(layout: str) -> None:
     states = torch.as_tensor(np.concatenate([scans, rng.normal(size=(3000, 4))], -1))
     actions = torch.as_tensor(rng.uniform(-1.5, 1.5, (3000, 2)))
     compiled = step.apply(states, actions)
-    tensor = step.apply(states.clone().requires_grad_(True), actions).detach()
+    tensor = step._apply_tensors(states.clone().requires_grad_(True), actions).detach()
     assert torch.equal(compiled[:, step.sectors :], states[:, step.sectors :])
     assert (compiled != states).any(dim=1).float().mean() > 0.9  # the scenes do move
     torch.testing.assert_close(compiled, tensor, rtol=0.0, atol=1e-12)
     single = step.apply(states.float(), actions.float())
     assert single.dtype == torch.float32
     assert torch.equal(single, step.apply(states.float().double(), actions.float().double()).float())
+
+
+@pytest.mark.parametrize("layout", ["test", "ugv", "full turn"])
+def test_the_gradient_path_gives_the_tensor_steps_value_and_gradients(layout: str) -> None:
+    """On the CPU a call with gradients takes the compiled loop's choices and recomputes only the chosen candidates
+    (``EgoScanStep._apply_chosen``): the same readings as the tensor version and the same gradients w.r.t. the action
+    and the state, on walls, boxes, posts and open space."""
+    from sims.ugv.env import ego_motion_layout
+
+    if layout == "ugv":
+        step = EgoScanStep.of(WorldModelConfig(**ego_motion_layout()), 58, 2)
+    elif layout == "full turn":
+        full = {"ego_sectors": 72, "ego_scan_start": 3.0, "ego_sector_width": 2 * np.pi / 72, "ego_rays_per_sector": 3}
+        step = EgoScanStep.of(WorldModelConfig(**full, ego_forward_scale=0.02, ego_turn_scale=0.2), 76, 2)
+    else:
+        step = ego_step()
+    assert step is not None
+    rng = np.random.default_rng(3)
+    rows = 400
+    scans = random_scenes(rng, rows, step.sectors)
+    states = torch.as_tensor(np.concatenate([scans, rng.normal(size=(rows, 4))], -1))
+    actions = torch.as_tensor(rng.uniform(-1.5, 1.5, (rows, 2)))
+    weights = torch.as_tensor(rng.normal(size=states.shape))
+    results = []
+    for path in (step._apply_tensors, step._apply_chosen):
+        state, action = states.clone().requires_grad_(True), actions.clone().requires_grad_(True)
+        out = path(state, action)
+        (out * weights).sum().backward()
+        results.append((out.detach(), action.grad, state.grad))
+    (tensor, tensor_action, tensor_state), (chosen, chosen_action, chosen_state) = results
+    assert tensor_action is not None and chosen_action is not None and tensor_state is not None
+    assert tensor_action.abs().sum() > 0  # the step does move surfaces
+    torch.testing.assert_close(chosen, tensor, rtol=0.0, atol=1e-12)
+    torch.testing.assert_close(chosen_action, tensor_action, rtol=1e-9, atol=1e-9)
+    torch.testing.assert_close(chosen_state, tensor_state, rtol=1e-9, atol=1e-9)
+    # float32 inputs: the choices are the compiled loop's, in float64, as for a call without gradient (the critic's
+    # target, the gate); a float32 tensor version may decide a borderline joint or hit otherwise (full turn: ~1%)
+    single = step.apply(states.float().requires_grad_(True), actions.float())
+    torch.testing.assert_close(single.detach(), step.apply(states.float(), actions.float()), rtol=0.0, atol=1e-5)
 
 
 def test_a_bound_step_reads_its_buffers_when_called() -> None:

@@ -488,3 +488,28 @@ def test_a_planner_for_another_simulator_is_refused_before_the_run(tmp_path: Pat
                 Trainer(run, small("sage"), point_env, tmp_path / field, progress=False)
     finally:
         unregister_planner("test-elsewhere")
+
+
+def test_device_cpu_trains_records_the_device_and_loads_with_map_location(tmp_path: Path) -> None:
+    """``--device cpu`` (and ``auto`` on a machine without CUDA) trains as before; the run records the device asked
+    for, and its checkpoint is device-free: it loads with ``map_location="cpu"`` and acts."""
+    run = RunConfig(sim="point", scenarios=["static"], episodes=2, seed=1, demo_episodes=2, device="cpu")
+    train(run, small("sage"), point_env, tmp_path / "cpu", progress=False)
+    assert json.loads((tmp_path / "cpu" / "config.json").read_text())["run"]["device"] == "cpu"
+    payload = torch.load(resolve_checkpoint(tmp_path / "cpu"), map_location="cpu", weights_only=True)
+    assert all(t.device.type == "cpu" for t in payload["state"]["actor"].values())
+    agent = load_agent(tmp_path / "cpu")
+    assert agent.learner.device.type == "cpu"
+    assert np.isfinite(agent.policy.act(np.zeros(agent.meta.obs_dim, np.float32), deterministic=True)).all()
+
+
+def test_device_cuda_without_cuda_and_a_cuda_graph_off_cuda_fail_before_any_episode(tmp_path: Path) -> None:
+    from core.device import DeviceError
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    run = RunConfig(sim="point", scenarios=["static"], episodes=1, device="cuda")
+    with pytest.raises(DeviceError, match="no CUDA device"):
+        Trainer(run, small("sac"), point_env, None, progress=False)
+    with pytest.raises(DeviceError, match="needs --device cuda"):
+        Trainer(dataclasses.replace(run, device="auto"), small("sac", cuda_graph=True), point_env, None, progress=False)
