@@ -28,6 +28,7 @@ import numpy as np
 from core.scene import Box, Circle, Rays, Scene, Shape
 from sims.ugv.config import UGVConfig
 from sims.ugv.expert import UGVExpert
+from sims.ugv.fields import field, parse_field_name
 from sims.ugv.interaction import interaction_stats
 from sims.ugv.lidar import NumpyLidar, ray_angles
 from sims.ugv.metrics import episode_metrics
@@ -120,7 +121,8 @@ def wrap_angle(angle: float) -> float:
 
 
 class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
-    """The UGV navigation env. ``scenario``: 1..4 (the paper's four field tests) or a YAML file path.
+    """The UGV navigation env. ``scenario``: 1..4 (the paper's four field tests), a YAML file path or a generated
+    field's name (``ugv-fields:test``, :mod:`sims.ugv.fields`).
 
     Keyword overrides change the :class:`~sims.ugv.config.UGVConfig` with dotted names, e.g.
     ``UGVEnv(3, **{"lidar.backend": "pymunk"})`` or ``gym.make("sage/UGV-v0", scenario=2, time_limit=30)``.
@@ -144,7 +146,12 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"unknown lidar backend {self.config.lidar.backend!r}; choose numpy or pymunk")
         if self.config.lidar.sectors != SECTORS or self.config.lidar.fov_deg <= 0:
             raise ValueError("the observation has 54 lidar sectors (the paper's); lidar.sectors must stay 54")
-        self.scenario = load_scenario(scenario)
+        # a ugv-fields name plays a generated field, drawn anew at each reset unless one index is named
+        self.fields = parse_field_name(scenario) if isinstance(scenario, str) else None
+        self.field_index: int | None = None
+        """The ``ugv-fields`` field index of the current episode (None for any other scenario)."""
+        # until the first reset draws one, a split's first field stands for it
+        self.scenario = field(self.fields.split, self.fields.index or 0) if self.fields else load_scenario(scenario)
         self.render_mode = render_mode
         sectors = self.config.lidar.sectors
         low = np.concatenate([np.zeros(sectors), [0.0, -1.0, 0.0, -1.0]]).astype(np.float32)
@@ -302,6 +309,9 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
     # -- episode set-up --------------------------------------------------------------------------
     def _build_world(self) -> tuple[World, Layout]:
         """Draw a layout whose start pose is free and whose goal is reachable, from the seeded generator."""
+        if self.fields is not None:
+            self.field_index = self.fields.field_index(self.np_random)
+            self.scenario = field(self.fields.split, self.field_index)
         scenario, rng, cfg = self.scenario, self.np_random, self.config
         table_steps = INITIAL_TABLE_STEPS  # mover poses are tabulated further on demand
         walls = wall_segments(scenario)
