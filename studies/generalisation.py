@@ -320,6 +320,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     from studies.results import current_commit
 
+    commit = current_commit()  # the code that measures: taken before the run, which may outlast later commits
     cache = args.cache or Path("results/generalisation") / f"{args.sim}.json"
     rows = generalisation_table(
         run,
@@ -332,9 +333,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cache=cache,
     )
     command = "python -m studies.generalisation " + " ".join(argv if argv is not None else sys.argv[1:])
-    section = render(
-        rows, sim=args.sim, run=run, horizon_s=args.horizon, command=command.strip(), commit=current_commit()
-    )
+    section = render(rows, sim=args.sim, run=run, horizon_s=args.horizon, command=command.strip(), commit=commit)
     write_section(args.out, args.sim, section)
     print(section)
     return 0
