@@ -449,4 +449,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # the package imported this module already (its descriptor names these fields): run that copy, whose cache of
+    # drawn fields the env shares, rather than this __main__ one
+    from sims.ugv.fields import main as package_main
+
+    raise SystemExit(package_main())
