@@ -17,7 +17,7 @@ def _scenario_file(name: str) -> dict[str, Any]:
     (``ugv-fields:train``, ``ugv-fields:test``, ``ugv-fields:test:17``: :mod:`sims.ugv.fields`)."""
     selection = parse_field_name(name)  # a FieldNameError (a ValueError) for a malformed field name
     if selection is not None:
-        return {"scenario": selection.name}
+        return {"scenario": selection}
     path = Path(name).expanduser()
     if path.suffix.lower() in (".yaml", ".yml"):
         if not path.is_file():

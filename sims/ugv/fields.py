@@ -33,6 +33,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from sims.ugv.env import UGVEnv
 from sims.ugv.scenario import Scenario, ScenarioError, parse_scenario
 
 FAMILY = "ugv-fields"
@@ -67,9 +68,14 @@ class FieldSelection:
     def name(self) -> str:
         return f"{FAMILY}:{self.split}" + ("" if self.index is None else f":{self.index}")
 
-    def field_index(self, rng: np.random.Generator) -> int:
-        """The field of this reset: the fixed one, or an index drawn from the env's seeded generator."""
-        return self.index if self.index is not None else int(rng.integers(SPLIT_SIZE))
+    def draw(self, rng: np.random.Generator) -> tuple[int, Scenario]:
+        """The field of this reset and its index: the fixed one, or one drawn from the env's seeded generator."""
+        index = self.index if self.index is not None else int(rng.integers(SPLIT_SIZE))
+        return index, field(self.split, index)
+
+    def placeholder(self) -> Scenario:
+        """The selection's first field, until the env's first reset draws one."""
+        return field(self.split, self.index or 0)
 
 
 def parse_field_name(name: str) -> FieldSelection | None:
@@ -133,8 +139,6 @@ def field_draw(split: str, index: int) -> FieldDraw:
 
 def expert_solves(scenario: Scenario) -> bool:
     """Whether the scripted expert alone reaches the goal of a fixed field without a collision in its time limit."""
-    from sims.ugv.env import UGVEnv  # the env names this module for its scenario names
-
     try:
         env = UGVEnv(scenario)
         env.reset(seed=0)
@@ -401,7 +405,7 @@ def solve_rate(split: str, episodes: int, first_seed: int) -> dict[str, float]:
     candidates the generator rejected on the way to the fields played."""
     import sims
 
-    env = sims.descriptor("ugv").make(f"{FAMILY}:{split}")
+    env = sims.descriptor("ugv").make(f"{FAMILY}:{split}")  # the path an evaluation takes
     solved = collided = rejected = 0
     movers: list[int] = []
     try:

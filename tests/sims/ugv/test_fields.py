@@ -9,7 +9,16 @@ import sims
 from core.descriptor import ScenarioNameError
 from sims.ugv import fields
 from sims.ugv.env import UGVEnv
-from sims.ugv.fields import SPLIT_SIZE, candidate_field, expert_solves, field, field_draw, field_seed, parse_field_name
+from sims.ugv.fields import (
+    SPLIT_SIZE,
+    FieldSelection,
+    candidate_field,
+    expert_solves,
+    field,
+    field_draw,
+    field_seed,
+    parse_field_name,
+)
 from sims.ugv.scenario import parse_scenario
 from studies.envs import env_factory
 
@@ -62,8 +71,9 @@ def test_candidates_hold_zero_to_three_movers_and_validate() -> None:
 
 def test_names_resolve_where_the_cli_resolves_scenario_names() -> None:
     descriptor = sims.descriptor("ugv")
-    assert descriptor.scenario_kwargs("ugv-fields:test") == {"scenario": "ugv-fields:test"}
-    assert descriptor.scenario_kwargs(" UGV-Fields:Train:5 ") == {"scenario": "ugv-fields:train:5"}
+    assert descriptor.scenario_kwargs("ugv-fields:test") == {"scenario": FieldSelection("test")}
+    assert descriptor.scenario_kwargs(" UGV-Fields:Train:5 ") == {"scenario": FieldSelection("train", 5)}
+    assert FieldSelection("train", 5).name == "ugv-fields:train:5"
     for bad in ("ugv-fields:valid", "ugv-fields:test:-1", "ugv-fields:test:x", "ugv-fields"):
         with pytest.raises(ScenarioNameError, match="ugv-fields:train, ugv-fields:test"):
             descriptor.scenario_kwargs(bad)
@@ -81,7 +91,7 @@ def test_a_split_plays_the_field_its_episode_seed_draws() -> None:
         assert all(name.startswith("ugv-fields:test:") for name in names)
     finally:
         env.close()
-    one = UGVEnv("ugv-fields:test:4")
+    one = UGVEnv(parse_field_name("ugv-fields:test:4"))
     for seed in (1, 2):
         one.reset(seed=seed)
         assert one.layout.name == "ugv-fields:test:4"
