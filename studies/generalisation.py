@@ -303,6 +303,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--gate-episodes", type=int, help="episodes a ground for the gate row (default: --episodes)")
     parser.add_argument("--horizon", type=float, default=1.0, help="seconds: the label's 'violation within'")
     parser.add_argument("--max-steps", type=int)
+    parser.add_argument(
+        "--grounds",
+        choices=("both", "unseen", "seen"),
+        default="both",
+        help="measure only one ground (a long run in two parts: the cache keeps the first for the second)",
+    )
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument(
         "--cache", type=Path, help="JSON of measured parts (default: results/generalisation/<sim>.json)"
@@ -318,6 +324,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if args.grounds != "both":
+        grounds = {name: scenarios for name, scenarios in grounds.items() if name.startswith(args.grounds)}
     from studies.results import current_commit
 
     commit = current_commit()  # the code that measures: taken before the run, which may outlast later commits
