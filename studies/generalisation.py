@@ -40,6 +40,8 @@ from studies.calibrate import EVAL_SEED, labels_within, pool_points, run_gated, 
 FAMILIES: dict[str, str] = {"ugv": "ugv-fields", "highway": "highway-shift", "pedestrian": "pedestrian-shift"}
 """Each simulator's procedural family (its ``:train`` / ``:test`` names)."""
 DEFAULT_OUT = Path("docs/generalisation.md")
+CHUNK = 10
+"""Episodes measured (and cached) together."""
 
 
 @dataclass
@@ -130,7 +132,7 @@ def ground_row(
     label = labels_within(violation, episode, horizon_steps)
     return GroundRow(
         ground=ground,
-        scenarios=[p.scenario for p in parts],
+        scenarios=list(dict.fromkeys(p.scenario for p in parts)),
         episodes=sum(p.episodes for p in parts),
         steps=len(fear),
         violations=sum(p.violations for p in parts),
@@ -154,8 +156,11 @@ class Cache:
         if path is not None and path.is_file():
             self.data = json.loads(path.read_text())
 
-    def get(self, key: str, compute: Callable[[], Any]) -> Any:
+    def get(self, key: str, compute: Callable[[], Any], cached_only: bool = False) -> Any:
+        """The part under ``key``, measured now unless cached (``cached_only``: None instead of measuring)."""
         if key not in self.data:
+            if cached_only:
+                return None
             self.data[key] = compute()
             if self.path is not None:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -179,10 +184,13 @@ def generalisation_table(
     max_steps: int | None = None,
     first_seed: int = EVAL_SEED,
     cache: Path | None = None,
+    cached_only: bool = False,
 ) -> list[GroundRow]:
     """One row per ground (a name and its scenarios): ``episodes`` for the signals and ``gate_episodes`` for the gate
     with the scripted expert (0: not measured), split evenly among the ground's scenarios, on seeds from
-    ``first_seed``; parts already in ``cache`` are not measured again."""
+    ``first_seed``, in chunks of :data:`CHUNK` episodes (seeds as one run would use them); chunks already in
+    ``cache`` are not measured again, and with ``cached_only`` only they are used (a ground with none is left out).
+    """
     import sims
     from studies.envs import env_factory
 
@@ -202,28 +210,39 @@ def generalisation_table(
         if not scenarios:
             raise ValueError(f"ground {ground!r} has no scenarios")
         parts, gates = [], []
-        for scenario, n_signal, n_gate in zip(
-            scenarios, _share(episodes, len(scenarios)), _share(gate_episodes, len(scenarios)), strict=True
-        ):
+        shares = list(
+            zip(scenarios, _share(episodes, len(scenarios)), _share(gate_episodes, len(scenarios)), strict=True)
+        )
+        for scenario, _, _ in shares:
             descriptor.scenario_kwargs(scenario)  # a clear error for a bad name before anything runs
-            key = f"{run}|{sim}|{scenario}|{max_steps}|{first_seed}"
-            if n_signal > 0:
-                part = store.get(
-                    f"signals|{key}|{n_signal}",
-                    lambda s=scenario, n=n_signal: asdict(
-                        collect_signals(loaded(), lambda s=s: make(s), s, n, max_steps, first_seed)
-                    ),
-                )
-                parts.append(SignalPart(**part))
-            if n_gate > 0:
-                gates.append(
-                    store.get(
-                        f"gate|{key}|{n_gate}",
-                        lambda s=scenario, n=n_gate: run_gated(
-                            loaded(), lambda s=s: make(s), loaded().make_gate(), n, max_steps, first_seed=first_seed
+        # chunk by chunk, each scenario in turn, so that a run stopped early leaves a balanced sample in the cache
+        for offset in range(0, max(max(n, g) for _, n, g in shares), CHUNK):
+            for scenario, n_signal, n_gate in shares:
+                key = f"{run}|{sim}|{scenario}|{max_steps}|{first_seed + offset}"
+                size = min(CHUNK, n_signal - offset)
+                if size > 0:
+                    part = store.get(
+                        f"signals|{key}|{size}",
+                        lambda s=scenario, n=size, seed=first_seed + offset: asdict(
+                            collect_signals(loaded(), lambda s=s: make(s), s, n, max_steps, seed)
                         ),
+                        cached_only,
                     )
-                )
+                    if part is not None:
+                        parts.append(SignalPart(**part))
+                size = min(CHUNK, n_gate - offset)
+                if size > 0:
+                    gate = store.get(
+                        f"gate|{key}|{size}",
+                        lambda s=scenario, n=size, seed=first_seed + offset: run_gated(
+                            loaded(), lambda s=s: make(s), loaded().make_gate(), n, max_steps, first_seed=seed
+                        ),
+                        cached_only,
+                    )
+                    if gate is not None:
+                        gates.append(gate)
+        if not parts:
+            continue
         rows.append(ground_row(ground, parts, gates, horizon_steps))
     return rows
 
@@ -304,6 +323,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--horizon", type=float, default=1.0, help="seconds: the label's 'violation within'")
     parser.add_argument("--max-steps", type=int)
     parser.add_argument(
+        "--cached-only", action="store_true", help="write the table from the cache's chunks, measuring nothing"
+    )
+    parser.add_argument(
         "--grounds",
         choices=("both", "unseen", "seen"),
         default="both",
@@ -339,6 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         horizon_s=args.horizon,
         max_steps=args.max_steps,
         cache=cache,
+        cached_only=args.cached_only,
     )
     command = "python -m studies.generalisation " + " ".join(argv if argv is not None else sys.argv[1:])
     section = render(rows, sim=args.sim, run=run, horizon_s=args.horizon, command=command.strip(), commit=commit)

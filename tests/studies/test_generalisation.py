@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -35,6 +36,13 @@ def test_the_table_measures_both_grounds_and_resumes_from_its_cache(
     monkeypatch.setattr(generalisation, "run_gated", fail)
     again = generalisation_table(RUN, "ugv", grounds, episodes=2, gate_episodes=2, max_steps=12, cache=cache)
     assert [r.steps for r in again] == [r.steps for r in rows]
+    # a run stopped early: with cached_only, the table is made of the chunks the cache holds
+    store = json.loads(cache.read_text())
+    cache.write_text(json.dumps({k: v for k, v in store.items() if not k.startswith("gate|") or "|1|" in k}))
+    partial = generalisation_table(
+        RUN, "ugv", grounds, episodes=2, gate_episodes=2, max_steps=12, cache=cache, cached_only=True
+    )
+    assert [r.episodes for r in partial] == [2, 2] and partial[0].gate == {} and partial[1].gate["episodes"] == 1
 
     out = tmp_path / "generalisation.md"
     out.write_text("# Generalisation\n\n## highway: kept\n\nother sim\n")
