@@ -54,6 +54,10 @@ class SignalPart:
     violations: int
     """Episodes with a violation."""
     fear: list[float]
+    cost: list[float]
+    """Fear's parts: the predicted violation probability ĉ ..."""
+    sigma: list[float]
+    """... and the normalised uncertainty σ̂ (the world model's epistemic term)."""
     curiosity: list[float]
     """Curiosity observed on arriving at each step's state (NaN at an episode's first step)."""
     tau: list[float]
@@ -73,6 +77,8 @@ class GroundRow:
     violations: int
     positives: int
     fear_auroc: float
+    cost_auroc: float
+    sigma_auroc: float
     curiosity_auroc: float
     fire_before_violation: float
     fire_elsewhere: float
@@ -93,13 +99,15 @@ def collect_signals(
     """The policy with its own gate and no expert over ``episodes`` (seeds ``first_seed + i``): every step's signals."""
     gate = agent.make_gate()
     env = make_env()
-    part = SignalPart(scenario, episodes, 0, 0, [], [], [], [], [], [])
+    part = SignalPart(scenario, episodes, 0, 0, [], [], [], [], [], [], [], [])
     arriving = [math.nan]
     try:
         runner = Runner(env, agent.policy, gate, None, seed=first_seed, deterministic=True)
 
         def record(r: StepRecord) -> None:
             part.fear.append(float(r.fear))
+            part.cost.append(float(gate.detail.cost))
+            part.sigma.append(float(gate.detail.sigma))
             part.curiosity.append(arriving[0])
             part.tau.append(float(r.threshold))
             part.fired.append(bool(r.gate_fired))
@@ -127,6 +135,8 @@ def ground_row(
     violation = np.concatenate([np.asarray(p.violation, bool) for p in parts])
     fear = np.concatenate([np.asarray(p.fear, float) for p in parts])
     curiosity = np.concatenate([np.asarray(p.curiosity, float) for p in parts])
+    cost = np.concatenate([np.asarray(p.cost, float) for p in parts])
+    sigma = np.concatenate([np.asarray(p.sigma, float) for p in parts])
     tau = np.concatenate([np.asarray(p.tau, float) for p in parts])
     fired = np.concatenate([np.asarray(p.fired, bool) for p in parts])
     label = labels_within(violation, episode, horizon_steps)
@@ -138,6 +148,8 @@ def ground_row(
         violations=sum(p.violations for p in parts),
         positives=int(label.sum()),
         fear_auroc=auroc(fear, label),
+        cost_auroc=auroc(cost, label),
+        sigma_auroc=auroc(sigma, label),
         curiosity_auroc=auroc(curiosity, label),
         fire_before_violation=float(fired[label].mean()) if label.any() else math.nan,
         fire_elsewhere=float(fired[~label].mean()) if (~label).any() else math.nan,
@@ -264,7 +276,8 @@ def render(rows: Sequence[GroundRow], *, sim: str, run: str, horizon_s: float, c
         "policy with its own gate and the scripted expert; episodes with a violation (95% Wilson interval) at its",
         "takeover rate.",
         "",
-        "| ground | scenarios | episodes (steps) | episodes with a violation, no expert | fear AUROC | curiosity AUROC "
+        "| ground | scenarios | episodes (steps) | episodes with a violation, no expert "
+        "| fear AUROC (its parts ĉ, σ̂) | curiosity AUROC "
         "| gate firing: before a violation / elsewhere | curiosity (mean) | τ (mean) "
         "| gate + expert: episodes with a violation [95%] | takeover |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
@@ -279,7 +292,8 @@ def render(rows: Sequence[GroundRow], *, sim: str, run: str, horizon_s: float, c
             gate = takeover = "–"
         lines.append(
             f"| {row.ground} | {', '.join(row.scenarios)} | {row.episodes} ({row.steps}) | {row.violations} "
-            f"| {_num(row.fear_auroc)} | {_num(row.curiosity_auroc)} "
+            f"| {_num(row.fear_auroc)} ({_num(row.cost_auroc, 2)}, {_num(row.sigma_auroc, 2)}) "
+            f"| {_num(row.curiosity_auroc)} "
             f"| {_pct(row.fire_before_violation)} / {_pct(row.fire_elsewhere)} | {_num(row.curiosity_mean)} "
             f"| {_num(row.tau_mean, 4)} | {gate} | {takeover} |"
         )
