@@ -37,7 +37,12 @@ from core.loop import Runner, StepRecord
 from core.metrics import auroc
 from studies.calibrate import EVAL_SEED, labels_within, pool_points, run_gated, violation_interval
 
-FAMILIES: dict[str, str] = {"ugv": "ugv-fields", "highway": "highway-shift", "pedestrian": "pedestrian-shift"}
+FAMILIES: dict[str, str] = {
+    "sumo": "sumo-shift",
+    "ugv": "ugv-fields",
+    "highway": "highway-shift",
+    "pedestrian": "pedestrian-shift",
+}
 """Each simulator's procedural family (its ``:train`` / ``:test`` names)."""
 DEFAULT_OUT = Path("docs/generalisation.md")
 CHUNK = 10
