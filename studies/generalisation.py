@@ -132,6 +132,10 @@ def collect_signals(
     return part
 
 
+SIGNAL_FIELDS = ("fear", "cost", "sigma", "curiosity", "tau", "fired", "violation", "episode")
+""":class:`SignalPart`'s per-step lists, in order."""
+
+
 def ground_row(
     ground: str, parts: Sequence[SignalPart], gates: Sequence[dict[str, float]], horizon_steps: int
 ) -> GroundRow:
@@ -264,6 +268,50 @@ def generalisation_table(
     return rows
 
 
+def ugv_rows_by_movers(
+    cache: Path,
+    run: str | Path,
+    scenario: str = "ugv-fields:test",
+    max_steps: int | None = None,
+    horizon_s: float = 1.0,
+) -> list[GroundRow]:
+    """The cached signal chunks of a ``ugv-fields`` ground, regrouped by how many movers each episode's field had
+    (0, 1, 2 or more): the gate's signals on fields with several movers, the issue's hardest case. Each episode's
+    field is found again from its seed (the chunk's first seed plus the episode's index), as the env drew it."""
+    import sims
+
+    store = Cache(cache)
+    prefix = f"signals|{run}|ugv|{scenario}|{max_steps}|"
+    env = sims.descriptor("ugv").make(scenario)
+    groups: dict[str, list[SignalPart]] = {"0 movers": [], "1 mover": [], "2-3 movers": []}
+    try:
+        for key, value in store.data.items():
+            if not key.startswith(prefix):
+                continue
+            first_seed = int(key[len(prefix) :].split("|")[0])
+            part = SignalPart(**value)
+            episodes = np.asarray(part.episode)
+            for episode in sorted(set(part.episode)):
+                env.reset(seed=first_seed + episode)
+                movers = len(env.unwrapped.layout.movers)
+                name = "0 movers" if movers == 0 else "1 mover" if movers == 1 else "2-3 movers"
+                keep = np.flatnonzero(episodes == episode)
+                violated = any(part.violation[i] for i in keep)
+                groups[name].append(
+                    SignalPart(
+                        scenario,
+                        1,
+                        len(keep),
+                        int(violated),
+                        *([getattr(part, f)[i] for i in keep] for f in SIGNAL_FIELDS),
+                    )
+                )
+    finally:
+        env.close()
+    horizon_steps = max(1, round(horizon_s / sims.descriptor("ugv").dt))
+    return [ground_row(name, parts, [], horizon_steps) for name, parts in groups.items() if parts]
+
+
 def _num(value: float, digits: int = 3) -> str:
     return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
@@ -272,8 +320,17 @@ def _pct(value: float) -> str:
     return "–" if value is None or not math.isfinite(value) else f"{value:.0%}"
 
 
-def render(rows: Sequence[GroundRow], *, sim: str, run: str, horizon_s: float, command: str, commit: str) -> str:
-    """The markdown section of one simulator's table."""
+def render(
+    rows: Sequence[GroundRow],
+    *,
+    sim: str,
+    run: str,
+    horizon_s: float,
+    command: str,
+    commit: str,
+    by_movers: Sequence[GroundRow] = (),
+) -> str:
+    """The markdown section of one simulator's table (and, given ``by_movers``, the unseen signals by movers)."""
     lines = [
         f"## {sim}: {run}",
         "",
@@ -281,6 +338,20 @@ def render(rows: Sequence[GroundRow], *, sim: str, run: str, horizon_s: float, c
         "policy with its own gate and the scripted expert; episodes with a violation (95% Wilson interval) at its",
         "takeover rate.",
         "",
+        *_table(rows),
+    ]
+    if by_movers:
+        lines += [
+            "",
+            "### The unseen ground's episodes without the expert, by movers in the field",
+            "",
+            *_table(by_movers),
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def _table(rows: Sequence[GroundRow]) -> list[str]:
+    lines = [
         "| ground | scenarios | episodes (steps) | episodes with a violation, no expert "
         "| fear AUROC (its parts ĉ, σ̂) | curiosity AUROC "
         "| gate firing: before a violation / elsewhere | curiosity (mean) | τ (mean) "
@@ -302,7 +373,7 @@ def render(rows: Sequence[GroundRow], *, sim: str, run: str, horizon_s: float, c
             f"| {_pct(row.fire_before_violation)} / {_pct(row.fire_elsewhere)} | {_num(row.curiosity_mean)} "
             f"| {_num(row.tau_mean, 4)} | {gate} | {takeover} |"
         )
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def write_section(out: Path, sim: str, section: str) -> None:
@@ -341,6 +412,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--gate-episodes", type=int, help="episodes a ground for the gate row (default: --episodes)")
     parser.add_argument("--horizon", type=float, default=1.0, help="seconds: the label's 'violation within'")
     parser.add_argument("--max-steps", type=int)
+    parser.add_argument(
+        "--by-movers", action="store_true", help="ugv: also the unseen signals by movers in the field (from the cache)"
+    )
     parser.add_argument(
         "--cached-only", action="store_true", help="write the table from the cache's chunks, measuring nothing"
     )
@@ -383,7 +457,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         cached_only=args.cached_only,
     )
     command = "python -m studies.generalisation " + " ".join(argv if argv is not None else sys.argv[1:])
-    section = render(rows, sim=args.sim, run=run, horizon_s=args.horizon, command=command.strip(), commit=commit)
+    by_movers: list[GroundRow] = []
+    if args.by_movers and args.sim == "ugv":
+        by_movers = ugv_rows_by_movers(cache, run, max_steps=args.max_steps, horizon_s=args.horizon)
+    section = render(
+        rows,
+        sim=args.sim,
+        run=run,
+        horizon_s=args.horizon,
+        command=command.strip(),
+        commit=commit,
+        by_movers=by_movers,
+    )
     write_section(args.out, args.sim, section)
     print(section)
     return 0

@@ -44,14 +44,25 @@ def test_the_table_measures_both_grounds_and_resumes_from_its_cache(
     )
     assert [r.episodes for r in partial] == [2, 2] and partial[0].gate == {} and partial[1].gate["episodes"] == 1
 
+    by_movers = generalisation.ugv_rows_by_movers(cache, RUN, scenario="ugv-fields:test:2", max_steps=12)
+    assert sum(r.episodes for r in by_movers) == 2 and len(by_movers) == 1  # one field: one group
+
     out = tmp_path / "generalisation.md"
     out.write_text("# Generalisation\n\n## highway: kept\n\nother sim\n")
-    section = render(rows, sim="ugv", run=RUN, horizon_s=1.0, command="python -m studies.generalisation", commit="abc")
+    section = render(
+        rows,
+        sim="ugv",
+        run=RUN,
+        horizon_s=1.0,
+        command="python -m studies.generalisation",
+        commit="abc",
+        by_movers=by_movers,
+    )
     write_section(out, "ugv", section)
     write_section(out, "ugv", section)  # a second run replaces its own section
     text = out.read_text()
     assert text.count("## ugv: ") == 1 and "## highway: kept" in text
-    assert "| unseen | ugv-fields:test:2 | 2 (" in text and "`abc`" in text
+    assert "| unseen | ugv-fields:test:2 | 2 (" in text and "`abc`" in text and "### The unseen ground" in text
 
 
 def test_the_entry_point_refuses_bad_input_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
