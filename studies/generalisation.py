@@ -91,6 +91,8 @@ class GroundRow:
     tau_mean: float
     gate: dict[str, float] = field(default_factory=dict)
     """:func:`studies.calibrate.run_gated`'s point, pooled over the ground's scenarios (empty: not measured)."""
+    parts: list[SignalPart] = field(default_factory=list, repr=False)
+    """The signal chunks the row was made of."""
 
     @property
     def gate_violations(self) -> tuple[int, int]:
@@ -165,6 +167,7 @@ def ground_row(
         curiosity_mean=float(np.nanmean(curiosity)) if np.isfinite(curiosity).any() else math.nan,
         tau_mean=float(np.nanmean(tau)) if np.isfinite(tau).any() else math.nan,
         gate=pool_points(gates) if gates else {},
+        parts=list(parts),
     )
 
 
@@ -312,6 +315,20 @@ def ugv_rows_by_movers(
     return [ground_row(name, parts, [], horizon_steps) for name, parts in groups.items() if parts]
 
 
+NOVELTY_SIGNALS = ("curiosity", "sigma", "cost", "fear")
+
+
+def novelty(unseen: GroundRow, seen: GroundRow) -> dict[str, float]:
+    """How well each signal tells a step on unseen ground from one on seen ground: its AUROC with the unseen steps as
+    positives (0.5: no better than chance; an epistemic term that rises off the training distribution scores high)."""
+    out = {}
+    for name in NOVELTY_SIGNALS:
+        values = [np.concatenate([np.asarray(getattr(p, name), float) for p in row.parts]) for row in (unseen, seen)]
+        label = np.concatenate([np.ones(len(values[0]), bool), np.zeros(len(values[1]), bool)])
+        out[name] = auroc(np.concatenate(values), label)
+    return out
+
+
 def _num(value: float, digits: int = 3) -> str:
     return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
@@ -340,6 +357,17 @@ def render(
         "",
         *_table(rows),
     ]
+    unseen = next((r for r in rows if r.ground.startswith("unseen")), None)
+    seen = next((r for r in rows if r.ground.startswith("seen")), None)
+    if unseen is not None and seen is not None and unseen.parts and seen.parts:
+        scores = novelty(unseen, seen)
+        names = {"curiosity": "curiosity", "sigma": "σ̂", "cost": "ĉ", "fear": "fear"}
+        lines += [
+            "",
+            "Telling a step on unseen ground from one on seen ground (AUROC, unseen steps positive; 0.5 is chance): "
+            + ", ".join(f"{names[k]} {_num(v)}" for k, v in scores.items())
+            + ".",
+        ]
     if by_movers:
         lines += [
             "",

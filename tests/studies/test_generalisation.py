@@ -62,6 +62,9 @@ def test_the_table_measures_both_grounds_and_resumes_from_its_cache(
     write_section(out, "ugv", section)  # a second run replaces its own section
     text = out.read_text()
     assert text.count("## ugv: ") == 1 and "## highway: kept" in text
+    assert "Telling a step on unseen ground from one on seen ground" in text
+    scores = generalisation.novelty(unseen, seen)
+    assert set(scores) == {"curiosity", "sigma", "cost", "fear"} and all(0 <= v <= 1 for v in scores.values())
     assert "| unseen | ugv-fields:test:2 | 2 (" in text and "`abc`" in text and "### The unseen ground" in text
 
 
