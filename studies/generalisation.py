@@ -172,7 +172,8 @@ def ground_row(
 
 
 class Cache:
-    """Measured parts by key, in one JSON file, written after each part (a stopped run resumes from it)."""
+    """Measured parts by key, in one JSON file, written after each part (a stopped run resumes from it). The key names
+    the run, scenario, seeds and sizes, not the code: delete the file when a family's generator or the run changes."""
 
     def __init__(self, path: Path | None) -> None:
         self.path = path
