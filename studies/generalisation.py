@@ -423,16 +423,20 @@ def write_section(out: Path, sim: str, section: str) -> None:
     out.write_text("\n".join(kept).rstrip("\n") + "\n\n" + section)
 
 
-def default_grounds(run: str | Path, sim: str, family_train: bool = False) -> dict[str, list[str]]:
+def default_grounds(
+    run: str | Path, sim: str, family_train: bool = False, unseen: str | None = None
+) -> dict[str, list[str]]:
     """Unseen: the family's test split (measured first: the question); seen: the run's training scenarios; with
     ``family_train``, the family's train split too (ground a refit may be fitted on; for a run not fitted on it, a
-    check that the two splits are alike)."""
+    check that the two splits are alike). ``unseen``: another scenario name for the unseen ground (e.g.
+    ``ugv-fields:test:2+``, the test fields with two or more movers)."""
     if sim not in FAMILIES:
         raise ValueError(f"no procedural family for {sim!r} yet; families exist for {', '.join(FAMILIES)}")
     from core.agents import read_run_config
 
     seen = [str(s) for s in read_run_config(run)["run"]["scenarios"]]
-    grounds = {f"unseen ({FAMILIES[sim]}:test)": [f"{FAMILIES[sim]}:test"], "seen (training scenarios)": seen}
+    unseen = unseen or f"{FAMILIES[sim]}:test"
+    grounds = {f"unseen ({unseen})": [unseen], "seen (training scenarios)": seen}
     if family_train:
         grounds[f"family train ({FAMILIES[sim]}:train)"] = [f"{FAMILIES[sim]}:train"]
     return grounds
@@ -447,6 +451,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--horizon", type=float, default=1.0, help="seconds: the label's 'violation within'")
     parser.add_argument("--max-steps", type=int)
     parser.add_argument("--family-train", action="store_true", help="a row for the family's train split too")
+    parser.add_argument("--unseen", help="the unseen ground's scenario (default: the family's test split)")
     parser.add_argument(
         "--by-movers", action="store_true", help="ugv: also the unseen signals by movers in the field (from the cache)"
     )
@@ -470,7 +475,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("--episodes must be at least 1 and --gate-episodes at least 0", file=sys.stderr)
         return 2
     try:
-        grounds = default_grounds(run, args.sim, args.family_train)
+        grounds = default_grounds(run, args.sim, args.family_train, args.unseen)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -63,15 +63,23 @@ class FieldSelection:
 
     split: Split
     index: int | None = None
+    min_movers: int = 0
+    """Only fields with at least this many movers (a split's draw skips the others)."""
 
     @property
     def name(self) -> str:
-        return f"{FAMILY}:{self.split}" + ("" if self.index is None else f":{self.index}")
+        tail = f":{self.index}" if self.index is not None else f":{self.min_movers}+" if self.min_movers else ""
+        return f"{FAMILY}:{self.split}{tail}"
 
     def draw(self, rng: np.random.Generator) -> tuple[int, Scenario]:
-        """The field of this reset and its index: the fixed one, or one drawn from the env's seeded generator."""
-        index = self.index if self.index is not None else int(rng.integers(SPLIT_SIZE))
-        return index, field(self.split, index)
+        """The field of this reset and its index: the fixed one, or one drawn from the env's seeded generator (the
+        first drawn with at least ``min_movers`` movers)."""
+        if self.index is not None:
+            return self.index, field(self.split, self.index)
+        while True:
+            index = int(rng.integers(SPLIT_SIZE))
+            if field_draw(self.split, index).movers >= self.min_movers:
+                return index, field(self.split, index)
 
     def placeholder(self) -> Scenario:
         """The selection's first field, until the env's first reset draws one."""
@@ -79,15 +87,18 @@ class FieldSelection:
 
 
 def parse_field_name(name: str) -> FieldSelection | None:
-    """``ugv-fields:train``, ``ugv-fields:test`` or ``ugv-fields:<split>:<index>``; None for any other name (not of
-    this family); :class:`FieldNameError` for a name of the family that does not parse."""
+    """``ugv-fields:train``, ``ugv-fields:test``, ``ugv-fields:<split>:<index>`` or ``ugv-fields:<split>:<n>+`` (only
+    fields with n or more movers); None for any other name (not of this family); :class:`FieldNameError` for a name of
+    the family that does not parse."""
     parts = name.strip().lower().split(":")
     if parts[0] != FAMILY:
         return None
-    usage = f"give {FAMILY}:train, {FAMILY}:test or {FAMILY}:<train|test>:<index>"
+    usage = f"give {FAMILY}:train, {FAMILY}:test, {FAMILY}:<train|test>:<index> or {FAMILY}:<train|test>:<1-3>+"
     if len(parts) not in (2, 3) or parts[1] not in SPLITS:
         raise FieldNameError(f"{name!r} is not a field name; {usage}")
     index = None
+    if len(parts) == 3 and parts[2] in ("1+", "2+", "3+"):
+        return FieldSelection(parts[1], min_movers=int(parts[2][0]))  # type: ignore[arg-type]
     if len(parts) == 3:
         if not parts[2].isdigit() or int(parts[2]) >= SPLIT_SIZE:
             raise FieldNameError(f"{name!r}: the index must be a whole number from 0 to {SPLIT_SIZE - 1}; {usage}")

@@ -74,7 +74,9 @@ def test_names_resolve_where_the_cli_resolves_scenario_names() -> None:
     assert descriptor.scenario_kwargs("ugv-fields:test") == {"scenario": FieldSelection("test")}
     assert descriptor.scenario_kwargs(" UGV-Fields:Train:5 ") == {"scenario": FieldSelection("train", 5)}
     assert FieldSelection("train", 5).name == "ugv-fields:train:5"
-    for bad in ("ugv-fields:valid", "ugv-fields:test:-1", "ugv-fields:test:x", "ugv-fields"):
+    assert descriptor.scenario_kwargs("ugv-fields:test:2+") == {"scenario": FieldSelection("test", min_movers=2)}
+    assert FieldSelection("test", min_movers=2).name == "ugv-fields:test:2+"
+    for bad in ("ugv-fields:valid", "ugv-fields:test:-1", "ugv-fields:test:x", "ugv-fields", "ugv-fields:test:4+"):
         with pytest.raises(ScenarioNameError, match="ugv-fields:train, ugv-fields:test"):
             descriptor.scenario_kwargs(bad)
     assert parse_field_name("sims/ugv/scenarios/traffic.yaml") is None
@@ -91,6 +93,10 @@ def test_a_split_plays_the_field_its_episode_seed_draws() -> None:
         assert all(name.startswith("ugv-fields:test:") for name in names)
     finally:
         env.close()
+    crowded = UGVEnv(FieldSelection("test", min_movers=2))
+    for seed in (11, 12):
+        crowded.reset(seed=seed)
+        assert len(crowded.layout.movers) >= 2
     one = UGVEnv(parse_field_name("ugv-fields:test:4"))
     for seed in (1, 2):
         one.reset(seed=seed)
