@@ -10,7 +10,8 @@ Names (wherever a UGV scenario name is accepted, e.g. ``--scenario ugv-fields:te
 
 - ``ugv-fields:train`` / ``ugv-fields:test``: at every reset the env draws a field index from its seeded generator
   (so episode seed s always gives the same field) and plays that field of the split;
-- ``ugv-fields:test:17``: field 17 of the test split at every reset.
+- ``ugv-fields:test:17``: field 17 of the test split at every reset;
+- ``ugv-fields:test:2+``: as ``ugv-fields:test``, drawing until a field with 2 or more movers comes (``1+``, ``3+``).
 
 The split: field ``i`` of a split is drawn from seed ``SPLIT_BASE[split] + i`` with ``0 <= i < SPLIT_SIZE``: train
 seeds are ``[0, 10^9)``, test seeds ``[10^9, 2 * 10^9)``, disjoint ranges. Candidate ``j`` of a seed (``j = 0, 1,
