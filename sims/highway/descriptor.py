@@ -6,17 +6,25 @@ from typing import Any
 
 from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
 from sims.highway.config import HighwayConfig
+from sims.highway.families import parse_family_name
 
 METRIC_COLUMNS = ("success", "collision", "speed_mean", "acc_mean", "off_road", "timeout", "min_ttc", "mean_gap")
 """The paper's S.R., C.R., speed and acceleration, then what makes the adversarial set harder."""
 
 
 def _pool_id(name: str) -> dict[str, Any]:
-    """One logged scenario of the pool by its id (``"17"``, or ``"17-adversarial"``)."""
+    """One logged scenario of the pool by its id (``"17"``, or ``"17-adversarial"``), or a ``highway-shift`` name
+    (:mod:`sims.highway.families`)."""
+    selection = parse_family_name(name)  # a FamilyNameError (a ValueError) for a malformed family name
+    if selection is not None:
+        return selection.env_kwargs()
     base, _, mode = name.partition("-")
     if base.isdigit() and mode in ("", "normal", "adversarial"):
         return {"scenario_id": int(base), **({"mode": mode} if mode else {})}
-    raise ValueError("give a logged split: train, test or all (optionally -adversarial), or a pool id 0-499")
+    raise ValueError(
+        "give a logged split: train, test or all (optionally -adversarial), a pool id 0-499, or highway-shift:train, "
+        "highway-shift:test or highway-shift:<split>:<index>"
+    )
 
 
 DESCRIPTOR = SimDescriptor(

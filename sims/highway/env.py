@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -124,6 +124,14 @@ def predict_ego_path(
     return plan, Paths(paths.dt, observed, paths.length, paths.width)
 
 
+class SpecSource(Protocol):
+    """A family of scenario specs, one drawn at each reset (e.g. :class:`sims.highway.families.SpecSelection`)."""
+
+    def draw(self, rng: np.random.Generator) -> tuple[int, ScenarioSpec]:
+        """The episode's spec and its index in the family, drawn from the env's seeded generator."""
+        ...
+
+
 class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
     """Logged highway scenario replay (``mode="normal"``) or CAT-style adversarial variants.
 
@@ -141,6 +149,7 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
         ego_predictor: EgoPredictor | None = None,
         config: HighwayConfig | None = None,
         custom_spec: ScenarioSpec | None = None,
+        spec_source: SpecSource | None = None,
         scene_rays: bool | None = None,
         render_mode: str | None = None,
         **overrides: Any,
@@ -156,6 +165,11 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
         self.scenario_id = None if scenario_id is None else int(scenario_id)
         self.custom_spec = custom_spec
         """A scenario outside the pool (``scenarios.custom_spec``), used instead of the split when given."""
+        self.spec_source = spec_source
+        """A family of specs (``highway-shift``: :mod:`sims.highway.families`), one drawn at each reset, used instead of
+        the split when given."""
+        self.source_index: int | None = None
+        """The source's index of the current episode's spec (None without a source)."""
         self.cfg = replaced(config or DEFAULT, overrides, "highway")
         if scene_rays is not None:
             self.cfg = dataclasses.replace(self.cfg, scene_rays=scene_rays)
@@ -184,7 +198,11 @@ class HighwayEnv(gym.Env[np.ndarray, np.ndarray]):
         mode = options.get("mode", self.mode)
         if mode not in ("normal", "adversarial"):
             raise ValueError(f"unknown mode {mode!r}; choose normal or adversarial")
-        if self.custom_spec is not None and "scenario_id" not in options:
+        if self.spec_source is not None and "scenario_id" not in options:
+            self.source_index, spec = self.spec_source.draw(self.np_random)
+            log = load_log(spec)
+            self.current_id = spec.scenario_id
+        elif self.custom_spec is not None and "scenario_id" not in options:
             log = load_log(self.custom_spec)
             self.current_id = self.custom_spec.scenario_id
         else:

@@ -12,8 +12,10 @@ from sims.sumo.network import DATA_DIR, NET_FILE
 
 EGO = "ego"
 GOAL_EDGE = "exit"
-ROUTES = {1: "ego_r1", 2: "ego_r2"}
-"""Route number -> route id in ``common.rou.xml``."""
+ROUTES = {1: "ego_r1", 2: "ego_r2", 3: "ego_r3"}
+"""Route number -> route id in ``common.rou.xml`` (3: the ``sumo-shift`` family's unseen route)."""
+SPECIAL_FILES = {3: "special3.rou.xml"}
+"""The special vehicles of a route, where not C2's ``special.rou.xml``."""
 AGENT_SPEED_MODE = 32
 """All of SUMO's speed checks off: the agent's acceleration is applied as is (it may collide or run a red)."""
 EXPERT_SPEED_MODE = 31
@@ -29,7 +31,8 @@ class SumoConfig:
     """Every default of the SUMO study in one place. Any field can be given to ``SumoEnv(...)`` or ``gym.make``."""
 
     route: int = 1
-    """Which composite route the ego drives: 1 (phase C1) or 2 (phase C2)."""
+    """Which composite route the ego drives: 1 (phase C1), 2 (phase C2) or 3 (the ``sumo-shift`` family's unseen
+    route, :mod:`sims.sumo.families`)."""
     special_vehicles: bool = False
     """Add the special vehicles (bus, fire truck, police car, ambulance) to the traffic, as in phase C2."""
     step_length: float = 0.5
@@ -99,7 +102,7 @@ class SumoConfig:
             return [Path(f) for f in self.route_files]
         files = [DATA_DIR / "common.rou.xml", DATA_DIR / f"route{self.route}.rou.xml"]
         if self.special_vehicles:
-            files.append(DATA_DIR / "special.rou.xml")
+            files.append(DATA_DIR / SPECIAL_FILES.get(self.route, "special.rou.xml"))
         return files
 
     def to_dict(self) -> dict[str, Any]:

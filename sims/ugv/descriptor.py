@@ -7,18 +7,26 @@ from typing import Any
 
 from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
 from sims.ugv.config import UGVConfig
+from sims.ugv.fields import parse_field_name
 from sims.ugv.lidar import footprint_ranges
 from sims.ugv.metrics import METRIC_COLUMNS
 
 
 def _scenario_file(name: str) -> dict[str, Any]:
-    """Any scenario YAML file (schema: :mod:`sims.ugv.scenario`) is a scenario too."""
+    """Any scenario YAML file (schema: :mod:`sims.ugv.scenario`) is a scenario too, and so is a generated field's name
+    (``ugv-fields:train``, ``ugv-fields:test``, ``ugv-fields:test:17``: :mod:`sims.ugv.fields`)."""
+    selection = parse_field_name(name)  # a FieldNameError (a ValueError) for a malformed field name
+    if selection is not None:
+        return {"scenario": selection}
     path = Path(name).expanduser()
     if path.suffix.lower() in (".yaml", ".yml"):
         if not path.is_file():
             raise ValueError(f"scenario file not found: {path}")
         return {"scenario": str(path)}
-    raise ValueError("give 1-4 (the paper's field tests) or the path of a scenario .yaml file")
+    raise ValueError(
+        "give 1-4 (the paper's field tests), the path of a scenario .yaml file or a generated field "
+        "(ugv-fields:train, ugv-fields:test, ugv-fields:test:<index>)"
+    )
 
 
 def contact_floors(config: UGVConfig | None = None) -> tuple[float, ...]:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -119,8 +119,22 @@ def wrap_angle(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
+class ScenarioSource(Protocol):
+    """A family of whole scenarios, one drawn at each reset (e.g. :class:`sims.ugv.fields.FieldSelection`)."""
+
+    def draw(self, rng: np.random.Generator) -> tuple[int, Scenario]:
+        """The episode's scenario and its index in the family, drawn from the env's seeded generator."""
+        ...
+
+    def placeholder(self) -> Scenario:
+        """A scenario that stands for the family until the first reset draws one."""
+        ...
+
+
 class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
-    """The UGV navigation env. ``scenario``: 1..4 (the paper's four field tests) or a YAML file path.
+    """The UGV navigation env. ``scenario``: 1..4 (the paper's four field tests), a YAML file path or a generated
+    :class:`ScenarioSource` that draws a whole scenario at each reset (``ugv-fields:test``: :mod:`sims.ugv.fields`,
+    which the descriptor turns such a name into).
 
     Keyword overrides change the :class:`~sims.ugv.config.UGVConfig` with dotted names, e.g.
     ``UGVEnv(3, **{"lidar.backend": "pymunk"})`` or ``gym.make("sage/UGV-v0", scenario=2, time_limit=30)``.
@@ -130,7 +144,7 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def __init__(
         self,
-        scenario: int | str | Path | Scenario = 1,
+        scenario: int | str | Path | Scenario | ScenarioSource = 1,
         config: UGVConfig | None = None,
         render_mode: str | None = None,
         **overrides: Any,
@@ -144,7 +158,13 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"unknown lidar backend {self.config.lidar.backend!r}; choose numpy or pymunk")
         if self.config.lidar.sectors != SECTORS or self.config.lidar.fov_deg <= 0:
             raise ValueError("the observation has 54 lidar sectors (the paper's); lidar.sectors must stay 54")
-        self.scenario = load_scenario(scenario)
+        # a source (a split of generated fields) draws a whole scenario at each reset
+        self.source: ScenarioSource | None = None
+        if not isinstance(scenario, int | str | Path | Scenario):
+            self.source = scenario
+        self.field_index: int | None = None
+        """The source's index of the current episode's scenario (None for a scenario file)."""
+        self.scenario = self.source.placeholder() if self.source is not None else load_scenario(scenario)
         self.render_mode = render_mode
         sectors = self.config.lidar.sectors
         low = np.concatenate([np.zeros(sectors), [0.0, -1.0, 0.0, -1.0]]).astype(np.float32)
@@ -302,6 +322,8 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
     # -- episode set-up --------------------------------------------------------------------------
     def _build_world(self) -> tuple[World, Layout]:
         """Draw a layout whose start pose is free and whose goal is reachable, from the seeded generator."""
+        if self.source is not None:
+            self.field_index, self.scenario = self.source.draw(self.np_random)
         scenario, rng, cfg = self.scenario, self.np_random, self.config
         table_steps = INITIAL_TABLE_STEPS  # mover poses are tabulated further on demand
         walls = wall_segments(scenario)

@@ -262,7 +262,7 @@ def test_bad_files_give_errors_naming_the_file(make_env: MakeEnv, tmp_path: Path
     with pytest.raises(SumoError, match="not a <net> file"):
         SumoEnv(net_file=str(Path(__file__).parent.parent.parent.parent / "sims/sumo/data/common.rou.xml"))
     with pytest.raises(ValueError, match="route"):
-        SumoEnv(route=3)
+        SumoEnv(route=4)  # 1-3 exist (3: the sumo-shift family's route)
     # well-formed but empty: SUMO itself refuses it at reset, with its own reason
     empty = tmp_path / "empty.net.xml"
     empty.write_text('<?xml version="1.0"?>\n<net version="1.20"></net>\n')

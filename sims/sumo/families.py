@@ -1,0 +1,34 @@
+"""``sumo-shift``: the composite network with a route and special vehicles that no committed model was trained on
+(the generalisation benchmark, issue 60).
+
+- ``sumo-shift:train``: phase C2 (route 2 with C2's special vehicles), ground the committed policy was trained on;
+- ``sumo-shift:test``: route 3 (from the south arm of junction u1a it turns onto the arterial, giving way to its
+  traffic, then follows route 1 to the exit; ``data/common.rou.xml``), with route 1's flows and a busier arterial
+  (``data/route3.rou.xml``), and special vehicles that behave unlike C2's (``data/special3.rou.xml``): faster and
+  harder-braking emergency vehicles with more driver noise, head-on along the arterial and across the ego's start
+  junction, and a slow, erratic bus, on the western corridor where C2 had none.
+
+Each episode's traffic comes from SUMO's seed, the episode seed: the splits differ by route and vehicles, not by seed.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+FAMILY = "sumo-shift"
+SPLITS: dict[str, dict[str, Any]] = {
+    "train": {"route": 2, "special_vehicles": True},
+    "test": {"route": 3, "special_vehicles": True},
+}
+"""Each split's ``make`` keyword arguments (:class:`~sims.sumo.config.SumoConfig` fields)."""
+
+
+def family_kwargs(name: str) -> dict[str, Any] | None:
+    """``make`` keyword arguments of ``sumo-shift:train`` / ``:test``; None for a name outside the family; a
+    ``ValueError`` for one of it that does not parse."""
+    parts = name.strip().lower().split(":")
+    if parts[0] != FAMILY:
+        return None
+    if len(parts) != 2 or parts[1] not in SPLITS:
+        raise ValueError(f"{name!r} is not a {FAMILY} name; give {FAMILY}:train or {FAMILY}:test")
+    return dict(SPLITS[parts[1]])

@@ -1,0 +1,75 @@
+"""studies.generalisation: the seen-vs-unseen table on a tiny sample, its cache and its document."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from studies import generalisation
+from studies.generalisation import generalisation_table, render, write_section
+
+torch.set_num_threads(1)
+RUN = "policies/ugv-default"
+
+
+def test_the_table_measures_both_grounds_and_resumes_from_its_cache(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    grounds = {"unseen": ["ugv-fields:test:2"], "seen": ["1", "2"]}
+    cache = tmp_path / "cache.json"
+    rows = generalisation_table(RUN, "ugv", grounds, episodes=2, gate_episodes=2, max_steps=12, cache=cache)
+    assert [r.ground for r in rows] == ["unseen", "seen"]
+    unseen, seen = rows
+    assert unseen.episodes == 2 and seen.episodes == 2 and seen.scenarios == ["1", "2"]
+    assert unseen.steps <= 24 and seen.steps <= 24
+    assert 0 <= unseen.fire_elsewhere <= 1 and math.isfinite(unseen.tau_mean) and math.isfinite(seen.curiosity_mean)
+    assert seen.gate["episodes"] == 2 and 0 <= seen.gate["takeover_rate"] <= 1
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise AssertionError("measured again although cached")
+
+    monkeypatch.setattr(generalisation, "collect_signals", fail)
+    monkeypatch.setattr(generalisation, "run_gated", fail)
+    again = generalisation_table(RUN, "ugv", grounds, episodes=2, gate_episodes=2, max_steps=12, cache=cache)
+    assert [r.steps for r in again] == [r.steps for r in rows]
+    # a run stopped early: with cached_only, the table is made of the chunks the cache holds
+    store = json.loads(cache.read_text())
+    cache.write_text(json.dumps({k: v for k, v in store.items() if not k.startswith("gate|") or "|1|" in k}))
+    partial = generalisation_table(
+        RUN, "ugv", grounds, episodes=2, gate_episodes=2, max_steps=12, cache=cache, cached_only=True
+    )
+    assert [r.episodes for r in partial] == [2, 2] and partial[0].gate == {} and partial[1].gate["episodes"] == 1
+
+    by_movers = generalisation.ugv_rows_by_movers(cache, RUN, scenario="ugv-fields:test:2", max_steps=12)
+    assert sum(r.episodes for r in by_movers) == 2 and len(by_movers) == 1  # one field: one group
+
+    out = tmp_path / "generalisation.md"
+    out.write_text("# Generalisation\n\n## highway: kept\n\nother sim\n")
+    section = render(
+        rows,
+        sim="ugv",
+        run=RUN,
+        horizon_s=1.0,
+        command="python -m studies.generalisation",
+        commit="abc",
+        by_movers=by_movers,
+    )
+    write_section(out, "ugv", section)
+    write_section(out, "ugv", section)  # a second run replaces its own section
+    text = out.read_text()
+    assert text.count("## ugv: ") == 1 and "## highway: kept" in text
+    assert "Telling a step on unseen ground from one on seen ground" in text
+    scores = generalisation.novelty(unseen, seen)
+    assert set(scores) == {"curiosity", "sigma", "cost", "fear"} and all(0 <= v <= 1 for v in scores.values())
+    assert "| unseen | ugv-fields:test:2 | 2 (" in text and "`abc`" in text and "### The unseen ground" in text
+
+
+def test_the_entry_point_refuses_bad_input_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert generalisation.main(["--sim", "ugv", "--episodes", "0"]) == 2
+    assert generalisation.main(["--sim", "point", "--run", RUN]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "no procedural family for 'point'" in err[1]
