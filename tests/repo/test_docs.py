@@ -19,6 +19,7 @@ SPEED_BENCHES = {
     "bench_baselines.py",
     "bench_finetune.py",
     "bench_gate.py",
+    "gpu_check.py",  # the CPU-vs-GPU update ratios, for a session with a GPU
     "bench_highway.py",
     "bench_pedestrian.py",
     "bench_sac.py",

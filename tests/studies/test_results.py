@@ -70,6 +70,7 @@ def test_the_header_states_what_was_run_and_planner_rows_their_spread(tmp_path: 
     text = write_results(
         tmp_path, "cycles", rows[:2], ("method",), ("success",), budget("small"), 1.0, commit="abc", budget_text=said
     ).read_text()
-    assert "9 cycles of 3 episodes per method and seed" in text
-    assert "no separate evaluation episodes" in text and "10 evaluation episodes" not in text
+    assert "9 cycles of 666 deployment steps per method and seed" in text  # 6,000 steps over 9 cycles
+    # its evaluation episodes are the versions alone in every cycle, and the header says so
+    assert "alone on 10 evaluation episodes of the scenario and of an unseen one" in text
     assert "6000 environment steps per method" not in text
