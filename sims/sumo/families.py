@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from sims.families import split_kwargs
+
 FAMILY = "sumo-shift"
 SPLITS: dict[str, dict[str, Any]] = {
     "train": {"route": 2, "special_vehicles": True},
@@ -24,11 +26,5 @@ SPLITS: dict[str, dict[str, Any]] = {
 
 
 def family_kwargs(name: str) -> dict[str, Any] | None:
-    """``make`` keyword arguments of ``sumo-shift:train`` / ``:test``; None for a name outside the family; a
-    ``ValueError`` for one of it that does not parse."""
-    parts = name.strip().lower().split(":")
-    if parts[0] != FAMILY:
-        return None
-    if len(parts) != 2 or parts[1] not in SPLITS:
-        raise ValueError(f"{name!r} is not a {FAMILY} name; give {FAMILY}:train or {FAMILY}:test")
-    return dict(SPLITS[parts[1]])
+    """``make`` keyword arguments of ``FAMILY:train`` / ``:test``; None for a name outside the family."""
+    return split_kwargs(name, FAMILY, SPLITS)
