@@ -27,6 +27,7 @@ import torch
 
 from core.motion import motion_between
 from core.protocol import GateDecision
+from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports
 from core.sage.config import GateConfig
 from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, contact_terms, fear_of, rollout
 from core.sage.networks import Actor
@@ -90,12 +91,15 @@ class SageGate:
         policy: Actor | PolicyFn,
         cfg: GateConfig | None = None,
         encode: Callable[[Any], np.ndarray] | None = None,
+        compiled: bool = True,
     ) -> None:
         """``policy``: the learner's :class:`Actor` (fast preallocated path, always its current weights) or
         any deterministic torch policy function (generic path, e.g. a discrete learner's one-hot greedy).
         ``encode``: turns the loop's actions into the world model's (a discrete action index into its one-hot);
-        None when they are the same."""
+        None when they are the same. ``compiled``: with an :class:`Actor`, the rollout as one compiled call
+        (:class:`CompiledGateKernel`, where it covers the model) rather than the torch kernel's small operations."""
         self.encode = encode
+        self.compiled = compiled
         self.world_model = world_model
         self.actor = policy if isinstance(policy, Actor) else None
         self.policy: PolicyFn = policy.deterministic if isinstance(policy, Actor) else policy
@@ -123,8 +127,10 @@ class SageGate:
             return None
         if self._kernel is None or self._kernel[0] != self.world_model.version:
             actor = self.actor
-            layers = actor.deterministic_layers()
-            kernel = GateKernel(self.world_model.folded(), layers, actor.action_scale, actor.action_bias, self.cfg)
+            layers, folded = actor.deterministic_layers(), self.world_model.folded()
+            compiled = self.compiled and compiled_kernel_supports(folded, layers)
+            build = CompiledGateKernel if compiled else GateKernel
+            kernel = build(folded, layers, actor.action_scale, actor.action_bias, self.cfg)
             self._kernel = (self.world_model.version, kernel)
         return self._kernel[1]
 
