@@ -27,7 +27,6 @@ import torch
 
 from core.motion import motion_between
 from core.protocol import GateDecision
-from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports
 from core.sage.config import GateConfig
 from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, contact_terms, fear_of, rollout
 from core.sage.networks import Actor
@@ -127,6 +126,9 @@ class SageGate:
             return None
         if self._kernel is None or self._kernel[0] != self.world_model.version:
             actor = self.actor
+            # numba's import (and a first compilation where its cache is cold) is paid by the first kernel
+            from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports
+
             layers, folded = actor.deterministic_layers(), self.world_model.folded()
             compiled = self.compiled and compiled_kernel_supports(folded, layers)
             build = CompiledGateKernel if compiled else GateKernel
