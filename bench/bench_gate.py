@@ -1,6 +1,7 @@
 """One gate step on one core: the policy's action, the m = 5 step fear rollout of the N = 5 ensemble, the
-curiosity of the executed transition and the threshold update; against the same computation with a
-Python loop over the ensemble members.
+curiosity of the executed transition and the threshold update; the gate's compiled kernel
+(:class:`core.sage.compiled_gate.CompiledGateKernel`) against its torch kernel (``SageGate(compiled=False)``) and
+the same computation with a Python loop over the ensemble members.
 
 Sizes are the UGV's: 58 observations, 2 actions, the default world model (5 x 2 x 64, SiLU) and actor
 (2 x 128). The world model is fitted briefly on synthetic transitions (the weights' values do not change
@@ -33,6 +34,8 @@ from core.sage.world_model import EnsembleWorldModel
 
 OBS_DIM, ACT_DIM = 58, 2
 TARGET_MS = 0.5
+EGO_TARGET_MS = 0.3
+"""Issue 63's target for the gate over the ego step."""
 
 
 class LoopGate:
@@ -119,9 +122,12 @@ def main() -> None:
     gate = SageGate(model, actor, cfg)
     policy = ActorPolicy(actor)
     loop = LoopGate(model, actor, cfg)
-    larger: dict[str, SageGate] = {f"batched, N={n}": SageGate(setup(n)[0], actor, cfg) for n in args.members}
+    larger: dict[str, SageGate] = {"torch kernel": SageGate(model, actor, cfg, compiled=False)}
+    larger.update({f"batched, N={n}": SageGate(setup(n)[0], actor, cfg) for n in args.members})
     if args.ego:
-        larger["batched, ego step"] = SageGate(setup(ego=True)[0], actor, cfg)
+        ego_model = setup(ego=True)[0]
+        larger["batched, ego step"] = SageGate(ego_model, actor, cfg)
+        larger["torch kernel, ego step"] = SageGate(ego_model, actor, cfg, compiled=False)
 
     def other_step(name: str) -> Callable[[int], float]:
         def step(i: int) -> float:
@@ -177,15 +183,21 @@ def main() -> None:
         )
     batched_cpu, batched_wall = statistics.median(cpu[names[0]]) * 1e3, statistics.median(wall[names[0]]) * 1e3
     print(f"loop / batched (CPU medians): {statistics.median(cpu[names[1]]) / statistics.median(cpu[names[0]]):.2f}x")
+    ratio = statistics.median(cpu["torch kernel"]) / statistics.median(cpu[names[0]])
+    print(f"torch kernel / compiled kernel (CPU medians): {ratio:.2f}x")
     for n in args.members:
         ratio = statistics.median(cpu[f"batched, N={n}"]) / statistics.median(cpu[names[0]])
         print(f"batched N={n} / N={model.members} (CPU medians): {ratio:.2f}x")
     if args.ego:
         ratio = statistics.median(cpu["batched, ego step"]) / statistics.median(cpu[names[0]])
         print(f"ego step / without (CPU medians): {ratio:.2f}x")
+        ratio = statistics.median(cpu["torch kernel, ego step"]) / statistics.median(cpu["batched, ego step"])
+        print(f"over the ego step, torch kernel / compiled kernel (CPU medians): {ratio:.2f}x")
         ego_cpu = statistics.median(cpu["batched, ego step"]) * 1e3
-        verdict = "OK" if ego_cpu <= TARGET_MS else "ABOVE TARGET"
-        print(f"target, the gate over the ego step: median <= {TARGET_MS} ms on one core: {ego_cpu:.3f} ms {verdict}")
+        verdict = "OK" if ego_cpu <= EGO_TARGET_MS else "ABOVE TARGET"
+        print(
+            f"target, the gate over the ego step: median <= {EGO_TARGET_MS} ms on one core: {ego_cpu:.3f} ms {verdict}"
+        )
     verdict = "OK" if batched_cpu <= TARGET_MS else "ABOVE TARGET"
     print(
         f"target: median <= {TARGET_MS} ms on one core: CPU {batched_cpu:.3f} ms {verdict}; wall {batched_wall:.3f} ms"

@@ -10,8 +10,10 @@ expert holds control: hysteresis, so that control goes back to the policy only o
 ``observe``: curiosity C_{t+1} of the executed transition, which sets the threshold of the next step.
 The loop (:class:`core.loop.Runner`) executes a = (1 - Ξ) a_RL + Ξ a_expert and records both actions.
 
-A whole step (m = 5, N = 5 rollout, policy, curiosity, threshold) costs a few hundred microseconds on one
-core (bench/bench_gate.py): inference mode, cached folded weights, every member in one ``baddbmm``.
+A whole step (m = 5, N = 5 rollout, policy, curiosity, threshold) costs 0.16 ms on one core, 0.24 ms over the
+UGV's ego step (bench/bench_gate.py --ego): the rollout is one compiled call
+(:class:`core.sage.compiled_gate.CompiledGateKernel`) on cached folded weights, where the torch kernel's few dozen
+small operations took twice that.
 """
 
 from __future__ import annotations
@@ -90,12 +92,15 @@ class SageGate:
         policy: Actor | PolicyFn,
         cfg: GateConfig | None = None,
         encode: Callable[[Any], np.ndarray] | None = None,
+        compiled: bool = True,
     ) -> None:
         """``policy``: the learner's :class:`Actor` (fast preallocated path, always its current weights) or
         any deterministic torch policy function (generic path, e.g. a discrete learner's one-hot greedy).
         ``encode``: turns the loop's actions into the world model's (a discrete action index into its one-hot);
-        None when they are the same."""
+        None when they are the same. ``compiled``: with an :class:`Actor`, the rollout as one compiled call
+        (:class:`CompiledGateKernel`, where it covers the model) rather than the torch kernel's small operations."""
         self.encode = encode
+        self.compiled = compiled
         self.world_model = world_model
         self.actor = policy if isinstance(policy, Actor) else None
         self.policy: PolicyFn = policy.deterministic if isinstance(policy, Actor) else policy
@@ -123,8 +128,13 @@ class SageGate:
             return None
         if self._kernel is None or self._kernel[0] != self.world_model.version:
             actor = self.actor
-            layers = actor.deterministic_layers()
-            kernel = GateKernel(self.world_model.folded(), layers, actor.action_scale, actor.action_bias, self.cfg)
+            # numba's import (and a first compilation where its cache is cold) is paid by the first kernel
+            from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports
+
+            layers, folded = actor.deterministic_layers(), self.world_model.folded()
+            compiled = self.compiled and compiled_kernel_supports(folded, layers)
+            build = CompiledGateKernel if compiled else GateKernel
+            kernel = build(folded, layers, actor.action_scale, actor.action_bias, self.cfg)
             self._kernel = (self.world_model.version, kernel)
         return self._kernel[1]
 

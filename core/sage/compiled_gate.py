@@ -1,0 +1,291 @@
+"""The gate's rollout compiled with numba: :class:`CompiledGateKernel`, the same computation as
+:class:`core.sage.fear.GateKernel` in one compiled call per gate step.
+
+The torch kernel is bound by the cost of dispatching its small operations (some 80 a step for a 5-member ensemble
+rolled 5 steps at batch 1, a few microseconds each), not by its arithmetic (under 2 MFLOP). Here the whole rollout
+(every member's layers, the ego step, the policy's actions, the violation probabilities and their aggregation) is
+one loop nest over the torch kernel's own buffers, which it fills as the torch kernel would, so that the curiosity
+and the dashboard's horizon read them unchanged. Float32 products and sums as torch's (summed in another order:
+equal within float32 rounding, ``tests/core/sage/test_compiled_gate.py``); the probabilities' mean, spread and
+aggregation in float64.
+
+It covers the gate of every committed configuration: a CPU float32 model with or without the motion input and the
+ego step, imagined contact, ``max`` or ``discounted_mean``. A model with a scan-aligned motion (``scan_*``) or the
+approach input, or weights on another device, keeps the torch kernel (:func:`compiled_kernel_supports`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import torch
+from torch import Tensor
+
+from core._ego_kernel import scan as ego_scan
+from core.sage.config import GateConfig
+from core.sage.fear import GateKernel, closing_channels
+from core.sage.world_model import FoldedModel
+
+
+@numba.njit(cache=True, nogil=True)
+def _member_layer(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, out: np.ndarray, silu: bool) -> None:
+    """out = x @ weight + bias for one member's (in,) row, (in, out) weight and (out,) bias; SiLU when ``silu``.
+    The output loop is innermost over contiguous weights: vectorised without reordering any sum."""
+    n_out = out.shape[0]
+    for j in range(n_out):
+        out[j] = bias[j]
+    for i in range(x.shape[0]):
+        xi = x[i]
+        for j in range(n_out):
+            out[j] += xi * weight[i, j]
+    if silu:
+        for j in range(n_out):
+            v = np.float64(out[j])
+            out[j] = v / (1.0 + math.exp(-v))
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _linear_rows(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, out: np.ndarray) -> None:
+    """out = x @ weight.T + bias for (B, in) rows and torch's (out, in) weight (read in place: the actor's live
+    parameters). Each output is a dot product over contiguous memory; reassociation lets it be vectorised."""
+    for r in range(x.shape[0]):
+        for j in range(weight.shape[0]):
+            acc = np.float32(0.0)
+            for i in range(weight.shape[1]):
+                acc += x[r, i] * weight[j, i]
+            out[r, j] = acc + bias[j]
+
+
+@numba.njit(cache=True, nogil=True)
+def gate_rollout(
+    x: np.ndarray,
+    outputs: np.ndarray,
+    probability: np.ndarray,
+    first_base: np.ndarray,
+    base: np.ndarray,
+    hidden_weights: tuple,
+    hidden_biases: tuple,
+    out_weight: np.ndarray,
+    out_bias: np.ndarray,
+    actor_weights: tuple,
+    actor_biases: tuple,
+    action_scale: np.ndarray,
+    action_bias: np.ndarray,
+    scaled: bool,
+    obs_dim: int,
+    act_dim: int,
+    motion: bool,
+    motion_weight: float,
+    ego: bool,
+    ego_geometry: tuple,
+    floors: np.ndarray,
+    closing: np.ndarray,
+    sigma_divisor: np.ndarray,
+    weights: np.ndarray,
+    beta: float,
+) -> tuple[float, float, float]:
+    """(F^m, ĉ, σ̂) of the state and first action already in ``x[0]``'s rows (every member's; with the motion
+    input, the motion too), as :meth:`GateKernel.__call__` computes them. ``x`` (m + 1, N, width): each step's
+    [state, action (, motion)] rows, filled here step by step; ``outputs`` (m, N, D + 1) each step's Δs and
+    violation logit; ``probability`` (m, N) each member's violation probability with imagined contact, written;
+    ``first_base`` (1, D) and ``base`` (N, D) the ego step's moved states (unused without one). ``floors``: the
+    contact floors (empty: none), ``closing`` which of their channels may count; ``weights`` the discounted
+    mean's (empty: the maximum)."""
+    m, n = outputs.shape[0], outputs.shape[1]
+    d, a = obs_dim, act_dim
+    widest = x.shape[2]
+    for w in hidden_weights:
+        widest = max(widest, w.shape[2])
+    h_in = np.empty(widest, dtype=np.float32)
+    h_out = np.empty(widest, dtype=np.float32)
+    layers = len(actor_weights)
+    directions, segments, numbers, channels = ego_geometry
+    for k in range(m):
+        for member in range(n):
+            row = x[k, member]
+            width_in = row.shape[0]
+            for i in range(width_in):
+                h_in[i] = row[i]
+            for layer in range(len(hidden_weights)):
+                w = hidden_weights[layer][member]
+                _member_layer(h_in[:width_in], w, hidden_biases[layer][member, 0], h_out[: w.shape[1]], True)
+                width_in = w.shape[1]
+                for i in range(width_in):
+                    h_in[i] = h_out[i]
+            _member_layer(h_in[:width_in], out_weight[member], out_bias[member, 0], outputs[k, member], False)
+        if ego:  # the residual over the scan moved by the action; every member starts from the same (s, a)
+            if k == 0:
+                ego_scan(x[0, :1, :d], x[0, :1, d : d + a], first_base, directions, segments, numbers, channels)
+            else:
+                ego_scan(x[k, :, :d], x[k, :, d : d + a], base, directions, segments, numbers, channels)
+        for member in range(n):
+            for i in range(d):
+                start = first_base[0, i] if ego and k == 0 else (base[member, i] if ego else x[k, member, i])
+                x[k + 1, member, i] = start + outputs[k, member, i]
+            if motion and k + 1 < m:  # the last imagined state's motion feeds no further step
+                for i in range(d):
+                    change = outputs[k, member, i] if not ego else x[k + 1, member, i] - x[k, member, i]
+                    previous = x[k, member, d + a + i]
+                    x[k + 1, member, d + a + i] = previous + np.float32(motion_weight) * (change - previous)
+        if k + 1 < m:  # the policy's action on each member's imagined state
+            p_in = np.empty((n, d), dtype=np.float32)  # contiguous rows: the products vectorise
+            for member in range(n):
+                for i in range(d):
+                    p_in[member, i] = x[k + 1, member, i]
+            for layer in range(layers):
+                w = actor_weights[layer]
+                p_out = np.empty((n, w.shape[0]), dtype=np.float32)
+                _linear_rows(p_in, w, actor_biases[layer], p_out)
+                for member in range(n):
+                    for i in range(w.shape[0]):
+                        v = p_out[member, i]
+                        p_out[member, i] = max(v, np.float32(0.0)) if layer + 1 < layers else math.tanh(v)
+                p_in = p_out
+            for member in range(n):
+                for i in range(a):
+                    v = p_in[member, i]
+                    x[k + 1, member, d + i] = v * action_scale[i] + action_bias[i] if scaled else v
+    cost, sigma, step = np.empty(m), np.empty(m), np.empty(n)
+    for k in range(m):
+        mean = 0.0
+        for member in range(n):
+            step[member] = 1.0 / (1.0 + math.exp(-np.float64(outputs[k, member, d])))
+            mean += step[member]
+        mean /= n
+        spread = 0.0
+        for member in range(n):
+            spread += (step[member] - mean) ** 2
+        sigma[k] = math.tanh(math.sqrt(max(spread / n, 1e-12)) / sigma_divisor[k])
+        total = 0.0
+        for member in range(n):
+            p = step[member]
+            for i in range(floors.shape[0]):
+                if closing[i] and x[k + 1, member, i] <= floors[i]:
+                    p = 1.0
+                    break
+            probability[k, member] = p
+            total += p
+        cost[k] = total / n
+    if weights.shape[0] == 0:
+        c, s = cost.max(), sigma.max()
+    else:
+        c, s = 0.0, 0.0
+        for k in range(m):
+            c += cost[k] * weights[k]
+            s += sigma[k] * weights[k]
+    return beta * c + (1.0 - beta) * s, c, s
+
+
+@numba.njit(cache=True, nogil=True)
+def reused_curiosity(outputs: np.ndarray, base: np.ndarray, next_obs: np.ndarray, inv_obs_std: np.ndarray) -> float:
+    """||(base + mean_n Δ_n - s') / std(s)||₂ from the first rollout step's (N, D + 1) outputs (float64 sums)."""
+    n, d = outputs.shape[0], base.shape[0]
+    total = 0.0
+    for i in range(d):
+        delta = 0.0
+        for member in range(n):
+            delta += outputs[member, i]
+        e = (np.float32(delta / n) + base[i] - next_obs[i]) * inv_obs_std[i]
+        total += np.float64(e) ** 2
+    return math.sqrt(total)
+
+
+def compiled_kernel_supports(model: FoldedModel, actor_layers: list[tuple[Tensor, Tensor]]) -> bool:
+    """Whether :class:`CompiledGateKernel` computes this model's and actor's gate: CPU float32 contiguous weights,
+    no scan-aligned motion and no approach input."""
+    tensors = [model.out_weight, model.out_bias, model.inv_obs_std, *(t for layer in model.hidden for t in layer)]
+    tensors += [t for layer in actor_layers for t in layer]
+    plain = all(t.device.type == "cpu" and t.dtype == torch.float32 and t.is_contiguous() for t in tensors)
+    return plain and model.scan is None and model.approach is None
+
+
+class CompiledGateKernel(GateKernel):
+    """:class:`GateKernel` whose rollout and reused curiosity are one compiled call each (:func:`gate_rollout`);
+    its buffers, its curiosity of another (s, a) and its horizon are the torch kernel's."""
+
+    def __init__(
+        self,
+        model: FoldedModel,
+        actor_layers: list[tuple[Tensor, Tensor]],
+        output_scale: Tensor,
+        output_bias: Tensor,
+        cfg: GateConfig,
+    ) -> None:
+        super().__init__(model, actor_layers, output_scale, output_bias, cfg)
+        m, n, d = self.m, self.n, self.d
+        self._x = self.x.numpy().reshape(m + 1, n, -1)  # views of the torch kernel's buffers
+        self._outputs = self.outputs.numpy().reshape(m, n, d + 1)
+        self._first_base = self.first_base.numpy().reshape(1, d)
+        self._base = self.base.numpy().reshape(n, d)
+        self._probability = np.zeros((m, n), dtype=np.float32)
+        self.probability = torch.from_numpy(self._probability).view(m, n, 1)
+        self._hidden = (
+            tuple(w.numpy() for w, _ in model.hidden),
+            tuple(b.numpy() for _, b in model.hidden),
+        )
+        self._out = (self.out_w.numpy(), self.out_b.numpy())
+        # the actor's live parameters (an optimiser updates them in place; the views follow)
+        self._actor = (
+            tuple(w.detach().numpy() for w, _ in actor_layers),
+            tuple(b.detach().numpy() for _, b in actor_layers),
+        )
+        self._scale = (output_scale.detach().float().numpy(), output_bias.detach().float().numpy())
+        if self.ego is not None:
+            from core.motion import _kernel_geometry
+
+            self._geometry = _kernel_geometry(self.ego)
+        else:
+            self._geometry = (np.zeros((1, 2)), np.zeros((1, 3), np.int64), np.zeros(6), np.zeros(2, np.int64))
+        self._floors = np.zeros(0, np.float32) if self.contact is None else self.contact.numpy()
+        self._all_closing = np.ones(self._floors.shape[0], dtype=np.bool_)
+        self._divisor = self.sigma_divisor[:, 0].double().numpy().copy()
+        self._weights = np.zeros(0) if self.weights is None else self.weights.double().numpy().copy()
+        self._inv_obs_std = model.inv_obs_std.reshape(-1).numpy()
+
+    def __call__(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> tuple[float, float, float]:
+        d, a = self.d, self.act_dim
+        x = self._x
+        x[0, :, :d] = obs.numpy()
+        x[0, :, d : d + a] = action.numpy()
+        if self.motion:
+            x[0, :, d + a : 2 * d + a] = 0.0 if motion is None else motion.numpy()
+        closing = closing_channels(self.cfg, motion, self.contact)
+        closing_mask = self._all_closing if closing is None else closing.reshape(-1).numpy()
+        return gate_rollout(
+            x,
+            self._outputs,
+            self._probability,
+            self._first_base,
+            self._base,
+            *self._hidden,
+            *self._out,
+            *self._actor,
+            *self._scale,
+            self.scaled,
+            d,
+            a,
+            self.motion,
+            self.motion_weight,
+            self.ego is not None,
+            self._geometry,
+            self._floors,
+            closing_mask,
+            self._divisor,
+            self._weights,
+            float(self.cfg.beta),
+        )
+
+    def curiosity(
+        self,
+        obs: Tensor,
+        action: Tensor,
+        next_obs: Tensor,
+        reuse_first_step: bool = False,
+        motion: Tensor | None = None,
+    ) -> float:
+        if not reuse_first_step:
+            return super().curiosity(obs, action, next_obs, reuse_first_step, motion)
+        base = self._first_base[0] if self.ego is not None else obs.numpy().reshape(-1)
+        return float(reused_curiosity(self._outputs[0], base, next_obs.numpy().reshape(-1), self._inv_obs_std))

@@ -1,0 +1,154 @@
+"""The compiled gate kernel agrees with the torch kernel (the reference rollout) within float32 rounding, and a gate
+built on it takes the same decisions over a recorded sequence."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports
+from core.sage.config import GateConfig, WorldModelConfig
+from core.sage.fear import GateKernel, calibrate
+from core.sage.gate import SageGate
+from core.sage.networks import Actor
+from core.sage.world_model import EnsembleWorldModel
+
+torch.set_num_threads(1)
+
+OBS, ACT = 9, 2
+EGO = {
+    "ego_sectors": 8,
+    "ego_scan_start": -1.2,
+    "ego_sector_width": 0.3,
+    "ego_forward_scale": 0.03,
+    "ego_forward_offset": 0.03,
+    "ego_turn_scale": 0.3,
+}
+RTOL, ATOL = 1e-5, 1e-6
+
+
+def scans(rng: np.random.Generator, n: int) -> np.ndarray:
+    """States whose first 8 channels read as ranges in (0, 1] (the ego step's scan), the last a turn."""
+    return np.concatenate([rng.uniform(0.05, 1.0, (n, 8)), rng.uniform(-1, 1, (n, 1))], axis=1).astype(np.float32)
+
+
+def fitted(layout: dict[str, Any], scaled: bool = True) -> tuple[EnsembleWorldModel, Actor, np.ndarray]:
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    model = EnsembleWorldModel(OBS, ACT, WorldModelConfig(hidden=32, max_updates_per_fit=40, **layout))
+    s, a = scans(rng, 400), rng.uniform(-1, 1, (400, ACT)).astype(np.float32)
+    nxt = np.clip(s + 0.05 * rng.normal(size=s.shape).astype(np.float32), 0.01, 1.0)
+    model.fit(s, a, nxt, (rng.random(400) < 0.2).astype(np.float32), rng)
+    bound = 2.0 if scaled else 1.0
+    actor = Actor(OBS, ACT, 32, 2, -torch.ones(ACT) * bound, torch.ones(ACT) * bound)
+    calibrate(model, actor.deterministic, torch.as_tensor(s), 5)
+    return model, actor, s
+
+
+LAYOUTS = {
+    "plain": {"motion_input": False},
+    "motion": {"motion_input": True, "motion_lag": 2},
+    "ego step": {"motion_input": True, **EGO},
+}
+GATES = {
+    "max": GateConfig(beta=0.3),
+    "discounted mean": GateConfig(aggregate="discounted_mean", beta=0.6),
+    "imagined contact": GateConfig(imagined_contact=True, contact_floors=[0.2] * 8),
+    "contact when closing": GateConfig(imagined_contact=True, contact_floors=[0.3] * 8, contact_needs_closing=True),
+}
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("gate", GATES)
+def test_compiled_kernel_agrees_with_the_torch_kernel(layout: str, gate: str) -> None:
+    if gate == "contact when closing" and not LAYOUTS[layout]["motion_input"]:
+        pytest.skip("contact_needs_closing reads the motion input")
+    model, actor, states = fitted(LAYOUTS[layout], scaled=gate != "max")
+    cfg, folded, layers = GATES[gate], model.folded(), actor.deterministic_layers()
+    assert compiled_kernel_supports(folded, layers)
+    reference = GateKernel(folded, layers, actor.action_scale, actor.action_bias, cfg)
+    compiled = CompiledGateKernel(folded, layers, actor.action_scale, actor.action_bias, cfg)
+    rng = np.random.default_rng(1)
+    fired = 0
+    for i in range(20):
+        obs = torch.as_tensor(states[i : i + 1])
+        action = torch.as_tensor(rng.uniform(-2, 2, (1, ACT)).astype(np.float32))
+        motion = None if i == 0 else torch.as_tensor(states[i : i + 1] - states[i + 1 : i + 2])
+        nxt = torch.as_tensor(states[i + 1 : i + 2])
+        with torch.inference_mode():
+            expected, got = reference(obs, action, motion), compiled(obs, action, motion)
+            np.testing.assert_allclose(got, expected, rtol=RTOL, atol=ATOL)
+            # every imagined state, action and motion (the last state's motion feeds nothing: the torch kernel's
+            # is not compared), and each member's probability, not only the aggregate. The products' rounding
+            # (summed in another order) compounds along the rollout, the more through the ego step's geometry:
+            # the first step is held to float32 rounding, the whole trajectory to 1e-5.
+            last = reference.m
+            np.testing.assert_allclose(compiled.x[:2].numpy(), reference.x[:2].numpy(), rtol=RTOL, atol=ATOL)
+            np.testing.assert_allclose(compiled.x[:last].numpy(), reference.x[:last].numpy(), rtol=RTOL, atol=1e-5)
+            np.testing.assert_allclose(
+                compiled.states[last].numpy(), reference.states[last].numpy(), rtol=RTOL, atol=1e-5
+            )
+            np.testing.assert_allclose(
+                compiled.last_member_costs(), reference.last_member_costs(), rtol=RTOL, atol=ATOL
+            )
+            for reuse in (True, False):
+                np.testing.assert_allclose(
+                    compiled.curiosity(obs, action, nxt, reuse_first_step=reuse, motion=motion),
+                    reference.curiosity(obs, action, nxt, reuse_first_step=reuse, motion=motion),
+                    rtol=RTOL,
+                    atol=ATOL,
+                )
+        fired += expected[1] > 0.5
+    if gate.startswith("imagined"):
+        assert fired > 0, "the sequence never imagines contact: the contact branch went untested"
+
+
+def test_compiled_kernel_follows_actor_updates_in_place() -> None:
+    model, actor, states = fitted(LAYOUTS["motion"])
+    folded, layers = model.folded(), actor.deterministic_layers()
+    reference = GateKernel(folded, layers, actor.action_scale, actor.action_bias, GateConfig())
+    compiled = CompiledGateKernel(folded, layers, actor.action_scale, actor.action_bias, GateConfig())
+    obs, action = torch.as_tensor(states[:1]), torch.zeros(1, ACT)
+    with torch.inference_mode():
+        before = compiled(obs, action)
+    with torch.no_grad():
+        for p in actor.parameters():
+            p.add_(0.3)
+    with torch.inference_mode():
+        after = compiled(obs, action)
+        np.testing.assert_allclose(after, reference(obs, action), rtol=RTOL, atol=ATOL)
+    assert after != before
+
+
+@pytest.mark.parametrize("layout", ["motion", "ego step"])
+def test_a_compiled_gate_takes_the_reference_gates_decisions(layout: str) -> None:
+    """Over a recorded sequence (episode starts included): the same takeovers, fears and thresholds."""
+    model, actor, states = fitted(LAYOUTS[layout])
+    # τ scaled up to where this briefly fitted model's fears sit, so that the gate both fires and holds back
+    cfg = GateConfig(hold_steps=2, tau_scale=2.9, imagined_contact=True, contact_floors=[0.06] * 8)
+    gates = [SageGate(model, actor, cfg, compiled=compiled) for compiled in (False, True)]
+    assert [type(g.kernel()) for g in gates] == [GateKernel, CompiledGateKernel]
+    rng = np.random.default_rng(2)
+    actions = rng.uniform(-2, 2, (len(states), ACT)).astype(np.float32)
+    records: list[list[tuple[bool, float, float]]] = [[], []]
+    for i in range(200):
+        if i % 50 == 0:
+            for g in gates:
+                g.reset()
+        for g, record in zip(gates, records, strict=True):
+            decision = g.decide(states[i], actions[i])
+            g.observe(states[i], actions[i], states[i + 1])
+            record.append((decision.fired, decision.fear, decision.threshold))
+    fired = [[r[0] for r in record] for record in records]
+    assert fired[0] == fired[1] and 0 < sum(fired[0]) < 200
+    np.testing.assert_allclose([r[1:] for r in records[1]], [r[1:] for r in records[0]], rtol=RTOL, atol=ATOL)
+
+
+def test_unsupported_models_keep_the_torch_kernel() -> None:
+    model, actor, _ = fitted({"motion_input": True, "approach_start": 0, "approach_stop": 8})
+    gate = SageGate(model, actor, GateConfig())
+    assert not compiled_kernel_supports(model.folded(), actor.deterministic_layers())
+    assert type(gate.kernel()) is GateKernel
