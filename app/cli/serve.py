@@ -180,7 +180,21 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
                 agent.gate_config(**settings)
         except ValueError as exc:
             _fail(f"--set gate.…: {_first_line(exc)}")
+    if opening != SCRIPTED and Path(opening).exists():
+        _warm_gate(opening)
     return settings
+
+
+def _warm_gate(policy: str) -> None:
+    """The gate's compiled kernel built now, before the loop starts: a fresh install compiles it once (seconds),
+    which must not freeze the first steps of the live loop. A policy whose gate cannot be built here is left for
+    the loop to report."""
+    from core.sage.compiled_gate import warm_up
+
+    try:
+        warm_up([policy])
+    except Exception as exc:  # the dashboard shows what a broken policy does; start-up only warms
+        typer.echo(f"warning: the gate of {policy} was not warmed: {_first_line(exc)}", err=True)
 
 
 def _first_line(exc: BaseException) -> str:

@@ -152,3 +152,14 @@ def test_unsupported_models_keep_the_torch_kernel() -> None:
     gate = SageGate(model, actor, GateConfig())
     assert not compiled_kernel_supports(model.folded(), actor.deterministic_layers())
     assert type(gate.kernel()) is GateKernel
+
+
+def test_warm_up_builds_the_compiled_kernel_of_a_committed_policy_before_any_live_step() -> None:
+    """``sage serve`` warms the gate of the policy it opens, so a fresh install's one-off compile is not paid by the
+    live loop's first step; a policy with no world model has no gate to warm."""
+    from pathlib import Path
+
+    from core.sage.compiled_gate import warm_up
+
+    root = Path(__file__).resolve().parents[3] / "policies"
+    assert warm_up([str(root / "ugv-default")]) == [str(root / "ugv-default")]
