@@ -424,19 +424,27 @@ def write_section(out: Path, sim: str, section: str) -> None:
 
 
 def default_grounds(
-    run: str | Path, sim: str, family_train: bool = False, unseen: str | None = None
+    run: str | Path,
+    sim: str,
+    family_train: bool = False,
+    unseen: str | None = None,
+    seen: Sequence[str] | None = None,
 ) -> dict[str, list[str]]:
     """Unseen: the family's test split (measured first: the question); seen: the run's training scenarios; with
     ``family_train``, the family's train split too (ground a refit may be fitted on; for a run not fitted on it, a
     check that the two splits are alike). ``unseen``: another scenario name for the unseen ground (e.g.
-    ``ugv-fields:test:2+``, the test fields with two or more movers)."""
+    ``ugv-fields:test:2+``, the test fields with two or more movers). ``seen``: other scenarios for the seen ground,
+    e.g. a refit on the family's train split measured on the built-in scenarios its baseline was (same seeds)."""
     if sim not in FAMILIES:
         raise ValueError(f"no procedural family for {sim!r} yet; families exist for {', '.join(FAMILIES)}")
     from core.agents import read_run_config
 
-    seen = [str(s) for s in read_run_config(run)["run"]["scenarios"]]
+    training = [str(s) for s in read_run_config(run)["run"]["scenarios"]]
     unseen = unseen or f"{FAMILIES[sim]}:test"
-    grounds = {f"unseen ({unseen})": [unseen], "seen (training scenarios)": seen}
+    if seen:
+        grounds = {f"unseen ({unseen})": [unseen], "seen (scenarios given)": list(seen)}
+    else:
+        grounds = {f"unseen ({unseen})": [unseen], "seen (training scenarios)": training}
     if family_train:
         grounds[f"family train ({FAMILIES[sim]}:train)"] = [f"{FAMILIES[sim]}:train"]
     return grounds
@@ -452,6 +460,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--max-steps", type=int)
     parser.add_argument("--family-train", action="store_true", help="a row for the family's train split too")
     parser.add_argument("--unseen", help="the unseen ground's scenario (default: the family's test split)")
+    parser.add_argument(
+        "--seen",
+        action="append",
+        default=[],
+        help="the seen ground's scenarios (repeatable, comma lists; default: the run's training scenarios)",
+    )
     parser.add_argument(
         "--by-movers", action="store_true", help="ugv: also the unseen signals by movers in the field (from the cache)"
     )
@@ -475,7 +489,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("--episodes must be at least 1 and --gate-episodes at least 0", file=sys.stderr)
         return 2
     try:
-        grounds = default_grounds(run, args.sim, args.family_train, args.unseen)
+        seen = [name.strip() for value in args.seen for name in value.split(",") if name.strip()]
+        grounds = default_grounds(run, args.sim, args.family_train, args.unseen, seen)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

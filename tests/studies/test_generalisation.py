@@ -73,3 +73,26 @@ def test_the_entry_point_refuses_bad_input_in_one_line(capsys: pytest.CaptureFix
     assert generalisation.main(["--sim", "point", "--run", RUN]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "no procedural family for 'point'" in err[1]
+
+
+def test_the_seen_ground_defaults_to_the_runs_training_scenarios_and_can_be_given() -> None:
+    trained = generalisation.default_grounds(RUN, "ugv")
+    assert trained["seen (training scenarios)"][:2] == ["1", "2"]
+    given = generalisation.default_grounds(RUN, "ugv", seen=["1", "sims/ugv/scenarios/movers.yaml"])
+    assert given == {
+        "unseen (ugv-fields:test)": ["ugv-fields:test"],
+        "seen (scenarios given)": ["1", "sims/ugv/scenarios/movers.yaml"],
+    }
+
+
+def test_the_entry_point_takes_seen_scenarios_as_comma_lists(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    asked: dict[str, object] = {}
+
+    def table(run: str, sim: str, grounds: dict[str, list[str]], *args: object, **kwargs: object) -> list[object]:
+        asked.update(grounds)
+        return []
+
+    monkeypatch.setattr(generalisation, "generalisation_table", table)
+    argv = ["--sim", "ugv", "--episodes", "1", "--seen", "1,2", "--seen", "sims/ugv/scenarios/movers.yaml"]
+    assert generalisation.main([*argv, "--grounds", "seen", "--out", str(tmp_path / "g.md")]) == 0
+    assert asked == {"seen (scenarios given)": ["1", "2", "sims/ugv/scenarios/movers.yaml"]}
