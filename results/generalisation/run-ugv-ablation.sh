@@ -9,4 +9,5 @@ PY=/work/main/.venv/bin/python
 OUT=results/generalisation/scratch-ablation.md
 $PY -m studies.generalisation --sim ugv --episodes 100 --gate-episodes 100 --grounds unseen \
     --set gate.use_curiosity=false --out $OUT
-$PY -m studies.generalisation --sim ugv --episodes 100 --gate-episodes 100 --cached-only --out $OUT.baseline
+$PY -m studies.generalisation --sim ugv --episodes 100 --gate-episodes 100 --grounds unseen --cached-only --out $OUT.baseline
+$PY -m experiments.generalisation_rule --candidate policies/ugv-default --candidate-cache results/generalisation/ugv.json --candidate-set gate.use_curiosity=false --episodes 100
