@@ -25,7 +25,7 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -101,10 +101,17 @@ class GroundRow:
 
 
 def collect_signals(
-    agent: Any, make_env: Callable[[], Any], scenario: str, episodes: int, max_steps: int | None, first_seed: int
+    agent: Any,
+    make_env: Callable[[], Any],
+    scenario: str,
+    episodes: int,
+    max_steps: int | None,
+    first_seed: int,
+    gate_settings: Mapping[str, Any] | None = None,
 ) -> SignalPart:
-    """The policy with its own gate and no expert over ``episodes`` (seeds ``first_seed + i``): every step's signals."""
-    gate = agent.make_gate()
+    """The policy with its own gate (``gate_settings`` over it) and no expert over ``episodes`` (seeds
+    ``first_seed + i``): every step's signals."""
+    gate = agent.make_gate(**dict(gate_settings or {}))
     env = make_env()
     part = SignalPart(scenario, episodes, 0, 0, [], [], [], [], [], [], [], [])
     arriving = [math.nan]
@@ -210,11 +217,14 @@ def generalisation_table(
     first_seed: int = EVAL_SEED,
     cache: Path | None = None,
     cached_only: bool = False,
+    gate_settings: Mapping[str, Any] | None = None,
 ) -> list[GroundRow]:
     """One row per ground (a name and its scenarios): ``episodes`` for the signals and ``gate_episodes`` for the gate
     with the scripted expert (0: not measured), split evenly among the ground's scenarios, on seeds from
     ``first_seed``, in chunks of :data:`CHUNK` episodes (seeds as one run would use them); chunks already in
     ``cache`` are not measured again, and with ``cached_only`` only they are used (a ground with none is left out).
+    ``gate_settings``: :class:`~core.sage.config.GateConfig` settings over the run's own gate (an ablation, e.g.
+    ``use_curiosity=False``); they are part of the cache's keys.
     """
     import sims
     from studies.envs import env_factory
@@ -243,13 +253,13 @@ def generalisation_table(
         # chunk by chunk, each scenario in turn, so that a run stopped early leaves a balanced sample in the cache
         for offset in range(0, max(max(n, g) for _, n, g in shares), CHUNK):
             for scenario, n_signal, n_gate in shares:
-                key = f"{run}|{sim}|{scenario}|{max_steps}|{first_seed + offset}"
+                key = f"{run}{_settings_tag(gate_settings)}|{sim}|{scenario}|{max_steps}|{first_seed + offset}"
                 size = min(CHUNK, n_signal - offset)
                 if size > 0:
                     part = store.get(
                         f"signals|{key}|{size}",
                         lambda s=scenario, n=size, seed=first_seed + offset: asdict(
-                            collect_signals(loaded(), lambda s=s: make(s), s, n, max_steps, seed)
+                            collect_signals(loaded(), lambda s=s: make(s), s, n, max_steps, seed, gate_settings)
                         ),
                         cached_only,
                     )
@@ -260,7 +270,12 @@ def generalisation_table(
                     gate = store.get(
                         f"gate|{key}|{size}",
                         lambda s=scenario, n=size, seed=first_seed + offset: run_gated(
-                            loaded(), lambda s=s: make(s), loaded().make_gate(), n, max_steps, first_seed=seed
+                            loaded(),
+                            lambda s=s: make(s),
+                            loaded().make_gate(**dict(gate_settings or {})),
+                            n,
+                            max_steps,
+                            first_seed=seed,
                         ),
                         cached_only,
                     )
@@ -272,12 +287,20 @@ def generalisation_table(
     return rows
 
 
+def _settings_tag(gate_settings: Mapping[str, Any] | None) -> str:
+    """The cache key's mark of gate settings over the run's own ("" for none: the keys of a plain run stay)."""
+    if not gate_settings:
+        return ""
+    return "|gate:" + ",".join(f"{k}={gate_settings[k]}" for k in sorted(gate_settings))
+
+
 def ugv_rows_by_movers(
     cache: Path,
     run: str | Path,
     scenario: str = "ugv-fields:test",
     max_steps: int | None = None,
     horizon_s: float = 1.0,
+    gate_settings: Mapping[str, Any] | None = None,
 ) -> list[GroundRow]:
     """The cached signal chunks of a ``ugv-fields`` ground, regrouped by how many movers each episode's field had
     (0, 1, 2 or more): the gate's signals on fields with several movers, the issue's hardest case. Each episode's
@@ -285,7 +308,7 @@ def ugv_rows_by_movers(
     import sims
 
     store = Cache(cache)
-    prefix = f"signals|{run}|ugv|{scenario}|{max_steps}|"
+    prefix = f"signals|{run}{_settings_tag(gate_settings)}|ugv|{scenario}|{max_steps}|"
     env = sims.descriptor("ugv").make(scenario)
     groups: dict[str, list[SignalPart]] = {"0 movers": [], "1 mover": [], "2-3 movers": []}
     try:
@@ -424,22 +447,42 @@ def write_section(out: Path, sim: str, section: str) -> None:
 
 
 def default_grounds(
-    run: str | Path, sim: str, family_train: bool = False, unseen: str | None = None
+    run: str | Path,
+    sim: str,
+    family_train: bool = False,
+    unseen: str | None = None,
+    seen: Sequence[str] | None = None,
 ) -> dict[str, list[str]]:
     """Unseen: the family's test split (measured first: the question); seen: the run's training scenarios; with
     ``family_train``, the family's train split too (ground a refit may be fitted on; for a run not fitted on it, a
     check that the two splits are alike). ``unseen``: another scenario name for the unseen ground (e.g.
-    ``ugv-fields:test:2+``, the test fields with two or more movers)."""
+    ``ugv-fields:test:2+``, the test fields with two or more movers). ``seen``: other scenarios for the seen ground,
+    e.g. a refit on the family's train split measured on the built-in scenarios its baseline was (same seeds)."""
     if sim not in FAMILIES:
         raise ValueError(f"no procedural family for {sim!r} yet; families exist for {', '.join(FAMILIES)}")
     from core.agents import read_run_config
 
-    seen = [str(s) for s in read_run_config(run)["run"]["scenarios"]]
+    training = [str(s) for s in read_run_config(run)["run"]["scenarios"]]
     unseen = unseen or f"{FAMILIES[sim]}:test"
-    grounds = {f"unseen ({unseen})": [unseen], "seen (training scenarios)": seen}
+    if seen:
+        grounds = {f"unseen ({unseen})": [unseen], "seen (scenarios given)": list(seen)}
+    else:
+        grounds = {f"unseen ({unseen})": [unseen], "seen (training scenarios)": training}
     if family_train:
         grounds[f"family train ({FAMILIES[sim]}:train)"] = [f"{FAMILIES[sim]}:train"]
     return grounds
+
+
+def gate_settings_of(pairs: Sequence[str]) -> dict[str, Any]:
+    """``gate.KEY=VALUE`` pairs as :class:`~core.sage.config.GateConfig` settings; another section is a ValueError."""
+    from core.sage.config import parse_gate_settings
+
+    keys = []
+    for pair in pairs:
+        if not pair.startswith("gate."):
+            raise ValueError(f"{pair!r}: this study takes gate settings only (gate.KEY=VALUE)")
+        keys.append(pair.removeprefix("gate."))
+    return parse_gate_settings(keys)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -453,6 +496,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--family-train", action="store_true", help="a row for the family's train split too")
     parser.add_argument("--unseen", help="the unseen ground's scenario (default: the family's test split)")
     parser.add_argument(
+        "--seen",
+        action="append",
+        default=[],
+        help="the seen ground's scenarios (repeatable, comma lists; default: the run's training scenarios)",
+    )
+    parser.add_argument(
         "--by-movers", action="store_true", help="ugv: also the unseen signals by movers in the field (from the cache)"
     )
     parser.add_argument(
@@ -463,6 +512,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         choices=("both", "unseen", "seen"),
         default="both",
         help="measure only one ground (a long run in two parts: the cache keeps the first for the second)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="settings",
+        action="append",
+        default=[],
+        metavar="gate.KEY=VALUE",
+        help="a gate setting over the run's own (repeatable; an ablation, e.g. gate.use_curiosity=false)",
     )
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument(
@@ -475,9 +532,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("--episodes must be at least 1 and --gate-episodes at least 0", file=sys.stderr)
         return 2
     try:
-        grounds = default_grounds(run, args.sim, args.family_train, args.unseen)
+        seen = [name.strip() for value in args.seen for name in value.split(",") if name.strip()]
+        grounds = default_grounds(run, args.sim, args.family_train, args.unseen, seen)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        gate_settings = gate_settings_of(args.settings)
+    except ValueError as exc:
+        print(f"error: --set {exc}", file=sys.stderr)
         return 2
     if args.grounds != "both":
         grounds = {name: scenarios for name, scenarios in grounds.items() if name.startswith(args.grounds)}
@@ -495,11 +558,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         max_steps=args.max_steps,
         cache=cache,
         cached_only=args.cached_only,
+        gate_settings=gate_settings,
     )
     command = "python -m studies.generalisation " + " ".join(argv if argv is not None else sys.argv[1:])
     by_movers: list[GroundRow] = []
     if args.by_movers and args.sim == "ugv":
-        by_movers = ugv_rows_by_movers(cache, run, max_steps=args.max_steps, horizon_s=args.horizon)
+        by_movers = ugv_rows_by_movers(
+            cache, run, max_steps=args.max_steps, horizon_s=args.horizon, gate_settings=gate_settings
+        )
     section = render(
         rows,
         sim=args.sim,

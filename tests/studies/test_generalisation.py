@@ -73,3 +73,61 @@ def test_the_entry_point_refuses_bad_input_in_one_line(capsys: pytest.CaptureFix
     assert generalisation.main(["--sim", "point", "--run", RUN]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "no procedural family for 'point'" in err[1]
+
+
+def test_the_seen_ground_defaults_to_the_runs_training_scenarios_and_can_be_given() -> None:
+    trained = generalisation.default_grounds(RUN, "ugv")
+    assert trained["seen (training scenarios)"][:2] == ["1", "2"]
+    given = generalisation.default_grounds(RUN, "ugv", seen=["1", "sims/ugv/scenarios/movers.yaml"])
+    assert given == {
+        "unseen (ugv-fields:test)": ["ugv-fields:test"],
+        "seen (scenarios given)": ["1", "sims/ugv/scenarios/movers.yaml"],
+    }
+
+
+def test_the_entry_point_takes_seen_scenarios_as_comma_lists(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    asked: dict[str, object] = {}
+
+    def table(run: str, sim: str, grounds: dict[str, list[str]], *args: object, **kwargs: object) -> list[object]:
+        asked.update(grounds)
+        return []
+
+    monkeypatch.setattr(generalisation, "generalisation_table", table)
+    argv = ["--sim", "ugv", "--episodes", "1", "--seen", "1,2", "--seen", "sims/ugv/scenarios/movers.yaml"]
+    assert generalisation.main([*argv, "--grounds", "seen", "--out", str(tmp_path / "g.md")]) == 0
+    assert asked == {"seen (scenarios given)": ["1", "2", "sims/ugv/scenarios/movers.yaml"]}
+
+
+def test_gate_settings_over_the_runs_own_are_measured_under_their_own_cache_keys(tmp_path: Path) -> None:
+    grounds = {"unseen": ["ugv-fields:test:2"]}
+    cache = tmp_path / "cache.json"
+    plain = generalisation_table(RUN, "ugv", grounds, episodes=1, gate_episodes=0, max_steps=30, cache=cache)
+    fixed = generalisation_table(
+        RUN,
+        "ugv",
+        grounds,
+        episodes=1,
+        gate_episodes=0,
+        max_steps=30,
+        cache=cache,
+        gate_settings=generalisation.gate_settings_of(["gate.use_curiosity=false"]),
+    )
+    keys = list(json.loads(cache.read_text()))
+    assert len(keys) == 2 and sum("|gate:use_curiosity=False|" in k for k in keys) == 1
+    # without curiosity τ stays at the middle of its bounds; with it τ moves with curiosity
+    assert fixed[0].steps == plain[0].steps
+    signals = json.loads(cache.read_text())
+    taus = next(v["tau"] for k, v in signals.items() if "use_curiosity" in k)
+    moving = next(v["tau"] for k, v in signals.items() if "use_curiosity" not in k)
+    assert max(taus) - min(taus) < 1e-9 < max(moving) - min(moving)
+
+
+def test_the_entry_point_takes_gate_settings_only(capsys: pytest.CaptureFixture[str]) -> None:
+    assert generalisation.gate_settings_of(["gate.use_curiosity=false", "gate.tau_scale=0.9"]) == {
+        "use_curiosity": False,
+        "tau_scale": 0.9,
+    }
+    assert generalisation.main(["--sim", "ugv", "--episodes", "1", "--set", "env.expert.yield_to_movers=false"]) == 2
+    assert generalisation.main(["--sim", "ugv", "--episodes", "1", "--set", "gate.no_such_setting=1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "gate settings only" in err[0] and "no_such_setting" in err[1]
