@@ -367,3 +367,25 @@ def action_bounds(space: Any) -> tuple[np.ndarray, np.ndarray]:
     if low is None or high is None:
         raise TypeError(f"action space {space} is neither a Box nor a Discrete space")
     return np.asarray(low, np.float32).reshape(-1), np.asarray(high, np.float32).reshape(-1)
+
+
+def warm_gate_kernels(policies: list[str]) -> list[str]:
+    """Build (or load from numba's cache) each policy's compiled gate kernel by one decision and one observation of
+    its gate on zero states, so that a fresh install pays the one-off compile (seconds) here and not in the first
+    step of a live loop. Returns the policies whose gate runs compiled (those with a world model and a continuous
+    actor the compiled kernel covers)."""
+    from core.sage.compiled_gate import CompiledGateKernel
+
+    compiled = []
+    for path in policies:
+        agent = load_agent(path)
+        if not agent.has_world_model:
+            continue
+        gate = agent.make_gate()
+        obs = np.zeros(agent.meta.obs_dim, dtype=np.float32)
+        action = np.zeros(agent.meta.act_dim, dtype=np.float32)
+        gate.decide(obs, action)
+        gate.observe(obs, action, obs)
+        if isinstance(gate.kernel(), CompiledGateKernel):
+            compiled.append(path)
+    return compiled

@@ -189,10 +189,10 @@ def _warm_gate(policy: str) -> None:
     """The gate's compiled kernel built now, before the loop starts: a fresh install compiles it once (seconds),
     which must not freeze the first steps of the live loop. A policy whose gate cannot be built here is left for
     the loop to report."""
-    from core.sage.compiled_gate import warm_up
+    from core.agents import warm_gate_kernels
 
     try:
-        warm_up([policy])
+        warm_gate_kernels([policy])
     except Exception as exc:  # the dashboard shows what a broken policy does; start-up only warms
         typer.echo(f"warning: the gate of {policy} was not warmed: {_first_line(exc)}", err=True)
 

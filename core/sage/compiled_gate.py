@@ -289,32 +289,3 @@ class CompiledGateKernel(GateKernel):
             return super().curiosity(obs, action, next_obs, reuse_first_step, motion)
         base = self._first_base[0] if self.ego is not None else obs.numpy().reshape(-1)
         return float(reused_curiosity(self._outputs[0], base, next_obs.numpy().reshape(-1), self._inv_obs_std))
-
-
-def warm_up(policies: list[str]) -> list[str]:
-    """Compile (or load from numba's cache) the gate kernels by one decision and one observation of each policy's
-    gate on zero states, so that a fresh install pays the one-off compile (seconds) here and not in the first step
-    of a live loop. Returns the policies whose gate ran compiled."""
-    from core.agents import load_agent
-
-    compiled = []
-    for path in policies:
-        agent = load_agent(path)
-        if not agent.has_world_model:
-            continue
-        gate = agent.make_gate()
-        obs = np.zeros(agent.meta.obs_dim, dtype=np.float32)
-        action = np.zeros(agent.meta.act_dim, dtype=np.float32)
-        gate.decide(obs, action)
-        gate.observe(obs, action, obs)
-        if isinstance(gate.kernel(), CompiledGateKernel):
-            compiled.append(path)
-    return compiled
-
-
-if __name__ == "__main__":  # scripts/setup.sh: python -m core.sage.compiled_gate POLICY...
-    import sys
-
-    from core.sage.compiled_gate import warm_up as module_warm_up  # the class gate.py builds, not __main__'s copy
-
-    print(f"gate kernels compiled for: {', '.join(module_warm_up(sys.argv[1:])) or 'none'}")

@@ -6,6 +6,8 @@ import csv
 import json
 from pathlib import Path
 
+import pytest
+
 from studies.pedestrian import METRICS, read_rows, trial
 from studies.registry import get_study, run_study, study_names
 
@@ -26,6 +28,8 @@ def test_a_trial_trains_within_the_step_budget_and_resumes_a_finished_run(tmp_pa
     assert again == first and len(read_rows(tmp_path / "sage-d3qn-s3")) == len(rows)
 
 
+# ~30 s: the trial's path is the test above, the sweep's and the table's in tests/studies/test_registry.py
+@pytest.mark.slow
 def test_the_smoke_study_writes_seeds_table_and_figures(ray_local: None, tmp_path: Path) -> None:
     table = run_study("pedestrian", "smoke", tmp_path, log=lambda _: None, overrides={"expert": "hg-dagger"})
     with (tmp_path / "seeds.csv").open() as f:

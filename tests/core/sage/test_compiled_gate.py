@@ -159,7 +159,7 @@ def test_warm_up_builds_the_compiled_kernel_of_a_committed_policy_before_any_liv
     live loop's first step; a policy with no world model has no gate to warm."""
     from pathlib import Path
 
-    from core.sage.compiled_gate import warm_up
+    from core.agents import warm_gate_kernels
 
     root = Path(__file__).resolve().parents[3] / "policies"
-    assert warm_up([str(root / "ugv-default")]) == [str(root / "ugv-default")]
+    assert warm_gate_kernels([str(root / "ugv-default")]) == [str(root / "ugv-default")]
