@@ -357,6 +357,7 @@ def test_the_fallback_driving_counts_as_the_scripted_expert_driving(browser: Any
             "/fear [1-9]/.test(document.getElementById('st-why').textContent)",
             timeout=WAIT_MS,
         )
+        assert "fallback" in page.text_content("#st-person")  # the counter names the fallback's steps
         page.context.close()
     finally:
         stop_server(live, thread)
