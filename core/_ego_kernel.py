@@ -48,6 +48,42 @@ def _cast(
     return best
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _move_returns(
+    ranges: np.ndarray,
+    distance: float,
+    turn: float,
+    cos: np.ndarray,
+    sin: np.ndarray,
+    joint_ratio: float,
+    r: np.ndarray,
+    x0: np.ndarray,
+    y0: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    hit: np.ndarray,
+    bearing: np.ndarray,
+    joined: np.ndarray,
+) -> None:
+    """One row's returns before the step (``r``, ``x0``, ``y0``) and seen from the pose after an arc of ``distance``
+    and ``turn`` (``x``, ``y``, ``bearing``), which are hits, and which neighbours join into a surface segment."""
+    s = r.shape[0]
+    half = 0.5 * turn
+    chord = distance if abs(half) <= 1e-6 else distance * (math.sin(half) / half)
+    shift_x, shift_y = chord * math.cos(half), chord * math.sin(half)
+    c, n = math.cos(turn), math.sin(turn)
+    for j in range(s):
+        r[j] = ranges[j]
+        x0[j], y0[j] = r[j] * cos[j], r[j] * sin[j]
+        px, py = x0[j] - shift_x, y0[j] - shift_y
+        x[j], y[j] = c * px + n * py, c * py - n * px
+        hit[j] = r[j] < 1.0
+        bearing[j] = math.atan2(y[j], x[j])
+    for j in range(s - 1):
+        near, far = min(r[j], r[j + 1]), max(r[j], r[j + 1])
+        joined[j] = hit[j] and hit[j + 1] and far <= joint_ratio * near
+
+
 @numba.njit(cache=True, nogil=True)
 def scan(
     states: np.ndarray,
@@ -79,23 +115,11 @@ def scan(
     spacing = width / k
     for b in range(rows):
         out[b, s:] = states[b, s:]
-        distance = actions[b, forward_channel] * forward_scale + forward_offset
-        turn = actions[b, turn_channel] * turn_scale
-        half = 0.5 * turn
-        chord = distance if abs(half) <= 1e-6 else distance * (math.sin(half) / half)
-        shift_x, shift_y = chord * math.cos(half), chord * math.sin(half)
-        c, n = math.cos(turn), math.sin(turn)
-        for j in range(s):
-            r[j] = states[b, j]
-            x0[j], y0[j] = r[j] * cos[j], r[j] * sin[j]
-            px, py = x0[j] - shift_x, y0[j] - shift_y
-            x[j], y[j] = c * px + n * py, c * py - n * px
-            hit[j] = r[j] < 1.0
-            bearing[j] = math.atan2(y[j], x[j])
-            landed[j], after[j] = math.inf, math.inf
-        for j in range(s - 1):
-            near, far = min(r[j], r[j + 1]), max(r[j], r[j + 1])
-            joined[j] = hit[j] and hit[j + 1] and far <= joint_ratio * near
+        _move_returns(
+            states[b], actions[b, forward_channel] * forward_scale + forward_offset,
+            actions[b, turn_channel] * turn_scale, cos, sin, joint_ratio, r, x0, y0, x, y, hit, bearing, joined,
+        )  # fmt: skip
+        landed[:], after[:] = math.inf, math.inf
         for j in range(s):
             inside = 0 < j < s - 1 and joined[j - 1] and joined[j]
             if hit[j] and not inside:
@@ -169,23 +193,11 @@ def scan_with_choices(
     for b in range(rows):
         out[b, s:] = states[b, s:]
         choices[:, b, :] = -1
-        distance = actions[b, forward_channel] * forward_scale + forward_offset
-        turn = actions[b, turn_channel] * turn_scale
-        half = 0.5 * turn
-        chord = distance if abs(half) <= 1e-6 else distance * (math.sin(half) / half)
-        shift_x, shift_y = chord * math.cos(half), chord * math.sin(half)
-        c, n = math.cos(turn), math.sin(turn)
-        for j in range(s):
-            r[j] = states[b, j]
-            x0[j], y0[j] = r[j] * cos[j], r[j] * sin[j]
-            px, py = x0[j] - shift_x, y0[j] - shift_y
-            x[j], y[j] = c * px + n * py, c * py - n * px
-            hit[j] = r[j] < 1.0
-            bearing[j] = math.atan2(y[j], x[j])
-            landed[j], after[j] = math.inf, math.inf
-        for j in range(s - 1):
-            near, far = min(r[j], r[j + 1]), max(r[j], r[j + 1])
-            joined[j] = hit[j] and hit[j + 1] and far <= joint_ratio * near
+        _move_returns(
+            states[b], actions[b, forward_channel] * forward_scale + forward_offset,
+            actions[b, turn_channel] * turn_scale, cos, sin, joint_ratio, r, x0, y0, x, y, hit, bearing, joined,
+        )  # fmt: skip
+        landed[:], after[:] = math.inf, math.inf
         for j in range(s):
             inside = 0 < j < s - 1 and joined[j - 1] and joined[j]
             if hit[j] and not inside:
