@@ -8,12 +8,18 @@ unseen ground, clause 2 on the seen one). Clause 3 (three refit seeds, the media
 
     python -m experiments.generalisation_rule --candidate runs/wm-fields-s0 \
         --candidate-cache results/generalisation/ugv-wm-fields-s0.json --episodes 100 --seen-episodes 120
+
+The baseline's cache stays on the machine that measured it. Without it, ``--baseline-table docs/generalisation.md``
+reads the baseline's gate rows from the committed table instead (its row for the same ground, scenarios and number of
+gate episodes; the seeds are the study's own, from :data:`studies.calibrate.EVAL_SEED`). The table gives the
+takeover rate in whole percent, so a reading that a half point either way would change is reported as undecided.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -44,6 +50,27 @@ def verdict(
     return (low, high), rise, "pass" if rise <= -5 else "undecided"
 
 
+GATE_CELL = re.compile(r"(\d+) of (\d+) ")
+"""The start of a table's gate cell: "13 of 300 (4%) [3%, 7%]"."""
+
+
+def table_point(text: str, run: str, ground: str, scenarios: Sequence[str]) -> tuple[int, int, float] | None:
+    """A gate row (violations, episodes, takeover rate) of ``run``'s section in a table written by
+    ``studies.generalisation`` (its subsections too): the row of ``ground`` ("unseen" / "seen") whose scenarios are
+    ``scenarios``; None if there is none."""
+    in_section = False
+    for line in text.splitlines():
+        if line.startswith("## "):
+            in_section = line.strip() == f"## ugv: {run}"
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+        if not in_section or len(cells) != 11 or not cells[0].startswith(f"{ground} ("):
+            continue
+        gate, takeover = GATE_CELL.match(cells[9]), cells[10]
+        if cells[1] == ", ".join(scenarios) and gate and takeover.endswith("%"):
+            return int(gate[1]), int(gate[2]), float(takeover.removesuffix("%")) / 100
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m experiments.generalisation_rule", description=__doc__.split("\n")[0]
@@ -53,6 +80,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--candidate-set", action="append", default=[], help="its gate.KEY=VALUE, as measured")
     parser.add_argument("--baseline", default="policies/ugv-default")
     parser.add_argument("--baseline-cache", type=Path, default=Path("results/generalisation/ugv.json"))
+    parser.add_argument(
+        "--baseline-table",
+        type=Path,
+        help="read the baseline's gate rows from this committed table (docs/generalisation.md), not its cache",
+    )
     parser.add_argument("--unseen", default="ugv-fields:test")
     parser.add_argument("--seen", action="append", default=[], help="comma lists (default: the UGV's built-in four)")
     parser.add_argument("--episodes", type=int, default=300, help="episodes on the unseen ground (signals and gate)")
@@ -70,14 +102,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         "| difference in violation share [95%] | takeover difference | rule |"
     )
     print("|---|---|---|---|---|---|---|")
+    table = None
+    if args.baseline_table is not None:
+        if not args.baseline_table.is_file():
+            print(f"error: no table {args.baseline_table}", file=sys.stderr)
+            return 2
+        table = args.baseline_table.read_text()
     for ground, (scenarios, episodes) in grounds.items():
         if episodes <= 0:
             continue
         points = []
-        for run, cache, gate_settings in (
-            (args.baseline, args.baseline_cache, None),
-            (args.candidate, args.candidate_cache, settings),
-        ):
+        if table is not None:
+            point = table_point(table, args.baseline, ground, scenarios)
+            if point is None or point[1] != episodes:
+                print(
+                    f"error: {args.baseline_table} has no {ground} gate row of {episodes} episodes on "
+                    f"{', '.join(scenarios)} for {args.baseline}",
+                    file=sys.stderr,
+                )
+                return 2
+            points.append(point)
+        measured_rows = [(args.candidate, args.candidate_cache, settings)]
+        if table is None:
+            measured_rows.insert(0, (args.baseline, args.baseline_cache, None))
+        for run, cache, gate_settings in measured_rows:
             rows = generalisation_table(
                 run,
                 "ugv",
@@ -98,6 +146,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             violations, measured = rows[0].gate_violations
             points.append((violations, measured, float(gate["takeover_rate"])))
         (low, high), rise, reading = verdict(ground, points[1], points[0])
+        if table is not None:
+            # the table's takeover is rounded to a whole percent: a reading it could flip is not a reading
+            violations, measured, takeover = points[0]
+            readings = {verdict(ground, points[1], (violations, measured, takeover + d))[2] for d in (-0.005, 0.005)}
+            if readings != {reading}:
+                reading = f"undecided (the baseline's takeover is rounded: {' / '.join(sorted(readings))})"
         print(
             f"| {ground} | {episodes} | {points[0][0]} ({points[0][2]:.0%}) | {points[1][0]} ({points[1][2]:.0%}) "
             f"| [{low:+.3f}, {high:+.3f}] | {rise:+.1f} points | {reading} |"
