@@ -16,7 +16,10 @@ On each, with the machinery of ``sage gate evaluate`` (:mod:`studies.calibrate`)
    episodes with a violation, with its 95% Wilson interval, at the takeover rate.
 
 ``python -m studies.generalisation --sim ugv --episodes 60`` writes the table to ``docs/generalisation.md``; every
-measured part is kept in a JSON cache beside it (``--cache``), so a run that stops resumes where it stopped.
+measured part is kept in a JSON cache beside it (``--cache``), so a run that stops resumes where it stopped. Grounds
+measured by a command of their own into a committed file (:data:`EXTRA_GROUNDS`, e.g. the UGV test fields with two or
+more movers) are subsections of their simulator's section, made from those files (``--extras-only`` puts them in
+again, measuring nothing).
 """
 
 from __future__ import annotations
@@ -446,6 +449,63 @@ def write_section(out: Path, sim: str, section: str) -> None:
     out.write_text("\n".join(kept).rstrip("\n") + "\n\n" + section)
 
 
+EXTRA_GROUNDS: dict[str, list[tuple[str, Path]]] = {
+    "ugv": [
+        (
+            "Test fields with two or more movers (the issue's hardest case)",
+            Path("results/generalisation/scratch-crowded.md"),
+        )
+    ],
+}
+"""Per simulator, grounds measured by a command of their own into a committed file (its ``--out``, e.g.
+``results/generalisation/run-ugv-crowded.sh``) that :data:`DEFAULT_OUT` carries as subsections of the simulator's
+section, each titled as here and made from that file's section (:func:`attach_extras`)."""
+
+
+def _extra_subsection(sim: str, title: str, file: Path) -> list[str]:
+    """``file``'s section of ``sim`` as a subsection titled ``title`` (its own subsections one level down)."""
+    lines = file.read_text().splitlines()
+    starts = [i for i, line in enumerate(lines) if line.startswith(f"## {sim}: ")]
+    if not starts:
+        raise ValueError(f"{file} has no {sim} section")
+    body = []
+    for line in lines[starts[0] + 1 :]:
+        if line.startswith("## "):
+            break
+        body.append("#" + line if line.startswith("### ") else line)
+    while body and not body[-1].strip():
+        body.pop()
+    return [f"### {title}", *body]
+
+
+def attach_extras(out: Path, sim: str, root: Path = Path()) -> None:
+    """Put ``sim``'s :data:`EXTRA_GROUNDS` (files under ``root``) at the end of its section in ``out``, in place of
+    those subsections' earlier text (the rest of the document stays); a simulator without extras is left as it is."""
+    extras = EXTRA_GROUNDS.get(sim, [])
+    if not extras:
+        return
+    made = [_extra_subsection(sim, title, root / file) for title, file in extras]
+    titles = {f"### {title}" for title, _ in extras}
+    lines = out.read_text().splitlines()
+    starts = [i for i, line in enumerate(lines) if line.startswith(f"## {sim}: ")]
+    if not starts:
+        raise ValueError(f"{out} has no {sim} section to attach {', '.join(str(f) for _, f in extras)} to")
+    start = starts[0]
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+    kept, skipping = [], False
+    for line in lines[start:end]:
+        if line.startswith(("### ", "## ")):
+            skipping = line in titles
+        if not skipping:
+            kept.append(line)
+    while kept and not kept[-1].strip():
+        kept.pop()
+    for subsection in made:
+        kept += ["", *subsection]
+    after = ["", *lines[end:]] if end < len(lines) else []
+    out.write_text("\n".join([*lines[:start], *kept, *after]) + "\n")
+
+
 def default_grounds(
     run: str | Path,
     sim: str,
@@ -521,12 +581,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="gate.KEY=VALUE",
         help="a gate setting over the run's own (repeatable; an ablation, e.g. gate.use_curiosity=false)",
     )
+    parser.add_argument(
+        "--extras-only",
+        action="store_true",
+        help="measure nothing: put the simulator's extra grounds (EXTRA_GROUNDS' committed files) into --out again",
+    )
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument(
         "--cache", type=Path, help="JSON of measured parts (default: results/generalisation/<sim>.json)"
     )
     args = parser.parse_args(argv)
     run = args.run or f"policies/{args.sim}-default"
+    if args.extras_only:
+        try:
+            attach_extras(args.out, args.sim)
+        except (ValueError, FileNotFoundError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(f"wrote {args.sim}'s extra grounds into {args.out}")
+        return 0
     gate_episodes = args.episodes if args.gate_episodes is None else args.gate_episodes
     if args.episodes < 1 or gate_episodes < 0:
         print("--episodes must be at least 1 and --gate-episodes at least 0", file=sys.stderr)
@@ -577,6 +650,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     write_section(args.out, args.sim, section)
     print(section)
+    if args.out.resolve() == DEFAULT_OUT.resolve():
+        try:
+            attach_extras(args.out, args.sim)  # the docs' section carries its extra grounds again
+        except (ValueError, FileNotFoundError) as exc:
+            print(f"error: the extra grounds: {exc}", file=sys.stderr)
+            return 2
     return 0
 
 

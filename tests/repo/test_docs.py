@@ -82,3 +82,14 @@ def test_bench_holds_only_speed_benchmarks() -> None:
     assert scripts <= SPEED_BENCHES, f"not a speed benchmark (move it to experiments/): {scripts - SPEED_BENCHES}"
     writers = [name for name in scripts if re.search(r"--readme|studies\.readme", (ROOT / "bench" / name).read_text())]
     assert not writers, f"these write reports into documents, which experiments do: {writers}"
+
+
+def test_the_generalisation_tables_extra_grounds_are_what_the_generator_attaches(tmp_path: Path) -> None:
+    from studies.generalisation import DEFAULT_OUT, EXTRA_GROUNDS, attach_extras
+
+    committed = (ROOT / DEFAULT_OUT).read_text()
+    made = tmp_path / "generalisation.md"
+    made.write_text(committed)
+    for sim in EXTRA_GROUNDS:
+        attach_extras(made, sim, root=ROOT)
+    assert made.read_text() == committed, "run `python -m studies.generalisation --sim ugv --extras-only`"

@@ -131,3 +131,27 @@ def test_the_entry_point_takes_gate_settings_only(capsys: pytest.CaptureFixture[
     assert generalisation.main(["--sim", "ugv", "--episodes", "1", "--set", "gate.no_such_setting=1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "gate settings only" in err[0] and "no_such_setting" in err[1]
+
+
+def test_extra_grounds_are_attached_from_their_files_in_place_of_their_earlier_text(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    crowded = tmp_path / "crowded.md"
+    crowded.write_text("# head\n\n## ugv: some/run\n\nMade by A.\n\n| row |\n\n### by movers\n\n| m |\n")
+    monkeypatch.setattr(generalisation, "EXTRA_GROUNDS", {"ugv": [("Crowded", crowded)]})
+    out = tmp_path / "generalisation.md"
+    out.write_text("# G\n\n## ugv: run\n\nmain\n\n### The unseen ground\n\nby\n\n## highway: kept\n\nother\n")
+    generalisation.attach_extras(out, "ugv")
+    first = out.read_text()
+    assert "by\n\n### Crowded\n\nMade by A.\n\n| row |\n\n#### by movers\n\n| m |\n\n## highway: kept" in first
+    generalisation.attach_extras(out, "ugv")
+    assert out.read_text() == first  # attaching again changes nothing
+    crowded.write_text(crowded.read_text().replace("Made by A.", "Made by B."))
+    generalisation.attach_extras(out, "ugv")
+    assert out.read_text() == first.replace("Made by A.", "Made by B.")
+    generalisation.attach_extras(out, "highway")  # no extras: left as it is
+    assert out.read_text() == first.replace("Made by A.", "Made by B.")
+    crowded.write_text("# nothing for ugv\n")
+    assert generalisation.main(["--sim", "ugv", "--extras-only", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has no ugv section" in err[0]
