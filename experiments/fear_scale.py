@@ -163,11 +163,62 @@ def format_summary(summary: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _arm(run: dict[str, Any]) -> str:
+    settings = dict(o.split("=", 1) for o in run["config"]["finetune"]["overrides"] if "=" in o)
+    return settings.get("fear_scale", settings.get("learner.fear_scale", "none"))
+
+
+def compare(folders: list[Path]) -> str:
+    """Per run folder (cycles.json and fear_scale.json): the outcomes per cycle and, per round, the medians of λ, of
+    the actor batch's fear F and of the fear share at the action under the run's own ``fear_scale``;
+    then per arm, sums over its seeds of the last cycle's alone successes and of the supervised collisions."""
+    head = (
+        "| fear_scale | seed | alone UGV 3 (of 10) | alone unseen (of 10) | takeover (supervised) "
+        "| supervised collisions (of 5) | λ by round | F by round | fear share at a by round |\n"
+        "|---|---|---|---|---|---|---|---|---|"
+    )
+    lines, totals = [head], {}
+    for folder in folders:
+        run = json.loads((folder / "cycles.json").read_text())
+        probe = json.loads((folder / "fear_scale.json").read_text())["summary"]
+        arm, seed, cycles = _arm(run), run["config"]["seed"], run["cycles"]
+        share = f"fear_share_action_{arm}"
+        alone = [round(10 * c["alone_success"]) for c in cycles]
+        unseen = [round(10 * c["unseen_success"]) for c in cycles]
+        hits = [round(c["collision"] * c["episodes"]) for c in cycles]
+        lams = ", ".join(f"{r['lam']:.2f}" for r in probe)
+        fears = ", ".join(f"{r['fear_mean']:.3f}" for r in probe)
+        lines.append(
+            f"| {arm} | {seed} | {' → '.join(map(str, alone))} | {' → '.join(map(str, unseen))} | "
+            + " → ".join(f"{100 * c['takeover_rate']:.1f}%" for c in cycles)
+            + f" | {', '.join(map(str, hits))} | {lams} | {fears} | "
+            + ", ".join(f"{100 * r[share]:.1f}%" for r in probe)
+            + " |"
+        )
+        total = totals.setdefault(arm, {"seeds": 0, "alone": 0, "unseen": 0, "collisions": 0})
+        total["seeds"] += 1
+        total["alone"] += alone[-1]
+        total["unseen"] += unseen[-1]
+        total["collisions"] += sum(hits)
+    lines += ["", "| fear_scale | seeds | last cycle alone UGV 3 | last cycle alone unseen | supervised collisions |"]
+    lines.append("|---|---|---|---|---|")
+    for arm, t in totals.items():
+        n = 10 * t["seeds"]
+        lines.append(
+            f"| {arm} | {t['seeds']} | {t['alone']}/{n} | {t['unseen']}/{n} | {t['collisions']}/{5 * t['seeds'] * 3} |"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--every", type=int, default=10, help="Measure every this-many updates of a round.")
+    parser.add_argument("--compare", type=Path, nargs="+", help="Only tabulate these finished run folders.")
     parser.add_argument("cycles", nargs=argparse.REMAINDER, help="-- then the arguments of `sage cycles`.")
     args = parser.parse_args(argv)
+    if args.compare:
+        print(compare(args.compare))
+        return
     cycles_args = [a for a in args.cycles if a != "--"]
     if "--out" not in cycles_args:
         parser.error("give the cycles run an --out folder (fear_scale.json is written into it)")
