@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -10,7 +12,7 @@ import torch
 from core.learners import make_learner
 from core.sage.config import for_method
 from core.sage.sac import SAC
-from experiments.fear_scale import Probe, actor_gradients, format_summary
+from experiments.fear_scale import Probe, actor_gradients, compare, format_summary
 
 torch.set_num_threads(1)
 OBS, ACT = 6, 2
@@ -63,3 +65,22 @@ def test_the_probe_leaves_the_runs_random_streams_alone() -> None:
     assert sac.rng.bit_generator.state == state
     table = format_summary(probe.summary())
     assert table.count("\n") == 2 and "fear share at a, q" in table
+
+
+def test_compare_tabulates_each_run_and_sums_each_arm(tmp_path: Path) -> None:
+    for arm, seed, last in (("none", 0, 0.7), ("q", 0, 0.5), ("q", 1, 0.2)):
+        folder = tmp_path / f"{arm}-s{seed}"
+        folder.mkdir()
+        cycles = [
+            {"alone_success": a, "unseen_success": a, "takeover_rate": 0.3, "collision": 0.2, "episodes": 5}
+            for a in (0.1, 0.4, last)
+        ]
+        overrides = [] if arm == "none" else [f"fear_scale={arm}"]
+        run = {"config": {"seed": seed, "finetune": {"overrides": overrides}}, "cycles": cycles}
+        (folder / "cycles.json").write_text(json.dumps(run))
+        rounds = [{"lam": 1.0, "fear_mean": 0.05, f"fear_share_action_{arm}": 0.1}] * 2
+        (folder / "fear_scale.json").write_text(json.dumps({"summary": rounds}))
+    table = compare(sorted(tmp_path.iterdir()))
+    assert "| none | 0 | 1 → 4 → 7 |" in table and "10.0%, 10.0%" in table
+    assert "| q | 2 | 7/20 | 7/20 | 6/30 |" in table  # 5 + 2 of 20; one collision in each of 6 cycles
+    assert "| none | 1 | 7/10 | 7/10 | 3/15 |" in table
