@@ -286,8 +286,8 @@ def test_fear_scale_q_makes_the_fear_share_at_the_action_independent_of_the_rewa
         shares[scale] = [fear_share_at_the_action(learner, units) for units in (10.0, 100.0, 1000.0)]
     # "q": the same share whatever the units of Q (λ = 1 weighs fear like the batch's value) ...
     assert max(shares["q"]) == pytest.approx(min(shares["q"]), rel=0.02)
-    # ... and on this batch a share where both terms act: neither vanishing nor all of the gradient
-    assert 0.02 < shares["q"][0] < 0.98
+    # ... and on this batch a share where both act (the band of the decision rule in docs/notes/adaptation_probe.md)
+    assert 0.05 < shares["q"][0] < 0.5
     # "none": fear's share falls as Q's units grow (about 100 times less from 10 to 1000)
     assert shares["none"][2] < shares["none"][0] / 30
     assert shares["none"][0] < shares["q"][0]
