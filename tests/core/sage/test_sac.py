@@ -314,7 +314,7 @@ def test_fear_scale_none_is_the_loss_as_it_was() -> None:
     learner.cfg.fear_scale = "q"
     torch.manual_seed(7)
     scaled, _, _ = learner.actor_loss(batch, imitation)
-    extra = float((q_scale - 1.0) * 2.0 * fear_values.mean())
+    extra = ((q_scale - 1.0) * 2.0 * fear_values.mean()).item()
     assert scaled.item() - loss.item() == pytest.approx(extra, rel=1e-4, abs=1e-5)
 
 
