@@ -163,9 +163,11 @@ def format_summary(summary: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def _arm(run: dict[str, Any]) -> str:
+def _arm(run: dict[str, Any]) -> tuple[str, str]:
+    """(the run's fear_scale, its label: the fear_scale and any other learner setting of the rounds)."""
     settings = dict(o.split("=", 1) for o in run["config"]["finetune"]["overrides"] if "=" in o)
-    return settings.get("fear_scale", settings.get("learner.fear_scale", "none"))
+    scale = settings.pop("fear_scale", settings.pop("learner.fear_scale", "none"))
+    return scale, ", ".join([scale, *(f"{k}={v}" for k, v in settings.items())])
 
 
 def compare(folders: list[Path]) -> str:
@@ -173,7 +175,7 @@ def compare(folders: list[Path]) -> str:
     the actor batch's fear F and of the fear share at the action under the run's own ``fear_scale``;
     then per arm, sums over its seeds of the last cycle's alone successes and of the supervised collisions."""
     head = (
-        "| fear_scale | seed | alone UGV 3 (of 10) | alone unseen (of 10) | takeover (supervised) "
+        "| rounds' settings | seed | alone UGV 3 (of 10) | alone unseen (of 10) | takeover (supervised) "
         "| supervised collisions (of 5) | λ by round | F by round | fear share at a by round |\n"
         "|---|---|---|---|---|---|---|---|---|"
     )
@@ -181,8 +183,8 @@ def compare(folders: list[Path]) -> str:
     for folder in folders:
         run = json.loads((folder / "cycles.json").read_text())
         probe = json.loads((folder / "fear_scale.json").read_text())["summary"]
-        arm, seed, cycles = _arm(run), run["config"]["seed"], run["cycles"]
-        share = f"fear_share_action_{arm}"
+        (scale, arm), seed, cycles = _arm(run), run["config"]["seed"], run["cycles"]
+        share = f"fear_share_action_{scale}"
         alone = [round(10 * c["alone_success"]) for c in cycles]
         unseen = [round(10 * c["unseen_success"]) for c in cycles]
         hits = [round(c["collision"] * c["episodes"]) for c in cycles]
@@ -200,7 +202,7 @@ def compare(folders: list[Path]) -> str:
         total["alone"] += alone[-1]
         total["unseen"] += unseen[-1]
         total["collisions"] += sum(hits)
-    lines += ["", "| fear_scale | seeds | last cycle alone UGV 3 | last cycle alone unseen | supervised collisions |"]
+    lines += ["", "| settings | seeds | last cycle alone UGV 3 | last cycle alone unseen | supervised collisions |"]
     lines.append("|---|---|---|---|---|")
     for arm, t in totals.items():
         n = 10 * t["seeds"]
