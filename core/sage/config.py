@@ -313,6 +313,9 @@ class AgentConfig:
     """Step size of the projected dual ascent λ ← max(0, λ + lr (mean F - F_0))."""
     lambda_max: float = 100.0
     """Upper clip of λ, so that a long run above budget cannot make the fear term swamp the return."""
+    fear_scale: Literal["none", "q"] = "none"
+    """Actor's fear weight: ``none`` λ (eq:actor_loss_fear), ``q`` λ·max(1, mean|Q|) (detached, as imitation's), so
+    that λ = 1 weighs fear like the batch's value. The critic target's -λF stays in reward units."""
     learner_fear_horizon: int = 1
     """Rollout steps of the fear inside the learner (critic target -λF_{t+1}, actor +λF, dual update); 1 is eq:fear,
     as eq:fear_cmdp states it. The gate uses ``gate.horizon`` (m)."""
@@ -451,6 +454,8 @@ def validate(cfg: AgentConfig) -> None:
         needs_model.append("takeover (takeover_rule=gate)")
     if cfg.takeover_rule not in ("gate", "supervisor"):
         raise ValueError(f"takeover_rule must be gate or supervisor, got {cfg.takeover_rule!r}")
+    if cfg.fear_scale not in ("none", "q"):
+        raise ValueError(f"fear_scale must be none or q, got {cfg.fear_scale!r}")
     if needs_model and not cfg.world_model:
         raise ValueError(f"{', '.join(needs_model)} need world_model=true")
     if not 0.0 <= cfg.gate.beta <= 1.0:

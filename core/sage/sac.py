@@ -24,7 +24,8 @@ the actor gets the fear gradient, the world model gets none. L_BC = E_{Ξ=1}[ω 
 intervention samples, ω = exp(clip(A / (T · max(1, mean|Q|)), -κ, κ)), A = min_z Q_z(s, a_E) - min_z Q_z(s, a_RL)
 (detached). Dividing the advantage by the batch's Q scale makes ω independent of the reward's units, and the
 clip keeps it in [e^-κ, e^κ] however large the Q gap: a huge advantage can neither overflow nor let one
-sample swamp the batch. The imitation term is scaled by mean|Q| so that it keeps pace with the Q term.
+sample swamp the batch. The imitation term is scaled by mean|Q| so that it keeps pace with the Q term; with
+``fear_scale="q"`` the fear term is too (λ·max(1, mean|Q|)·F, :func:`actor_fear_weight`), the critic target's -λF not.
 
 Dual (eq:lambda_update): λ ← clip(λ + lr_λ (mean F(s, π(s)) - F_0), 0, λ_max) on the real states of the
 actor batch: λ grows while mean fear exceeds the budget and shrinks (never below 0) otherwise. F_0 is measured
@@ -85,6 +86,11 @@ def advantage_weights(
     """ω = exp(clip((Q(s,a_E) - Q(s,a_RL)) / (T · max(1, q_scale)), -clip, clip)) (eq:qa_weight, bounded)."""
     scale = temperature * torch.clamp(torch.as_tensor(q_scale, dtype=q_expert.dtype, device=q_expert.device), min=1.0)
     return torch.exp(((q_expert - q_agent) / scale).clamp(-clip, clip))
+
+
+def actor_fear_weight(lam: Tensor | float, q_scale: Tensor, fear_scale: str) -> Tensor | float:
+    """The weight of F in the actor's loss: λ (``fear_scale="none"``) or λ·max(1, mean|Q|) (``"q"``, detached)."""
+    return lam * q_scale if fear_scale == "q" else lam
 
 
 class SAC(ActorLearner):
@@ -191,12 +197,12 @@ class SAC(ActorLearner):
         q = self.critic(states, action).min(0).values
         loss = (self.alpha * log_prob - q).mean()
         stats: dict[str, float] = {}
+        q_scale = q.detach().abs().mean().clamp_min(1.0)
         if self.fear_active():
             fear_values = self.learner_fear(states, action)
-            loss = loss + self.lam * fear_values.mean()
+            loss = loss + actor_fear_weight(self.lam, q_scale, cfg.fear_scale) * fear_values.mean()
             stats["fear_real"] = fear_values[:n_real].mean().item()
             stats["fear_budget"] = self.fear_budget()
-        q_scale = q.detach().abs().mean().clamp_min(1.0)
         if imitation is not None:
             with torch.no_grad():
                 q_expert = self.critic(imitation.obs, imitation.a_expert).min(0).values
@@ -377,12 +383,12 @@ class CapturedSACUpdate(CapturedUpdate):
             q_pi = sac.critic(states, action).min(0).values
             actor_loss = (self.alpha() * log_prob - q_pi).mean()
             fear_real = None
+            q_scale = q_pi.detach().abs().mean().clamp_min(1.0)
             if fear_on:
                 fear_values = self.fear(states, action, sac.fear_policy)
-                actor_loss = actor_loss + lam * fear_values.mean()
+                actor_loss = actor_loss + actor_fear_weight(lam, q_scale, cfg.fear_scale) * fear_values.mean()
                 fear_real = fear_values[:n_real].mean()
                 stats.update(fear_real=fear_real.detach(), fear_budget=self.scalars["fear_budget"])
-            q_scale = q_pi.detach().abs().mean().clamp_min(1.0)
             if imitation is not None:
                 with torch.no_grad():
                     q_expert = sac.critic(imitation.obs, imitation.a_expert).min(0).values

@@ -14,7 +14,7 @@ from core.learners import make_learner
 from core.sage.config import for_method
 from core.sage.d3qn import CapturedD3QNUpdate
 from core.sage.learner import BaseLearner
-from core.sage.sac import CapturedSACUpdate
+from core.sage.sac import SAC, CapturedSACUpdate
 
 torch.set_num_threads(1)
 OBS, ACT = 6, 2
@@ -80,6 +80,19 @@ def assert_same_update(reference: BaseLearner, captured: BaseLearner, run_captur
 def test_the_captured_sage_sac_body_agrees_with_the_reference_update(virtual_ratio: float) -> None:
     reference = sage_learner(virtual_ratio=virtual_ratio)
     assert reference.fear_active()
+    captured = copy.deepcopy(reference)
+    assert_same_update(reference, captured, CapturedSACUpdate(captured, eager=True))
+
+
+def test_the_captured_sage_sac_body_weighs_fear_as_the_reference_with_fear_scale_q() -> None:
+    reference = sage_learner(fear_scale="q")
+    assert isinstance(reference, SAC) and reference.fear_active()
+    with torch.no_grad():  # values of tens, so that the scale max(1, mean|Q|) is not 1
+        reference.critic.out.weight.mul_(300.0)
+        reference.critic.out.bias.mul_(300.0)
+        reference.critic_target.load_state_dict(reference.critic.state_dict())
+    batch = reference.buffer.sample(64, np.random.default_rng(0))
+    assert reference.critic(batch.obs, batch.action).abs().mean() > 5.0
     captured = copy.deepcopy(reference)
     assert_same_update(reference, captured, CapturedSACUpdate(captured, eager=True))
 

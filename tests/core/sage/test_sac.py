@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import itertools
 import math
@@ -240,6 +241,81 @@ def test_the_actor_gradient_carries_the_fear_term_through_the_frozen_world_model
         learner.update()
     for key, value in learner.world_model.state_dict().items():
         assert torch.equal(value, before[key]), key
+
+
+def fear_share_at_the_action(learner: SAC, q_units: float) -> float:
+    """|∂(wF)/∂a| / (|∂(-Q)/∂a| + |∂(wF)/∂a|), mean over the batch's states, in the actor's own loss at λ = 1, the
+    critic's output layer scaled so that the batch's mean |Q| is about ``q_units`` (rewards in other units)."""
+    critic = copy.deepcopy(learner.critic)
+    batch = learner.buffer.sample(64, np.random.default_rng(5))
+    with torch.no_grad():
+        base = learner.critic(batch.obs, batch.action).min(0).values.abs().mean()
+        critic.out.weight.mul_(q_units / base)
+        critic.out.bias.mul_(q_units / base)
+    scaled = copy.copy(learner)
+    scaled.critic = critic
+    sample = scaled.actor.sample
+    grads = []
+    for lam in (0.0, 1.0):
+        kept: list[torch.Tensor] = []
+
+        def keep(obs: torch.Tensor, sample=sample, kept=kept) -> tuple[torch.Tensor, torch.Tensor]:
+            action, log_prob = sample(obs)
+            action.retain_grad()
+            kept.append(action)
+            return action, log_prob
+
+        scaled.actor.sample = keep  # type: ignore[method-assign]
+        scaled.lam = lam
+        torch.manual_seed(7)  # the same actions for both λ
+        loss, _, _ = scaled.actor_loss(batch, None)
+        loss.backward()
+        grads.append(kept[0].grad.clone())
+    scaled.actor.sample = sample  # type: ignore[method-assign]
+    value, fear_term = grads[0].norm(dim=1).mean(), (grads[1] - grads[0]).norm(dim=1).mean()
+    return float(fear_term / (value + fear_term))
+
+
+def test_fear_scale_q_makes_the_fear_share_at_the_action_independent_of_the_reward_units() -> None:
+    # α fixed near 0, so that the loss's remaining action gradient is -Q's
+    learner = filled("sage", imitation=False, virtual_ratio=0.0, autotune_alpha=False, init_alpha=1e-8)
+    assert isinstance(learner, SAC) and learner.fear_active()
+    shares = {}
+    for scale in ("none", "q"):
+        learner.cfg.fear_scale = scale
+        shares[scale] = [fear_share_at_the_action(learner, units) for units in (10.0, 100.0, 1000.0)]
+    # "q": the same share whatever the units of Q (λ = 1 weighs fear like the batch's value) ...
+    assert max(shares["q"]) == pytest.approx(min(shares["q"]), rel=0.02)
+    # ... and on this batch a share where both act (the band of the decision rule in docs/notes/adaptation_probe.md)
+    assert 0.05 < shares["q"][0] < 0.5
+    # "none": fear's share falls as Q's units grow (about 100 times less from 10 to 1000)
+    assert shares["none"][2] < shares["none"][0] / 30
+    assert shares["none"][0] < shares["q"][0]
+
+
+def test_fear_scale_none_is_the_loss_as_it_was() -> None:
+    learner = filled("sage", virtual_ratio=0.0)
+    assert isinstance(learner, SAC) and learner.cfg.fear_scale == "none" and learner.fear_active()
+    learner.lam = 2.0
+    batch = learner.buffer.sample(64, np.random.default_rng(5))
+    imitation = learner.buffer.sample_takeovers(32, np.random.default_rng(6))
+    torch.manual_seed(7)
+    loss, _, stats = learner.actor_loss(batch, imitation)
+    # the loss written out as before fear_scale: α log π - Q + λF + w_bc max(1, mean|Q|) L_BC
+    torch.manual_seed(7)
+    action, log_prob = learner.actor.sample(batch.obs)
+    q = learner.critic(batch.obs, action).min(0).values
+    fear_values = learner.learner_fear(batch.obs, action)
+    q_scale = q.detach().abs().mean().clamp_min(1.0)
+    written = (learner.alpha * log_prob - q).mean() + 2.0 * fear_values.mean()
+    written = written + learner.cfg.bc_weight * q_scale * stats["bc_loss"]
+    assert loss.item() == pytest.approx(written.item(), rel=1e-5, abs=1e-6)
+    # "q" adds (max(1, mean|Q|) - 1) λ F to the same loss
+    learner.cfg.fear_scale = "q"
+    torch.manual_seed(7)
+    scaled, _, _ = learner.actor_loss(batch, imitation)
+    extra = ((q_scale - 1.0) * 2.0 * fear_values.mean()).item()
+    assert scaled.item() - loss.item() == pytest.approx(extra, rel=1e-4, abs=1e-5)
 
 
 def test_a_gate_step_after_loading_weights_leaves_the_learner_trainable() -> None:
