@@ -6,7 +6,7 @@ the frozen 5-member world model, the dual step, value-weighted imitation on inte
 batches from real and virtual buffers). The methods run in interleaved rounds so that a busy machine
 slows them alike; the printed ratios come from the same run.
 
-    .venv/bin/python bench/bench_sac.py [--rounds 5] [--updates 200] [--ego] [--device] [--clock wall|cpu]
+    .venv/bin/python -m bench.bench_sac [--rounds 5] [--updates 200] [--ego] [--device] [--clock wall|cpu]
     .venv/bin/python -m bench.bench_sac --batch 256,1024 --ensemble 5,7 [--ego] [--write docs/speed.md]
 
 ``--ego`` adds SAGE-SAC over the ego step (the UGV default's world model, ``sims.ugv.env.ego_motion_layout``), without
