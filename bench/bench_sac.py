@@ -6,11 +6,20 @@ the frozen 5-member world model, the dual step, value-weighted imitation on inte
 batches from real and virtual buffers). The methods run in interleaved rounds so that a busy machine
 slows them alike; the printed ratios come from the same run.
 
-    .venv/bin/python bench/bench_sac.py [--rounds 5] [--updates 200] [--ego] [--device]
+    .venv/bin/python -m bench.bench_sac [--rounds 5] [--updates 200] [--ego] [--device] [--clock wall|cpu]
+    .venv/bin/python -m bench.bench_sac --batch 256,1024 --ensemble 5,7 [--ego] [--write docs/speed.md]
 
-``--ego`` adds SAGE-SAC over the ego step (the UGV default's world model, ``sims.ugv.env.ego_motion_layout``): there
-the actor loss's fear term sends gradients through the step's tensor version (the gate and targets use its compiled
-one).
+``--ego`` adds SAGE-SAC over the ego step (the UGV default's world model, ``sims.ugv.env.ego_motion_layout``), without
+and with the gate's imagined contact (``gate.imagined_contact`` with the UGV's floors: what the committed UGV policy's
+recalibrated gate sets, and so what fine-tuning it trains with). The learner's one-step fear reads the violation logit
+only, so without contact it runs no ego step at all; with contact both fear terms move their batch by the compiled step,
+without a graph, for the contact test (``core.sage.fear.rollout``, ``states_needed``). A ``learner_fear_horizon`` over
+1 sends the actor's gradient through the step.
+
+``--batch 256,1024 --ensemble 5,7`` measures instead what larger batches and world-model ensembles cost: our SAC at
+each batch, SAGE-SAC (and with ``--ego`` over the ego step) at each batch and ensemble size, the ratios to SAC at the
+same batch, interleaved as above; ``--write docs/speed.md`` writes that table with the command, the commit and the
+processor into the file's generated block.
 
 ``--device`` adds SAC and SAGE-SAC on CUDA, eager and replayed as a CUDA graph (``learner.cuda_graph``), beside the CPU,
 where torch sees a GPU; elsewhere it says so. ``bench/gpu_check.py`` measures batches 256 to 4096.
@@ -20,8 +29,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -114,16 +125,26 @@ def sb3(rng: np.random.Generator) -> Any:
     return model
 
 
-def rate(fn: Callable[[], None], n: int, sync: Callable[[], None] | None = None) -> float:
+CLOCKS: dict[str, Callable[[], float]] = {"wall": time.perf_counter, "cpu": time.process_time}
+"""``--clock``: wall time, or this process's CPU time (one thread does the work: on a machine whose other processes
+want more cores than it has, the wall clock also counts the time the update waited for a core)."""
+
+
+def rate(
+    fn: Callable[[], None],
+    n: int,
+    sync: Callable[[], None] | None = None,
+    clock: Callable[[], float] = time.perf_counter,
+) -> float:
     """Updates per second over ``n`` calls (``sync``: wait for the device's queued work before reading the clock)."""
     if sync is not None:
         sync()
-    start = time.perf_counter()
+    start = clock()
     for _ in range(n):
         fn()
     if sync is not None:
         sync()
-    return n / (time.perf_counter() - start)
+    return n / (clock() - start)
 
 
 def device_rows(rounds: int, updates: int) -> None:
@@ -170,15 +191,31 @@ def main() -> None:
         "tensor path, with gradients; sims.ugv.env.ego_motion_layout)",
     )
     parser.add_argument(
+        "--clock",
+        choices=sorted(CLOCKS),
+        default="wall",
+        help="what a rate is measured in: wall time (default), or this process's CPU time (a loaded machine)",
+    )
+    parser.add_argument(
         "--device",
         action="store_true",
         help="also the updates on CUDA, eager and as a CUDA graph, beside the CPU's (says so where there is no CUDA)",
     )
+    parser.add_argument("--batch", type=_sizes, help="cost table: these batch sizes (comma-separated)")
+    parser.add_argument(
+        "--ensemble", type=_sizes, help="cost table: these world-model ensemble sizes (comma-separated)"
+    )
+    parser.add_argument("--write", type=Path, help="cost table: write it into this markdown file's generated block")
     args = parser.parse_args()
     torch.set_num_threads(1)
     from core.device import processor_name
 
     print(f"processor: {processor_name()}")
+    if args.batch or args.ensemble:
+        sizes_table(args)
+        return
+    if args.write:
+        parser.error("--write writes the cost table: give --batch and/or --ensemble")
     rng = np.random.default_rng(0)
     sac, sage, reference = ours("sac", rng), ours("sage", rng), sb3(rng)
     sac_unclipped = ours("sac", rng, max_grad_norm=None)  # SB3's SAC clips no gradients
@@ -190,21 +227,23 @@ def main() -> None:
         "SB3 SAC": lambda: reference.train(gradient_steps=1, batch_size=BATCH),
     }
     if args.ego:
+        from sims.ugv.descriptor import contact_floors
         from sims.ugv.env import ego_motion_layout
 
         ego = ours("sage", rng, world_model=ego_motion_layout())
         assert ego.world_model_ready() and ego.world_model is not None and ego.world_model.ego is not None
         contenders["SAGE-SAC, ego step"] = ego.update
-    for fn in contenders.values():  # warm-up
-        rate(fn, 20)
-    rates: dict[str, list[float]] = {name: [] for name in contenders}
-    for _ in range(args.rounds):
-        for name, fn in contenders.items():
-            rates[name].append(rate(fn, args.updates))
-    median = {name: statistics.median(values) for name, values in rates.items()}
-    print(f"updates per second (median of {args.rounds} interleaved rounds of {args.updates}, one thread):")
+        contact = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
+        touching = ours("sage", rng, world_model=ego_motion_layout(), **contact)
+        assert touching.cfg.gate.imagined_contact and touching.world_model_ready()
+        contenders["SAGE-SAC, ego step + contact"] = touching.update
+    median = measure(contenders, args.rounds, args.updates, args.clock)
+    print(
+        f"updates per second (median of {args.rounds} interleaved rounds of {args.updates}, one thread, "
+        f"{args.clock} clock):"
+    )
     for name, value in median.items():
-        print(f"  {name:16s} {value:8.1f} /s   ({1000.0 / value:6.2f} ms per update)")
+        print(f"  {name:28s} {value:8.1f} /s   ({1000.0 / value:6.2f} ms per update)")
     print(f"SAGE-SAC update time / our SAC update time: {median['our SAC'] / median['SAGE-SAC']:.2f}x")
     print(
         f"our SAC updates per second / SB3 SAC:       {median['our SAC'] / median['SB3 SAC']:.2f}x"
@@ -219,9 +258,111 @@ def main() -> None:
             "SAGE-SAC over the ego step / our SAC update time:   "
             f"{median['our SAC'] / median['SAGE-SAC, ego step']:.2f}x  (target <= 2.0x)"
         )
+        print(
+            "  the same with the gate's imagined contact:        "
+            f"{median['our SAC'] / median['SAGE-SAC, ego step + contact']:.2f}x"
+        )
     print(f"load average while measuring: {', '.join(f'{x:.2f}' for x in _loadavg())}")
     if args.device:
         device_rows(args.rounds, args.updates)
+
+
+def measure(contenders: dict[str, Callable[[], None]], rounds: int, updates: int, clock: str) -> dict[str, float]:
+    """Median updates per second of each contender over ``rounds`` interleaved rounds (after a warm-up)."""
+    for fn in contenders.values():  # warm-up
+        rate(fn, 20)
+    rates: dict[str, list[float]] = {name: [] for name in contenders}
+    for _ in range(rounds):
+        for name, fn in contenders.items():
+            rates[name].append(rate(fn, updates, clock=CLOCKS[clock]))
+    return {name: statistics.median(values) for name, values in rates.items()}
+
+
+TABLE_START = "<!-- bench_sac sizes: start (generated by bench/bench_sac.py --write; do not edit) -->"
+TABLE_END = "<!-- bench_sac sizes: end -->"
+
+
+def sizes_table(args: argparse.Namespace) -> None:
+    """What larger batches and world-model ensembles cost: ms per update and the ratio to our SAC at the same batch."""
+    from core.device import processor_name
+
+    batches, members = args.batch or [BATCH], args.ensemble or [5]
+    layouts: dict[str, dict[str, Any]] = {"SAGE-SAC": {}}
+    if args.ego:
+        from sims.ugv.env import ego_motion_layout
+
+        layouts["SAGE-SAC over the ego step"] = ego_motion_layout()
+    rng = np.random.default_rng(0)
+    contenders: dict[str, Callable[[], None]] = {}
+    for batch in batches:
+        contenders[f"sac {batch}"] = ours("sac", rng, batch=batch).update
+        for n in members:
+            for name, layout in layouts.items():
+                learner = ours("sage", rng, world_model={**layout, "members": n}, batch=batch)
+                assert learner.world_model is not None and learner.world_model.members == n
+                contenders[f"{name} {batch} {n}"] = learner.update
+    median = measure(contenders, args.rounds, args.updates, args.clock)
+    ms = {name: 1000.0 / value for name, value in median.items()}
+    header = ["batch", "world-model members", "our SAC, ms"]
+    for name in layouts:
+        header += [f"{name}, ms", f"{name} / SAC"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for batch in batches:
+        for n in members:
+            sac_ms = ms[f"sac {batch}"]
+            row = [str(batch), str(n), f"{sac_ms:.2f}"]
+            for name in layouts:
+                row += [f"{ms[f'{name} {batch} {n}']:.2f}", f"{ms[f'{name} {batch} {n}'] / sac_ms:.2f}x"]
+            lines.append("| " + " | ".join(row) + " |")
+    command = "python -m bench.bench_sac " + " ".join(sys.argv[1:])
+    load = ", ".join(f"{x:.2f}" for x in _loadavg())
+    notes = [
+        f"`{command}` at commit {_commit()}, one thread of {processor_name()} (torch {torch.__version__}); median of "
+        f"{args.rounds} interleaved rounds of {args.updates} updates, {args.clock} clock; load average {load} at the "
+        f"end; {time.strftime('%Y-%m-%d', time.gmtime())}. SAC has no world model: its column repeats per ensemble "
+        "size."
+    ]
+    table = "\n".join(lines)
+    print(table)
+    print(notes[0])
+    if args.write:
+        write_block(args.write, "\n".join([*notes, "", table]))
+        print(f"wrote {args.write}")
+
+
+def write_block(path: Path, block: str) -> None:
+    """Replace the generated block of ``path`` (created with just the block where missing)."""
+    text = path.read_text(encoding="utf-8") if path.exists() else f"{TABLE_START}\n{TABLE_END}\n"
+    if TABLE_START not in text or TABLE_END not in text:
+        raise SystemExit(f"{path} has no generated block ({TABLE_START} ... {TABLE_END})")
+    head, rest = text.split(TABLE_START, 1)
+    _, tail = rest.split(TABLE_END, 1)
+    path.write_text(f"{head}{TABLE_START}\n{block}\n{TABLE_END}{tail}", encoding="utf-8")
+
+
+def _commit() -> str:
+    """The checkout's short commit, marked where tracked files differ from it (the numbers are then not its)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(["git", "diff", "--quiet", "HEAD"], cwd=root, check=False).returncode != 0
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (no git)"
+    return f"{commit} with uncommitted changes" if dirty else commit
+
+
+def _sizes(text: str) -> list[int]:
+    try:
+        values = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
+    if not values or any(v < 1 for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
+    return values
 
 
 def _loadavg() -> tuple[float, ...]:

@@ -2,7 +2,8 @@
 
 Each study owns one section of the results document (``docs/results.md``) between ``<!-- results:NAME -->`` and
 ``<!-- /results:NAME -->``. The section holds the study's ``table.md`` as the study command wrote it (its header
-names the study, the budget, the commit and the wall time), a link to the results folder and its figures. A document
+names the study, the budget, the commit, the wall time and the device; a table written before tables named the device
+says that it was not recorded), a link to the results folder and its figures. A document
 without the markers gets them appended under a "Results" heading.
 
 The README's ``<!-- summary -->`` block is one table of the studies' headline results (:data:`HEADLINES`), made from
@@ -20,6 +21,8 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from studies.results import NO_DEVICE
 
 RESULTS_DOC = Path("docs") / "results.md"
 """The project's results document, relative to the repository root."""
@@ -40,10 +43,15 @@ def section(name: str, results: Path, readme: Path) -> str:
     figures = sorted(p.name for p in results.glob("*.png"))
     # the table's own headings sit under the study's heading in the document
     body = "\n".join("####" + line[1:] if line.startswith("# ") else line for line in table.read_text().splitlines())
+    body = _OLD_WALL_TIME.sub(rf"\1 ({NO_DEVICE}).", body, count=1)
     lines = [body.strip(), "", f"Results folder: [`{link}`]({link}) (per-seed rows in `seeds.csv`)."]
     if figures:
         lines.append("Figures: " + ", ".join(f"[{f}]({link}/{f})" for f in figures) + ".")
     return "\n".join(lines)
+
+
+_OLD_WALL_TIME = re.compile(r"(wall time [0-9.]+ min)\.")
+"""A header's wall time written before tables named the device (:func:`studies.results.wall_and_device`)."""
 
 
 def relative_link(target: Path, document: Path) -> str:
@@ -148,6 +156,19 @@ def _shown(metric: dict, scale: float) -> str:
     return f"{metric['mean'] * scale:.1f} ± {metric['ci95_half_width'] * scale:.1f}"
 
 
+def refresh_sections(doc: Path) -> list[str]:
+    """Rewrite every study section of the results document ``doc`` from the results folder it links (what a change
+    to :func:`section` needs); returns the studies' names."""
+    names = []
+    for block in _RESULTS_BLOCK.finditer(doc.read_text()):
+        found = _FOLDER.search(block["body"])
+        if found is None:
+            raise ValueError(f"{doc}: section {block['name']} links no results folder")
+        update_results(doc, block["name"], doc.parent / found["link"])
+        names.append(block["name"])
+    return names
+
+
 def update_summary(readme: Path, doc: Path) -> None:
     """Write ``readme``'s summary block from the results document ``doc``."""
     replace_block(readme, SUMMARY_KEY, summary_table(doc, readme), SUMMARY_HEADING)
@@ -200,12 +221,19 @@ def replace_block(readme: Path, key: str, body: str, heading: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m studies.readme``: refresh the README's summary block from the results document."""
+    """``python -m studies.readme``: refresh the README's summary block from the results document (``--sections``: first
+    every study section of the document from the results folder it links)."""
     parser = argparse.ArgumentParser(prog=SUMMARY_COMMAND, description=main.__doc__)
     parser.add_argument("--results-doc", type=Path, default=RESULTS_DOC, help="default: %(default)s")
     parser.add_argument("--readme", type=Path, default=SUMMARY_README, help="default: %(default)s")
+    parser.add_argument(
+        "--sections", action="store_true", help="first rewrite every study section from the results folder it links"
+    )
     args = parser.parse_args(argv)
     try:
+        if args.sections:
+            names = refresh_sections(args.results_doc)
+            print(f"{len(names)} study sections of {args.results_doc} rewritten: {', '.join(names)}")
         update_summary(args.readme, args.results_doc)
     except (OSError, ValueError, KeyError) as error:
         parser.exit(2, f"error: {error}\n")

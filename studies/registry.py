@@ -250,6 +250,7 @@ def run_study(
         plot=study.plot,
         budget_text=study.budget_text(spent, settings) if study.budget_text is not None else None,
         untrained=study.untrained,
+        device=_device_words(device),
         notes=(
             *study.notes,
             *([f"Settings changed from the study's defaults: {', '.join(changed)}."] if changed else []),
@@ -266,7 +267,6 @@ def run_study(
             ),
             *prepared_notes,
             timing,
-            f"The learners' updates ran on {_device_words(device)}.",
         ),
     )
     if study.figures is not None:
@@ -296,11 +296,13 @@ def _log_wall_time(path: Path, wall_s: float, max_concurrent: int | None) -> lis
 
 
 def _device_words(device: str) -> str:
-    """``the CPU (AMD EPYC ...)`` / ``CUDA (NVIDIA H200)``: what a study table says ran the updates."""
+    """``the CPU (AMD EPYC)`` / ``AMD EPYC, the learners' updates on CUDA:0 (NVIDIA H200)``: where a study table says it
+    ran (the simulators always run on the CPU)."""
     import torch
 
-    from core.device import device_name
+    from core.device import device_name, processor_name
 
     resolved = torch.device(device)
-    where = "the CPU" if resolved.type == "cpu" else str(resolved).upper()
-    return f"{where} ({device_name(resolved)})"
+    if resolved.type == "cpu":
+        return f"the CPU ({processor_name()})"
+    return f"{processor_name()}, the learners' updates on {str(resolved).upper()} ({device_name(resolved)})"

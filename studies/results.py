@@ -5,7 +5,7 @@ Written by the study command, never by hand:
 - ``seeds.csv``: one row per (row key, training seed) with every metric, as measured.
 - ``table.md``: one row per key (method, or split/method/condition), each metric as mean ± 95% t-interval
   over seeds, and the paper's reported number in the next column where it has one; the header names the
-  study, the budget, the commit and the wall time.
+  study, the budget, the commit, the wall time and the device the learners' updates ran on.
 - ``summary.json``: the same table as data (mean, half-width, n, paper value).
 - ``<metric>.png``: per-key means with their 95% intervals, one figure per plotted metric.
 """
@@ -35,6 +35,15 @@ def current_commit(repo: Path | None = None) -> str:
     return out.stdout.strip() or "unknown"
 
 
+NO_DEVICE = "device not recorded"
+"""What a table says of the device where its folder does not record one (written before tables named it)."""
+
+
+def wall_and_device(wall_s: float, device: str | None) -> str:
+    """``wall time 4.1 min on the CPU (AMD EPYC)``, or ``..., device not recorded``: the table header's timing."""
+    return f"wall time {wall_s / 60:.1f} min " + (f"on {device}" if device else f"({NO_DEVICE})")
+
+
 def summarise(
     rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metrics: Sequence[str]
 ) -> dict[tuple[str, ...], dict[str, Interval]]:
@@ -61,6 +70,7 @@ def write_results(
     notes: Sequence[str] = (),
     budget_text: str | None = None,
     untrained: Sequence[str] = (),
+    device: str | None = None,
 ) -> Path:
     """Write the results folder ``out`` for ``study`` and return the table's path.
 
@@ -69,7 +79,8 @@ def write_results(
     printed under the table (what could not be run, and why). ``budget_text``: what the budget ran, when the study
     spends it otherwise than as training steps and evaluation episodes (the cycles study: cycles of episodes).
     ``untrained``: methods that are not trained (planners): each of their seeds is a set of evaluation episodes, so
-    their ± is a spread over evaluation episodes, and their rows say so.
+    their ± is a spread over evaluation episodes, and their rows say so. ``device``: what ran the learners' updates, in
+    words (``the CPU (AMD EPYC)``, ``CUDA:0 (NVIDIA H200)``); the header says where it was not recorded.
     """
     if not rows:
         raise ValueError(f"study {study!r} produced no result rows")
@@ -98,7 +109,7 @@ def write_results(
     lines = [
         f"# {study}: mean ± 95% CI over training seeds",
         "",
-        f"Budget `{budget.name}` ({spent}), commit `{commit}`, wall time {wall_s / 60:.1f} min. "
+        f"Budget `{budget.name}` ({spent}), commit `{commit}`, {wall_and_device(wall_s, device)}. "
         f"Paper columns are the paper's reported values (± is its spread over episodes, not a CI).{untrained_text}",
         "",
         "| " + " | ".join(header) + " |",
@@ -123,7 +134,7 @@ def write_results(
     lines += ["", *[f"- {note}" for note in notes]]
     table = out / "table.md"
     table.write_text("\n".join(lines).rstrip() + "\n")
-    meta = {"study": study, "budget": budget.name, "commit": commit, "wall_s": wall_s, "rows": data}
+    meta = {"study": study, "budget": budget.name, "commit": commit, "wall_s": wall_s, "device": device, "rows": data}
     (out / "summary.json").write_text(json.dumps(meta, indent=2, default=float))
     for metric in plot:
         _plot(out / f"{metric}.png", study, summary, metric)

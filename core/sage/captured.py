@@ -107,7 +107,8 @@ class CapturedUpdate:
         """F(s, a) as the learner's ``learner_fear`` computes it, on the static model and device-side contact."""
         cfg = self.learner.cfg
         assert self.folded is not None
-        ro = rollout(self.folded, policy, obs, action, cfg.learner_fear_horizon, None, self.contact, self.closing)
+        horizon = cfg.learner_fear_horizon
+        ro = rollout(self.folded, policy, obs, action, horizon, None, self.contact, self.closing, states_needed=False)
         return fear_of(self.folded, ro, cfg.gate).fear
 
     # -- run ------------------------------------------------------------------------------------------

@@ -135,51 +135,83 @@ def rollout(
     motion: Tensor | None = None,
     contact: Tensor | None = None,
     closing: Tensor | None = None,
+    *,
+    states_needed: bool = True,
 ) -> Rollout:
     """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
     the last observed change of state (zeros when None), for a model with the motion input; later steps take
     each member's own predicted Δ into their motion (:func:`next_motion`; scan-aligned for a model with a
     :class:`core.motion.ScanAlignment`). ``contact``: the observation's contact floors (:func:`contact_floors`),
     where an imagined state in contact is a violation (:func:`with_contact`), in the ``closing`` channels only where
-    given ((B, n), :func:`closing_channels`)."""
+    given ((B, n), :func:`closing_channels`).
+
+    ``states_needed=False``: the caller reads only ``cost`` and ``sigma_raw`` (the fear terms). The last imagined
+    state then feeds nothing but the contact test, a comparison without a gradient: it is computed only where
+    ``contact`` is given, without a graph, and otherwise not at all (no Δ columns, no ego step), and ``states``
+    ends at the state before it. The fear terms are the same either way (``tests/core/sage/test_fear_rollout.py``)."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
     a = action.unsqueeze(0).expand(n, batch, action.shape[-1])
     m = None
-    if model.motion:
-        m = (torch.zeros_like(obs) if motion is None else motion).unsqueeze(0).expand(n, batch, d)
+    if model.motion and motion is not None:
+        m = motion.unsqueeze(0).expand(n, batch, d)
+    # the Δs means and the violation logit (the log-variance columns feed no rollout); the logit alone
+    mean_weight, mean_bias = model.out_weight[..., : d + 1], model.out_bias[..., : d + 1]
+    logit_weight, logit_bias = model.out_weight[..., d : d + 1], model.out_bias[..., d : d + 1]
     states, actions, costs = [s], [], []
     for k in range(horizon):
-        if m is None:
-            h = torch.cat([s, a], dim=-1)
-        elif model.approach is None:
-            h = torch.cat([s, a, m], dim=-1)
-        else:
-            h = torch.cat([s, a, m, approach_rate(s, m, *model.approach)], dim=-1)
-        for weight, bias in model.hidden:
+        last = k + 1 == horizon
+        h = first_layer(model, s, a, m)
+        for weight, bias in model.hidden[1:]:
             h = F.silu(torch.baddbmm(bias, h, weight))
-        out = torch.baddbmm(model.out_bias, h, model.out_weight)
+        actions.append(a)
+        if last and not states_needed:
+            costs.append(torch.baddbmm(logit_bias, h, logit_weight)[..., 0])
+            if contact is not None:  # the last state's values for the contact test; no gradient goes through it
+                with torch.no_grad():
+                    delta = torch.baddbmm(mean_bias[..., :d], h, mean_weight[..., :d])
+                    base = model.base(obs, action).expand(n, batch, d) if k == 0 else model.base(s, a)
+                    states.append(base + delta)
+            break
+        out = torch.baddbmm(mean_bias, h, mean_weight)
         # every member starts from the same state and action: the first step's base (an ego step's scan) once
         base = model.base(obs, action).expand(n, batch, d) if k == 0 else model.base(s, a)
         s_next = base + out[..., :d]
-        if m is not None and k + 1 < horizon:  # the last imagined state's motion feeds no further step
+        if model.motion and not last:  # the last imagined state's motion feeds no further step
             if model.scan is not None:
                 m = model.scan.motion(s, s_next)
             else:
-                m = next_motion(m, out[..., :d] if model.ego is None else s_next - s, model.motion_lag)
+                delta = out[..., :d] if model.ego is None else s_next - s
+                m = next_motion(torch.zeros_like(s) if m is None else m, delta, model.motion_lag)
         s = s_next
         states.append(s)
-        actions.append(a)
         costs.append(out[..., d])  # the violation logit
-        if k + 1 < horizon:
+        if not last:
             a = policy(s.reshape(n * batch, d)).reshape(n, batch, -1)
     probability = torch.sigmoid(torch.stack(costs))  # (m, N, B)
     # (x - mean)^2 by hand: Tensor.var over a non-last dim takes a slow path on CPU (milliseconds here)
     spread = (probability - probability.mean(1, keepdim=True)).square().mean(1)
     sigma_raw = spread.clamp_min(1e-12).sqrt()
-    cost = with_contact(probability, torch.stack(states[1:]), contact, closing)
+    cost = probability if contact is None else with_contact(probability, torch.stack(states[1:]), contact, closing)
     return Rollout(torch.stack(states), torch.stack(actions), cost, sigma_raw)
+
+
+def first_layer(model: FoldedModel, state: Tensor, action: Tensor, motion: Tensor | None) -> Tensor:
+    """The first hidden layer of every member on (state, action (, motion (, approach))), one product per input
+    block: the state's (a constant in the learner's losses) sends no gradient back, the action's few columns do, and
+    a ``motion`` of None (zeros: a start without the motion input) skips the motion's and the approach's blocks,
+    whose products are zero (the approach rate of no motion is 0). The layer on the concatenated input, up to the
+    order of the sums."""
+    weight, bias = model.hidden[0]
+    d, a = model.obs_dim, action.shape[-1]
+    h = torch.baddbmm(bias, state, weight[:, :d])
+    h = torch.baddbmm(h, action, weight[:, d : d + a])
+    if model.motion and motion is not None:
+        h = torch.baddbmm(h, motion, weight[:, d + a : 2 * d + a])
+        if model.approach is not None:
+            h = torch.baddbmm(h, approach_rate(state, motion, *model.approach), weight[:, 2 * d + a :])
+    return F.silu(h)
 
 
 def next_motion(motion: Tensor, delta: Tensor, lag: int) -> Tensor:
@@ -230,7 +262,8 @@ def fear(
     the action and the policy unless called under no_grad / inference_mode (the model's folded weights are
     constants, so the world model itself never receives a gradient). ``motion``: see :func:`rollout` (the
     learner's batches pass none: their fear terms then assume no motion)."""
-    ro = rollout(model, policy, obs, action, horizon or cfg.horizon, motion, *contact_terms(cfg, motion))
+    terms = contact_terms(cfg, motion)
+    ro = rollout(model, policy, obs, action, horizon or cfg.horizon, motion, *terms, states_needed=False)
     return fear_of(model, ro, cfg)
 
 

@@ -160,3 +160,18 @@ def test_sage_study_writes_the_results_document_and_then_the_readme_summary(
     result = CliRunner().invoke(app, [*args[:-1], "elsewhere.md", "--section", "highway-again"])
     assert result.exit_code == 0 and "<!-- results:highway-again -->" in (tmp_path / "elsewhere.md").read_text()
     assert "highway-again" not in (tmp_path / "README.md").read_text()
+
+
+def test_the_summary_command_with_sections_first_rewrites_each_study_section_from_its_folder(tmp_path: Path) -> None:
+    doc = tmp_path / "docs" / "results.md"
+    doc.parent.mkdir()
+    folder = _results(tmp_path, "highway-small", "aaa1111", sage=1.0, baseline=2.0)
+    update_results(doc, "highway", folder)
+    table = "# highway, budget small\n\nBudget `small`, commit `bbb2222`, wall time 1.0 min.\n"
+    (folder / "table.md").write_text(table)
+    readme = tmp_path / "README.md"
+    main(["--results-doc", str(doc), "--readme", str(readme)])
+    assert "bbb2222" not in doc.read_text()  # without --sections the sections stay as written
+    main(["--sections", "--results-doc", str(doc), "--readme", str(readme)])
+    text = doc.read_text()
+    assert "commit `bbb2222`, wall time 1.0 min (device not recorded)." in text and "aaa1111" not in text

@@ -85,7 +85,7 @@ def test_study_runs_every_seed_and_writes_rows_per_split(ray_local: None, toy_st
     runs = json.loads((tmp_path / "sweep" / "wall_times.json").read_text())
     assert len(runs) == 2 and all(r["wall_s"] > 0 for r in runs)
     total_min = sum(r["wall_s"] for r in runs) / 60
-    assert f"wall time {total_min:.1f} min" in text
+    assert f"wall time {total_min:.1f} min on the CPU (" in text  # and where: the processor's model name
     # smoke budget: two seeds (0, 1); split a: 0.0, 0.1 -> mean 0.05; split b: 1, 2 -> mean 1.5
     assert "| a | sage | 2 | 0.050 ± 0.635 | — |" in text
     assert "| b | sage | 2 | 1.500 ± 6.353 | — |" in text

@@ -74,3 +74,25 @@ def test_the_header_states_what_was_run_and_planner_rows_their_spread(tmp_path: 
     # its evaluation episodes are the versions alone in every cycle, and the header says so
     assert "alone on 10 evaluation episodes of the scenario and of an unseen one" in text
     assert "6000 environment steps per method" not in text
+
+
+def test_the_header_states_the_wall_time_and_the_device_or_that_it_was_not_recorded(tmp_path: Path) -> None:
+    """A table says where it ran (summary.json too); a folder written before tables named the device says, in the
+    results document, that it was not recorded, rather than nothing."""
+    from studies.readme import section
+
+    rows = [{"method": "sage", "seed": seed, "x": float(seed)} for seed in range(2)]
+    text = write_results(
+        tmp_path / "new", "toy", rows, ("method",), ("x",), budget("smoke"), 150.0, commit="abc", device="the CPU (Z80)"
+    ).read_text()
+    assert "commit `abc`, wall time 2.5 min on the CPU (Z80). " in text
+    assert json.loads((tmp_path / "new" / "summary.json").read_text())["device"] == "the CPU (Z80)"
+    doc = tmp_path / "results.md"
+    assert "wall time 2.5 min on the CPU (Z80). " in section("toy", tmp_path / "new", doc)
+    unknown = write_results(tmp_path / "unknown", "toy", rows, ("method",), ("x",), budget("smoke"), 150.0, commit="a")
+    assert "wall time 2.5 min (device not recorded). " in unknown.read_text()
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "table.md").write_text("# toy\n\nBudget `smoke` (...), commit `abc`, wall time 2.5 min. Paper columns ...\n")
+    shown = section("toy", old, doc)
+    assert "wall time 2.5 min (device not recorded). Paper columns" in shown and shown.count("not recorded") == 1

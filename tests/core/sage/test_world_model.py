@@ -261,7 +261,8 @@ def test_the_gate_kernel_agrees_with_fear_when_there_is_motion(lag: int, scan: b
 def test_the_rollout_moves_each_state_by_the_ego_step_once_for_all_members(monkeypatch: pytest.MonkeyPatch) -> None:
     """The members start from the same state and action, so the first imagined step's ego step runs on each row
     once (the actor loss's fear sends gradients through its tensor version, the costly one), and the rollout is the
-    one that moves every member's copy, gradients included; later steps, where the members part, move each."""
+    one that moves every member's copy, gradients included; later steps, where the members part, move each (but the
+    last, whose state fear reads only for contact: off here)."""
     from core.motion import EgoScanStep
     from core.sage.fear import fear
 
@@ -280,9 +281,9 @@ def test_the_rollout_moves_each_state_by_the_ego_step_once_for_all_members(monke
 
     monkeypatch.setattr(EgoScanStep, "apply", counted)
     act = torch.as_tensor(a[:batch]).requires_grad_(True)
-    value = fear(folded, lambda x: torch.zeros(x.shape[0], ACT), obs, act, cfg, horizon=2).fear.sum()
+    value = fear(folded, lambda x: torch.zeros(x.shape[0], ACT), obs, act, cfg, horizon=3).fear.sum()
     (grad,) = torch.autograd.grad(value, act)
-    assert rows == [batch, folded.members * batch]
+    assert rows == [batch, folded.members * batch]  # steps 1 and 2; step 3's state is not needed
     # each member's copy moved on its own, as before: the same states, fear and gradient
     act_each = torch.as_tensor(a[:batch]).requires_grad_(True)
     expanded = act_each.unsqueeze(0).expand(folded.members, batch, ACT)
