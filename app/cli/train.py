@@ -265,6 +265,27 @@ def _label(run: Path) -> str:
     return f"{run.parent.name}/{run.stem}"
 
 
+def run_labels(runs: list[Path]) -> list[str]:
+    """A table label per run, distinct even where runs share a name (the v0008 of several cycles runs): such runs
+    are named by as many of their parent folders as it takes, else numbered. Rows are keyed by label, so two runs
+    under one label would show as one."""
+    labels = [_label(run) for run in runs]
+    for depth in range(1, max((len(run.parts) for run in runs), default=0)):
+        repeated = {label for label in labels if labels.count(label) > 1}
+        if not repeated:
+            return labels
+        labels = [
+            "/".join([*run.parts[-depth - 1 : -1], label.rsplit("/", 1)[-1]]) if label in repeated else label
+            for run, label in zip(runs, labels, strict=True)
+        ]
+    seen: dict[str, int] = {}
+    numbered = []
+    for label in labels:
+        seen[label] = seen.get(label, 0) + 1
+        numbered.append(label if labels.count(label) == 1 else f"{label} #{seen[label]}")
+    return numbered
+
+
 def _write_rows(save: Path, rows: list[dict[str, Any]]) -> None:
     save.parent.mkdir(parents=True, exist_ok=True)
     with save.open("w") as f:
@@ -326,7 +347,7 @@ def _evaluate_and_format(
     named: dict[str, list[dict[str, Any]]] = {}
     sims_seen: list[str] = []
     all_rows: list[dict[str, Any]] = []
-    for run in runs:
+    for run, label in zip(runs, run_labels(runs), strict=True):
         if is_planner(str(run)):  # a planner that is not a learner: no checkpoint, no gate
             if gate:
                 fail(f"{run} is a planner: it has no world model, so no SAGE gate (drop --gate)")
@@ -366,7 +387,6 @@ def _evaluate_and_format(
                 fail(str(exc))
             for s, rows in by_scenario.items():
                 results.setdefault(s, []).extend(dict(r, seed=seed) for r in rows)
-        label = _label(run)
         for s, rows in results.items():
             named[f"{label} ({sim} {s})"] = rows
             all_rows += [dict(r, run=str(run)) for r in rows]

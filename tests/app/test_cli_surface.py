@@ -5,6 +5,7 @@ method, planner and study."""
 from __future__ import annotations
 
 import re
+import shutil
 from pathlib import Path
 
 import pytest
@@ -125,3 +126,24 @@ def test_help_names_every_method_planner_and_study() -> None:
     assert code == 0 and "The study: " + ", ".join(study_names()) + "." in out
     for study in study_names():
         assert f"{study}: {', '.join(get_study(study).methods)}" in out
+
+
+def test_eval_side_by_side_keeps_runs_that_share_a_name(tmp_path: Path) -> None:
+    """Several cycles runs' v0008 side by side: each gets its own rows (they were merged into one, the last)."""
+    from app.cli.train import run_labels
+
+    runs = [tmp_path / f"sage-s{seed}" / "versions" / "v0008" for seed in (0, 1)]
+    assert run_labels([Path("policies/ugv-default"), *runs]) == [
+        "ugv-default",
+        "sage-s0/versions/v0008",
+        "sage-s1/versions/v0008",
+    ]
+    assert run_labels([Path("a/run"), Path("a/run")]) == ["a/run #1", "a/run #2"]  # the same run twice
+    copies = []
+    for name in ("a", "b"):
+        copy = tmp_path / name / "ugv-default"
+        shutil.copytree(UGV_DEFAULT, copy)
+        copies.append(str(copy))
+    code, out = sage("eval", *copies, "--scenario", "1", "--episodes", "1", "--quiet")
+    assert code == 0, out
+    assert "a/ugv-default (ugv 1)" in out and "b/ugv-default (ugv 1)" in out
