@@ -37,3 +37,11 @@ def test_the_cycles_study_compares_fine_tuning_with_a_frozen_control_alone_and_s
     assert trial({**config, "method": "frozen"}) == results["frozen"]  # a finished folder is read back
     drawn = figures(tmp_path / "results", {"runs_dir": str(tmp_path)})
     assert [p.name for p in drawn] == ["cycles_improvement.png"] and drawn[0].read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_cycles_study_passes_fine_tuning_settings_to_its_rounds(tmp_path: Path) -> None:
+    config = {"seed": 0, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
+    trial({**config, "method": "sage", "finetune": ["critic_warmup=5"]})
+    tuned = json.loads((tmp_path / "sage-s0" / "cycles.json").read_text())
+    assert tuned["config"]["finetune"]["critic_warmup"] == 5
+    assert tuned["rounds"][0]["losses"]["critic_warmup_updates"] == 5
