@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from studies.cycles_study import METRICS, cycles_for, figures, steps_per_cycle, trial
+from studies.cycles_study import METRICS, cycles_above_first, cycles_for, figures, steps_per_cycle, trial
 from studies.registry import get_study
 
 
@@ -37,6 +37,14 @@ def test_the_cycles_study_compares_fine_tuning_with_a_frozen_control_alone_and_s
     assert trial({**config, "method": "frozen"}) == results["frozen"]  # a finished folder is read back
     drawn = figures(tmp_path / "results", {"runs_dir": str(tmp_path)})
     assert [p.name for p in drawn] == ["cycles_improvement.png"] and drawn[0].read_bytes()[:4] == b"\x89PNG"
+
+
+def test_cycles_with_more_supervised_collisions_than_the_first_are_counted() -> None:
+    """The issue's "no cycle with more supervised collisions than the first": a middle cycle counts too."""
+    rows = [{"collision": 0.2}, {"collision": 0.4}, {"collision": 0.2}, {"collision": None}, {"collision": 0.25}]
+    assert cycles_above_first(rows, "collision") == 2  # 0.4 and 0.25; equal to the first is not above it
+    assert cycles_above_first([{"collision": 0.0}, {"collision": 0.0}], "collision") == 0
+    assert cycles_above_first([], "collision") == 0
 
 
 def test_the_cycles_study_passes_fine_tuning_settings_to_its_rounds(tmp_path: Path) -> None:
