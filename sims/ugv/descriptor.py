@@ -11,6 +11,9 @@ from sims.ugv.fields import parse_field_name
 from sims.ugv.lidar import footprint_ranges
 from sims.ugv.metrics import METRIC_COLUMNS
 
+REPOSITORY = Path(__file__).resolve().parents[2]
+"""Where a relative scenario path that is not found from the working directory is looked up."""
+
 
 def _scenario_file(name: str) -> dict[str, Any]:
     """Any scenario YAML file (schema: :mod:`sims.ugv.scenario`) is a scenario too, and so is a generated field's name
@@ -20,6 +23,10 @@ def _scenario_file(name: str) -> dict[str, Any]:
         return {"scenario": selection}
     path = Path(name).expanduser()
     if path.suffix.lower() in (".yaml", ".yml"):
+        if not path.is_file() and not path.is_absolute() and (REPOSITORY / path).is_file():
+            # the project's policies record their scenario files from the repository root (ugv-default's
+            # sims/ugv/scenarios/clutter.yaml): they must resolve from any working directory, e.g. a Ray trial's
+            path = REPOSITORY / path
         if not path.is_file():
             raise ValueError(f"scenario file not found: {path}")
         return {"scenario": str(path)}
