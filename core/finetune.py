@@ -21,7 +21,8 @@ A round
   3. runs ``updates_per_step`` gradient updates per new step (at most ``updates``) of the learner: with
      ``adapt_as_sage`` (the default) fear-regularised SAGE with value-weighted imitation of the takeovers whatever
      the base was trained as (:func:`adaptation_config`), its optimiser states continued; each update guarded (an
-     update whose losses or weights come out NaN or infinite is undone, :func:`guarded_update`), the round stopped
+     update whose losses or weights come out NaN or infinite is undone, :func:`guarded_update`), the first
+     ``critic_warmup`` of them on the critics alone (:func:`critic_only_update`), the round stopped
      early when the held-out takeovers' imitation error stops falling, and the weights of its lowest error kept;
   4. publishes a new version when the round stayed healthy (all weights finite, at most
      ``max_skipped_fraction`` of its updates undone). A failed round publishes nothing, so the last good
@@ -103,6 +104,13 @@ class FinetuneConfig:
     early_stop_patience: int = 4
     """Measurements without a new lowest held-out error before the round stops; the weights of the lowest
     measurement (the round's starting weights count as the first) are the ones published."""
+    critic_warmup: int = 0
+    """Updates at the start of every round that train the critics only (the actor, α and λ held; the anchors'
+    critic warm-up), so that the actor is not pushed by a critic that has not yet seen the round's new data (and,
+    in the first round, SAGE's fear-regularised target on a base trained as plain SAC). Counted within the round's
+    planned updates (the round's cost is unchanged; the actor gets the rest); early stopping measures only after it.
+    A learner without a separate critic step (D3QN: its whole update is the value network) runs its usual update.
+    0: none (the behaviour before this field)."""
     tau_bounds: TauBoundsRule = "hold"
     """What a world-model refit does to the gate's threshold bounds (τ_min, τ_max, measured on the fear of
     familiar states): ``hold`` keeps the base's within the run of rounds, so that a change in takeover rate is the
@@ -152,6 +160,8 @@ class FinetuneConfig:
             raise ValueError(f"prior_share must be in [0, 1), got {self.prior_share}")
         if not 0.0 <= self.holdout_share <= 0.5:
             raise ValueError(f"holdout_share must be in [0, 0.5], got {self.holdout_share}")
+        if self.critic_warmup < 0:
+            raise ValueError(f"critic_warmup must be >= 0, got {self.critic_warmup}")
         if self.prior_episodes < 0 or self.early_stop_every < 1 or self.early_stop_patience < 1:
             raise ValueError("prior_episodes >= 0, early_stop_every >= 1 and early_stop_patience >= 1 are needed")
         if self.tau_bounds not in ("hold", "refit", "drift"):
@@ -279,6 +289,25 @@ def guarded_update(learner: BaseLearner) -> tuple[dict[str, float], bool]:
     """One ``learner.update()``, undone when a loss or a weight comes out NaN/inf: the learner's own guarded
     update (:meth:`BaseLearner.guarded_update`, the one online training uses too). Returns (stats, applied)."""
     return learner.guarded_update()
+
+
+def critic_only_update(learner: BaseLearner) -> tuple[dict[str, float], bool]:
+    """One update of the critics alone on a sampled batch (the actor, α and λ untouched), undone like
+    :func:`guarded_update` when a loss or a weight comes out NaN/inf. A learner without a separate critic step
+    (``critic_step``) runs its whole guarded update. Returns (stats, applied)."""
+    critic_step: Callable[[Batch], dict[str, float]] | None = getattr(learner, "critic_step", None)
+    if critic_step is None:
+        return learner.guarded_update()
+    snapshot = learner._snapshot()
+    try:
+        stats = critic_step(learner.buffer.sample(learner.cfg.batch_size, learner.rng))
+    except FloatingPointError:
+        stats = {"error": math.nan}
+    if all(math.isfinite(float(v)) for v in stats.values()) and learner.weights_finite():
+        learner.updates += 1
+        return stats, True
+    learner._restore(snapshot)
+    return stats, False
 
 
 # -- the session as training data -----------------------------------------------------------------------------
@@ -648,6 +677,7 @@ class Finetuner:
             report({"phase": "fitting world model"})
             wm_stats = self._refit_world_model()
         planned = cfg.round_updates(ingested.steps)
+        warmup = min(cfg.critic_warmup, planned)
         lam_start = learner.lam
         best_error = self.heldout_error()
         best_snapshot = learner._snapshot() if best_error is not None else None
@@ -659,7 +689,7 @@ class Finetuner:
             if stop():
                 result.reason = "stopped"
                 return result
-            stats, applied = guarded_update(learner)
+            stats, applied = critic_only_update(learner) if k < warmup else guarded_update(learner)
             if applied:
                 result.updates += 1
                 for key, value in stats.items():
@@ -681,7 +711,10 @@ class Finetuner:
                         "losses": means,
                     }
                 )
-            if best_error is not None and (k + 1) % cfg.early_stop_every == 0:
+            if best_error is not None and k + 1 == warmup:
+                # the actor has not moved (the same held-out error): the round's starting point is now the warmed critic
+                best_at, best_snapshot = k + 1, learner._snapshot()
+            if best_error is not None and k + 1 > warmup and (k + 1 - warmup) % cfg.early_stop_every == 0:
                 error = self.heldout_error()
                 if error is not None and error < best_error:
                     best_error, best_at, since_best = error, k + 1, 0
@@ -695,6 +728,7 @@ class Finetuner:
             learner._restore(best_snapshot)  # the weights of the lowest held-out imitation error
         result.losses = {key: sums[key] / counts[key] for key in sums} | wm_stats
         result.losses["lam_start"], result.losses["lam_end"] = lam_start, learner.lam
+        result.losses["critic_warmup_updates"] = warmup
         if best_error is not None:
             result.losses["heldout_imitation_error"] = best_error
         result.seconds = time.time() - started

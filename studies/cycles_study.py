@@ -82,6 +82,7 @@ def budget_text(budget: Budget, settings: Mapping[str, Any]) -> str:
 
 def trial(config: dict[str, Any]) -> dict[str, float]:
     """One method on one seed: the cycles (resumable: a finished folder is read back), first and last cycle."""
+    from core.finetune import FinetuneConfig
     from studies.cycles import CyclesConfig, read_cycles, run_cycles
     from studies.envs import env_factory
 
@@ -100,6 +101,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             alone_episodes=int(config["eval_episodes"]),
             seed=1000 * seed,
             fine_tune=method != "frozen",
+            finetune=FinetuneConfig(min_steps=1, min_takeover_samples=0).with_settings(config.get("finetune", ())),
             max_episode_steps=config.get("max_episode_steps"),
         )
         run_cycles(cfg, out, env_factory(sim))
@@ -159,7 +161,7 @@ STUDY = StudyDef(
         "after the first whose supervised collision rate is above the first's. Collisions end the episode. The paper "
         "shows this study as curves (Fig. field_test_1), so no paper numbers stand beside.",
     ),
-    settings={"sim": "ugv", "scenario": "3", "policy": str(DEFAULT_POLICY)},
+    settings={"sim": "ugv", "scenario": "3", "policy": str(DEFAULT_POLICY), "finetune": ()},
     learner_overrides=False,
     budget_text=budget_text,
     figures=figures,

@@ -5,11 +5,13 @@
     sage study highway --methods sac,sage --train-steps 40000 --out results/highway-40k   # a longer comparison
     sage study ugv --methods sage --set learner.fear_budget_from_data=false             # an ablation
     sage study pedestrian --set study.expert=hg-dagger                                    # a study setting
+    sage study cycles --set finetune.critic_warmup=200                                    # its rounds' setting
 
 The budget (``smoke|small|full``) is counted in environment steps, the same for every method. Rerunning the
 same command resumes the sweep in ``OUT/sweep``. Writes ``seeds.csv``, ``table.md`` (mean ± 95% CI with the
 paper's numbers beside), ``summary.json`` and figures, and prints the wall time. ``--set`` takes the study's
-settings (``study.KEY=VALUE``) and learner settings every method trains with (``learner.KEY=VALUE``, or the
+settings (``study.KEY=VALUE``), the fine-tuning rounds' of a study that runs them (``finetune.KEY=VALUE``,
+:class:`core.finetune.FinetuneConfig`) and learner settings every method trains with (``learner.KEY=VALUE``, or the
 field's path in :class:`core.sage.config.AgentConfig`), read by the one parser of every command
 (:mod:`app.cli.options`).
 """
@@ -33,6 +35,10 @@ from app.cli.options import (
     refuse_retired,
     routed_settings,
 )
+from core.dotted import Section
+
+FINETUNE_SECTIONS: dict[str, Section] = {"finetune": Section("finetune")}
+"""``--set finetune.KEY=VALUE``: a setting of the fine-tuning rounds (studies that run them: cycles)."""
 
 
 def register(app: typer.Typer) -> None:
@@ -75,7 +81,9 @@ def register(app: typer.Typer) -> None:
                 "--set",
                 help="A setting, section.key=value (repeatable): study.KEY=VALUE, a setting of the study (e.g. "
                 f"study.expert=hg-dagger for pedestrian); {LEARNER_SET_HELP}, a learner setting every method trains "
-                "with (an ablation, e.g. learner.fear_budget_from_data=false).",
+                "with (an ablation, e.g. learner.fear_budget_from_data=false); finetune.KEY=VALUE, a setting of the "
+                "fine-tuning rounds of a study that runs them (cycles; core.finetune.FinetuneConfig, e.g. "
+                "finetune.critic_warmup=200).",
             ),
         ] = None,
         methods: Annotated[
@@ -99,7 +107,7 @@ def register(app: typer.Typer) -> None:
 
         refuse_retired(learner_set=learner_set)
         resolved_device = checked_device(device)
-        settings = routed_settings(set_, STUDY_SECTIONS | LEARNER_SECTIONS, other="learner")
+        settings = routed_settings(set_, STUDY_SECTIONS | LEARNER_SECTIONS | FINETUNE_SECTIONS, other="learner")
         learner_overrides = settings.get("learner", [])
         try:
             known = get_study(name).settings
@@ -112,6 +120,8 @@ def register(app: typer.Typer) -> None:
             if budget not in BUDGET_NAMES:
                 raise ValueError(f"unknown budget {budget!r}; choose one of {', '.join(BUDGET_NAMES)}")
             overrides = study_settings(name, known, settings.get("study", []))
+            if settings.get("finetune"):
+                overrides["finetune"] = finetune_settings(name, known, settings["finetune"])
             for pair in learner_overrides:
                 key = pair.partition("=")[0]
                 if key in known:  # a study setting given as the learner's
@@ -152,6 +162,20 @@ def study_settings(name: str, known: dict[str, Any], pairs: list[str]) -> dict[s
             raise ValueError(f"--set study.{pair}: {name} has no setting {key!r}; its: {', '.join(known) or 'none'}")
         overrides[key] = setting_value(known[key], value, key)
     return overrides
+
+
+def finetune_settings(name: str, known: dict[str, Any], pairs: list[str]) -> list[str]:
+    """``KEY=VALUE`` pairs (``--set finetune.KEY=VALUE``) for the fine-tuning rounds of a study that runs them (its
+    ``finetune`` setting), checked against :class:`core.finetune.FinetuneConfig`; other studies refuse them."""
+    from core.finetune import FinetuneConfig
+
+    if "finetune" not in known:
+        raise ValueError(f"--set finetune.{pairs[0]}: {name} runs no fine-tuning rounds")
+    try:
+        FinetuneConfig().with_settings(pairs)  # an unknown field or an unreadable value is one error line here
+    except ValueError as error:
+        raise ValueError(f"--set finetune.: {error}") from None
+    return [*known["finetune"], *pairs]
 
 
 def _budget_help() -> str:

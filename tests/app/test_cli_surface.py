@@ -85,6 +85,9 @@ def test_a_bad_set_is_one_line_and_exit_2() -> None:
         (["study", "pedestrian", "--set", "study.nope=1"], "pedestrian has no setting 'nope'"),
         (["study", "pedestrian", "--set", "expert=x"], "expert is a setting of pedestrian, --set study.expert=x"),
         (["study", "pedestrian", "--set", "learner.hidden=x"], "--set learner.hidden=x: hidden: cannot read 'x'"),
+        (["study", "ugv", "--set", "finetune.critic_warmup=2"], "ugv runs no fine-tuning rounds"),
+        (["study", "cycles", "--set", "finetune.nope=1"], "--set finetune.: unknown config field 'nope'"),
+        (["study", "cycles", "--set", "finetune.critic_warmup=-1"], "critic_warmup must be >= 0, got -1"),
         (["serve", "--gate-set", "hold_seconds=2"], "--set gate.hold_seconds=2"),
         (["serve", "--set", "hold_seconds=2"], "names no section this command takes: gate.KEY=VALUE"),
     ):

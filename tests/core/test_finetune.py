@@ -465,3 +465,37 @@ def test_the_checkpoints_optimiser_states_are_carried_over(setup) -> None:
     assert carried.actor_optimizer.state_dict()["state"]  # Adam's moments and step, not a fresh Adam
     fresh = Finetuner(versions, store, session, fast(carry_optimizer=False)).learner
     assert not fresh.actor_optimizer.state_dict()["state"]
+
+
+def test_a_critic_warmup_holds_the_actor_for_its_first_updates_then_lets_it_move(setup) -> None:
+    with pytest.raises(ValueError, match="critic_warmup"):
+        FinetuneConfig(critic_warmup=-1)
+    versions, store, session = setup
+    finetuner = Finetuner(versions, store, session, fast(updates=60, critic_warmup=30, report_every=10))
+    learner = finetuner.learner
+    start_actor = {k: v.clone() for k, v in learner.actor.state_dict().items()}
+    start_critic = {k: v.clone() for k, v in learner.critic.state_dict().items()}
+    start_alpha, start_lam = float(learner.log_alpha.detach()), learner.lam
+    seen: dict[int, tuple[bool, bool, bool]] = {}
+
+    def watch(event: dict[str, Any]) -> None:
+        if event.get("phase") == "training":
+            actor_same = all(torch.equal(start_actor[k], v) for k, v in learner.actor.state_dict().items())
+            critic_same = all(torch.equal(start_critic[k], v) for k, v in learner.critic.state_dict().items())
+            held = float(learner.log_alpha.detach()) == start_alpha and learner.lam == start_lam
+            seen[int(event["update"])] = (actor_same, critic_same, held)
+
+    result = finetuner.round(progress=watch)
+    assert result.version is not None and result.losses["critic_warmup_updates"] == 30
+    for update in (10, 20, 30):  # the warm-up: the critics learn, the actor, α and λ do not move
+        assert seen[update] == (True, False, True), update
+    for update in (40, 50, 60):  # after it the actor moves
+        assert not seen[update][0], update
+    moved = load_agent(result.version.path).actor.state_dict()
+    assert any(not torch.equal(start_actor[k], v) for k, v in moved.items())
+
+    # early stopping measures only after the warm-up: the round cannot stop while the actor is held
+    cfg = fast(updates=200, critic_warmup=120, holdout_share=0.5, early_stop_every=10, early_stop_patience=2)
+    warmed = Finetuner(versions, store, session, cfg).round()
+    assert warmed.version is not None and warmed.updates + warmed.skipped > 120
+    assert warmed.version.metrics["kept_update"] >= 120

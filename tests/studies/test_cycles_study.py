@@ -45,3 +45,11 @@ def test_cycles_with_more_supervised_collisions_than_the_first_are_counted() -> 
     assert cycles_above_first(rows, "collision") == 2  # 0.4 and 0.25; equal to the first is not above it
     assert cycles_above_first([{"collision": 0.0}, {"collision": 0.0}], "collision") == 0
     assert cycles_above_first([], "collision") == 0
+
+
+def test_the_cycles_study_passes_fine_tuning_settings_to_its_rounds(tmp_path: Path) -> None:
+    config = {"seed": 0, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
+    trial({**config, "method": "sage", "finetune": ["critic_warmup=5"]})
+    tuned = json.loads((tmp_path / "sage-s0" / "cycles.json").read_text())
+    assert tuned["config"]["finetune"]["critic_warmup"] == 5
+    assert tuned["rounds"][0]["losses"]["critic_warmup_updates"] == 5
