@@ -43,6 +43,10 @@ def section(name: str, results: Path, readme: Path) -> str:
     figures = sorted(p.name for p in results.glob("*.png"))
     # the table's own headings sit under the study's heading in the document
     body = "\n".join("####" + line[1:] if line.startswith("# ") else line for line in table.read_text().splitlines())
+    ran_on = _OLD_DEVICE_NOTE.search(body)
+    if ran_on:  # tables written between the two formats name the device in a note under the table: into the header
+        body = _OLD_DEVICE_NOTE.sub("", body, count=1)
+        body = _OLD_WALL_TIME.sub(rf"\1 on {ran_on['device']}.", body, count=1)
     body = _OLD_WALL_TIME.sub(rf"\1 ({NO_DEVICE}).", body, count=1)
     lines = [body.strip(), "", f"Results folder: [`{link}`]({link}) (per-seed rows in `seeds.csv`)."]
     if figures:
@@ -52,6 +56,9 @@ def section(name: str, results: Path, readme: Path) -> str:
 
 _OLD_WALL_TIME = re.compile(r"(wall time [0-9.]+ min)\.")
 """A header's wall time written before tables named the device (:func:`studies.results.wall_and_device`)."""
+
+_OLD_DEVICE_NOTE = re.compile(r"\n- The learners' updates ran on (?P<device>[^\n]+)\.(?=\n|$)")
+"""The note under a table that named the device before its header did."""
 
 
 def relative_link(target: Path, document: Path) -> str:

@@ -175,3 +175,16 @@ def test_the_summary_command_with_sections_first_rewrites_each_study_section_fro
     main(["--sections", "--results-doc", str(doc), "--readme", str(readme)])
     text = doc.read_text()
     assert "commit `bbb2222`, wall time 1.0 min (device not recorded)." in text and "aaa1111" not in text
+
+
+def test_a_device_named_in_a_note_under_an_older_table_moves_into_its_header(tmp_path: Path) -> None:
+    doc = tmp_path / "docs" / "results.md"
+    doc.parent.mkdir()
+    folder = _results(tmp_path, "cycles-small", "aaa1111", sage=1.0, baseline=2.0)
+    note = "- The learners' updates ran on the CPU (AMD EPYC)."
+    table = f"# cycles\n\nBudget `small`, commit `ccc3333`, wall time 11.0 min.\n\n| a |\n|---|\n\n- A note.\n{note}\n"
+    (folder / "table.md").write_text(table)
+    update_results(doc, "cycles", folder)
+    text = doc.read_text()
+    assert "wall time 11.0 min on the CPU (AMD EPYC)." in text
+    assert note not in text and "- A note." in text and "device not recorded" not in text
