@@ -105,7 +105,10 @@ HEADLINES: dict[str, tuple[Headline, ...]] = {
         Headline("collisions while learning (% of episodes)", "train_collision_rate", "sage-d3qn", "d3qn", scale=100),
     ),
     "route-shift": (Headline("collisions alone on route 2 (%)", "eval_route2_collision", "sage", "sac", scale=100),),
-    "cycles": (Headline("takeover rate, last cycle − first (points)", "takeover_change", "sage", "frozen", scale=100),),
+    "cycles": (
+        Headline("success alone after the last cycle (%)", "alone_success_last", "sage", "frozen", scale=100),
+        Headline("takeover rate, last cycle − first (points)", "takeover_change", "sage", "frozen", scale=100),
+    ),
 }
 """The headline of each study (by the ``study`` its ``summary.json`` names): what a newcomer asks of it first."""
 
