@@ -260,8 +260,10 @@ class SharedReplayBuffer(ReplayBuffer):
     drawn in fixed shares from the two (``prior_share`` from the prior rows), as RLPD and HIL-SERL sample offline
     or intervention data beside online data. Everything else (world-model fits, takeover samples) sees all rows."""
 
-    def __init__(self, obs_dim: int, act_dim: int, capacity: int, prior_share: float) -> None:
-        super().__init__(obs_dim, act_dim, capacity)
+    def __init__(
+        self, obs_dim: int, act_dim: int, capacity: int, prior_share: float, device: torch.device | str = "cpu"
+    ) -> None:
+        super().__init__(obs_dim, act_dim, capacity, device)
         self.prior = np.zeros(capacity, bool)
         self.prior_share = prior_share
         self.adding_prior = False
@@ -526,7 +528,8 @@ class Finetuner:
             device=self.cfg.device,
         )
         old = self.learner.buffer
-        self.buffer = SharedReplayBuffer(old.obs_dim, old.act_dim, old.capacity, self.cfg.prior_share)
+        # sampled batches go where the learner's updates run, as the buffer it replaces sent them
+        self.buffer = SharedReplayBuffer(old.obs_dim, old.act_dim, old.capacity, self.cfg.prior_share, old.device)
         self.learner.buffer = self.buffer
         self._load(payload, start)
         if hasattr(self.learner, "prior_distill"):

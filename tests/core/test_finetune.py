@@ -399,10 +399,14 @@ def test_the_base_policys_own_drives_are_sampled_in_equal_shares_with_the_sessio
         buffer.add(np.zeros(2), np.zeros(1), 0.0, np.zeros(2), False)
     batch = buffer.sample(256, np.random.default_rng(0))
     assert int(batch.obs[:, 0].sum()) == 128  # 10 prior rows among 310 still fill half of every batch
+    elsewhere = SharedReplayBuffer(2, 1, 10, prior_share=0.5, device="meta")  # a stand-in for the learner's CUDA
+    elsewhere.add(np.ones(2), np.zeros(1), 0.0, np.ones(2), False)
+    assert elsewhere.sample(4, np.random.default_rng(0)).obs.device.type == "meta"
 
     versions, store, session = setup
     prior = functools.partial(drive_alone, make_env=point_env, scenarios=["static"])
     finetuner = Finetuner(versions, store, session, fast(prior_episodes=2), prior=prior)
+    assert finetuner.buffer.device == finetuner.learner.device  # batches go where the updates run
     result = finetuner.round()
     assert result.version is not None
     assert result.version.metrics["prior_steps"] == finetuner.buffer.prior_count() > 0
