@@ -111,6 +111,15 @@ class FinetuneConfig:
     planned updates (the round's cost is unchanged; the actor gets the rest); early stopping measures only after it.
     A learner without a separate critic step (D3QN: its whole update is the value network) runs its usual update.
     0: none (the behaviour before this field)."""
+    prior_distill: float = 0.0
+    """Weight of a distillation anchor on the base policy's own drives: the actor's loss gains
+    ``prior_distill · max(1, mean|Q|) · mean ||μ_θ(s) - a_base||²`` over a batch of ``bc_batch_size`` prior rows, a_base
+    the action the base (``v0000``) took there (its deterministic action: the drives run deterministic, no gate). The
+    weight is dimensionless, on the imitation term's scale (``bc_weight · max(1, mean|Q|) · mean ω||μ_θ(s) - a_E||²``):
+    1.0 pulls toward the base's actions on its own states as hard as imitation pulls toward the expert's at ω = 1.
+    The prior rows otherwise train only the critic; this holds the actor to what the base did there (forgetting of
+    the static scenarios). Actor-critic SAC learners only (a learner without it warns and runs without). 0: none
+    (the behaviour before this field)."""
     tau_bounds: TauBoundsRule = "hold"
     """What a world-model refit does to the gate's threshold bounds (τ_min, τ_max, measured on the fear of
     familiar states): ``hold`` keeps the base's within the run of rounds, so that a change in takeover rate is the
@@ -160,6 +169,8 @@ class FinetuneConfig:
             raise ValueError(f"prior_share must be in [0, 1), got {self.prior_share}")
         if not 0.0 <= self.holdout_share <= 0.5:
             raise ValueError(f"holdout_share must be in [0, 0.5], got {self.holdout_share}")
+        if not (math.isfinite(self.prior_distill) and self.prior_distill >= 0):
+            raise ValueError(f"prior_distill must be a number >= 0, got {self.prior_distill}")
         if self.critic_warmup < 0:
             raise ValueError(f"critic_warmup must be >= 0, got {self.critic_warmup}")
         if self.prior_episodes < 0 or self.early_stop_every < 1 or self.early_stop_patience < 1:
@@ -249,8 +260,10 @@ class SharedReplayBuffer(ReplayBuffer):
     drawn in fixed shares from the two (``prior_share`` from the prior rows), as RLPD and HIL-SERL sample offline
     or intervention data beside online data. Everything else (world-model fits, takeover samples) sees all rows."""
 
-    def __init__(self, obs_dim: int, act_dim: int, capacity: int, prior_share: float) -> None:
-        super().__init__(obs_dim, act_dim, capacity)
+    def __init__(
+        self, obs_dim: int, act_dim: int, capacity: int, prior_share: float, device: torch.device | str = "cpu"
+    ) -> None:
+        super().__init__(obs_dim, act_dim, capacity, device)
         self.prior = np.zeros(capacity, bool)
         self.prior_share = prior_share
         self.adding_prior = False
@@ -263,6 +276,13 @@ class SharedReplayBuffer(ReplayBuffer):
 
     def prior_count(self) -> int:
         return int(self.prior[: self.size].sum())
+
+    def sample_prior(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
+        """Prior rows only (the batch of the distillation anchor, ``FinetuneConfig.prior_distill``); None if none."""
+        prior = np.flatnonzero(self.prior[: self.size])
+        if len(prior) == 0:
+            return None
+        return self._batch(prior[rng.integers(0, len(prior), size=batch_size)])
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
         prior = np.flatnonzero(self.prior[: self.size])
@@ -508,9 +528,16 @@ class Finetuner:
             device=self.cfg.device,
         )
         old = self.learner.buffer
-        self.buffer = SharedReplayBuffer(old.obs_dim, old.act_dim, old.capacity, self.cfg.prior_share)
+        # sampled batches go where the learner's updates run, as the buffer it replaces sent them
+        self.buffer = SharedReplayBuffer(old.obs_dim, old.act_dim, old.capacity, self.cfg.prior_share, old.device)
         self.learner.buffer = self.buffer
         self._load(payload, start)
+        if hasattr(self.learner, "prior_distill"):
+            self.learner.prior_distill = self.cfg.prior_distill
+        elif self.cfg.prior_distill > 0:
+            _log.warning(
+                "prior_distill has no effect on %s (no actor to anchor): the rounds run without it", agent_cfg.method
+            )
         self.prior = prior
         self.prior_steps: int | None = None
         """Steps of the base policy's own drives in the buffer (None until collected)."""

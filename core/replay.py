@@ -153,6 +153,10 @@ class ReplayBuffer:
             return None
         return self._batch(idx[rng.integers(0, len(idx), size=batch_size)])
 
+    def sample_prior(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
+        """Rows of a base policy's own drives only (a fine-tuning buffer keeps them apart); a plain buffer has none."""
+        return None
+
     def arrays(self) -> dict[str, np.ndarray]:
         """Views of the filled part (for world-model fits)."""
         n = self.size

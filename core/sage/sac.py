@@ -115,6 +115,9 @@ class SAC(ActorLearner):
         self.log_alpha = torch.tensor(math.log(cfg.init_alpha), device=self.device, requires_grad=True)
         self.alpha_optimizer = adam([self.log_alpha], cfg.alpha_lr, self.captures)
         self.target_entropy = -float(act_dim) if cfg.target_entropy is None else cfg.target_entropy
+        self.prior_distill = 0.0
+        """Weight of the distillation anchor on the buffer's prior rows (set by fine-tuning:
+        ``FinetuneConfig.prior_distill``); 0: no anchor batch is drawn."""
 
     # -- pieces ------------------------------------------------------------------------------------
     @property
@@ -189,8 +192,12 @@ class SAC(ActorLearner):
         assert self.virtual is not None
         return torch.cat([batch.obs[:n_real], self.virtual.sample_obs(n_virtual, self.rng)]), n_real
 
-    def actor_loss(self, batch: Batch, imitation: Batch | None) -> tuple[Tensor, Tensor, dict[str, float]]:
-        """The composite actor loss, the log-probabilities (for α) and statistics."""
+    def actor_loss(
+        self, batch: Batch, imitation: Batch | None, anchor: Batch | None = None
+    ) -> tuple[Tensor, Tensor, dict[str, float]]:
+        """The composite actor loss, the log-probabilities (for α) and statistics. ``anchor``: prior rows whose
+        recorded actions (``a_rl``, the base policy's) the deterministic action is held to, with weight
+        ``prior_distill`` on the imitation's scale (no ω: the base's action is not judged by the critic)."""
         cfg = self.cfg
         states, n_real = self.actor_states(batch)
         action, log_prob = self.actor.sample(states)
@@ -212,6 +219,10 @@ class SAC(ActorLearner):
             bc = (omega * error).mean()
             loss = loss + cfg.bc_weight * q_scale * bc
             stats.update(bc_loss=bc.item(), omega_mean=omega.mean().item())
+        if anchor is not None:
+            distill = (self.actor.deterministic(anchor.obs) - anchor.a_rl).pow(2).sum(-1).mean()
+            loss = loss + self.prior_distill * q_scale * distill
+            stats["prior_distill_loss"] = distill.item()
         return loss, log_prob, stats
 
     def imitation_batch(self) -> Batch | None:
@@ -219,10 +230,16 @@ class SAC(ActorLearner):
             return None
         return self.buffer.sample_takeovers(self.cfg.bc_batch_size, self.rng)
 
+    def anchor_batch(self) -> Batch | None:
+        """Prior rows for the distillation anchor (None while ``prior_distill`` is 0: nothing drawn)."""
+        if self.prior_distill <= 0:
+            return None
+        return self.buffer.sample_prior(self.cfg.bc_batch_size, self.rng)
+
     def actor_step(self, batch: Batch) -> dict[str, float]:
         self.critic.requires_grad_(False)  # the actor's loss needs gradients w.r.t. actions, not critic weights
         try:
-            loss, log_prob, stats = self.actor_loss(batch, self.imitation_batch())
+            loss, log_prob, stats = self.actor_loss(batch, self.imitation_batch(), self.anchor_batch())
             self.actor_optimizer.zero_grad(set_to_none=True)
             loss.backward()
         finally:
@@ -319,40 +336,59 @@ class CapturedSACUpdate(CapturedUpdate):
 
     learner: SAC
 
+    def __init__(self, learner: SAC, *, eager: bool = False) -> None:
+        super().__init__(learner, eager=eager)
+        self.scalars["prior_distill"] = torch.zeros((), device=self.device)
+
     def __call__(self) -> dict[str, float]:
         sac, cfg = self.learner, self.learner.cfg
         batch = sac.buffer.sample(cfg.batch_size, sac.rng)
         fear_on = sac.fear_active()
         imitation = sac.imitation_batch()
+        anchor = sac.anchor_batch()
         n_virtual = 0
         if sac.virtual is not None and len(sac.virtual) > 0 and cfg.virtual_ratio > 0:
             n_virtual = round(cfg.virtual_ratio * len(batch))
         virtual = None if n_virtual == 0 else sac.virtual.sample_obs(n_virtual, sac.rng)  # type: ignore[union-attr]
         if fear_on:
             self.static_folded()
-        key = (fear_on, imitation is not None, n_virtual)
+        key = (fear_on, imitation is not None, n_virtual, anchor is not None)
         if key not in self.inputs:
             self.inputs[key] = {
                 "batch": static_batch(batch),
                 "imitation": None if imitation is None else static_batch(imitation),
                 "virtual": None if virtual is None else virtual.clone(),
+                "anchor": None if anchor is None else static_batch(anchor),
             }
         inputs = self.inputs[key]
         fill_batch(inputs["batch"], batch)
         if imitation is not None:
             fill_batch(inputs["imitation"], imitation)
+        if anchor is not None:
+            fill_batch(inputs["anchor"], anchor)
+        self.scalars["prior_distill"].fill_(sac.prior_distill)
         if virtual is not None:
             inputs["virtual"].copy_(virtual, non_blocking=True)
         self.scalars["lam"].fill_(sac.lam)
         self.scalars["c_star"].fill_(sac.c_star() if cfg.violation_penalty else 0.0)
         self.scalars["fear_budget"].fill_(sac.fear_budget())
-        return self.run(key, lambda: self.body(inputs["batch"], inputs["imitation"], inputs["virtual"], fear_on))
+        return self.run(
+            key,
+            lambda: self.body(inputs["batch"], inputs["imitation"], inputs["virtual"], fear_on, inputs["anchor"]),
+        )
 
     def alpha(self) -> Tensor | float:
         sac = self.learner
         return sac.log_alpha.detach().exp() if sac.cfg.autotune_alpha else sac.cfg.init_alpha
 
-    def body(self, batch: Batch, imitation: Batch | None, virtual: Tensor | None, fear_on: bool) -> dict[str, Tensor]:
+    def body(
+        self,
+        batch: Batch,
+        imitation: Batch | None,
+        virtual: Tensor | None,
+        fear_on: bool,
+        anchor: Batch | None = None,
+    ) -> dict[str, Tensor]:
         """One SAC update on the static inputs, kernels only: :meth:`SAC.critic_step` then :meth:`SAC.actor_step`."""
         sac, cfg, lam = self.learner, self.learner.cfg, self.scalars["lam"]
         stats: dict[str, Tensor] = {}
@@ -399,6 +435,10 @@ class CapturedSACUpdate(CapturedUpdate):
                 bc = (omega * error).mean()
                 actor_loss = actor_loss + cfg.bc_weight * q_scale * bc
                 stats.update(bc_loss=bc.detach(), omega_mean=omega.mean())
+            if anchor is not None:  # SAC.actor_loss's distillation anchor
+                distill = (sac.actor.deterministic(anchor.obs) - anchor.a_rl).pow(2).sum(-1).mean()
+                actor_loss = actor_loss + self.scalars["prior_distill"] * q_scale * distill
+                stats.update(prior_distill_loss=distill.detach())
             self.zero(sac.actor_optimizer)
             actor_loss.backward()
         finally:

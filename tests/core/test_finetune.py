@@ -399,10 +399,14 @@ def test_the_base_policys_own_drives_are_sampled_in_equal_shares_with_the_sessio
         buffer.add(np.zeros(2), np.zeros(1), 0.0, np.zeros(2), False)
     batch = buffer.sample(256, np.random.default_rng(0))
     assert int(batch.obs[:, 0].sum()) == 128  # 10 prior rows among 310 still fill half of every batch
+    elsewhere = SharedReplayBuffer(2, 1, 10, prior_share=0.5, device="meta")  # a stand-in for the learner's CUDA
+    elsewhere.add(np.ones(2), np.zeros(1), 0.0, np.ones(2), False)
+    assert elsewhere.sample(4, np.random.default_rng(0)).obs.device.type == "meta"
 
     versions, store, session = setup
     prior = functools.partial(drive_alone, make_env=point_env, scenarios=["static"])
     finetuner = Finetuner(versions, store, session, fast(prior_episodes=2), prior=prior)
+    assert finetuner.buffer.device == finetuner.learner.device  # batches go where the updates run
     result = finetuner.round()
     assert result.version is not None
     assert result.version.metrics["prior_steps"] == finetuner.buffer.prior_count() > 0
@@ -499,3 +503,32 @@ def test_a_critic_warmup_holds_the_actor_for_its_first_updates_then_lets_it_move
     warmed = Finetuner(versions, store, session, cfg).round()
     assert warmed.version is not None and warmed.updates + warmed.skipped > 120
     assert warmed.version.metrics["kept_update"] >= 120
+
+
+def test_a_prior_distillation_anchor_holds_the_rounds_to_the_base_policys_own_actions(setup) -> None:
+    import functools
+
+    from core.finetune import drive_alone
+
+    with pytest.raises(ValueError, match="prior_distill"):
+        FinetuneConfig(prior_distill=-1.0)
+    assert FinetuneConfig().with_settings(["prior_distill=1.5"]).prior_distill == 1.5
+    versions, store, session = setup
+    prior = functools.partial(drive_alone, make_env=point_env, scenarios=["static"])
+    anchored = Finetuner(versions, store, session, fast(prior_episodes=2, prior_distill=1.0), prior=prior)
+    assert anchored.learner.prior_distill == 1.0
+    anchored.collect_prior()
+    # the base drove deterministic and alone: the prior rows' recorded actions are its deterministic actions there
+    buffer = anchored.buffer
+    rows = np.flatnonzero(buffer.prior[: buffer.size])
+    base = load_agent(versions.get(0).path)
+    with torch.no_grad():
+        expected = base.actor.deterministic(torch.from_numpy(buffer.obs[rows]))
+    torch.testing.assert_close(torch.from_numpy(buffer.a_rl[rows]), expected, rtol=1e-4, atol=1e-5)
+    result = anchored.round()
+    assert result.version is not None
+    assert result.version.metrics["losses"]["prior_distill_loss"] >= 0.0
+    assert result.version.metrics["config"]["prior_distill"] == 1.0
+
+    plain = Finetuner(versions, store, session, fast(prior_episodes=2), prior=prior, base=0).round()
+    assert plain.version is not None and "prior_distill_loss" not in plain.losses  # 0: the rounds as before

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from core.device import DeviceError
+from core.finetune import SharedReplayBuffer
 from core.learners import make_learner
 from core.sage.config import for_method
 from core.sage.d3qn import CapturedD3QNUpdate
@@ -20,16 +21,21 @@ torch.set_num_threads(1)
 OBS, ACT = 6, 2
 
 
-def sage_learner(**overrides: object) -> BaseLearner:
+def sage_learner(prior_rows: int = 0, **overrides: object) -> BaseLearner:
+    """``prior_rows``: the first rows are a base policy's drives in a fine-tuning buffer (the distillation anchor's)."""
     cfg = for_method("sage", hidden=32, batch_size=64, bc_batch_size=32, **overrides)
     cfg.world_model_config.hidden = 32
     cfg.world_model_config.max_updates_per_fit = 60
     learner = make_learner("sage", cfg, OBS, ACT, seed=0)
+    if prior_rows:
+        learner.buffer = SharedReplayBuffer(OBS, ACT, learner.buffer.capacity, prior_share=0.5)
     rng = np.random.default_rng(0)
     s = rng.normal(size=(401, OBS)).astype(np.float32)
     for i in range(400):
         a = rng.uniform(-1, 1, ACT).astype(np.float32)
-        takeover = i % 5 == 0
+        takeover = i % 5 == 0 and i >= prior_rows
+        if isinstance(learner.buffer, SharedReplayBuffer):
+            learner.buffer.adding_prior = i < prior_rows
         learner.buffer.add(
             s[i], a, float(-np.abs(s[i]).sum()), s[i + 1], False, cost=float(i % 37 == 0), violation=i % 37 == 0,
             takeover=takeover, a_rl=-a, a_expert=a if takeover else None,
@@ -95,6 +101,15 @@ def test_the_captured_sage_sac_body_weighs_fear_as_the_reference_with_fear_scale
     assert reference.critic(batch.obs, batch.action).abs().mean() > 5.0
     captured = copy.deepcopy(reference)
     assert_same_update(reference, captured, CapturedSACUpdate(captured, eager=True))
+
+
+def test_the_captured_sage_sac_body_holds_the_actor_to_the_prior_rows_as_the_reference() -> None:
+    reference = sage_learner(prior_rows=100)
+    assert isinstance(reference, SAC)
+    reference.prior_distill = 2.0
+    assert "prior_distill_loss" in copy.deepcopy(reference).update()  # the reference update runs the anchor
+    captured = copy.deepcopy(reference)
+    assert_same_update(reference, captured, CapturedSACUpdate(captured, eager=True))  # the same statistics' names
 
 
 def test_the_captured_sage_sac_body_over_the_ego_step_agrees_with_the_reference() -> None:

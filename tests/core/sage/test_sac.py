@@ -444,3 +444,73 @@ def test_hg_dagger_regresses_onto_the_aggregated_expert_labels() -> None:
     assert np.mean(losses[-10:]) < 0.5 * np.mean(losses[:10])
     obs = np.zeros(OBS, np.float32)
     assert np.array_equal(learner.act(obs), learner.act(obs))  # deterministic, no exploration noise
+
+
+# -- the distillation anchor on a base policy's own drives (fine-tuning's prior rows) ------------------
+def with_prior_rows(learner: SAC, rows: int = 200, seed: int = 9) -> tuple[SAC, torch.Tensor, torch.Tensor]:
+    """``learner`` whose buffer is a fine-tuning buffer: its rows beside ``rows`` drives of a base policy whose
+    action is a fixed function of the state; returns the learner, the prior states and the base's actions."""
+    from core.finetune import SharedReplayBuffer
+
+    old = learner.buffer
+    shared = SharedReplayBuffer(OBS, ACT, old.capacity, prior_share=0.5)
+    rng = np.random.default_rng(seed)
+    states = rng.normal(size=(rows + 1, OBS)).astype(np.float32)
+    base_actions = np.tanh(states[:, ACT:] * 2.0).astype(np.float32)[:, :ACT]
+    shared.adding_prior = True
+    for i in range(rows):
+        a = base_actions[i]
+        shared.add(states[i], a, float(-np.abs(states[i]).sum()), states[i + 1], False, a_rl=a)
+    shared.adding_prior = False
+    for i in range(old.size):
+        shared.add(
+            old.obs[i], old.action[i], float(old.reward[i]), old.next_obs[i], bool(old.terminated[i]),
+            takeover=bool(old.takeover[i]), a_rl=old.a_rl[i], a_expert=old.a_expert[i] if old.takeover[i] else None,
+        )  # fmt: skip
+    learner.buffer = shared
+    return learner, torch.from_numpy(states[:rows]), torch.from_numpy(base_actions[:rows])
+
+
+def test_a_prior_distillation_anchor_holds_the_actor_to_the_base_actions_on_its_states() -> None:
+    # no virtual states in the actor batch, so that the test can rebuild its Q scale
+    learner, states, base_actions = with_prior_rows(filled("sage", virtual_ratio=0.0))  # type: ignore[arg-type]
+    assert isinstance(learner, SAC) and learner.prior_distill == 0.0
+    rng_before = learner.rng.bit_generator.state
+    assert learner.anchor_batch() is None and learner.rng.bit_generator.state == rng_before  # 0: nothing drawn
+
+    # the term: prior_distill · max(1, mean|Q|) · mean ||μ(s) - a_base||² on prior rows only
+    learner.prior_distill = 2.0
+    scaled = copy.deepcopy(learner)  # Q values of tens, so that the scale max(1, mean|Q|) is not 1
+    with torch.no_grad():
+        scaled.critic.out.weight.mul_(300.0)
+        scaled.critic.out.bias.mul_(300.0)
+    anchor = scaled.anchor_batch()
+    assert anchor is not None and bool(scaled.buffer.prior[: len(states)].all())
+    torch.testing.assert_close(anchor.a_rl, torch.tanh(anchor.obs[:, ACT:] * 2.0)[:, :ACT])  # every row a prior one
+    batch = scaled.buffer.sample(64, np.random.default_rng(3))
+    imitation = scaled.buffer.sample_takeovers(32, np.random.default_rng(2))
+    torch.manual_seed(7)
+    without, _, _ = scaled.actor_loss(batch, imitation)
+    torch.manual_seed(7)
+    with_anchor, _, stats = scaled.actor_loss(batch, imitation, anchor)
+    torch.manual_seed(7)
+    states_used, _ = scaled.actor_states(batch)
+    q_scale = scaled.critic(states_used, scaled.actor.sample(states_used)[0]).min(0).values.abs().mean().clamp_min(1)
+    distill = (scaled.actor.deterministic(anchor.obs) - anchor.a_rl).pow(2).sum(-1).mean()
+    assert stats["prior_distill_loss"] == pytest.approx(distill.item(), rel=1e-5)
+    assert q_scale > 5.0
+    assert (with_anchor - without).item() == pytest.approx((2.0 * q_scale * distill).item(), rel=1e-4)
+
+    # trained, the actor moves toward the base's actions on the prior states; without the anchor it does not
+    def distance(sac: SAC) -> float:
+        with torch.no_grad():
+            return (sac.actor.deterministic(states) - base_actions).pow(2).sum(-1).mean().item()
+
+    anchored, free = copy.deepcopy(learner), copy.deepcopy(learner)
+    anchored.prior_distill, free.prior_distill = 5.0, 0.0
+    before = distance(learner)
+    for _ in range(200):
+        anchored.actor_step(anchored.buffer.sample(64, anchored.rng))
+        free.actor_step(free.buffer.sample(64, free.rng))
+    assert distance(anchored) < 0.5 * before
+    assert distance(anchored) < 0.5 * distance(free)
