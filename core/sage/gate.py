@@ -206,8 +206,8 @@ class SageGate:
             else:
                 folded = self.world_model.folded()
                 steps = contact_reach(self.cfg, self.cfg.horizon)  # imagined contact may reach past the horizon
-                terms = contact_terms(self.cfg, motion)
-                ro = rollout(folded, self.policy, o, a, steps, motion, *terms, learned_steps=self.cfg.horizon)
+                contact = contact_terms(self.cfg, motion)
+                ro = rollout(folded, self.policy, o, a, steps, motion, *contact, learned_steps=self.cfg.horizon)
                 terms = fear_of(folded, ro, self.cfg)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
                 self._horizon_source = ro.cost[..., 0].numpy().copy()
