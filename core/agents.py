@@ -74,6 +74,7 @@ FEAR_SHAPE = (
     "tau_max_quantile",
     "imagined_contact",
     "contact_needs_closing",
+    "contact_horizon",
 )
 """Gate settings that change the fear a model's τ bounds were measured on (or the quantiles they were taken at):
 a gate that sets one over a run's own needs the bounds measured again (``sage gate refit-bounds``)."""

@@ -85,6 +85,7 @@ def gate_rollout(
     sigma_divisor: np.ndarray,
     weights: np.ndarray,
     beta: float,
+    learned: int,
 ) -> tuple[float, float, float]:
     """(F^m, ĉ, σ̂) of the state and first action already in ``x[0]``'s rows (every member's; with the motion
     input, the motion too), as :meth:`GateKernel.__call__` computes them. ``x`` (m + 1, N, width): each step's
@@ -92,7 +93,8 @@ def gate_rollout(
     violation logit; ``probability`` (m, N) each member's violation probability with imagined contact, written;
     ``first_base`` (1, D) and ``base`` (N, D) the ego step's moved states (unused without one). ``floors``: the
     contact floors (empty: none), ``closing`` which of their channels may count; ``weights`` the discounted
-    mean's (empty: the maximum)."""
+    mean's (empty: the maximum); ``learned`` the first steps whose learned head and σ̂ count (those after it count
+    imagined contact alone: ``GateConfig.contact_horizon``; ``sigma_divisor`` holds these steps')."""
     m, n = outputs.shape[0], outputs.shape[1]
     d, a = obs_dim, act_dim
     widest = x.shape[2]
@@ -147,17 +149,21 @@ def gate_rollout(
                 for i in range(a):
                     v = p_in[member, i]
                     x[k + 1, member, d + i] = v * action_scale[i] + action_bias[i] if scaled else v
-    cost, sigma, step = np.empty(m), np.empty(m), np.empty(n)
+    cost, sigma, step = np.empty(m), np.empty(learned), np.empty(n)
     for k in range(m):
-        mean = 0.0
-        for member in range(n):
-            step[member] = 1.0 / (1.0 + math.exp(-np.float64(outputs[k, member, d])))
-            mean += step[member]
-        mean /= n
-        spread = 0.0
-        for member in range(n):
-            spread += (step[member] - mean) ** 2
-        sigma[k] = math.tanh(math.sqrt(max(spread / n, 1e-12)) / sigma_divisor[k])
+        if k < learned:
+            mean = 0.0
+            for member in range(n):
+                step[member] = 1.0 / (1.0 + math.exp(-np.float64(outputs[k, member, d])))
+                mean += step[member]
+            mean /= n
+            spread = 0.0
+            for member in range(n):
+                spread += (step[member] - mean) ** 2
+            sigma[k] = math.tanh(math.sqrt(max(spread / n, 1e-12)) / sigma_divisor[k])
+        else:  # past the learned steps: imagined contact alone
+            for member in range(n):
+                step[member] = 0.0
         total = 0.0
         for member in range(n):
             p = step[member]
@@ -172,7 +178,7 @@ def gate_rollout(
         c, s = cost.max(), sigma.max()
     else:
         c, s = 0.0, 0.0
-        for k in range(m):
+        for k in range(weights.shape[0]):  # the learned steps: contact_reach refuses a longer discounted mean
             c += cost[k] * weights[k]
             s += sigma[k] * weights[k]
     return beta * c + (1.0 - beta) * s, c, s
@@ -275,6 +281,7 @@ class CompiledGateKernel(GateKernel):
             self._divisor,
             self._weights,
             float(self.cfg.beta),
+            self.learned,
         )
 
     def curiosity(

@@ -181,6 +181,12 @@ class GateConfig:
     contact_floors: list[float] | None = None
     """Per observation channel [0, n), the value at or under which the observation shows contact (its units); every
     training run writes them from its simulator (None or empty: the observation shows none)."""
+    contact_horizon: int | None = None
+    """With ``imagined_contact``: the steps the imagined contact reaches when that is further than ``horizon``. The
+    gate's rollout then runs max(horizon, contact_horizon) steps; the learned head (ĉ) and σ̂ are read over its first
+    ``horizon`` steps, as without it, and imagined contact over all of them (a mover on course 1 s ahead, where the
+    learned terms keep their 0.5 s). None, or at most ``horizon``: contact reaches as far as the rest. The gate's only:
+    the learner's fear (``learner_fear_horizon``) and the virtual rollouts keep their own steps."""
 
     @property
     def hold(self) -> int:
@@ -520,6 +526,13 @@ def validate(cfg: AgentConfig) -> None:
             "them from its simulator; a run made before them, or a simulator whose observation shows no contact, "
             "has none (sage gate refit-bounds RUN --set gate.imagined_contact=true fills them from its simulator)"
         )
+    if cfg.gate.contact_horizon is not None:
+        if cfg.gate.contact_horizon < 1:
+            raise ValueError(f"gate.contact_horizon must be >= 1 (or None), got {cfg.gate.contact_horizon}")
+        if not cfg.gate.imagined_contact:
+            raise ValueError("gate.contact_horizon is the reach of imagined contact: it needs gate.imagined_contact")
+        if cfg.gate.contact_horizon > cfg.gate.horizon and cfg.gate.aggregate != "max":
+            raise ValueError("gate.contact_horizon beyond gate.horizon needs gate.aggregate=max")
     if cfg.gate.contact_needs_closing and not cfg.world_model_config.motion_input:
         raise ValueError("gate.contact_needs_closing reads the motion input: it needs world_model_config.motion_input")
     if not 0.0 < cfg.gamma < 1.0:

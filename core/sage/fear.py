@@ -65,6 +65,9 @@ class Rollout:
     """(m, N, B): each member's predicted violation probability at each step."""
     sigma_raw: Tensor
     """(m, B): the members' disagreement (std) about the violation probability of each step."""
+    learned_steps: int | None = None
+    """The first steps whose learned violation head (in ``cost``) and disagreement (``sigma_raw``) count; the steps
+    after them hold imagined contact alone (``GateConfig.contact_horizon``). None: every step."""
 
 
 @dataclass
@@ -109,6 +112,17 @@ def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None, clo
     return torch.maximum(probability, touching.any(-1).to(probability.dtype))
 
 
+def contact_reach(cfg: GateConfig | None, horizon: int) -> int:
+    """The steps a fear of ``horizon`` learned steps rolls out under the gate ``cfg``: ``cfg.contact_horizon`` where
+    imagined contact reaches further (:attr:`GateConfig.contact_horizon`), else ``horizon``. A discounted mean over
+    steps that hold contact alone would dilute the learned steps' weights: refused (the config refuses it too)."""
+    if cfg is None or not cfg.imagined_contact or cfg.contact_horizon is None or cfg.contact_horizon <= horizon:
+        return horizon
+    if cfg.aggregate != "max":
+        raise ValueError("gate.contact_horizon beyond gate.horizon needs gate.aggregate=max")
+    return cfg.contact_horizon
+
+
 def contact_terms(cfg: GateConfig | None, motion: Tensor | None) -> tuple[Tensor | None, Tensor | None]:
     """``rollout``'s ``contact`` and ``closing`` for the gate ``cfg``, given the real last change of state."""
     floors = contact_floors(cfg)
@@ -137,6 +151,7 @@ def rollout(
     closing: Tensor | None = None,
     *,
     states_needed: bool = True,
+    learned_steps: int | None = None,
 ) -> Rollout:
     """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
     the last observed change of state (zeros when None), for a model with the motion input; later steps take
@@ -148,7 +163,11 @@ def rollout(
     ``states_needed=False``: the caller reads only ``cost`` and ``sigma_raw`` (the fear terms). The last imagined
     state then feeds nothing but the contact test, a comparison without a gradient: it is computed only where
     ``contact`` is given, without a graph, and otherwise not at all (no Δ columns, no ego step), and ``states``
-    ends at the state before it. The fear terms are the same either way (``tests/core/sage/test_fear_rollout.py``)."""
+    ends at the state before it. The fear terms are the same either way (``tests/core/sage/test_fear_rollout.py``).
+
+    ``learned_steps``: where fewer than ``horizon``, the steps after them count imagined contact alone (their learned
+    violation probability is left out of ``cost``; :func:`fear_of` reads σ̂ over the first ``learned_steps`` only):
+    the gate's ``contact_horizon`` (:func:`contact_reach`). None: every step counts both."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
@@ -193,8 +212,15 @@ def rollout(
     # (x - mean)^2 by hand: Tensor.var over a non-last dim takes a slow path on CPU (milliseconds here)
     spread = (probability - probability.mean(1, keepdim=True)).square().mean(1)
     sigma_raw = spread.clamp_min(1e-12).sqrt()
-    cost = probability if contact is None else with_contact(probability, torch.stack(states[1:]), contact, closing)
-    return Rollout(torch.stack(states), torch.stack(actions), cost, sigma_raw)
+    learned = probability
+    if learned_steps is not None and learned_steps < horizon:
+        # steps beyond the learned ones: imagined contact alone (the learned head keeps its own reach)
+        keep = torch.arange(horizon, device=probability.device) < learned_steps
+        learned = probability * keep.to(probability.dtype).view(horizon, 1, 1)
+    else:
+        learned_steps = None
+    cost = learned if contact is None else with_contact(learned, torch.stack(states[1:]), contact, closing)
+    return Rollout(torch.stack(states), torch.stack(actions), cost, sigma_raw, learned_steps)
 
 
 def first_layer(model: FoldedModel, state: Tensor, action: Tensor, motion: Tensor | None) -> Tensor:
@@ -242,8 +268,10 @@ def squash_sigma(sigma_raw: Tensor, scale: Tensor) -> Tensor:
 
 
 def fear_of(model: FoldedModel, ro: Rollout, cfg: GateConfig) -> Fear:
+    """F^m of a rollout: ĉ aggregated over all its steps (those past ``ro.learned_steps`` hold imagined contact
+    alone), σ̂ over the learned steps."""
     cost = aggregate(ro.cost.mean(1), cfg.aggregate, cfg.discount)
-    sigma_raw_steps = ro.sigma_raw
+    sigma_raw_steps = ro.sigma_raw if ro.learned_steps is None else ro.sigma_raw[: ro.learned_steps]
     sigma = aggregate(squash_sigma(sigma_raw_steps, model.sigma_scale), cfg.aggregate, cfg.discount)
     sigma_raw = aggregate(sigma_raw_steps, cfg.aggregate, cfg.discount)
     return Fear(cfg.beta * cost + (1.0 - cfg.beta) * sigma, cost, sigma, sigma_raw)
@@ -261,9 +289,14 @@ def fear(
     """F^m for a batch of (state, first action), m = ``horizon`` or ``cfg.horizon``; differentiable w.r.t.
     the action and the policy unless called under no_grad / inference_mode (the model's folded weights are
     constants, so the world model itself never receives a gradient). ``motion``: see :func:`rollout` (the
-    learner's batches pass none: their fear terms then assume no motion)."""
+    learner's batches pass none: their fear terms then assume no motion). Without ``horizon`` it is the gate's fear,
+    imagined contact reaching ``cfg.contact_horizon`` (:func:`contact_reach`); a given ``horizon`` (the learner's)
+    rolls exactly that many steps."""
     terms = contact_terms(cfg, motion)
-    ro = rollout(model, policy, obs, action, horizon or cfg.horizon, motion, *terms, states_needed=False)
+    learned = horizon or cfg.horizon
+    steps = learned if horizon else contact_reach(cfg, learned)
+    reach = {"learned_steps": learned} if steps > learned else {}  # the gate's contact reaching past its horizon
+    ro = rollout(model, policy, obs, action, steps, motion, *terms, states_needed=False, **reach)
     return fear_of(model, ro, cfg)
 
 
@@ -285,8 +318,11 @@ def calibrate(
     fear that precedes a collision)."""
     with torch.no_grad():
         folded = world_model.folded()
-        ro = rollout(folded, policy, obs, policy(obs), min(horizon, MAX_HORIZON), motion, *contact_terms(cfg, motion))
-        scale = torch.quantile(ro.sigma_raw, quantile, dim=1).clamp_min(1e-6)
+        learned = min(horizon, MAX_HORIZON)
+        steps = min(contact_reach(cfg, horizon), MAX_HORIZON)  # the gate's imagined contact may reach further
+        terms = contact_terms(cfg, motion)
+        ro = rollout(folded, policy, obs, policy(obs), steps, motion, *terms, learned_steps=learned)
+        scale = torch.quantile(ro.sigma_raw[:learned], quantile, dim=1).clamp_min(1e-6)
         world_model.sigma_scale[: len(scale)] = scale
         world_model.sigma_scale[len(scale) :] = scale[-1]
         world_model.touch()
@@ -478,7 +514,9 @@ class GateKernel:
         """``actor_layers``: (weight (out, in), bias) of the actor's deterministic path, ReLU between them and
         tanh after the last, then ``* output_scale + output_bias`` (see :meth:`core.sage.networks.Actor`)."""
         self.model, self.cfg = model, cfg
-        n, d, m = model.members, model.obs_dim, cfg.horizon
+        # m steps rolled out; the learned head and σ̂ read over the first ``learned`` (contact over all: contact_reach)
+        n, d, m = model.members, model.obs_dim, contact_reach(cfg, cfg.horizon)
+        self.learned = cfg.horizon
         act_dim = actor_layers[-1][0].shape[0]
         self.d, self.m, self.n = d, m, n
         self.out_w = model.out_weight[..., : d + 1].contiguous()  # the Δs means and the violation logit
@@ -514,7 +552,7 @@ class GateKernel:
         self.deltas = [self.outputs[k, :, :, :d] for k in range(m)]
         self.step_cost = self.outputs[..., d]
         self.inv_members = 1.0 / n
-        self.sigma_divisor = 2.0 * step_scales(model.sigma_scale, m)
+        self.sigma_divisor = 2.0 * step_scales(model.sigma_scale, self.learned)
         self.weights = discount_weights(cfg)
         self.c_hidden = [torch.empty(n, 1, w.shape[-1]) for w, _ in model.hidden]
         self.c_input = torch.zeros(n, 1, width)
@@ -585,10 +623,13 @@ class GateKernel:
                 else:
                     torch.tanh(x, out=self.policy_outputs[k])
         probability = torch.sigmoid(self.step_cost)  # (m, N, 1)
-        mean = probability.sum(1, keepdim=True).mul_(self.inv_members)
+        learned = probability[: self.learned]
+        mean = learned.sum(1, keepdim=True).mul_(self.inv_members)
         # the members' disagreement about the danger of each step (1/N applied once)
-        sigma_raw = (probability - mean).square_().sum(1).mul_(self.inv_members).clamp_min_(1e-12).sqrt_()
+        sigma_raw = (learned - mean).square_().sum(1).mul_(self.inv_members).clamp_min_(1e-12).sqrt_()
         sigma = torch.tanh(sigma_raw.div_(self.sigma_divisor))
+        if self.learned < self.m:  # the steps past the learned ones count imagined contact alone
+            probability[self.learned :] = 0.0
         closing = closing_channels(self.cfg, motion, self.contact)  # None unless contact needs closing
         self.probability = with_contact(probability, self.states[1:], self.contact, closing)
         cost = self.probability.sum(1)

@@ -30,7 +30,15 @@ import torch
 from core.motion import motion_between
 from core.protocol import GateDecision
 from core.sage.config import GateConfig
-from core.sage.fear import CuriosityThreshold, GateKernel, PolicyFn, contact_terms, fear_of, rollout
+from core.sage.fear import (
+    CuriosityThreshold,
+    GateKernel,
+    PolicyFn,
+    contact_reach,
+    contact_terms,
+    fear_of,
+    rollout,
+)
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel
 
@@ -197,7 +205,9 @@ class SageGate:
                 self._horizon_source = kernel
             else:
                 folded = self.world_model.folded()
-                ro = rollout(folded, self.policy, o, a, self.cfg.horizon, motion, *contact_terms(self.cfg, motion))
+                steps = contact_reach(self.cfg, self.cfg.horizon)  # imagined contact may reach past the horizon
+                contact = contact_terms(self.cfg, motion)
+                ro = rollout(folded, self.policy, o, a, steps, motion, *contact, learned_steps=self.cfg.horizon)
                 terms = fear_of(folded, ro, self.cfg)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
                 self._horizon_source = ro.cost[..., 0].numpy().copy()

@@ -23,7 +23,7 @@ from torch import Tensor
 
 from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.config import AgentConfig, GateConfig
-from core.sage.fear import CalibrationSample, PolicyFn, contact_terms, rollout, sample_member_transitions
+from core.sage.fear import CalibrationSample, PolicyFn, contact_reach, contact_terms, rollout, sample_member_transitions
 from core.sage.world_model import EnsembleWorldModel, FitReport
 
 SAFE_LABEL = 0.1
@@ -69,8 +69,9 @@ def calibration_sample(
     if motion is None and world_model.motion:
         motion = buffer.previous_deltas(world_model.motion_lag, world_model.scan)
     wm = world_model.cfg
+    # familiar: no violation within the fear's reach (imagined contact's, where it looks further: contact_reach)
     familiar = familiar_for_bounds(
-        buffer, wm.violation_steps, gate.horizon, wm.conflict_label_weight, wm.conflict_steps
+        buffer, wm.violation_steps, contact_reach(gate, gate.horizon), wm.conflict_label_weight, wm.conflict_steps
     )
     return CalibrationSample(
         obs=data["obs"][idx],

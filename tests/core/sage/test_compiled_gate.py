@@ -58,6 +58,10 @@ GATES = {
     "discounted mean": GateConfig(aggregate="discounted_mean", beta=0.6),
     "imagined contact": GateConfig(imagined_contact=True, contact_floors=[0.2] * 8),
     "contact when closing": GateConfig(imagined_contact=True, contact_floors=[0.3] * 8, contact_needs_closing=True),
+    # imagined contact reaching 1 s, the learned terms 0.5 s (gate.contact_horizon)
+    "imagined contact reaching past the horizon": GateConfig(
+        imagined_contact=True, contact_floors=[0.2] * 8, contact_horizon=10
+    ),
 }
 
 
@@ -84,12 +88,17 @@ def test_compiled_kernel_agrees_with_the_torch_kernel(layout: str, gate: str) ->
             # every imagined state, action and motion (the last state's motion feeds nothing: the torch kernel's
             # is not compared), and each member's probability, not only the aggregate. The products' rounding
             # (summed in another order) compounds along the rollout, the more through the ego step's geometry:
-            # the first step is held to float32 rounding, the whole trajectory to 1e-5.
+            # the first step is held to float32 rounding, the first five steps to 1e-5. A 10-step rollout
+            # (gate.contact_horizon=10) of this briefly fitted model diverges (states past ±100 by the 10th step
+            # through the ego step's geometry), and the rounding with it (seen: 1.2e-4 relative): its later steps
+            # to 1e-3 relative, its fear and member costs still to float32 rounding.
             last = reference.m
+            rtol, atol = (RTOL, 1e-5) if last <= 5 else (1e-3, 1e-4)
             np.testing.assert_allclose(compiled.x[:2].numpy(), reference.x[:2].numpy(), rtol=RTOL, atol=ATOL)
-            np.testing.assert_allclose(compiled.x[:last].numpy(), reference.x[:last].numpy(), rtol=RTOL, atol=1e-5)
+            np.testing.assert_allclose(compiled.x[:5].numpy(), reference.x[:5].numpy(), rtol=RTOL, atol=1e-5)
+            np.testing.assert_allclose(compiled.x[:last].numpy(), reference.x[:last].numpy(), rtol=rtol, atol=atol)
             np.testing.assert_allclose(
-                compiled.states[last].numpy(), reference.states[last].numpy(), rtol=RTOL, atol=1e-5
+                compiled.states[last].numpy(), reference.states[last].numpy(), rtol=rtol, atol=atol
             )
             np.testing.assert_allclose(
                 compiled.last_member_costs(), reference.last_member_costs(), rtol=RTOL, atol=ATOL
