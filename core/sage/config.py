@@ -182,11 +182,8 @@ class GateConfig:
     """Per observation channel [0, n), the value at or under which the observation shows contact (its units); every
     training run writes them from its simulator (None or empty: the observation shows none)."""
     contact_horizon: int | None = None
-    """With ``imagined_contact``: the steps the imagined contact reaches when that is further than ``horizon``. The
-    gate's rollout then runs max(horizon, contact_horizon) steps; the learned head (ĉ) and σ̂ are read over its first
-    ``horizon`` steps, as without it, and imagined contact over all of them (a mover on course 1 s ahead, where the
-    learned terms keep their 0.5 s). None, or at most ``horizon``: contact reaches as far as the rest. The gate's only:
-    the learner's fear (``learner_fear_horizon``) and the virtual rollouts keep their own steps."""
+    """Steps (> ``horizon``) that imagined contact alone reaches; ĉ and σ̂ keep ``horizon``. None: ``horizon``. The
+    gate's only."""
 
     @property
     def hold(self) -> int:
