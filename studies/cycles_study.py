@@ -102,7 +102,11 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             alone_episodes=int(config["eval_episodes"]),
             seed=1000 * seed,
             fine_tune=method != "frozen",
-            finetune=FinetuneConfig(min_steps=1, min_takeover_samples=0).with_settings(config.get("finetune", ())),
+            # the training seed seeds the rounds' sampling too (it was 0 for every seed: on a field whose episodes do
+            # not vary with the episode seed, five seeds were one run five times); finetune.seed still wins
+            finetune=FinetuneConfig(min_steps=1, min_takeover_samples=0, seed=seed).with_settings(
+                config.get("finetune", ())
+            ),
             max_episode_steps=config.get("max_episode_steps"),
         )
         run_cycles(cfg, out, env_factory(sim))

@@ -48,10 +48,11 @@ def test_cycles_with_more_supervised_collisions_than_the_first_are_counted() -> 
 
 
 def test_the_cycles_study_passes_fine_tuning_settings_to_its_rounds(tmp_path: Path) -> None:
-    config = {"seed": 0, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
+    config = {"seed": 2, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
     trial({**config, "method": "sage", "finetune": ["critic_warmup=5"]})
-    tuned = json.loads((tmp_path / "sage-s0" / "cycles.json").read_text())
+    tuned = json.loads((tmp_path / "sage-s2" / "cycles.json").read_text())
     assert tuned["config"]["finetune"]["critic_warmup"] == 5
+    assert tuned["config"]["finetune"]["seed"] == 2  # the training seed seeds the rounds, not 0 for every seed
     assert tuned["rounds"][0]["losses"]["critic_warmup_updates"] == 5
 
 
