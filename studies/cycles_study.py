@@ -72,11 +72,15 @@ def cycles_above_first(rows: list[dict[str, Any]], key: str) -> int:
 
 def budget_text(budget: Budget, settings: Mapping[str, Any]) -> str:
     """What a budget runs here: cycles of deployment steps, and the versions alone on the evaluation episodes."""
+    from studies.cycles import unseen_of
+
     cycles = cycles_for(budget.train_steps)
+    sim, scenario = str(settings.get("sim", "ugv")), str(settings.get("scenario", "3"))
+    unseen = str(settings.get("unseen_scenario", "")) or unseen_of(sim, scenario) or "none"
     return (
         f"{cycles} cycles of {steps_per_cycle(budget.train_steps)} deployment steps per method and seed "
-        f"({budget.train_steps} environment steps); each cycle's version alone on {budget.eval_episodes} evaluation "
-        "episodes of the scenario and of an unseen one"
+        f"({budget.train_steps} environment steps) on {sim} scenario {scenario}; each cycle's version alone on "
+        f"{budget.eval_episodes} evaluation episodes of the scenario and of an unseen one ({unseen})"
     )
 
 

@@ -68,6 +68,11 @@ def test_the_cycles_study_runs_on_a_procedural_field_with_another_field_unseen(t
     }
     result = trial({**config, "method": "frozen"})
     assert result["steps"] == 60
+    from studies.budgets import BUDGETS
+    from studies.cycles_study import budget_text
+
+    header = budget_text(BUDGETS["small"], config)  # the table says which fields it ran
+    assert "scenario ugv-fields:test:1" in header and "unseen one (ugv-fields:test:4)" in header
     run = json.loads((tmp_path / "frozen-s0" / "cycles.json").read_text())
     assert {(a["scenario"], a["seen"]) for a in run["alone"]} == {
         ("ugv-fields:test:1", True),
