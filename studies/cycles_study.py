@@ -72,11 +72,15 @@ def cycles_above_first(rows: list[dict[str, Any]], key: str) -> int:
 
 def budget_text(budget: Budget, settings: Mapping[str, Any]) -> str:
     """What a budget runs here: cycles of deployment steps, and the versions alone on the evaluation episodes."""
+    from studies.cycles import unseen_of
+
     cycles = cycles_for(budget.train_steps)
+    sim, scenario = str(settings.get("sim", "ugv")), str(settings.get("scenario", "3"))
+    unseen = str(settings.get("unseen_scenario", "")) or unseen_of(sim, scenario) or "none"
     return (
         f"{cycles} cycles of {steps_per_cycle(budget.train_steps)} deployment steps per method and seed "
-        f"({budget.train_steps} environment steps); each cycle's version alone on {budget.eval_episodes} evaluation "
-        "episodes of the scenario and of an unseen one"
+        f"({budget.train_steps} environment steps) on {sim} scenario {scenario}; each cycle's version alone on "
+        f"{budget.eval_episodes} evaluation episodes of the scenario and of an unseen one ({unseen})"
     )
 
 
@@ -95,13 +99,18 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
         cfg = CyclesConfig(
             sim=sim,
             scenario=str(config.get("scenario", "3")),
+            unseen_scenario=str(config.get("unseen_scenario", "")) or None,
             policy=str(config.get("policy", DEFAULT_POLICY)),
             cycles=cycles_for(budget),
             steps_per_cycle=steps_per_cycle(budget),
             alone_episodes=int(config["eval_episodes"]),
             seed=1000 * seed,
             fine_tune=method != "frozen",
-            finetune=FinetuneConfig(min_steps=1, min_takeover_samples=0).with_settings(config.get("finetune", ())),
+            # the training seed seeds the rounds' sampling too (it was 0 for every seed: on a field whose episodes do
+            # not vary with the episode seed, five seeds were one run five times); finetune.seed still wins
+            finetune=FinetuneConfig(min_steps=1, min_takeover_samples=0, seed=seed).with_settings(
+                config.get("finetune", ())
+            ),
             max_episode_steps=config.get("max_episode_steps"),
         )
         run_cycles(cfg, out, env_factory(sim))
@@ -125,6 +134,27 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
         "cycles": float(len(rows)),
         "steps": float(sum(int(row["steps"]) for row in rows)),
     }
+
+
+def check_settings(settings: Mapping[str, Any]) -> None:
+    """The scenario and the unseen one must be names the simulator knows, and differ (a procedural field such as
+    ``ugv-fields:test:7`` is a scenario like UGV 3; it has no built-in unseen one, so the study is given one with
+    ``unseen_scenario``); a ValueError of one line otherwise, before any trial."""
+    from studies.cycles import unseen_of
+    from studies.envs import scenario_kwargs
+
+    sim = str(settings.get("sim", "ugv"))
+    scenario = str(settings.get("scenario", "3"))
+    unseen = str(settings.get("unseen_scenario", "")) or unseen_of(sim, scenario)
+    for key, name in (("scenario", scenario), ("unseen_scenario", unseen)):
+        if not name:
+            continue
+        try:
+            scenario_kwargs(sim, name)
+        except (ValueError, OSError) as error:  # the descriptor's own message, as one line
+            raise ValueError(f"--set study.{key}={name}: {str(error).splitlines()[0]}") from None
+    if unseen == scenario:
+        raise ValueError(f"--set study.unseen_scenario={unseen}: the unseen scenario must differ from the scenario")
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
@@ -161,7 +191,8 @@ STUDY = StudyDef(
         "after the first whose supervised collision rate is above the first's. Collisions end the episode. The paper "
         "shows this study as curves (Fig. field_test_1), so no paper numbers stand beside.",
     ),
-    settings={"sim": "ugv", "scenario": "3", "policy": str(DEFAULT_POLICY), "finetune": ()},
+    settings={"sim": "ugv", "scenario": "3", "unseen_scenario": "", "policy": str(DEFAULT_POLICY), "finetune": ()},
+    check_settings=check_settings,
     learner_overrides=False,
     budget_text=budget_text,
     figures=figures,

@@ -64,6 +64,9 @@ class StudyDef:
     budget_text: Callable[[Budget, Mapping[str, Any]], str] | None = None
     """``budget_text(budget, settings) -> what it ran``, for the table's header, when the study spends the budget
     otherwise than as training steps and evaluation episodes (the cycles study: cycles of episodes)."""
+    check_settings: Callable[[Mapping[str, Any]], None] | None = None
+    """``check_settings(settings)``: raises ValueError (one line) for settings the study cannot run (e.g. an unknown
+    scenario), before any trial starts."""
     untrained: tuple[str, ...] = ()
     """Methods that are not trained (planners): their table rows say that their ± is over evaluation episodes."""
     figures: Callable[[Path, dict[str, Any]], list[Path]] | None = None

@@ -120,6 +120,9 @@ def register(app: typer.Typer) -> None:
             if budget not in BUDGET_NAMES:
                 raise ValueError(f"unknown budget {budget!r}; choose one of {', '.join(BUDGET_NAMES)}")
             overrides = study_settings(name, known, settings.get("study", []))
+            check = get_study(name).check_settings
+            if check is not None:
+                check({**dict(known), **overrides})
             if settings.get("finetune"):
                 overrides["finetune"] = finetune_settings(name, known, settings["finetune"])
             for pair in learner_overrides:

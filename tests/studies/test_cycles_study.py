@@ -48,8 +48,58 @@ def test_cycles_with_more_supervised_collisions_than_the_first_are_counted() -> 
 
 
 def test_the_cycles_study_passes_fine_tuning_settings_to_its_rounds(tmp_path: Path) -> None:
-    config = {"seed": 0, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
+    config = {"seed": 2, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
     trial({**config, "method": "sage", "finetune": ["critic_warmup=5"]})
-    tuned = json.loads((tmp_path / "sage-s0" / "cycles.json").read_text())
+    tuned = json.loads((tmp_path / "sage-s2" / "cycles.json").read_text())
     assert tuned["config"]["finetune"]["critic_warmup"] == 5
+    assert tuned["config"]["finetune"]["seed"] == 2  # the training seed seeds the rounds, not 0 for every seed
     assert tuned["rounds"][0]["losses"]["critic_warmup_updates"] == 5
+
+
+def test_the_cycles_study_runs_on_a_procedural_field_with_another_field_unseen(tmp_path: Path) -> None:
+    config = {
+        "seed": 0,
+        "train_steps": 60,
+        "eval_episodes": 1,
+        "runs_dir": str(tmp_path),
+        "max_episode_steps": 30,
+        "scenario": "ugv-fields:test:1",
+        "unseen_scenario": "ugv-fields:test:4",
+    }
+    result = trial({**config, "method": "frozen"})
+    assert result["steps"] == 60
+    from studies.budgets import BUDGETS
+    from studies.cycles_study import budget_text
+
+    header = budget_text(BUDGETS["small"], config)  # the table says which fields it ran
+    assert "scenario ugv-fields:test:1" in header and "unseen one (ugv-fields:test:4)" in header
+    run = json.loads((tmp_path / "frozen-s0" / "cycles.json").read_text())
+    assert {(a["scenario"], a["seen"]) for a in run["alone"]} == {
+        ("ugv-fields:test:1", True),
+        ("ugv-fields:test:4", False),
+    }
+
+
+def test_the_cycles_study_refuses_a_bad_scenario_in_one_line(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from app.cli import app
+
+    check = get_study("cycles").check_settings
+    assert check is not None
+    check({"sim": "ugv", "scenario": "ugv-fields:test:1", "unseen_scenario": "ugv-fields:test:4"})
+    check({"sim": "ugv", "scenario": "3", "unseen_scenario": ""})  # UGV 4, the built-in unseen one
+    for pairs, words in (
+        (["study.scenario=ugv-fields:test:x"], "the index must be a whole number"),
+        (["study.scenario=9"], "give 1-4"),
+        (["study.scenario=ugv-fields:test:1", "study.unseen_scenario=ugv-fields:test:1"], "must differ"),
+        (["study.scenario=4", "study.unseen_scenario=bogus"], "study.unseen_scenario=bogus"),
+    ):
+        args = ["study", "cycles", "--budget", "small", "--out", str(tmp_path / "never")]
+        for pair in pairs:
+            args += ["--set", pair]
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 2, result.output
+        assert words in result.output and "Traceback" not in result.output
+        assert len(result.output.strip().splitlines()) == 1
+    assert not (tmp_path / "never").exists()  # refused before any trial
