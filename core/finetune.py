@@ -39,7 +39,6 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -47,8 +46,11 @@ import torch
 
 from core.agents import AgentMeta, load_checkpoint, meta_of
 from core.learners import make_learner
+from core.prior import PriorSource as PriorSource
+from core.prior import SharedReplayBuffer as SharedReplayBuffer
+from core.prior import drive_alone as drive_alone
 from core.protocol import StepRecord
-from core.replay import Batch, ReplayBuffer
+from core.replay import Batch
 from core.sage.config import AgentConfig, apply_overrides, from_dict
 from core.sage.learner import BaseLearner
 from core.sessions import SessionStore
@@ -215,88 +217,6 @@ class FinetuneConfig:
         if self.updates_per_step is None:
             return self.updates
         return min(self.updates, math.ceil(self.updates_per_step * new_steps))
-
-
-# -- versions --------------------------------------------------------------------------------------------------
-# -- the base policy's own drives ---------------------------------------------------------------------------------
-PriorSource = Callable[[Path, int, int], list[StepRecord]]
-"""``prior(version_folder, episodes, seed) -> steps``: the version driving alone (no gate, no expert) over its
-training scenarios (picklable for the worker: a partial of :func:`drive_alone`)."""
-
-
-def drive_alone(
-    path: Path,
-    episodes: int,
-    seed: int,
-    *,
-    make_env: Callable[[str], Any],
-    scenarios: Iterable[str] | None = None,
-    max_steps: int | None = None,
-) -> list[StepRecord]:
-    """``episodes`` episodes of the policy at ``path`` alone (deterministic, no gate, no expert) over ``scenarios``
-    in turn (default: the ones it was trained on, from its checkpoint), episode ``i`` on seed ``seed + i``."""
-    from core.agents import load_agent
-    from core.experts import ScriptedExpert
-    from core.loop import NoGate, Runner
-
-    agent = load_agent(path)
-    names = list(scenarios) if scenarios is not None else [str(s) for s in agent.meta.scenarios]
-    if not names:
-        raise FinetuneError(f"{path} names no training scenario to drive the base policy on")
-    steps: list[StepRecord] = []
-    for i in range(episodes):
-        env = make_env(names[i % len(names)])
-        try:
-            runner = Runner(env, agent.policy, NoGate(), ScriptedExpert(), seed=seed + i, deterministic=True)
-            runner.step_listeners.append(steps.append)
-            runner.run_episode(max_steps=max_steps)
-        finally:
-            env.close()
-    return steps
-
-
-class SharedReplayBuffer(ReplayBuffer):
-    """The round's real buffer: the base policy's own drives (prior rows) beside the session's rows, every sample
-    drawn in fixed shares from the two (``prior_share`` from the prior rows), as RLPD and HIL-SERL sample offline
-    or intervention data beside online data. Everything else (world-model fits, takeover samples) sees all rows."""
-
-    def __init__(
-        self, obs_dim: int, act_dim: int, capacity: int, prior_share: float, device: torch.device | str = "cpu"
-    ) -> None:
-        super().__init__(obs_dim, act_dim, capacity, device)
-        self.prior = np.zeros(capacity, bool)
-        self.prior_share = prior_share
-        self.adding_prior = False
-        """Rows added while this is True are prior rows."""
-
-    def add(self, *args: Any, **kwargs: Any) -> None:
-        row = self.pos
-        super().add(*args, **kwargs)
-        self.prior[row] = self.adding_prior
-
-    def prior_count(self) -> int:
-        return int(self.prior[: self.size].sum())
-
-    def sample_prior(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
-        """Prior rows only (the batch of the distillation anchor, ``FinetuneConfig.prior_distill``); None if none."""
-        prior = np.flatnonzero(self.prior[: self.size])
-        if len(prior) == 0:
-            return None
-        return self._batch(prior[rng.integers(0, len(prior), size=batch_size)])
-
-    def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
-        prior = np.flatnonzero(self.prior[: self.size])
-        own = np.flatnonzero(~self.prior[: self.size])
-        n_prior = round(self.prior_share * batch_size)
-        if len(prior) == 0 or len(own) == 0 or n_prior == 0:
-            return super().sample(batch_size, rng)
-        idx = np.concatenate(
-            [
-                prior[rng.integers(0, len(prior), size=n_prior)],
-                own[rng.integers(0, len(own), size=batch_size - n_prior)],
-            ]
-        )
-        return self._batch(idx)
 
 
 # -- guarded updates ---------------------------------------------------------------------------------------------
