@@ -238,16 +238,7 @@ def critic_only_update(learner: BaseLearner) -> tuple[dict[str, float], bool]:
     critic_step: Callable[[Batch], dict[str, float]] | None = getattr(learner, "critic_step", None)
     if critic_step is None:
         return learner.guarded_update()
-    snapshot = learner._snapshot()
-    try:
-        stats = critic_step(learner.buffer.sample(learner.cfg.batch_size, learner.rng))
-    except FloatingPointError:
-        stats = {"error": math.nan}
-    if all(math.isfinite(float(v)) for v in stats.values()) and learner.weights_finite():
-        learner.updates += 1
-        return stats, True
-    learner._restore(snapshot)
-    return stats, False
+    return learner.guarded_update(lambda: critic_step(learner.buffer.sample(learner.cfg.batch_size, learner.rng)))
 
 
 # -- the session as training data -----------------------------------------------------------------------------

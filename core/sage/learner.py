@@ -27,7 +27,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -339,14 +339,15 @@ class BaseLearner:
         """The state :meth:`update` trains (subclasses declare their networks, optimisers and numbers)."""
         return DeclaredState()
 
-    def guarded_update(self) -> tuple[dict[str, float], bool]:
-        """One :meth:`update`, undone when a loss or a trained value comes out NaN/inf (as if it had never run).
+    def guarded_update(self, step: Callable[[], dict[str, float]] | None = None) -> tuple[dict[str, float], bool]:
+        """One :meth:`update` (or ``step``, e.g. a critic-only step), undone when a loss or a trained value comes out
+        NaN/inf (as if it had never run).
 
         Online training (:meth:`observe`) and fine-tuning both update through here. Returns (stats, applied);
         ``updates`` counts applied updates only."""
         snapshot = self._snapshot()
         try:
-            stats = self.update()
+            stats = (step or self.update)()
         except FloatingPointError:
             stats = {"error": math.nan}
         finite = all(math.isfinite(float(v)) for v in stats.values() if isinstance(v, int | float))
