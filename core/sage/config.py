@@ -158,6 +158,12 @@ class GateConfig:
     curiosity_smoothing: float = 0.3
     """Weight of the newest curiosity in the short moving average that ρ reads, so that τ does not jump with
     every noisy transition (1: no smoothing)."""
+    curiosity_signal: Literal["error", "disagreement"] = "error"
+    """What curiosity measures: "error", the prediction error on the transition that happened (the paper's C), or
+    "disagreement", the members' spread about its next state (the ensemble's epistemic uncertainty)."""
+    curiosity_reference: Literal["recent", "fitted"] = "recent"
+    """What ρ compares curiosity with: "recent", its moving average (the paper's), or "fitted", the signal's mean on
+    the model's calibration states, held fixed (ground that stays unfamiliar keeps τ low)."""
     use_curiosity: bool = True
     """False fixes τ at (τ_min + τ_max) / 2, the value ρ = 1/2 gives for typical curiosity (FNI-RL, ablations)."""
     hold_steps: int = 5

@@ -333,6 +333,8 @@ def calibrate(
             lo = float(torch.quantile(values, cfg.tau_min_quantile))
             hi = float(torch.quantile(values, cfg.tau_max_quantile))
             world_model.tau_bounds.copy_(torch.tensor([lo, max(hi, lo + 1e-3)]))
+        # the policy's own action on each state, as its gate sees most transitions
+        world_model.disagreement_ref.fill_(float(world_model.disagreement(obs, policy(obs), motion).mean()))
     world_model.touch()
     return scale
 
@@ -484,7 +486,7 @@ class CuriosityThreshold:
             self.smoothed = curiosity if self.smoothed is None else (1 - alpha) * self.smoothed + alpha * curiosity
         rho = self.rho(self.smoothed if self.smoothed is not None else curiosity)
         self.threshold = self.at(rho)
-        if math.isfinite(curiosity):
+        if math.isfinite(curiosity) and self.cfg.curiosity_reference == "recent":  # "fitted": a fixed reference
             self.ema = max((1.0 - self.cfg.curiosity_ema) * self.ema + self.cfg.curiosity_ema * curiosity, 1e-8)
         return self.threshold
 

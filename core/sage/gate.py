@@ -113,7 +113,7 @@ class SageGate:
         self.actor = policy if isinstance(policy, Actor) else None
         self.policy: PolicyFn = policy.deterministic if isinstance(policy, Actor) else policy
         self.cfg = cfg or GateConfig()
-        self.threshold = CuriosityThreshold(self.cfg, float(world_model.curiosity_ref), self._model_bounds())
+        self.threshold = CuriosityThreshold(self.cfg, self._curiosity_reference(), self._model_bounds())
         self._reference_version = world_model.version
         self._kernel: tuple[int, GateKernel] | None = None
         self._fitted_version, self._fitted = -1, False
@@ -167,6 +167,23 @@ class SageGate:
         delta = motion_between(oldest.reshape(1, -1), current, self.world_model.scan) / len(self._history)
         return torch.from_numpy(delta)
 
+    def _curiosity_reference(self) -> float:
+        """Curiosity's starting average (``curiosity_reference="recent"``) or fixed reference ("fitted"): the
+        signal's value on the model's last fit or calibration. A fitted model that never measured its disagreement
+        (a checkpoint from before the setting) is refused with the command that measures it."""
+        if self.cfg.curiosity_signal == "error":
+            return float(self.world_model.curiosity_ref)
+        value = float(self.world_model.disagreement_ref)
+        if math.isfinite(value):
+            return value
+        if bool(self.world_model.fitted):
+            raise ValueError(
+                "gate.curiosity_signal=disagreement needs the world model's disagreement on its calibration states, "
+                "which this checkpoint never measured: run `sage gate refit-bounds RUN --scenario ... --out NEW` "
+                "with the same --set, and use NEW"
+            )
+        return 1.0  # not fitted yet: the first fit's calibration measures it
+
     def _model_bounds(self) -> tuple[float, float] | None:
         """The (τ_min, τ_max) measured at the model's last calibration, when the config asks for them."""
         if not self.cfg.tau_from_data:
@@ -178,7 +195,7 @@ class SageGate:
         # after a refit the model's errors change scale: restart the curiosity average at the new reference
         if self.world_model.version != self._reference_version:
             self._reference_version = self.world_model.version
-            self.threshold.ema = max(float(self.world_model.curiosity_ref), 1e-8)
+            self.threshold.ema = max(self._curiosity_reference(), 1e-8)
             self.threshold.set_bounds(self._model_bounds())
 
     def _ready(self) -> bool:
@@ -251,7 +268,9 @@ class SageGate:
             s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
             motion = self._motion(obs)
-            if kernel is not None:
+            if self.cfg.curiosity_signal == "disagreement":
+                curiosity = float(self.world_model.disagreement(o, a, motion)[0])
+            elif kernel is not None:
                 last_obs, last_action, version = self._last
                 reuse = version == self.world_model.version and last_obs is obs and np.array_equal(last_action, action)
                 curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)
@@ -264,12 +283,17 @@ class SageGate:
         return curiosity
 
     def state(self) -> dict[str, float]:
-        """What persists across episodes (the curiosity average), for checkpoints."""
-        return {"curiosity_ema": self.threshold.ema}
+        """What persists across episodes (the curiosity average, named by the signal it averages), for checkpoints."""
+        return {self._ema_key(): self.threshold.ema}
+
+    def _ema_key(self) -> str:
+        # an average of another signal is on another scale: each signal's has its own name
+        return "curiosity_ema" if self.cfg.curiosity_signal == "error" else "disagreement_ema"
 
     def load_state(self, state: dict[str, float]) -> None:
-        if "curiosity_ema" in state:
-            self.threshold.ema = float(state["curiosity_ema"])
+        key = self._ema_key()
+        if key in state and self.cfg.curiosity_reference == "recent":  # a fixed reference is the model's, not a run's
+            self.threshold.ema = float(state[key])
             self._reference_version = self.world_model.version
 
 

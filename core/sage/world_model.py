@@ -160,6 +160,9 @@ class EnsembleWorldModel(nn.Module):
         self.register_buffer("out_std", torch.ones(out_dim))
         self.register_buffer("sigma_scale", torch.ones(MAX_HORIZON))
         self.register_buffer("curiosity_ref", torch.tensor(1.0))
+        self.register_buffer("disagreement_ref", torch.tensor(float("nan")))
+        """The members' mean disagreement about the next state on the last calibration's states (NaN: not measured),
+        the fixed reference of a gate with ``curiosity_signal="disagreement"``, ``curiosity_reference="fitted"``."""
         self.register_buffer("fitted", torch.tensor(False))
         self.register_buffer("pos_weight", torch.tensor(1.0))
         """Class-balancing weight of the last fit (n_neg / n_pos); log of it is taken out of the cost logit."""
@@ -206,6 +209,16 @@ class EnsembleWorldModel(nn.Module):
         x = x.unsqueeze(0).expand(self.members, *x.shape) if x.dim() == 2 else x
         mean, logvar = self.forward_normalised(x)
         return mean * self.out_std + self.out_mean, logvar
+
+    @torch.no_grad()
+    def disagreement(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> Tensor:
+        """Per sample, the members' spread about the next state: sqrt(mean_d var_n(Δ_n,d) / std(Δ_d)²), the
+        epistemic part of :meth:`predictive_std` alone (a mover's unpredictability, which every member learned
+        alike, does not raise it; a state unlike the training data does)."""
+        mean, _ = self.predict(obs, action, motion)
+        d = self.obs_dim
+        spread = mean[..., :d].var(0, unbiased=False) / self.out_std[:d].pow(2)
+        return spread.mean(-1).sqrt()
 
     def predictive_std(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> Tensor:
         """The state mixture's std per sample: mean over normalised state dims of sqrt(mean σ² + var μ)."""
@@ -436,6 +449,8 @@ class EnsembleWorldModel(nn.Module):
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):  # type: ignore[no-untyped-def]
         if "ego_geometry" not in state_dict:  # saved before the ego step was an option: learned over none
             state_dict = {**state_dict, "ego_geometry": torch.zeros(0)}
+        if "disagreement_ref" not in state_dict:  # saved before it was measured: unknown until a calibration
+            state_dict = {**state_dict, "disagreement_ref": torch.tensor(float("nan"))}
         if "pos_weight" not in state_dict and "out.bias" in state_dict:
             # a checkpoint from before the violation classifier: its cost column was a Gaussian regression, which
             # means nothing as a logit. Keep its dynamics and uncertainty; its ĉ says "no violation known" until
@@ -542,6 +557,7 @@ def merge_ensembles(models: Sequence[EnsembleWorldModel]) -> EnsembleWorldModel:
     state["max_logvar"] = torch.stack([twin.max_logvar.detach() for twin in moved]).amax(0)
     state["min_logvar"] = torch.stack([twin.min_logvar.detach() for twin in moved]).amin(0)
     state["curiosity_ref"] = torch.stack([m.curiosity_ref for m in models]).mean()
+    state["disagreement_ref"] = torch.tensor(float("nan"))  # the union's members disagree anew: calibrate it
     state["sigma_scale"] = torch.ones(MAX_HORIZON)
     state["tau_bounds"] = torch.tensor([float("nan"), float("nan")])
     merged.load_state_dict(state)
