@@ -82,7 +82,7 @@ def test_the_gate_scores_disagreement_and_a_fitted_reference_keeps_novel_ground_
 
 
 def test_a_saved_average_is_read_back_only_by_a_gate_of_the_same_signal() -> None:
-    model, s, a = fitted_model()
+    model, s, _ = fitted_model()
     policy = actor()
     calibrate(model, policy.deterministic, torch.from_numpy(s), 3, cfg=GateConfig())
     paper = SageGate(model, policy, GateConfig())
