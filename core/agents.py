@@ -75,6 +75,7 @@ FEAR_SHAPE = (
     "imagined_contact",
     "contact_needs_closing",
     "contact_horizon",
+    "contact_extrapolation",
 )
 """Gate settings that change the fear a model's τ bounds were measured on (or the quantiles they were taken at):
 a gate that sets one over a run's own needs the bounds measured again (``sage gate refit-bounds``)."""

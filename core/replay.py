@@ -234,6 +234,22 @@ class ReplayBuffer:
         out[cur] = motion_between(self.obs[prev], self.obs[cur], scan) / back[has, None].astype(np.float32)
         return out
 
+    def preceding_rows(self, back: int) -> np.ndarray:
+        """Per stored row (the order of :meth:`arrays`): the stored index of the row ``back`` steps before it in the
+        same episode (as far as the buffer holds it), -1 where the episode began fewer than ``back`` rows before."""
+        n = self.size
+        out = np.full(n, -1, np.int64)
+        if n < 2 or back < 1:
+            return out
+        order, continues = self._chronology()
+        linked = np.zeros(n, bool)
+        linked[1:] = continues[:-1]
+        position = np.arange(n)
+        start = np.maximum.accumulate(np.where(linked, 0, position))  # where each row's chain began
+        has = position - start >= back
+        out[order[position[has]]] = order[position[has] - back]
+        return out
+
     def reward_magnitude(self) -> float:
         """The largest |reward| recorded, terminal transitions included (0 when empty)."""
         n = self.size

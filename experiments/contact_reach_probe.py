@@ -5,6 +5,8 @@ Replays chosen episodes of gate + scripted expert (``--run`` with ``gate.contact
 ``--window`` steps before the first contact, fear over τ, the true time to contact, and the share of ensemble members
 imagining contact within the learned horizon (steps 1 to ``gate.horizon``) and past it (the most at any later step):
 whether the longer reach saw the mover coming, or the world model's imagined scans never reached a contact floor.
+With ``gate.contact_extrapolation`` set, also the fastest closing the gate read from the real scans after the step
+(:meth:`core.sage.gate.SageGate.closing_rate`, range units a step; – where it reads none).
 
     .venv/bin/python -m experiments.contact_reach_probe --run runs/ugv-contact-horizon-10 --seeds 3000001,3000057
 
@@ -45,6 +47,7 @@ def probe(run: str, scenario: str, seed: int, window: int) -> list[dict[str, Any
         ttc = before[0] if r.t > 0 else math.nan
         before[0] = float(r.info.get("ttc", math.nan))
         ratio = r.fear / r.threshold if r.threshold else math.nan
+        rate = gate.closing_rate() if gate.cfg.contact_extrapolation else None
         rows.append(
             {
                 "t": r.t,
@@ -53,6 +56,7 @@ def probe(run: str, scenario: str, seed: int, window: int) -> list[dict[str, Any
                 "ttc": ttc,
                 "within": within,
                 "past": past,
+                "closing": math.nan if rate is None else float(rate.min()),
                 "violation": bool(r.violation),
             }
         )
@@ -80,12 +84,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = probe(args.run, args.scenario, seed, args.window)
         print(f"\nseed {seed}: " + ("no collision" if not rows else f"contact at step {rows[-1]['t']}"))
         if rows:
-            print("| step | driver | fear/τ | ttc (s) | members in contact ≤ horizon | past it |")
-            print("|---|---|---|---|---|---|")
+            closing = any(math.isfinite(row["closing"]) for row in rows)
+            extra = (" fastest closing |", "---|") if closing else ("", "")
+            print("| step | driver | fear/τ | ttc (s) | members in contact ≤ horizon | past it |" + extra[0])
+            print("|---|---|---|---|---|---|" + extra[1])
             for row in rows:
+                rate = f" {row['closing']:.3f} |" if closing else ""
                 print(
                     f"| {row['t']} | {row['driver']} | {row['fear/τ']:.2f} | {row['ttc']:.2f} | {row['within']:.1f} "
-                    f"| {row['past']:.1f} |"
+                    f"| {row['past']:.1f} |" + rate
                 )
     return 0
 

@@ -82,6 +82,7 @@ def gate_rollout(
     ego_geometry: tuple,
     floors: np.ndarray,
     closing: np.ndarray,
+    closing_rate: np.ndarray,
     sigma_divisor: np.ndarray,
     weights: np.ndarray,
     beta: float,
@@ -92,7 +93,9 @@ def gate_rollout(
     [state, action (, motion)] rows, filled here step by step; ``outputs`` (m, N, D + 1) each step's Δs and
     violation logit; ``probability`` (m, N) each member's violation probability with imagined contact, written;
     ``first_base`` (1, D) and ``base`` (N, D) the ego step's moved states (unused without one). ``floors``: the
-    contact floors (empty: none), ``closing`` which of their channels may count; ``weights`` the discounted
+    contact floors (empty: none), ``closing`` which of their channels may count, ``closing_rate`` each channel's
+    closing per step the real scans show, extrapolated over the imagined steps (zeros: none,
+    ``GateConfig.contact_extrapolation``); ``weights`` the discounted
     mean's (empty: the maximum); ``learned`` the first steps whose learned head and σ̂ count (those after it count
     imagined contact alone: ``GateConfig.contact_horizon``; ``sigma_divisor`` holds these steps')."""
     m, n = outputs.shape[0], outputs.shape[1]
@@ -165,10 +168,11 @@ def gate_rollout(
             for member in range(n):
                 step[member] = 0.0
         total = 0.0
+        ahead = np.float32(k + 1)  # step k + 1 of the rollout: the closing extrapolated over k + 1 steps
         for member in range(n):
             p = step[member]
             for i in range(floors.shape[0]):
-                if closing[i] and x[k + 1, member, i] <= floors[i]:
+                if closing[i] and x[k + 1, member, i] + ahead * closing_rate[i] <= floors[i]:
                     p = 1.0
                     break
             probability[k, member] = p
@@ -246,11 +250,14 @@ class CompiledGateKernel(GateKernel):
             self._geometry = (np.zeros((1, 2)), np.zeros((1, 3), np.int64), np.zeros(6), np.zeros(2, np.int64))
         self._floors = np.zeros(0, np.float32) if self.contact is None else self.contact.numpy()
         self._all_closing = np.ones(self._floors.shape[0], dtype=np.bool_)
+        self._no_closing_rate = np.zeros(self._floors.shape[0], dtype=np.float32)
         self._divisor = self.sigma_divisor[:, 0].double().numpy().copy()
         self._weights = np.zeros(0) if self.weights is None else self.weights.double().numpy().copy()
         self._inv_obs_std = model.inv_obs_std.reshape(-1).numpy()
 
-    def __call__(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> tuple[float, float, float]:
+    def __call__(
+        self, obs: Tensor, action: Tensor, motion: Tensor | None = None, closing_rate: Tensor | None = None
+    ) -> tuple[float, float, float]:
         d, a = self.d, self.act_dim
         x = self._x
         x[0, :, :d] = obs.numpy()
@@ -259,6 +266,9 @@ class CompiledGateKernel(GateKernel):
             x[0, :, d + a : 2 * d + a] = 0.0 if motion is None else motion.numpy()
         closing = closing_channels(self.cfg, motion, self.contact)
         closing_mask = self._all_closing if closing is None else closing.reshape(-1).numpy()
+        rate = self._no_closing_rate
+        if self.cfg.contact_extrapolation and closing_rate is not None:
+            rate = np.ascontiguousarray(closing_rate.reshape(-1).numpy(), np.float32)
         return gate_rollout(
             x,
             self._outputs,
@@ -278,6 +288,7 @@ class CompiledGateKernel(GateKernel):
             self._geometry,
             self._floors,
             closing_mask,
+            rate,
             self._divisor,
             self._weights,
             float(self.cfg.beta),

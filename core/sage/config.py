@@ -190,6 +190,9 @@ class GateConfig:
     contact_horizon: int | None = None
     """Steps (> ``horizon``) that imagined contact alone reaches; ĉ and σ̂ keep ``horizon``. None: ``horizon``. The
     gate's only."""
+    contact_extrapolation: bool = False
+    """With ``imagined_contact``: each scan sector's closing that the robot's motion leaves unexplained, seen two steps
+    running, is extrapolated over the imagined steps in the contact test. The gate's only."""
 
     @property
     def hold(self) -> int:
@@ -536,6 +539,11 @@ def validate(cfg: AgentConfig) -> None:
             raise ValueError("gate.contact_horizon is the reach of imagined contact: it needs gate.imagined_contact")
         if cfg.gate.contact_horizon > cfg.gate.horizon and cfg.gate.aggregate != "max":
             raise ValueError("gate.contact_horizon beyond gate.horizon needs gate.aggregate=max")
+    if cfg.gate.contact_extrapolation and not cfg.gate.imagined_contact:
+        raise ValueError(
+            "gate.contact_extrapolation extrapolates closing scan sectors in the imagined contact test: it needs "
+            "gate.imagined_contact"
+        )
     if cfg.gate.contact_needs_closing and not cfg.world_model_config.motion_input:
         raise ValueError("gate.contact_needs_closing reads the motion input: it needs world_model_config.motion_input")
     if not 0.0 < cfg.gamma < 1.0:

@@ -93,11 +93,20 @@ def contact_floors(cfg: GateConfig | None) -> Tensor | None:
     return torch.tensor(cfg.contact_floors, dtype=torch.float32)
 
 
-def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None, closing: Tensor | None = None) -> Tensor:
+def with_contact(
+    probability: Tensor,
+    states: Tensor,
+    floors: Tensor | None,
+    closing: Tensor | None = None,
+    closing_rate: Tensor | None = None,
+) -> Tensor:
     """Each member's violation probability at each imagined step, raised to 1 where its predicted state is in
     contact (some channel i at or under ``floors[i]``): ``probability`` (m, N, B), ``states`` (m, N, B, D) the
     states those steps led to. Unchanged when ``floors`` is None. ``closing``: where given, a bool (..., B, n) mask of
     the channels the real last step shows closing (``GateConfig.contact_needs_closing``); contact counts there only.
+    ``closing_rate``: where given, (B, n) each channel's closing per step that the robot's own motion does not explain
+    (<= 0, :func:`closing_rate`); step k (1-based) then tests state_k[i] + k rate[i] <= floors[i]: the movers' closing
+    extrapolated at constant speed on top of the imagined ego motion (``GateConfig.contact_extrapolation``).
 
     It enters ĉ (the members' mean) only: σ̂ stays the members' disagreement about the learned danger. Counted in σ̂
     too, contact would make fear fall as the members come to agree on it: all five in contact give β, two of five
@@ -106,7 +115,11 @@ def with_contact(probability: Tensor, states: Tensor, floors: Tensor | None, clo
         return probability
     if floors.shape[0] > states.shape[-1]:
         raise ValueError(f"gate.contact_floors has {floors.shape[0]} channels, the observation {states.shape[-1]}")
-    touching = states[..., : floors.shape[0]] <= floors.to(states.device)
+    ranges = states[..., : floors.shape[0]]
+    if closing_rate is not None:
+        steps = torch.arange(1, ranges.shape[0] + 1, dtype=ranges.dtype, device=ranges.device)
+        ranges = ranges + steps.view(-1, *([1] * (ranges.dim() - 1))) * closing_rate.to(ranges.device)
+    touching = ranges <= floors.to(states.device)
     if closing is not None:
         touching = touching & closing.to(states.device)
     return torch.maximum(probability, touching.any(-1).to(probability.dtype))
@@ -140,6 +153,23 @@ def closing_channels(cfg: GateConfig | None, motion: Tensor | None, floors: Tens
     return motion[..., :n] < 0
 
 
+def unexplained_change(base: Tensor, next_obs: Tensor, channels: int) -> Tensor:
+    """The change of the first ``channels`` channels (the contact floors' scan sectors) that the robot's own motion
+    does not explain: ``next_obs`` minus ``base``, the observation moved by the world model's ego step
+    (:meth:`core.motion.EgoScanStep.apply`; the observation itself for a model without one). Over a static world it is
+    about 0; a mover's own range rate shows in it, per sector and step."""
+    return next_obs[..., :channels] - base[..., :channels]
+
+
+def closing_rate(previous: Tensor, latest: Tensor) -> Tensor:
+    """Each channel's closing per step (<= 0) from the two last :func:`unexplained_change` of one episode: where both
+    fall, the one nearer 0, else 0. A range whose return newly appears (an edge entering the sector, an occlusion
+    ending) jumps by far more than any mover moves in a step, once: seen in two consecutive steps and taken at its
+    smaller magnitude, such a jump never counts, while a mover closing at a steady speed counts at that speed."""
+    both = (previous < 0) & (latest < 0)
+    return torch.where(both, torch.maximum(previous, latest), torch.zeros_like(latest))
+
+
 def rollout(
     model: FoldedModel,
     policy: PolicyFn,
@@ -152,6 +182,7 @@ def rollout(
     *,
     states_needed: bool = True,
     learned_steps: int | None = None,
+    closing_rate: Tensor | None = None,
 ) -> Rollout:
     """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
     the last observed change of state (zeros when None), for a model with the motion input; later steps take
@@ -167,7 +198,10 @@ def rollout(
 
     ``learned_steps``: where fewer than ``horizon``, the steps after them count imagined contact alone (their learned
     violation probability is left out of ``cost``; :func:`fear_of` reads σ̂ over the first ``learned_steps`` only):
-    the gate's ``contact_horizon`` (:func:`contact_reach`). None: every step counts both."""
+    the gate's ``contact_horizon`` (:func:`contact_reach`). None: every step counts both.
+
+    ``closing_rate``: (B, n) the channels' closing the real scans show (:func:`closing_rate`), extrapolated over the
+    imagined steps in the contact test (:func:`with_contact`; ``GateConfig.contact_extrapolation``). None: none."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
@@ -219,7 +253,10 @@ def rollout(
         learned = probability * keep.to(probability.dtype).view(horizon, 1, 1)
     else:
         learned_steps = None
-    cost = learned if contact is None else with_contact(learned, torch.stack(states[1:]), contact, closing)
+    if contact is None:
+        cost = learned
+    else:
+        cost = with_contact(learned, torch.stack(states[1:]), contact, closing, closing_rate)
     return Rollout(torch.stack(states), torch.stack(actions), cost, sigma_raw, learned_steps)
 
 
@@ -309,19 +346,22 @@ def calibrate(
     cfg: GateConfig | None = None,
     safe: Tensor | None = None,
     motion: Tensor | None = None,
+    closing_rate: Tensor | None = None,
 ) -> Tensor:
     """Set κ_k, the ``quantile`` of σ_raw at each rollout step k from real states ``obs`` under ``policy``; with
     ``cfg``, also the threshold bounds (τ_min, τ_max): the ``tau_min_quantile`` and ``tau_max_quantile`` of the
     fear of those states that were ``safe`` (no violation ahead: the states a gate should leave alone), so that
     each simulator's threshold sits where its familiar, safe fear lies (a UGV-tuned constant range put every SUMO
     and highway fear below τ_max; quantiles over all states, near-misses included, put τ above most of the
-    fear that precedes a collision)."""
+    fear that precedes a collision). ``closing_rate``: each state's closing the real scans before it showed, for a
+    gate that extrapolates it (:func:`closing_rate`, ``GateConfig.contact_extrapolation``; None: none)."""
     with torch.no_grad():
         folded = world_model.folded()
         learned = min(horizon, MAX_HORIZON)
         steps = min(contact_reach(cfg, horizon), MAX_HORIZON)  # the gate's imagined contact may reach further
         terms = contact_terms(cfg, motion)
-        ro = rollout(folded, policy, obs, policy(obs), steps, motion, *terms, learned_steps=learned)
+        rate = closing_rate if cfg is not None and cfg.contact_extrapolation else None
+        ro = rollout(folded, policy, obs, policy(obs), steps, motion, *terms, learned_steps=learned, closing_rate=rate)
         scale = torch.quantile(ro.sigma_raw[:learned], quantile, dim=1).clamp_min(1e-6)
         world_model.sigma_scale[: len(scale)] = scale
         world_model.sigma_scale[len(scale) :] = scale[-1]
@@ -356,12 +396,17 @@ class CalibrationSample:
     next_obs: np.ndarray
     familiar: np.ndarray
     motion: np.ndarray | None = None
+    closing_rate: np.ndarray | None = None
+    """(B, n) each state's closing per step that the real scans before it showed (``gate.contact_extrapolation``'s
+    :func:`closing_rate`); None where the gate it was drawn for does not extrapolate (read as none)."""
 
     def __post_init__(self) -> None:
         n = len(self.obs)
         parts = {"action": self.action, "next_obs": self.next_obs, "familiar": self.familiar}
         if self.motion is not None:
             parts["motion"] = self.motion
+        if self.closing_rate is not None:
+            parts["closing_rate"] = self.closing_rate
         for name, values in parts.items():
             if len(values) != n:
                 raise ValueError(f"calibration sample: {name} has {len(values)} rows, obs has {n}")
@@ -374,6 +419,8 @@ class CalibrationSample:
         arrays = {"obs": self.obs, "action": self.action, "next_obs": self.next_obs, "familiar": self.familiar}
         if self.motion is not None:
             arrays["motion"] = self.motion
+        if self.closing_rate is not None:
+            arrays["closing_rate"] = self.closing_rate
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez_compressed(tmp, **arrays)
         tmp.replace(path)
@@ -395,6 +442,7 @@ class CalibrationSample:
             next_obs=arrays["next_obs"].astype(np.float32),
             familiar=arrays["familiar"].astype(bool),
             motion=arrays["motion"].astype(np.float32) if "motion" in arrays else None,
+            closing_rate=arrays["closing_rate"].astype(np.float32) if "closing_rate" in arrays else None,
         )
 
     def calibrate(self, world_model: EnsembleWorldModel, policy: PolicyFn, cfg: GateConfig) -> None:
@@ -408,6 +456,7 @@ class CalibrationSample:
             cfg=cfg,
             safe=torch.from_numpy(self.familiar),
             motion=None if self.motion is None else torch.from_numpy(self.motion),
+            closing_rate=None if self.closing_rate is None else torch.from_numpy(self.closing_rate),
         )
 
     @classmethod
@@ -423,6 +472,7 @@ class CalibrationSample:
             next_obs=np.concatenate([s.next_obs for s in samples]),
             familiar=np.concatenate([s.familiar for s in samples]),
             motion=np.concatenate([s.motion for s in samples]) if with_motion == {True} else None,  # type: ignore[misc]
+            closing_rate=_joined_rates(samples),
         )
 
     def subset(self, index: np.ndarray) -> CalibrationSample:
@@ -432,7 +482,22 @@ class CalibrationSample:
             next_obs=self.next_obs[index],
             familiar=self.familiar[index],
             motion=None if self.motion is None else self.motion[index],
+            closing_rate=None if self.closing_rate is None else self.closing_rate[index],
         )
+
+
+def _joined_rates(samples: list[CalibrationSample]) -> np.ndarray | None:
+    """The samples' closing rates joined; a sample without them (drawn for a gate that does not extrapolate) reads
+    as none closing, zeros. None when no sample has them."""
+    widths = {s.closing_rate.shape[1] for s in samples if s.closing_rate is not None}
+    if not widths:
+        return None
+    if len(widths) > 1:
+        raise ValueError("calibration samples disagree on the closing rates' channels")
+    width = widths.pop()
+    return np.concatenate(
+        [s.closing_rate if s.closing_rate is not None else np.zeros((len(s), width), np.float32) for s in samples]
+    )
 
 
 class CuriosityThreshold:
@@ -581,9 +646,12 @@ class GateKernel:
             h = buf
         return h
 
-    def __call__(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> tuple[float, float, float]:
+    def __call__(
+        self, obs: Tensor, action: Tensor, motion: Tensor | None = None, closing_rate: Tensor | None = None
+    ) -> tuple[float, float, float]:
         """(F^m, ĉ, σ̂) of a (1, D) state and (1, A) first action (``motion``: the last observed change of state,
-        zeros when None); call under ``torch.inference_mode``."""
+        zeros when None; ``closing_rate``: (1, n) the real scans' closing, extrapolated in the contact test where the
+        gate asks for it, :func:`closing_rate`); call under ``torch.inference_mode``."""
         states, actions = self.state_steps, self.action_steps
         states[0].copy_(obs)
         actions[0].copy_(action)
@@ -633,7 +701,8 @@ class GateKernel:
         if self.learned < self.m:  # the steps past the learned ones count imagined contact alone
             probability[self.learned :] = 0.0
         closing = closing_channels(self.cfg, motion, self.contact)  # None unless contact needs closing
-        self.probability = with_contact(probability, self.states[1:], self.contact, closing)
+        rate = closing_rate if self.cfg.contact_extrapolation else None
+        self.probability = with_contact(probability, self.states[1:], self.contact, closing, rate)
         cost = self.probability.sum(1)
         if self.weights is None:
             c, sg = float(cost.max()) * self.inv_members, float(sigma.max())

@@ -34,10 +34,12 @@ from core.sage.fear import (
     CuriosityThreshold,
     GateKernel,
     PolicyFn,
+    closing_rate,
     contact_reach,
     contact_terms,
     fear_of,
     rollout,
+    unexplained_change,
 )
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel
@@ -125,6 +127,9 @@ class SageGate:
         model's motion input is (obs - the oldest) / their number."""
         self._horizon_source: Any = None
         """The last decision's rollout costs (the kernel's buffers, or an (m, N) array): :meth:`last_horizon`."""
+        self._changes: collections.deque[torch.Tensor] = collections.deque(maxlen=2)
+        """The scan sectors' changes the robot's own motion left unexplained over this episode's last two observed
+        steps (``gate.contact_extrapolation``; :func:`core.sage.fear.unexplained_change`), oldest first."""
 
     def _encoded(self, action: Any) -> np.ndarray:
         if self.encode is not None:
@@ -156,6 +161,15 @@ class SageGate:
         self.detail.hold_remaining = 0
         self.threshold.reset_smoothing()
         self._history.clear()
+        self._changes.clear()
+
+    def closing_rate(self) -> torch.Tensor | None:
+        """(1, n) each scan sector's closing per step, the movers' own (<= 0), from the episode's last two observed
+        steps (:func:`core.sage.fear.closing_rate`): what ``gate.contact_extrapolation`` extrapolates over the imagined
+        steps. None when the gate does not extrapolate or has seen fewer than two steps of this episode."""
+        if not self.cfg.contact_extrapolation or len(self._changes) < 2:
+            return None
+        return closing_rate(self._changes[0], self._changes[1])
 
     def _motion(self, obs: np.ndarray) -> torch.Tensor | None:
         """(s_t - s_{t-k}) / k as a (1, D) tensor, k = ``motion_lag`` or the steps seen so far in this episode
@@ -216,15 +230,19 @@ class SageGate:
             a = torch.from_numpy(self._encoded(a_rl)).view(1, -1)
             kernel = self.kernel()
             motion = self._motion(obs)
+            rate = self.closing_rate()
             if kernel is not None:
-                value, cost, sigma = kernel(o, a, motion)
+                value, cost, sigma = kernel(o, a, motion, rate)
                 self._last = (obs, a_rl, self.world_model.version)
                 self._horizon_source = kernel
             else:
                 folded = self.world_model.folded()
                 steps = contact_reach(self.cfg, self.cfg.horizon)  # imagined contact may reach past the horizon
                 contact = contact_terms(self.cfg, motion)
-                ro = rollout(folded, self.policy, o, a, steps, motion, *contact, learned_steps=self.cfg.horizon)
+                horizon = self.cfg.horizon
+                ro = rollout(
+                    folded, self.policy, o, a, steps, motion, *contact, learned_steps=horizon, closing_rate=rate
+                )
                 terms = fear_of(folded, ro, self.cfg)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
                 self._horizon_source = ro.cost[..., 0].numpy().copy()
@@ -276,6 +294,10 @@ class SageGate:
                 curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)
             else:
                 curiosity = float(curiosity_folded(self.world_model, o, a, s1, motion)[0])
+            if self.cfg.contact_extrapolation and self.cfg.contact_floors:
+                # the movers' own change per sector: the next scan against this one moved by the robot's action
+                channels = len(self.cfg.contact_floors)
+                self._changes.append(unexplained_change(self.world_model.base(o, a), s1, channels).clone())
         self._history.append(np.asarray(obs, dtype=np.float32).reshape(-1).copy())
         self.detail.rho = self.threshold.rho(curiosity)
         self.threshold.update(curiosity)

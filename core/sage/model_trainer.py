@@ -23,7 +23,16 @@ from torch import Tensor
 
 from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.config import AgentConfig, GateConfig
-from core.sage.fear import CalibrationSample, PolicyFn, contact_reach, contact_terms, rollout, sample_member_transitions
+from core.sage.fear import (
+    CalibrationSample,
+    PolicyFn,
+    closing_rate,
+    contact_reach,
+    contact_terms,
+    rollout,
+    sample_member_transitions,
+    unexplained_change,
+)
 from core.sage.world_model import EnsembleWorldModel, FitReport
 
 SAFE_LABEL = 0.1
@@ -79,7 +88,34 @@ def calibration_sample(
         next_obs=data["next_obs"][idx],
         familiar=familiar[idx],
         motion=None if motion is None else motion[idx],
+        closing_rate=buffer_closing_rates(buffer, world_model, gate, idx),
     )
+
+
+def buffer_closing_rates(
+    buffer: ReplayBuffer, world_model: EnsembleWorldModel, gate: GateConfig, idx: np.ndarray
+) -> np.ndarray | None:
+    """(len(idx), n) the closing rate the gate would have read at each of the stored rows ``idx``
+    (:meth:`core.sage.gate.SageGate.closing_rate`: from the episode's two transitions before the row), for a gate with
+    ``contact_extrapolation``; zeros where the episode had not yet shown two. None for a gate without it."""
+    if not gate.contact_extrapolation or not gate.contact_floors:
+        return None
+    channels = len(gate.contact_floors)
+    data = buffer.arrays()
+    rates = np.zeros((len(idx), channels), np.float32)
+    before = [buffer.preceding_rows(back)[idx] for back in (2, 1)]  # the older transition first
+    known = (before[0] >= 0) & (before[1] >= 0)
+    if not known.any():
+        return rates
+    changes = []
+    with torch.no_grad():
+        for rows in before:
+            rows = rows[known]
+            obs, action = torch.from_numpy(data["obs"][rows]), torch.from_numpy(data["action"][rows])
+            moved = world_model.base(obs, action)
+            changes.append(unexplained_change(moved, torch.from_numpy(data["next_obs"][rows]), channels))
+    rates[known] = closing_rate(*changes).numpy()
+    return rates
 
 
 def familiar_mean_fear(sample: CalibrationSample, fear: Callable[[Tensor], Tensor]) -> float | None:

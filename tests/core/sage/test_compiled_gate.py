@@ -62,6 +62,10 @@ GATES = {
     "imagined contact reaching past the horizon": GateConfig(
         imagined_contact=True, contact_floors=[0.2] * 8, contact_horizon=10
     ),
+    # the real scans' closing extrapolated over the imagined steps (gate.contact_extrapolation)
+    "imagined contact with closing extrapolated": GateConfig(
+        imagined_contact=True, contact_floors=[0.1] * 8, contact_extrapolation=True
+    ),
 }
 
 
@@ -82,8 +86,10 @@ def test_compiled_kernel_agrees_with_the_torch_kernel(layout: str, gate: str) ->
         action = torch.as_tensor(rng.uniform(-2, 2, (1, ACT)).astype(np.float32))
         motion = None if i == 0 else torch.as_tensor(states[i : i + 1] - states[i + 1 : i + 2])
         nxt = torch.as_tensor(states[i + 1 : i + 2])
+        # a closing rate (<= 0) in some sectors, none in others (ignored by the gates that do not extrapolate)
+        rate = torch.as_tensor(np.minimum(rng.uniform(-0.06, 0.03, (1, 8)), 0.0).astype(np.float32))
         with torch.inference_mode():
-            expected, got = reference(obs, action, motion), compiled(obs, action, motion)
+            expected, got = reference(obs, action, motion, rate), compiled(obs, action, motion, rate)
             np.testing.assert_allclose(got, expected, rtol=RTOL, atol=ATOL)
             # every imagined state, action and motion (the last state's motion feeds nothing: the torch kernel's
             # is not compared), and each member's probability, not only the aggregate. The products' rounding
