@@ -26,7 +26,11 @@ class ScriptedFear:
         self.values = list(values)
 
     def __call__(
-        self, obs: torch.Tensor, action: torch.Tensor, motion: torch.Tensor | None = None
+        self,
+        obs: torch.Tensor,
+        action: torch.Tensor,
+        motion: torch.Tensor | None = None,
+        closing_rate: torch.Tensor | None = None,
     ) -> tuple[float, float, float]:
         value = self.values.pop(0)
         return value, value, 0.0
