@@ -317,6 +317,18 @@ def experiment(plan: SessionPlan, out: Path, work: Path, command: str, say: Any 
         ours = base if final == 0 else alone_outcomes(plan, store.get(final).path, scenario)
         alone[scenario] = {"v0": base, "final": ours}
         comparisons.append(compare(ours, base))
+    # post-hoc, not in the rule: the newest version the worker published, promoted or not (did the promotion check
+    # hold back a version that was better alone?)
+    latest = max(v["number"] for v in versions)
+    posthoc = []
+    if latest not in (0, final):
+        for scenario in (plan.scenario, plan.unseen):
+            if not scenario:
+                continue
+            say(f"post-hoc: v{latest:04d} (the newest published) alone on {plan.sim} {scenario}")
+            newest = alone_outcomes(plan, store.get(latest).path, scenario)
+            alone[scenario]["latest"] = newest
+            posthoc.append(compare(newest, alone[scenario]["v0"]))
     seen = comparisons[0]
     met = final != 0 and seen["better"]
     report = {
@@ -332,6 +344,8 @@ def experiment(plan: SessionPlan, out: Path, work: Path, command: str, say: Any 
         "takeover_bins": takeover_bins(log, dt),
         "alone": alone,
         "comparison": comparisons,
+        "latest_published": latest,
+        "latest_comparison": posthoc,
         "target_met": met,
     }
     out.mkdir(parents=True, exist_ok=True)
@@ -380,6 +394,11 @@ def render(report: dict[str, Any]) -> str:
     for row in report["takeover_bins"]:
         driving = ", ".join(f"v{n:04d}" for n in row["versions"])
         lines.append(f"| {row['minute']} | {row['steps']} | {_pct(row['takeover_share'])} | {driving} |")
+    header = [
+        "| scenario | v0000 success | final success | v0000 collisions | final collisions | only final / only v0 "
+        "| McNemar p | intervals apart | better |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     lines += [
         "",
         f"## Alone (no gate, no expert, deterministic): v0000 against v{report['in_control']:04d}",
@@ -387,11 +406,30 @@ def render(report: dict[str, Any]) -> str:
         f"Seeds {plan['alone_seed']}..{plan['alone_seed'] + plan['alone_episodes'] - 1}, the same for both; "
         "95% Wilson intervals; exact McNemar test on the seeds where only one of the two succeeded.",
         "",
-        "| scenario | v0000 success | final success | v0000 collisions | final collisions | only final / only v0 "
-        "| McNemar p | intervals apart | better |",
-        "|---|---|---|---|---|---|---|---|---|",
+        *header,
     ]
-    for c in report["comparison"]:
+    lines += _comparison_rows(report["comparison"])
+    if report.get("latest_comparison"):
+        lines += [
+            "",
+            f"Post-hoc, not in the rule: v{report['latest_published']:04d}, the newest version published (promoted or "
+            'not), alone on the same seeds against v0000 (its "final" columns).',
+            "",
+            *header,
+            *_comparison_rows(report["latest_comparison"]),
+        ]
+    lines += [
+        "",
+        f"Target (a promoted version in control that does better alone on {plan['sim']} {plan['scenario']}, by the rule"
+        f" in docs/notes/adaptation_probe.md): **{'met' if report['target_met'] else 'not met'}** for this seed.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _comparison_rows(comparisons: list[dict[str, Any]]) -> list[str]:
+    lines = []
+    for c in comparisons:
         lo0, hi0 = c["v0_interval"]
         lo1, hi1 = c["final_interval"]
         lines.append(
@@ -400,13 +438,7 @@ def render(report: dict[str, Any]) -> str:
             f"| {c['final_collisions']} | {c['only_ours']} / {c['only_theirs']} | {c['p_two_sided']:.3g} "
             f"| {'yes' if c['intervals_apart'] else 'no'} | {'yes' if c['better'] else 'no'} |"
         )
-    lines += [
-        "",
-        f"Target (a promoted version in control that does better alone on {plan['sim']} {plan['scenario']}, by the rule"
-        f" in docs/notes/adaptation_probe.md): **{'met' if report['target_met'] else 'not met'}** for this seed.",
-        "",
-    ]
-    return "\n".join(lines)
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
