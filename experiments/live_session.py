@@ -229,7 +229,8 @@ def version_rows(versions_root: Path) -> list[dict[str, Any]]:
                 "takeover_samples": metrics.get("takeover_samples"),
                 "prior_steps": metrics.get("prior_steps"),
                 "method": metrics.get("method"),
-                "promoted": bool(verdict.get("promoted")) and not verdict.get("rolled_back"),
+                "promoted": bool(verdict.get("promoted")),
+                "may_drive": bool(verdict.get("promoted")) and not verdict.get("rolled_back"),
                 "judged": "promoted" in verdict,
                 "reason": verdict.get("reason", "not judged when the session ended"),
                 "rolled_back": bool(verdict.get("rolled_back")),
@@ -294,6 +295,36 @@ def compare(final: dict[str, Any], base: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def version_fields(versions: list[dict[str, Any]]) -> dict[str, Any]:
+    return {
+        "versions": versions,
+        "published": len(versions) - 1,
+        "promoted": [v["number"] for v in versions if v["number"] > 0 and v["promoted"]],
+        "rolled_back": [v["number"] for v in versions if v["rolled_back"]],
+    }
+
+
+def target_met(final: int, versions: list[dict[str, Any]], comparisons: list[dict[str, Any]]) -> bool:
+    """The rule: the version in control at the end is fine-tuned, passed the promotion check, and does better alone
+    on the session's scenario (the first comparison)."""
+    passed = any(v["number"] == final and v["promoted"] for v in versions)
+    return final != 0 and passed and bool(comparisons) and bool(comparisons[0]["better"])
+
+
+def rerender(folder: Path) -> dict[str, Any]:
+    """Read ``folder/report.json`` again, its versions' verdicts from the session's versions folder when it is still
+    there, and write both files anew (the run's command and commit stay; ``rendered_at`` names this commit)."""
+    report = json.loads((folder / "report.json").read_text())
+    root = Path(report["versions_root"])
+    if root.is_dir():
+        report.update(version_fields(version_rows(root)))
+    report["target_met"] = target_met(report["in_control"], report["versions"], report["comparison"])
+    report["rendered_at"] = current_commit()
+    (folder / "report.json").write_text(json.dumps(report, indent=2, default=str) + "\n")
+    (folder / "report.md").write_text(render(report))
+    return report
+
+
 # -- the report -----------------------------------------------------------------------------------------------------
 def experiment(plan: SessionPlan, out: Path, work: Path, command: str, say: Any = print) -> dict[str, Any]:
     """The session, the alone evaluation and the report (``out/report.json``, ``out/report.md``)."""
@@ -329,8 +360,7 @@ def experiment(plan: SessionPlan, out: Path, work: Path, command: str, say: Any 
             newest = alone_outcomes(plan, store.get(latest).path, scenario)
             alone[scenario]["latest"] = newest
             posthoc.append(compare(newest, alone[scenario]["v0"]))
-    seen = comparisons[0]
-    met = final != 0 and seen["better"]
+    met = target_met(final, versions, comparisons)
     report = {
         "command": command,
         "commit": current_commit(),
@@ -338,9 +368,7 @@ def experiment(plan: SessionPlan, out: Path, work: Path, command: str, say: Any 
         "dt": dt,
         **session,
         "steps_per_second": round(session["steps"] / max(session["wall_seconds"], 1e-9), 2),
-        "versions": versions,
-        "published": len(versions) - 1,
-        "promoted": [v["number"] for v in versions if v["number"] > 0 and v["promoted"]],
+        **version_fields(versions),
         "takeover_bins": takeover_bins(log, dt),
         "alone": alone,
         "comparison": comparisons,
@@ -364,13 +392,15 @@ def render(report: dict[str, Any]) -> str:
         f"# Live session, {plan['sim']} {plan['scenario']}, seed {plan['seed']}",
         "",
         f"Command: `{report['command']}`  ",
-        f"Commit: `{report['commit']}`",
+        f"Commit: `{report['commit']}`"
+        + (f" (report rendered again at `{report['rendered_at']}`)" if report.get("rendered_at") else ""),
         "",
         f"The dashboard's loop (`app.live.LiveLoop`, expert mode scripted) from `{plan['policy']}` with its fine-tuning"
         f" worker: {report['steps']} steps of simulated driving ({report['steps'] * report['dt'] / 60:.1f} min) in "
         f"{report['wall_seconds']} s of wall clock ({report['steps_per_second']} steps/s at speed {plan['speed']}), "
         f"{len(report['episodes'])} episodes finished. Versions published: {report['published']}; promoted: "
-        f"{', '.join(f'v{n:04d}' for n in report['promoted']) or 'none'}; in control at the end: "
+        f"{', '.join(f'v{n:04d}' for n in report['promoted']) or 'none'}; rolled back live: "
+        f"{', '.join(f'v{n:04d}' for n in report.get('rolled_back', [])) or 'none'}; in control at the end: "
         f"v{report['in_control']:04d}. Worker at the end: {report['worker']['phase']}"
         + (f" (error: {report['worker']['error']})" if report["worker"].get("error") else "")
         + ".",
@@ -388,6 +418,8 @@ def render(report: dict[str, Any]) -> str:
         updates = "-" if v["updates"] is None else f"{v['updates']} ({v['kept_update']})"
         samples = "-" if v["takeover_samples"] is None else str(v["takeover_samples"])
         promoted = "yes" if v["promoted"] else ("no" if v["judged"] else "not judged")
+        if v["number"] > 0 and v["rolled_back"]:
+            promoted += ", rolled back"
         lines.append(f"| v{v['number']:04d} | {parent} | {updates} | {samples} | {promoted} | {reason} |")
     lines += ["", "## Takeover share over the session (1-minute bins of simulated time)", ""]
     lines += ["| minute | steps | takeover share | versions driving |", "|---|---|---|---|"]
@@ -455,7 +487,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", dest="settings", action="append", default=[], help="finetune.KEY=VALUE (tests).")
     parser.add_argument("--work", type=Path, default=None, help="Sessions and versions (default: runs/live-sSEED).")
     parser.add_argument("--out", type=Path, required=True, help="Folder for report.md and report.json.")
+    parser.add_argument("--rerender", action="store_true", help="Only write --out's report again from its json.")
     args = parser.parse_args(argv)
+    if args.rerender:
+        if not (args.out / "report.json").is_file():
+            print(f"error: no report.json in {args.out}", file=sys.stderr)
+            return 2
+        print(render(rerender(args.out)))
+        return 0
     settings = []
     for pair in args.settings:
         if not pair.startswith("finetune."):
