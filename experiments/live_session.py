@@ -332,6 +332,7 @@ def experiment(plan: SessionPlan, out: Path, work: Path, command: str, say: Any 
     from core.versions import VersionStore
 
     dt = sims.descriptor(plan.sim).dt
+    commit = current_commit()  # the code that runs: read before the session, not after the minutes it takes
     session = run_session(plan, work, say)
     log: SessionLog = session.pop("log")
     versions = version_rows(Path(session["versions_root"]))
@@ -363,7 +364,7 @@ def experiment(plan: SessionPlan, out: Path, work: Path, command: str, say: Any 
     met = target_met(final, versions, comparisons)
     report = {
         "command": command,
-        "commit": current_commit(),
+        "commit": commit,
         "plan": asdict(plan),
         "dt": dt,
         **session,
