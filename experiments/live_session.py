@@ -229,6 +229,9 @@ def version_rows(versions_root: Path) -> list[dict[str, Any]]:
                 "takeover_samples": metrics.get("takeover_samples"),
                 "prior_steps": metrics.get("prior_steps"),
                 "method": metrics.get("method"),
+                "supervised_takeover": (verdict.get("evaluation") or {}).get("takeover_rate"),
+                "supervised_collisions": (verdict.get("evaluation") or {}).get("violation_episodes"),
+                "supervised_episodes": (verdict.get("evaluation") or {}).get("episodes"),
                 "promoted": bool(verdict.get("promoted")),
                 "may_drive": bool(verdict.get("promoted")) and not verdict.get("rolled_back"),
                 "judged": "promoted" in verdict,
@@ -408,8 +411,11 @@ def render(report: dict[str, Any]) -> str:
         "",
         "## Versions",
         "",
-        "| version | parent | updates (kept at) | takeover samples | promoted | the promotion rule's reason |",
-        "|---|---|---|---|---|---|",
+        "Supervised: the version with its own gate and the scripted expert on the promotion check's episodes.",
+        "",
+        "| version | parent | updates (kept at) | takeover samples | supervised: takeover, collisions | promoted "
+        "| the promotion rule's reason |",
+        "|---|---|---|---|---|---|---|",
     ]
     for v in report["versions"]:
         reason = str(v["reason"]).replace("|", "/")
@@ -421,7 +427,10 @@ def render(report: dict[str, Any]) -> str:
         promoted = "yes" if v["promoted"] else ("no" if v["judged"] else "not judged")
         if v["number"] > 0 and v["rolled_back"]:
             promoted += ", rolled back"
-        lines.append(f"| v{v['number']:04d} | {parent} | {updates} | {samples} | {promoted} | {reason} |")
+        share, hits = v.get("supervised_takeover"), v.get("supervised_collisions")
+        supervised = "-" if share is None else f"{_pct(share)}, {hits}/{v.get('supervised_episodes')}"
+        cells = [f"v{v['number']:04d}", parent, updates, samples, supervised, promoted, reason]
+        lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "## Takeover share over the session (1-minute bins of simulated time)", ""]
     lines += ["| minute | steps | takeover share | versions driving |", "|---|---|---|---|"]
     for row in report["takeover_bins"]:
