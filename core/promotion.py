@@ -293,7 +293,8 @@ class LiveWatch:
     version replaced which. After the window, :meth:`record` returns a rollback reason when the new version
     collided in more of its episodes than its predecessor did in its last ``live_window`` live episodes (or, with
     no live record of the predecessor, than its evaluation's violation rate allows), or when its mean takeover
-    rate is higher by more than ``live_takeover_margin``. Each version is judged once."""
+    rate is higher by more than ``live_takeover_margin``. Each version is judged once, and a version returned to by
+    a rollback is not judged (:meth:`returning_to`)."""
 
     def __init__(self, cfg: PromotionConfig | None = None) -> None:
         self.cfg = cfg or PromotionConfig()
@@ -349,6 +350,12 @@ class LiveWatch:
 
     def predecessor(self, number: int) -> int | None:
         return self._predecessor.get(number)
+
+    def returning_to(self, number: int) -> None:
+        """``number`` drives again because the version that replaced it was rolled back: it is not judged against
+        that version (whose live record is what got it rolled back), so a rollback never bounces back to the
+        version it undid, and ``number`` is never marked rolled back for having been returned to."""
+        self._judged.add(number)
 
 
 def _rates(collisions: Sequence[bool], takeover_rates: Sequence[float]) -> tuple[float, float]:

@@ -546,6 +546,7 @@ class FinetuneService:
         previous = self.watch.predecessor(number)
         if reason is None or previous is None:
             return None
+        self.watch.returning_to(previous)  # judged against the version it replaced, it would bounce straight back
         with contextlib.suppress(Exception):
             path = self.store.get(number).path
             write_verdict(path, {**(read_verdict(path) or {}), "rolled_back": True, "rollback_reason": reason})

@@ -20,6 +20,7 @@ from core.promotion import (
     evaluate_version,
     is_promoted,
     read_verdict,
+    write_verdict,
 )
 from core.sessions import SessionStore
 from core.worker import FinetuneService, WorkerSpec, judge
@@ -110,6 +111,31 @@ def test_a_promoted_version_that_does_worse_live_is_rolled_back() -> None:
     worse.deployed(1, replaced=0, evaluation=evaluation(0, 0.10))
     worse.record(1, False, 0.5)
     assert "asked for help" in (worse.record(1, False, 0.5) or "")
+
+
+def test_a_rollback_does_not_bounce_back_to_the_version_it_undid(deployed: Path, tmp_path: Path) -> None:  # noqa: F811
+    """Measured live (experiments/live_session.py, seed 1): v0002 replaced v0000, collided more live and was rolled
+    back; v0000, deployed again, was then judged against v0002's live record, "rolled back" in turn (its lower
+    takeover rate) and v0002 drove on, with both versions marked rolled back."""
+    versions = VersionStore(tmp_path / "versions")
+    versions.ensure_initial(deployed)
+    shutil.copytree(versions.get(0).path, versions.root / "v0001")
+    write_verdict(versions.get(1).path, {"promoted": True, "reason": "passed"})
+    service = FinetuneService(WorkerSpec(versions.root, tmp_path, "session", promotion=PromotionConfig(live_window=2)))
+    for _ in range(2):
+        assert service.record_episode(0, collided=False, takeover_rate=0.4) is None
+    service.mark_deployed(1)
+    assert service.record_episode(1, collided=True, takeover_rate=0.1) is None
+    reason = service.record_episode(1, collided=True, takeover_rate=0.1)
+    assert reason is not None and "collided" in reason
+    pending = service.take_pending()
+    assert pending is not None and pending[0] == 0
+    service.mark_deployed(0)
+    for _ in range(4):  # asks for more help than v0001 did live: it is where the rollback went, not judged again
+        assert service.record_episode(0, collided=False, takeover_rate=0.6) is None
+    assert service.take_pending() is None and service.status()["in_control"] == 0
+    assert not (read_verdict(versions.get(0).path) or {}).get("rolled_back")
+    assert read_verdict(versions.get(1).path)["rolled_back"]
 
 
 def test_fine_tuning_waits_for_enough_takeover_samples(deployed: Path, tmp_path: Path) -> None:  # noqa: F811
