@@ -23,7 +23,8 @@ A round
      the base was trained as (:func:`adaptation_config`), its optimiser states continued; each update guarded (an
      update whose losses or weights come out NaN or infinite is undone, :func:`guarded_update`), the first
      ``critic_warmup`` of them on the critics alone (:func:`critic_only_update`), the round stopped
-     early when the held-out takeovers' imitation error stops falling, and the weights of its lowest error kept;
+     early when the held-out takeovers' imitation error stops falling, and the weights of its lowest error kept
+     (with ``round_keep`` < 1, only that share of their change from the version in control: a Polyak average);
   4. publishes a new version when the round stayed healthy (all weights finite, at most
      ``max_skipped_fraction`` of its updates undone). A failed round publishes nothing, so the last good
      version stays the latest.
@@ -122,6 +123,12 @@ class FinetuneConfig:
     The prior rows otherwise train only the critic; this holds the actor to what the base did there (forgetting of
     the static scenarios). Actor-critic SAC learners only (a learner without it warns and runs without). 0: none
     (the behaviour before this field)."""
+    round_keep: float = 1.0
+    """Share of a round's change of the actor's and the critics' weights that its version keeps: published weights
+    ``start + round_keep · (end - start)``, start the version in control, end the round's kept weights (a Polyak
+    average with the version in control, each element; so across rounds an exponential average of the rounds'
+    results, damping flip-flops and forgetting). α, λ and the optimiser states are the round's. 1.0: the round's
+    weights (the behaviour before this field)."""
     tau_bounds: TauBoundsRule = "hold"
     """What a world-model refit does to the gate's threshold bounds (τ_min, τ_max, measured on the fear of
     familiar states): ``hold`` keeps the base's within the run of rounds, so that a change in takeover rate is the
@@ -173,6 +180,8 @@ class FinetuneConfig:
             raise ValueError(f"holdout_share must be in [0, 0.5], got {self.holdout_share}")
         if not (math.isfinite(self.prior_distill) and self.prior_distill >= 0):
             raise ValueError(f"prior_distill must be a number >= 0, got {self.prior_distill}")
+        if not (math.isfinite(self.round_keep) and 0.0 < self.round_keep <= 1.0):
+            raise ValueError(f"round_keep must be in (0, 1], got {self.round_keep}")
         if self.critic_warmup < 0:
             raise ValueError(f"critic_warmup must be >= 0, got {self.critic_warmup}")
         if self.prior_episodes < 0 or self.early_stop_every < 1 or self.early_stop_patience < 1:
@@ -239,6 +248,26 @@ def critic_only_update(learner: BaseLearner) -> tuple[dict[str, float], bool]:
     if critic_step is None:
         return learner.guarded_update()
     return learner.guarded_update(lambda: critic_step(learner.buffer.sample(learner.cfg.batch_size, learner.rng)))
+
+
+def keep_share_of_change(learner: BaseLearner, start: dict[str, Any], keep: float) -> float:
+    """Move the learner's declared modules (actor, critics, target critics) back toward ``start`` (a
+    :meth:`BaseLearner._snapshot` taken before the round's updates): each floating-point weight becomes
+    ``start + keep · (now - start)``, in place (views of the weights stay valid). α, λ and the optimiser states
+    stay as they are. Returns the norm of the acting module's change before the move (0 when it did not move)."""
+    moved = 0.0
+    with torch.no_grad():
+        for name, saved in start["modules"].items():
+            module = getattr(learner, name)
+            now = module.state_dict()
+            if name == learner.acting_module:
+                moved = math.sqrt(
+                    sum(float((now[k] - v).pow(2).sum()) for k, v in saved.items() if v.is_floating_point())
+                )
+            mixed = {k: v.lerp(now[k], keep) if v.is_floating_point() else now[k] for k, v in saved.items()}
+            module.load_state_dict(mixed)
+    learner.refresh_acting()
+    return moved
 
 
 # -- the session as training data -----------------------------------------------------------------------------
@@ -619,6 +648,7 @@ class Finetuner:
         lam_start = learner.lam
         best_error = self.heldout_error()
         best_snapshot = learner._snapshot() if best_error is not None else None
+        round_start = learner._snapshot() if cfg.round_keep < 1.0 else None
         best_at, since_best, stopped_early = 0, 0, False
         virtual_every = max(1, learner.cfg.virtual_every)
         sums: dict[str, float] = {}
@@ -665,6 +695,9 @@ class Finetuner:
         if best_snapshot is not None and best_at != result.updates + result.skipped:
             learner._restore(best_snapshot)  # the weights of the lowest held-out imitation error
         result.losses = {key: sums[key] / counts[key] for key in sums} | wm_stats
+        if round_start is not None:
+            # the published version keeps round_keep of the round's change (a Polyak average with the start)
+            result.losses["round_actor_change"] = keep_share_of_change(learner, round_start, cfg.round_keep)
         result.losses["lam_start"], result.losses["lam_end"] = lam_start, learner.lam
         result.losses["critic_warmup_updates"] = warmup
         if best_error is not None:

@@ -88,6 +88,7 @@ def test_a_bad_set_is_one_line_and_exit_2() -> None:
         (["study", "ugv", "--set", "finetune.critic_warmup=2"], "ugv runs no fine-tuning rounds"),
         (["study", "cycles", "--set", "finetune.nope=1"], "--set finetune.: unknown config field 'nope'"),
         (["study", "cycles", "--set", "finetune.critic_warmup=-1"], "critic_warmup must be >= 0, got -1"),
+        (["study", "cycles", "--set", "finetune.round_keep=0"], "round_keep must be in (0, 1], got 0.0"),
         (["serve", "--gate-set", "hold_seconds=2"], "--set gate.hold_seconds=2"),
         (["serve", "--set", "hold_seconds=2"], "names no section this command takes: gate.KEY=VALUE"),
     ):

@@ -532,3 +532,38 @@ def test_a_prior_distillation_anchor_holds_the_rounds_to_the_base_policys_own_ac
 
     plain = Finetuner(versions, store, session, fast(prior_episodes=2), prior=prior, base=0).round()
     assert plain.version is not None and "prior_distill_loss" not in plain.losses  # 0: the rounds as before
+
+
+def test_round_keep_publishes_that_share_of_the_rounds_weight_change(setup) -> None:
+    for bad in (0.0, -0.5, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="round_keep"):
+            FinetuneConfig(round_keep=bad)
+    assert FinetuneConfig().with_settings(["round_keep=0.5"]).round_keep == 0.5
+    versions, store, session = setup
+    finetuner = Finetuner(versions, store, session, fast(updates=40, round_keep=0.25))
+    learner = finetuner.learner
+    start = {n: {k: v.clone() for k, v in getattr(learner, n).state_dict().items()} for n in ("actor", "critic")}
+    alpha_start = float(learner.log_alpha.detach())
+    end: dict[str, dict[str, torch.Tensor]] = {}
+
+    def watch(event: dict[str, Any]) -> None:
+        if event.get("phase") == "training" and event["update"] == 40:  # the round's last update (no early stop)
+            end.update({n: {k: v.clone() for k, v in getattr(learner, n).state_dict().items()} for n in start})
+
+    result = finetuner.round(progress=watch)
+    assert result.version is not None and result.losses["round_actor_change"] > 0
+    assert float(learner.log_alpha.detach()) != alpha_start  # α is the round's, not averaged
+    published = load_checkpoint(result.version.path)["state"]
+    for name in ("actor", "critic"):
+        moved = [k for k in start[name] if not torch.equal(start[name][k], end[name][k])]
+        assert moved, f"the round should have moved the {name}"
+        for key in moved:
+            expected = start[name][key] + 0.25 * (end[name][key] - start[name][key])
+            torch.testing.assert_close(published[name][key], expected, rtol=1e-5, atol=1e-6)
+            assert not torch.allclose(published[name][key], end[name][key])
+    # the learner continues from what was published (the next round starts from the version in control)
+    for key, value in learner.actor.state_dict().items():
+        torch.testing.assert_close(value, published["actor"][key])
+
+    plain = Finetuner(versions, store, session, fast(updates=40), base=0).round()
+    assert plain.version is not None and "round_actor_change" not in plain.losses  # 1.0: the rounds as before
