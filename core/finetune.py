@@ -123,12 +123,12 @@ class FinetuneConfig:
     The prior rows otherwise train only the critic; this holds the actor to what the base did there (forgetting of
     the static scenarios). Actor-critic SAC learners only (a learner without it warns and runs without). 0: none
     (the behaviour before this field)."""
-    round_keep: float = 1.0
+    round_keep: float = 0.5
     """Share of a round's change of the actor's and the critics' weights that its version keeps: published weights
     ``start + round_keep · (end - start)``, start the version in control, end the round's kept weights (a Polyak
     average with the version in control, each element; so across rounds an exponential average of the rounds'
-    results, damping flip-flops and forgetting). α, λ and the optimiser states are the round's. 1.0: the round's
-    weights (the behaviour before this field)."""
+    results). α, λ and the optimiser states are the round's. 1.0: the round's weights (before this field). 0.5 was
+    chosen by a five-seed UGV 3 cycles arm under a rule written before it (docs/notes/adaptation_probe.md)."""
     tau_bounds: TauBoundsRule = "hold"
     """What a world-model refit does to the gate's threshold bounds (τ_min, τ_max, measured on the fear of
     familiar states): ``hold`` keeps the base's within the run of rounds, so that a change in takeover rate is the
@@ -203,6 +203,7 @@ class FinetuneConfig:
             "prior_episodes": 0,
             "holdout_share": 0.0,
             "tau_bounds": "refit",
+            "round_keep": 1.0,
         }
         return cls(**{**values, **overrides})
 

@@ -76,6 +76,7 @@ def fast(**overrides: Any) -> FinetuneConfig:
         "report_every": 10,
         "updates_per_step": None,  # a fixed number of updates: the tests count them
         "holdout_share": 0.0,
+        "round_keep": 1.0,  # the round's own weights: the tests read what a round learned (round_keep: its own test)
     }
     values.update(overrides)
     return FinetuneConfig(**values)
