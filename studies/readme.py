@@ -131,12 +131,18 @@ def summary_table(doc: Path, readme: Path) -> str:
         summary = json.loads(summary_file.read_text())
         anchor = f"{doc_link}#{block['name']}"
         for headline in HEADLINES.get(summary["study"], ()):
-            sage, baseline = (_metric(summary, headline, method) for method in (headline.sage, headline.baseline))
-            apart = abs(sage["mean"] - baseline["mean"]) > sage["ci95_half_width"] + baseline["ci95_half_width"]
+            sage = _metric(summary, headline, headline.sage)
+            # an arm run without its baseline (compared with another section's control) says so, not a number
+            baseline = _metric(summary, headline, headline.baseline) if _has(summary, headline.baseline) else None
+            if baseline is None:
+                shown, verdict = "not run in this folder", "—"
+            else:
+                apart = abs(sage["mean"] - baseline["mean"]) > sage["ci95_half_width"] + baseline["ci95_half_width"]
+                shown, verdict = _shown(baseline, headline.scale), "apart" if apart else "overlap"
             paper = sage.get("paper")
             rows.append(
                 f"| [{block['name']}]({anchor}) | {headline.measure} | {headline.sage}: {_shown(sage, headline.scale)} "
-                f"| {headline.baseline}: {_shown(baseline, headline.scale)} | {'apart' if apart else 'overlap'} "
+                f"| {headline.baseline}: {shown} | {verdict} "
                 f"| {paper['mean'] if paper else '—'} | {summary['budget']} | `{summary['commit']}` |"
             )
     if not rows:
@@ -153,6 +159,10 @@ def summary_table(doc: Path, readme: Path) -> str:
             "commit is the one its study ran at.",
         ]
     )
+
+
+def _has(summary: dict, method: str) -> bool:
+    return any(row["method"] == method for row in summary["rows"])
 
 
 def _metric(summary: dict, headline: Headline, method: str) -> dict:

@@ -73,6 +73,19 @@ def test_the_summary_has_a_headline_row_per_section_from_its_results_folder(tmp_
     assert summary_table(doc, readme) in text
 
 
+def test_an_arm_run_without_its_baseline_is_shown_as_such_not_compared(tmp_path: Path) -> None:
+    doc = tmp_path / "docs" / "results.md"
+    doc.parent.mkdir()
+    folder = _results(tmp_path, "highway-arm", "ccc3333", sage=12.0, baseline=40.0)
+    summary = json.loads((folder / "summary.json").read_text())
+    summary["rows"] = [row for row in summary["rows"] if row["method"] == "sage"]  # the arm ran sage alone
+    (folder / "summary.json").write_text(json.dumps(summary))
+    update_results(doc, "highway-arm", folder)
+    rows = [line for line in summary_table(doc, tmp_path / "README.md").splitlines() if line.startswith("| [")]
+    assert len(rows) == 1 and "sage: 12.0 ± 5.0" in rows[0]
+    assert "sac: not run in this folder | — |" in rows[0] and "apart" not in rows[0] and "overlap" not in rows[0]
+
+
 def test_the_summary_refuses_a_section_without_its_results(tmp_path: Path) -> None:
     doc = tmp_path / "results.md"
     folder = _results(tmp_path, "highway-small", "aaa1111", sage=1.0, baseline=2.0)
