@@ -17,35 +17,36 @@ import math
 import numba
 import numpy as np
 
+TURN = 2.0 * math.pi
+
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _meet(ax: float, ay: float, ex: float, ey: float, ux: float, uy: float) -> float:
-    """Where the ray u meets the segment A -> A + E (inf: it does not); the arithmetic of ``core.motion._cast``."""
+    """Where the ray u meets the segment A -> A + E (inf: it does not); the arithmetic of ``core.motion._cast``, its
+    second division only where the first finds the ray within the segment."""
     den = ux * ey - uy * ex
     if abs(den) <= 1e-9:
         return math.inf
-    along = (ax * ey - ay * ex) / den
     across = (ax * uy - ay * ux) / den
-    return along if 0.0 <= across <= 1.0 and along > 0.0 else math.inf
+    if not 0.0 <= across <= 1.0:  # tested first: most candidates miss, and then need no second division
+        return math.inf
+    along = (ax * ey - ay * ex) / den
+    return along if along > 0.0 else math.inf
 
 
-@numba.njit(cache=True, nogil=True)
-def _cast(
-    x: np.ndarray,
-    y: np.ndarray,
-    joined: np.ndarray,
-    segments: np.ndarray,
-    ray_cos: np.ndarray,
-    ray_sin: np.ndarray,
-) -> float:
-    """The nearest hit of one sector's rays on the given segments (inf: none)."""
-    best = math.inf
-    for idx in segments:
-        if joined[idx]:
-            ax, ay = x[idx], y[idx]
-            for q in range(ray_cos.shape[0]):
-                best = min(best, _meet(ax, ay, x[idx + 1] - ax, y[idx + 1] - ay, ray_cos[q], ray_sin[q]))
-    return best
+@numba.njit(cache=True, nogil=True, inline="always")
+def _from_start(bearing: float, start: float) -> float:
+    """(bearing - start) % TURN, in [0, TURN], without the floating-point remainder (a tenth of a row's cost) where the
+    difference is within a turn of that range: the remainder is then exact and the one addition or subtraction that
+    stands for it gives the same number (Sterbenz's lemma for the subtraction), and so the same bits."""
+    relative = bearing - start
+    if 0.0 <= relative < TURN:
+        return relative + 0.0  # -0.0 as the remainder gives it, +0.0
+    if -TURN <= relative < 0.0:
+        return relative + TURN
+    if TURN <= relative < 2.0 * TURN:
+        return relative - TURN
+    return relative % TURN
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -66,7 +67,8 @@ def _move_returns(
     joined: np.ndarray,
 ) -> None:
     """One row's returns before the step (``r``, ``x0``, ``y0``) and seen from the pose after an arc of ``distance``
-    and ``turn`` (``x``, ``y``, ``bearing``), which are hits, and which neighbours join into a surface segment."""
+    and ``turn`` (``x``, ``y``, and ``bearing`` where a hit), which are hits, and which neighbours join into a surface
+    segment."""
     s = r.shape[0]
     half = 0.5 * turn
     chord = distance if abs(half) <= 1e-6 else distance * (math.sin(half) / half)
@@ -78,7 +80,8 @@ def _move_returns(
         px, py = x0[j] - shift_x, y0[j] - shift_y
         x[j], y[j] = c * px + n * py, c * py - n * px
         hit[j] = r[j] < 1.0
-        bearing[j] = math.atan2(y[j], x[j])
+        if hit[j]:  # read for returns only (an atan2 is much of a row's cost)
+            bearing[j] = math.atan2(y[j], x[j])
     for j in range(s - 1):
         near, far = min(r[j], r[j + 1]), max(r[j], r[j + 1])
         joined[j] = hit[j] and hit[j + 1] and far <= joint_ratio * near
@@ -111,7 +114,7 @@ def scan(
     x, y = np.empty(s), np.empty(s)
     hit = np.empty(s, dtype=np.bool_)
     joined = np.zeros(s - 1, dtype=np.bool_)
-    landed, after, bearing = np.empty(s), np.empty(s), np.empty(s)
+    landed, after, bearing, turned = np.empty(s), np.empty(s), np.empty(s), np.empty(s)
     spacing = width / k
     for b in range(rows):
         out[b, s:] = states[b, s:]
@@ -121,8 +124,11 @@ def scan(
         )  # fmt: skip
         landed[:], after[:] = math.inf, math.inf
         for j in range(s):
+            if not hit[j]:
+                continue
+            turned[j] = _from_start(bearing[j], start)  # from the first ray on, in [0, 2 pi]: read below
             inside = 0 < j < s - 1 and joined[j - 1] and joined[j]
-            if hit[j] and not inside:
+            if not inside:
                 sector = math.floor((bearing[j] - start) / width)
                 if 0 <= sector < s:
                     landed[sector] = min(landed[sector], math.hypot(x[j], y[j]))
@@ -135,20 +141,29 @@ def scan(
             ax, ay, ex, ey = x[j], y[j], x[j + 1] - x[j], y[j + 1] - y[j]
             # the ends' bearings from the first ray on, in [0, 2 pi): the arc between them, or both ways past the
             # first ray's bearing (the arc is under pi: a segment does not pass through the robot)
-            a = (bearing[j] - start) % (2.0 * math.pi)
-            e = (bearing[j + 1] - start) % (2.0 * math.pi)
+            a, e = turned[j], turned[j + 1]
             lo, hi = min(a, e), max(a, e)
             if hi - lo <= math.pi:
                 first = max(0, math.floor(lo / spacing) - 1)
                 last = min(s * k - 1, math.ceil(hi / spacing) + 1)
             else:
                 first, last = 0, s * k - 1
-            for ray in range(first, last + 1):
-                i, q = ray // k, ray % k
+            i, q = first // k, first % k  # the ray i * k + q, stepped without a division
+            for _ in range(first, last + 1):
                 if segments[i, 0] <= j <= segments[i, last_candidate]:
                     after[i] = min(after[i], _meet(ax, ay, ex, ey, ray_cos[i, q], ray_sin[i, q]))
+                q += 1
+                if q == k:
+                    i, q = i + 1, 0
         for i in range(s):
-            before = _cast(x0, y0, joined, own[i], ray_cos[i], ray_sin[i])
+            before = math.inf  # the nearest hit of the sector's rays on the two segments where the robot was
+            for t in range(own.shape[1]):
+                idx = own[i, t]
+                if joined[idx]:
+                    ax, ay = x0[idx], y0[idx]
+                    ex, ey = x0[idx + 1] - ax, y0[idx + 1] - ay
+                    for q in range(k):
+                        before = min(before, _meet(ax, ay, ex, ey, ray_cos[i, q], ray_sin[i, q]))
             after_i = after[i]
             seen = r[i] + (after_i - before) if math.isfinite(before) and math.isfinite(after_i) else after_i
             nearest = min(seen, landed[i])
@@ -188,7 +203,7 @@ def scan_with_choices(
     x, y = np.empty(s), np.empty(s)
     hit = np.empty(s, dtype=np.bool_)
     joined = np.zeros(s - 1, dtype=np.bool_)
-    landed, after, bearing = np.empty(s), np.empty(s), np.empty(s)
+    landed, after, bearing, turned = np.empty(s), np.empty(s), np.empty(s), np.empty(s)
     spacing = width / k
     for b in range(rows):
         out[b, s:] = states[b, s:]
@@ -199,8 +214,11 @@ def scan_with_choices(
         )  # fmt: skip
         landed[:], after[:] = math.inf, math.inf
         for j in range(s):
+            if not hit[j]:
+                continue
+            turned[j] = _from_start(bearing[j], start)
             inside = 0 < j < s - 1 and joined[j - 1] and joined[j]
-            if hit[j] and not inside:
+            if not inside:
                 sector = math.floor((bearing[j] - start) / width)
                 if 0 <= sector < s:
                     distance_j = math.hypot(x[j], y[j])
@@ -211,22 +229,24 @@ def scan_with_choices(
             if not joined[j]:
                 continue
             ax, ay, ex, ey = x[j], y[j], x[j + 1] - x[j], y[j + 1] - y[j]
-            a = (bearing[j] - start) % (2.0 * math.pi)
-            e = (bearing[j + 1] - start) % (2.0 * math.pi)
+            a, e = turned[j], turned[j + 1]
             lo, hi = min(a, e), max(a, e)
             if hi - lo <= math.pi:
                 first = max(0, math.floor(lo / spacing) - 1)
                 last = min(s * k - 1, math.ceil(hi / spacing) + 1)
             else:
                 first, last = 0, s * k - 1
+            i, q = first // k, first % k
             for ray in range(first, last + 1):
-                i, q = ray // k, ray % k
                 if segments[i, 0] <= j <= segments[i, last_candidate]:
                     along = _meet(ax, ay, ex, ey, ray_cos[i, q], ray_sin[i, q])
                     if along < after[i]:
                         after[i] = along
                         choices[1, b, i] = j
                         choices[2, b, i] = ray
+                q += 1
+                if q == k:
+                    i, q = i + 1, 0
         for i in range(s):
             before = math.inf
             for idx in own[i]:
