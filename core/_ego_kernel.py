@@ -18,6 +18,10 @@ import numba
 import numpy as np
 
 TURN = 2.0 * math.pi
+RAY_MARGIN = 1e-3
+"""Rays are cast at a surface segment within its ends' bearings widened by this share of the rays' spacing: a ray at
+a bearing outside them misses it (its ``across`` is outside [0, 1] by orders of magnitude more than rounding moves it,
+unless a moved return lands within 1e-12 of the robot), and the nearest hit is the same as over every candidate."""
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -100,13 +104,19 @@ def scan(
     """Writes into ``out`` (B, D) the (B, D) ``states`` with their first S channels, ranges, moved by the (B, A)
     ``actions`` (any float dtype and strides; ``out`` must not overlap ``states``). Packed in few arrays because a
     call's cost grows with its arguments: ``directions`` (S, 2 + 2 rays) float64, each sector's return bearing's
-    cosine and sine, then its rays' cosines and sines; ``segments`` (S, 2 window + 2) int64, the segments (index of
-    their first return) each sector's rays are tested against after the step, then the two where the robot is;
+    cosine and sine, then its rays' cosines and sines; ``segments`` (S, 2 window + 2 + 2 rays) int64, the segments
+    (index of their first return) each sector's rays are tested against after the step, then the two where the robot
+    is, then whether ray q can meet the t-th of those (column t * rays + q; ``core.motion._own_crossings``);
     ``numbers`` float64: start, width, forward scale and offset, turn scale, joint ratio; ``channels`` int64: the
     action's forward and turn channels."""
     k = (directions.shape[1] - 2) // 2
     cos, sin, ray_cos, ray_sin = directions[:, 0], directions[:, 1], directions[:, 2 : 2 + k], directions[:, 2 + k :]
-    last_candidate, own = segments.shape[1] - 3, segments[:, -2:]
+    candidates = segments.shape[1] - 2 - 2 * k
+    last_candidate, own, crosses = (
+        candidates - 1,
+        segments[:, candidates : candidates + 2],
+        segments[:, candidates + 2 :],
+    )
     start, width, forward_scale, forward_offset, turn_scale, joint_ratio = numbers
     forward_channel, turn_channel = channels
     rows, s = states.shape[0], directions.shape[0]
@@ -144,8 +154,9 @@ def scan(
             a, e = turned[j], turned[j + 1]
             lo, hi = min(a, e), max(a, e)
             if hi - lo <= math.pi:
-                first = max(0, math.floor(lo / spacing) - 1)
-                last = min(s * k - 1, math.ceil(hi / spacing) + 1)
+                # the rays within the bearings of its ends (a ray further out misses it by far more than rounding)
+                first = max(0, math.ceil((lo - RAY_MARGIN * spacing) / spacing))
+                last = min(s * k - 1, math.floor((hi + RAY_MARGIN * spacing) / spacing))
             else:
                 first, last = 0, s * k - 1
             i, q = first // k, first % k  # the ray i * k + q, stepped without a division
@@ -157,13 +168,14 @@ def scan(
                     i, q = i + 1, 0
         for i in range(s):
             before = math.inf  # the nearest hit of the sector's rays on the two segments where the robot was
-            for t in range(own.shape[1]):
+            for t in range(2):
                 idx = own[i, t]
                 if joined[idx]:
                     ax, ay = x0[idx], y0[idx]
                     ex, ey = x0[idx + 1] - ax, y0[idx + 1] - ay
                     for q in range(k):
-                        before = min(before, _meet(ax, ay, ex, ey, ray_cos[i, q], ray_sin[i, q]))
+                        if crosses[i, t * k + q]:
+                            before = min(before, _meet(ax, ay, ex, ey, ray_cos[i, q], ray_sin[i, q]))
             after_i = after[i]
             seen = r[i] + (after_i - before) if math.isfinite(before) and math.isfinite(after_i) else after_i
             nearest = min(seen, landed[i])
@@ -195,7 +207,12 @@ def scan_with_choices(
     gradients recomputes those in torch), not every sector's rays at every candidate."""
     k = (directions.shape[1] - 2) // 2
     cos, sin, ray_cos, ray_sin = directions[:, 0], directions[:, 1], directions[:, 2 : 2 + k], directions[:, 2 + k :]
-    last_candidate, own = segments.shape[1] - 3, segments[:, -2:]
+    candidates = segments.shape[1] - 2 - 2 * k
+    last_candidate, own, crosses = (
+        candidates - 1,
+        segments[:, candidates : candidates + 2],
+        segments[:, candidates + 2 :],
+    )
     start, width, forward_scale, forward_offset, turn_scale, joint_ratio = numbers
     forward_channel, turn_channel = channels
     rows, s = states.shape[0], directions.shape[0]
@@ -232,8 +249,9 @@ def scan_with_choices(
             a, e = turned[j], turned[j + 1]
             lo, hi = min(a, e), max(a, e)
             if hi - lo <= math.pi:
-                first = max(0, math.floor(lo / spacing) - 1)
-                last = min(s * k - 1, math.ceil(hi / spacing) + 1)
+                # the rays within the bearings of its ends (a ray further out misses it by far more than rounding)
+                first = max(0, math.ceil((lo - RAY_MARGIN * spacing) / spacing))
+                last = min(s * k - 1, math.floor((hi + RAY_MARGIN * spacing) / spacing))
             else:
                 first, last = 0, s * k - 1
             i, q = first // k, first % k
@@ -249,10 +267,13 @@ def scan_with_choices(
                     i, q = i + 1, 0
         for i in range(s):
             before = math.inf
-            for idx in own[i]:
+            for t in range(2):
+                idx = own[i, t]
                 if joined[idx]:
                     ax, ay = x0[idx], y0[idx]
                     for q in range(k):
+                        if not crosses[i, t * k + q]:
+                            continue
                         along = _meet(ax, ay, x0[idx + 1] - ax, y0[idx + 1] - ay, ray_cos[i, q], ray_sin[i, q])
                         if along < before:
                             before = along

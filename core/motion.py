@@ -426,6 +426,23 @@ def _geometry(step: EgoScanStep, dtype: torch.dtype, device: torch.device | None
 
 
 _KERNEL_GEOMETRY: dict[EgoScanStep, tuple[np.ndarray, ...]] = {}
+OWN_MARGIN = 1e-3
+"""How far outside a segment's ends (in sectors' widths) a ray is still cast at it where the robot was."""
+
+
+def _own_crossings(step: EgoScanStep, own: Tensor) -> Tensor:
+    """(S, 2 rays) int64: 1 where ray q of sector i can meet its own segment t (``own[i, t]``) where the robot was,
+    column t * rays + q. Before the step the returns lie at their sectors' fixed bearings, so whether a ray lies within
+    a segment's ends is known from the layout alone (a ray outside them misses it: ``core._ego_kernel.RAY_MARGIN``);
+    the kernel then skips the casts that cannot hit, about half. Every ray where sectors are a quarter turn wide."""
+    k = step.rays
+    ray = torch.arange(k, dtype=torch.float64) / k - (k - 1) / (2 * k)  # from the sector's return, in widths
+    offset = torch.arange(step.sectors, dtype=torch.float64)[:, None] - own.to(torch.float64)  # (S, 2)
+    position = offset[:, :, None] + ray  # (S, 2, rays): the ray's bearing from the segment's first return, in widths
+    crosses = (position >= -OWN_MARGIN) & (position <= 1.0 + OWN_MARGIN)
+    if step.width >= np.pi / 2:
+        crosses = torch.ones_like(crosses)
+    return crosses.reshape(step.sectors, 2 * k).to(torch.int64)
 
 
 def _kernel_geometry(step: EgoScanStep) -> tuple[np.ndarray, ...]:
@@ -433,7 +450,7 @@ def _kernel_geometry(step: EgoScanStep) -> tuple[np.ndarray, ...]:
     if step not in _KERNEL_GEOMETRY:
         g = _geometry(step, torch.float64)
         directions = torch.cat([g.cos[:, None], g.sin[:, None], g.ray_cos[:, 0], g.ray_sin[:, 0]], dim=1)
-        segments = torch.cat([g.candidates, g.own], dim=1)
+        segments = torch.cat([g.candidates, g.own, _own_crossings(step, g.own)], dim=1)
         numbers = [step.start, step.width, step.forward_scale, step.forward_offset, step.turn_scale, g.joint_ratio]
         _KERNEL_GEOMETRY[step] = (
             np.ascontiguousarray(directions.numpy()),
