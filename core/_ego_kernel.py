@@ -293,3 +293,38 @@ def scan_with_choices(
                 if nearest < 0.0 or nearest > 1.0:
                     kind = KIND_CLAMPED
             choices[0, b, i] = kind
+
+
+@numba.njit(cache=True, nogil=True)
+def contact(
+    states: np.ndarray,
+    actions: np.ndarray,
+    delta: np.ndarray,
+    floors: np.ndarray,
+    closing: np.ndarray,
+    touching: np.ndarray,
+    directions: np.ndarray,
+    segments: np.ndarray,
+    numbers: np.ndarray,
+    channels: np.ndarray,
+) -> None:
+    """Writes into ``touching`` (N, B) bool whether member n's imagined state, ``states`` moved by :func:`scan` plus its
+    predicted change ``delta[n]`` (N, B, F), is at or under ``floors`` (F,) in some channel i < F that ``closing``
+    (1 or B, F) bool allows: ``core.sage.fear.with_contact`` of that state, without the state. ``states`` (B, D) are
+    shared by the members, or (N B, D) one per member (row n B + b), with their (B or N B, A) ``actions``. The moved
+    state is held in the states' dtype before the sum, as the tensor path's ``base + delta``, so the same numbers are
+    compared; torch's reductions over a channel axis this short cost more than the comparisons themselves."""
+    members, rows, width = delta.shape
+    base = np.empty_like(states)
+    scan(states, actions, base, directions, segments, numbers, channels)
+    shared = states.shape[0] == rows
+    for n in range(members):
+        for b in range(rows):
+            row = b if shared else n * rows + b
+            allowed = closing[b if closing.shape[0] > 1 else 0]
+            found = False
+            for i in range(width):
+                if allowed[i] and base[row, i] + delta[n, b, i] <= floors[i]:
+                    found = True
+                    break
+            touching[n, b] = found

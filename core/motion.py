@@ -294,6 +294,30 @@ class EgoScanStep:
         rows can be viewed as (-1, D)): compiled (``core._ego_kernel``), a tenth of the cost on a gate's few rows."""
         self.bound(state.detach(), action.detach().expand(*state.shape[:-1], action.shape[-1]), out)()
 
+    def contact(self, state: Tensor, action: Tensor, delta: Tensor, floors: Tensor, closing: Tensor | None) -> Tensor:
+        """(N, B) bool, without a gradient: whether each member's imagined state ``apply(state, action) + delta[n]`` is
+        at or under ``floors`` (F,) in some channel i < F where ``closing`` ((B, F) or (F,) bool; None: every channel)
+        allows it, as ``core.sage.fear.with_contact`` reads it, compiled in one call (``core._ego_kernel.contact``)
+        and on the CPU. ``state`` (B, D) shared by the members or (N, B, D) one per member, ``action`` likewise;
+        ``delta`` (N, B, F) in the state's dtype."""
+        from core import _ego_kernel
+
+        d, a = state.shape[-1], action.shape[-1]
+        members, rows, width = delta.shape
+        if state.shape[:-1] not in ((rows,), (members, rows)):
+            raise ValueError(
+                f"ego contact: states {tuple(state.shape)} fit neither ({rows}, D) nor ({members}, {rows}, D)"
+            )
+        states = state.detach().reshape(-1, d)
+        actions = action.detach().expand(*state.shape[:-1], a).reshape(-1, a)
+        allowed = torch.ones(1, width, dtype=torch.bool) if closing is None else closing.reshape(-1, width)
+        touching = torch.empty(members, rows, dtype=torch.bool)
+        _ego_kernel.contact(
+            states.numpy(), actions.numpy(), delta.detach().numpy(), floors.numpy(), allowed.numpy(),
+            touching.numpy(), *_kernel_geometry(self),
+        )  # fmt: skip
+        return touching
+
     def bound(self, state: Tensor, action: Tensor, out: Tensor, *, views: bool = False) -> Callable[[], None]:
         """A call that does :meth:`apply_into` for what ``state`` and ``action`` hold when it is made: numpy views of
         the three tensors taken once (``state`` and ``action`` of the same leading shape, viewed or copied as rows;
