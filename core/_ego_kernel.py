@@ -17,6 +17,10 @@ import math
 import numba
 import numpy as np
 
+# Every function here compiles with error_model="numpy": no check before each division for a zero divisor, which
+# none has (a ray's denominator is tested against 1e-9 first, a sector's width and a turn's sinc argument likewise), so
+# the same numbers come out some 10% sooner.
+
 TURN = 2.0 * math.pi
 RAY_MARGIN = 1e-3
 """Rays are cast at a surface segment within its ends' bearings widened by this share of the rays' spacing: a ray at
@@ -24,7 +28,7 @@ a bearing outside them misses it (its ``across`` is outside [0, 1] by orders of 
 unless a moved return lands within 1e-12 of the robot), and the nearest hit is the same as over every candidate."""
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _meet(ax: float, ay: float, ex: float, ey: float, ux: float, uy: float) -> float:
     """Where the ray u meets the segment A -> A + E (inf: it does not); the arithmetic of ``core.motion._cast``, its
     second division only where the first finds the ray within the segment."""
@@ -38,7 +42,7 @@ def _meet(ax: float, ay: float, ex: float, ey: float, ux: float, uy: float) -> f
     return along if along > 0.0 else math.inf
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _from_start(bearing: float, start: float) -> float:
     """(bearing - start) % TURN, in [0, TURN], without the floating-point remainder (a tenth of a row's cost) where the
     difference is within a turn of that range: the remainder is then exact and the one addition or subtraction that
@@ -53,7 +57,7 @@ def _from_start(bearing: float, start: float) -> float:
     return relative % TURN
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _move_returns(
     ranges: np.ndarray,
     distance: float,
@@ -91,7 +95,7 @@ def _move_returns(
         joined[j] = hit[j] and hit[j + 1] and far <= joint_ratio * near
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def scan(
     states: np.ndarray,
     actions: np.ndarray,
@@ -191,7 +195,7 @@ KIND_RANGE, KIND_CLAMPED, KIND_SEEN, KIND_AFTER, KIND_LANDED = 0, 1, 2, 3, 4
 the casts; the cast after the step; a return that landed in the sector."""
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def scan_with_choices(
     states: np.ndarray,
     actions: np.ndarray,
@@ -295,7 +299,7 @@ def scan_with_choices(
             choices[0, b, i] = kind
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def contact(
     states: np.ndarray,
     actions: np.ndarray,
