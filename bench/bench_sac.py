@@ -12,14 +12,15 @@ slows them alike; the printed ratios come from the same run.
 ``--ego`` adds SAGE-SAC over the ego step (the UGV default's world model, ``sims.ugv.env.ego_motion_layout``), without
 and with the gate's imagined contact (``gate.imagined_contact`` with the UGV's floors: what the committed UGV policy's
 recalibrated gate sets, and so what fine-tuning it trains with). The learner's one-step fear reads the violation logit
-only, so without contact it runs no ego step at all; with contact both fear terms move their batch by the compiled step,
-without a graph, for the contact test (``core.sage.fear.rollout``, ``states_needed``). A ``learner_fear_horizon`` over
-1 sends the actor's gradient through the step.
+only, so without contact it runs no ego step at all; with contact each fear term moves its own batch by the compiled
+step and tests it in the same call, without a graph (``core.sage.fear.rollout``, ``states_needed``;
+``core._ego_kernel.contact``): twice an update, the critic target's next states and the actor's states. A
+``learner_fear_horizon`` over 1 sends the actor's gradient through the step.
 
 ``--batch 256,1024 --ensemble 5,7`` measures instead what larger batches and world-model ensembles cost: our SAC at
-each batch, SAGE-SAC (and with ``--ego`` over the ego step) at each batch and ensemble size, the ratios to SAC at the
-same batch, interleaved as above; ``--write docs/speed.md`` writes that table with the command, the commit and the
-processor into the file's generated block.
+each batch, SAGE-SAC (and with ``--ego`` over the ego step, without and with contact) at each batch and ensemble size,
+the ratios to SAC at the same batch, interleaved as above; ``--write docs/speed.md`` writes that table with the
+command, the commit and the processor into the file's generated block.
 
 ``--device`` adds SAC and SAGE-SAC on CUDA, eager and replayed as a CUDA graph (``learner.cuda_graph``), beside the CPU,
 where torch sees a GPU; elsewhere it says so. ``bench/gpu_check.py`` measures batches 256 to 4096.
@@ -287,18 +288,22 @@ def sizes_table(args: argparse.Namespace) -> None:
     from core.device import processor_name
 
     batches, members = args.batch or [BATCH], args.ensemble or [5]
-    layouts: dict[str, dict[str, Any]] = {"SAGE-SAC": {}}
+    # each SAGE-SAC column: its world model's layout and the learner's overrides
+    layouts: dict[str, tuple[dict[str, Any], dict[str, object]]] = {"SAGE-SAC": ({}, {})}
     if args.ego:
+        from sims.ugv.descriptor import contact_floors
         from sims.ugv.env import ego_motion_layout
 
-        layouts["SAGE-SAC over the ego step"] = ego_motion_layout()
+        layouts["SAGE-SAC over the ego step"] = (ego_motion_layout(), {})
+        contact = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
+        layouts["SAGE-SAC over the ego step + contact"] = (ego_motion_layout(), contact)
     rng = np.random.default_rng(0)
     contenders: dict[str, Callable[[], None]] = {}
     for batch in batches:
         contenders[f"sac {batch}"] = ours("sac", rng, batch=batch).update
         for n in members:
-            for name, layout in layouts.items():
-                learner = ours("sage", rng, world_model={**layout, "members": n}, batch=batch)
+            for name, (layout, overrides) in layouts.items():
+                learner = ours("sage", rng, world_model={**layout, "members": n}, batch=batch, **overrides)
                 assert learner.world_model is not None and learner.world_model.members == n
                 contenders[f"{name} {batch} {n}"] = learner.update
     median = measure(contenders, args.rounds, args.updates, args.clock)

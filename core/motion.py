@@ -294,6 +294,30 @@ class EgoScanStep:
         rows can be viewed as (-1, D)): compiled (``core._ego_kernel``), a tenth of the cost on a gate's few rows."""
         self.bound(state.detach(), action.detach().expand(*state.shape[:-1], action.shape[-1]), out)()
 
+    def contact(self, state: Tensor, action: Tensor, delta: Tensor, floors: Tensor, closing: Tensor | None) -> Tensor:
+        """(N, B) bool, without a gradient: whether each member's imagined state ``apply(state, action) + delta[n]`` is
+        at or under ``floors`` (F,) in some channel i < F where ``closing`` ((B, F) or (F,) bool; None: every channel)
+        allows it, as ``core.sage.fear.with_contact`` reads it, compiled in one call (``core._ego_kernel.contact``)
+        and on the CPU. ``state`` (B, D) shared by the members or (N, B, D) one per member, ``action`` likewise;
+        ``delta`` (N, B, F) in the state's dtype."""
+        from core import _ego_kernel
+
+        d, a = state.shape[-1], action.shape[-1]
+        members, rows, width = delta.shape
+        if state.shape[:-1] not in ((rows,), (members, rows)):
+            raise ValueError(
+                f"ego contact: states {tuple(state.shape)} fit neither ({rows}, D) nor ({members}, {rows}, D)"
+            )
+        states = state.detach().reshape(-1, d)
+        actions = action.detach().expand(*state.shape[:-1], a).reshape(-1, a)
+        allowed = torch.ones(1, width, dtype=torch.bool) if closing is None else closing.reshape(-1, width)
+        touching = torch.empty(members, rows, dtype=torch.bool)
+        _ego_kernel.contact(
+            states.numpy(), actions.numpy(), delta.detach().numpy(), floors.numpy(), allowed.numpy(),
+            touching.numpy(), *_kernel_geometry(self),
+        )  # fmt: skip
+        return touching
+
     def bound(self, state: Tensor, action: Tensor, out: Tensor, *, views: bool = False) -> Callable[[], None]:
         """A call that does :meth:`apply_into` for what ``state`` and ``action`` hold when it is made: numpy views of
         the three tensors taken once (``state`` and ``action`` of the same leading shape, viewed or copied as rows;
@@ -426,6 +450,23 @@ def _geometry(step: EgoScanStep, dtype: torch.dtype, device: torch.device | None
 
 
 _KERNEL_GEOMETRY: dict[EgoScanStep, tuple[np.ndarray, ...]] = {}
+OWN_MARGIN = 1e-3
+"""How far outside a segment's ends (in sectors' widths) a ray is still cast at it where the robot was."""
+
+
+def _own_crossings(step: EgoScanStep, own: Tensor) -> Tensor:
+    """(S, 2 rays) int64: 1 where ray q of sector i can meet its own segment t (``own[i, t]``) where the robot was,
+    column t * rays + q. Before the step the returns lie at their sectors' fixed bearings, so whether a ray lies within
+    a segment's ends is known from the layout alone (a ray outside them misses it: ``core._ego_kernel.RAY_MARGIN``);
+    the kernel then skips the casts that cannot hit, about half. Every ray where sectors are a quarter turn wide."""
+    k = step.rays
+    ray = torch.arange(k, dtype=torch.float64) / k - (k - 1) / (2 * k)  # from the sector's return, in widths
+    offset = torch.arange(step.sectors, dtype=torch.float64)[:, None] - own.to(torch.float64)  # (S, 2)
+    position = offset[:, :, None] + ray  # (S, 2, rays): the ray's bearing from the segment's first return, in widths
+    crosses = (position >= -OWN_MARGIN) & (position <= 1.0 + OWN_MARGIN)
+    if step.width >= np.pi / 2:
+        crosses = torch.ones_like(crosses)
+    return crosses.reshape(step.sectors, 2 * k).to(torch.int64)
 
 
 def _kernel_geometry(step: EgoScanStep) -> tuple[np.ndarray, ...]:
@@ -433,7 +474,7 @@ def _kernel_geometry(step: EgoScanStep) -> tuple[np.ndarray, ...]:
     if step not in _KERNEL_GEOMETRY:
         g = _geometry(step, torch.float64)
         directions = torch.cat([g.cos[:, None], g.sin[:, None], g.ray_cos[:, 0], g.ray_sin[:, 0]], dim=1)
-        segments = torch.cat([g.candidates, g.own], dim=1)
+        segments = torch.cat([g.candidates, g.own, _own_crossings(step, g.own)], dim=1)
         numbers = [step.start, step.width, step.forward_scale, step.forward_offset, step.turn_scale, g.joint_ratio]
         _KERNEL_GEOMETRY[step] = (
             np.ascontiguousarray(directions.numpy()),

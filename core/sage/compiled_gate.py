@@ -24,6 +24,12 @@ import torch
 from torch import Tensor
 
 from core._ego_kernel import scan as ego_scan
+
+# numba's on-disk cache (cache=True) checks the timestamp of this file alone, not of the functions it calls: the gate's
+# compiled loop keeps the ego step's scan it was compiled with. A change to core/_ego_kernel.py (its code or the layout
+# of the geometry it reads, core.motion._kernel_geometry) must therefore come with a change to this file, e.g. this
+# line, or a checkout with a cache runs the old scan on the new layout. Last: the rays each own segment can meet, the
+# bounded bearing, error_model=numpy (issue 63).
 from core.sage.config import GateConfig
 from core.sage.fear import GateKernel, closing_channels
 from core.sage.world_model import FoldedModel

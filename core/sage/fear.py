@@ -213,6 +213,8 @@ def rollout(
     mean_weight, mean_bias = model.out_weight[..., : d + 1], model.out_bias[..., : d + 1]
     logit_weight, logit_bias = model.out_weight[..., d : d + 1], model.out_bias[..., d : d + 1]
     states, actions, costs = [s], [], []
+    last_contact = None
+    """(N, B) bool: the last imagined state's contact, where it is tested without the state (states_needed=False)."""
     for k in range(horizon):
         last = k + 1 == horizon
         h = first_layer(model, s, a, m)
@@ -224,8 +226,14 @@ def rollout(
             if contact is not None:  # the last state's values for the contact test; no gradient goes through it
                 with torch.no_grad():
                     delta = torch.baddbmm(mean_bias[..., :d], h, mean_weight[..., :d])
-                    base = model.base(obs, action).expand(n, batch, d) if k == 0 else model.base(s, a)
-                    states.append(base + delta)
+                    compiled = model.ego is not None and delta.device.type == "cpu" and contact.shape[0] <= d
+                    if compiled and closing_rate is None:  # the compiled test does not extrapolate a closing
+                        # the ego step and the test in one compiled call, the state itself never formed
+                        last_contact = _ego_contact(model, obs if k == 0 else s, action if k == 0 else a, delta,
+                                                    contact, closing)  # fmt: skip
+                    else:
+                        base = model.base(obs, action).expand(n, batch, d) if k == 0 else model.base(s, a)
+                        states.append(base + delta)
             break
         out = torch.baddbmm(mean_bias, h, mean_weight)
         # every member starts from the same state and action: the first step's base (an ego step's scan) once
@@ -255,9 +263,25 @@ def rollout(
         learned_steps = None
     if contact is None:
         cost = learned
-    else:
+    elif last_contact is None:
         cost = with_contact(learned, torch.stack(states[1:]), contact, closing, closing_rate)
+    else:  # the steps before the last tested on their states, the last one's test already made (no extrapolation)
+        earlier = with_contact(learned[:-1], torch.stack(states[1:]), contact, closing) if horizon > 1 else learned[:-1]
+        cost = torch.cat([earlier, torch.maximum(learned[-1:], last_contact.unsqueeze(0).to(learned.dtype))])
     return Rollout(torch.stack(states), torch.stack(actions), cost, sigma_raw, learned_steps)
+
+
+def _ego_contact(
+    model: FoldedModel, state: Tensor, action: Tensor, delta: Tensor, contact: Tensor, closing: Tensor | None
+) -> Tensor:
+    """(N, B) bool: :func:`with_contact`'s test of the imagined states ``model.base(state, action) + delta`` over a
+    model's ego step (:meth:`core.motion.EgoScanStep.contact`): the same numbers compared, without the torch reductions
+    over the floors' few channels, which cost more than the test. No channel may count where ``closing`` allows none."""
+    members, batch, width = delta.shape[0], delta.shape[1], contact.shape[0]
+    if closing is not None and not bool(closing.any()):
+        return torch.zeros(members, batch, dtype=torch.bool)
+    assert model.ego is not None
+    return model.ego.contact(state, action, delta[..., :width], contact, closing)
 
 
 def first_layer(model: FoldedModel, state: Tensor, action: Tensor, motion: Tensor | None) -> Tensor:

@@ -107,6 +107,31 @@ def _restore_in_place(optimizer: torch.optim.Optimizer, saved: dict[str, Any]) -
                     own[key] = value
 
 
+def _copy_optimizer_state(saved: dict[str, Any]) -> dict[str, Any]:
+    """``copy.deepcopy`` of an optimiser's ``state_dict``, its per-parameter tensors cloned directly: the same copy at a
+    fifth of the cost (deepcopy's generic walk was a tenth of a SAGE-SAC update, taken before every guarded update)."""
+    copied = {key: copy.deepcopy(value) for key, value in saved.items() if key != "state"}
+    copied["state"] = {
+        index: {
+            key: value.clone() if isinstance(value, Tensor) else copy.deepcopy(value) for key, value in values.items()
+        }
+        for index, values in saved["state"].items()
+    }
+    return copied
+
+
+def _all_finite(tensors: list[Tensor]) -> bool:
+    """Whether every element of ``tensors`` is finite: numpy's test on float CPU tensors (torch's costs ten times more
+    on tensors this small, and the guarded update tests every trained weight after each update), torch's elsewhere."""
+    for tensor in tensors:
+        if tensor.device.type == "cpu" and tensor.dtype in (torch.float32, torch.float64):
+            if not np.isfinite(tensor.detach().numpy()).all():
+                return False
+        elif not bool(torch.isfinite(tensor).all()):
+            return False
+    return True
+
+
 @dataclass(frozen=True)
 class DeclaredState:
     """What :meth:`BaseLearner.update` trains, by attribute name (Stable-Baselines3 style): checkpoints save and
@@ -371,10 +396,9 @@ class BaseLearner:
             modules = []
         if self.world_model is not None:
             modules.append(self.world_model)
-        for module in modules:
-            if not all(bool(torch.isfinite(p).all()) for p in module.parameters()):
-                return False
-        if not all(bool(torch.isfinite(getattr(self, name)).all()) for name in declared.tensors):
+        if not _all_finite([p for module in modules for p in module.parameters()]):
+            return False
+        if not _all_finite([getattr(self, name) for name in declared.tensors]):
             return False
         return all(math.isfinite(float(getattr(self, name))) for name in declared.scalars)
 
@@ -384,7 +408,7 @@ class BaseLearner:
             "modules": {
                 n: {k: v.detach().clone() for k, v in getattr(self, n).state_dict().items()} for n in declared.modules
             },
-            "optimizers": {n: copy.deepcopy(getattr(self, n).state_dict()) for n in declared.optimizers},
+            "optimizers": {n: _copy_optimizer_state(getattr(self, n).state_dict()) for n in declared.optimizers},
             "tensors": {n: getattr(self, n).detach().clone() for n in declared.tensors},
             "scalars": {n: getattr(self, n) for n in declared.scalars},
         }

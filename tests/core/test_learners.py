@@ -146,6 +146,45 @@ def test_checkpoints_keep_optimiser_state_and_load_with_weights_only(tmp_path) -
     assert warm.actor_optimizer.param_groups[0]["lr"] == 1e-5  # the new run's learning rate, not the old one's
 
 
+def test_the_guarded_updates_snapshot_of_an_optimiser_is_a_deep_copy_of_its_state() -> None:
+    """The snapshot copies an optimiser's state as copy.deepcopy does (tensors cloned, hyperparameters copied), and
+    an optimiser step after it leaves it as it was."""
+    import copy
+
+    import torch
+
+    from core.sage.learner import _copy_optimizer_state
+
+    learner = _trained_sac()
+    saved = learner.critic_optimizer.state_dict()
+    fast, slow = _copy_optimizer_state(saved), copy.deepcopy(saved)
+    assert fast["param_groups"] == slow["param_groups"] and fast["param_groups"] is not saved["param_groups"]
+    assert set(fast["state"]) == set(slow["state"]) and len(fast["state"]) > 0
+    for index, values in slow["state"].items():
+        assert set(fast["state"][index]) == set(values)
+        for key, value in values.items():
+            assert torch.equal(fast["state"][index][key], value)
+            assert fast["state"][index][key].data_ptr() != saved["state"][index][key].data_ptr()
+    learner.update()  # the optimiser's moments move on; the snapshot does not
+    moved = learner.critic_optimizer.state_dict()["state"][0]["exp_avg"]
+    assert not torch.equal(moved, fast["state"][0]["exp_avg"])
+    assert torch.equal(fast["state"][0]["exp_avg"], slow["state"][0]["exp_avg"])
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64", "float16"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_the_finite_check_finds_one_bad_element_in_any_float_tensor(dtype: str, bad: float) -> None:
+    import torch
+
+    from core.sage.learner import _all_finite
+
+    tensors = [torch.ones(3, 4, dtype=getattr(torch, dtype)), torch.zeros(7, dtype=getattr(torch, dtype))]
+    assert _all_finite(tensors)
+    tensors[1][5] = bad
+    assert not _all_finite(tensors)
+    assert not _all_finite([tensors[0].t(), tensors[1]])  # any layout
+
+
 def test_the_guarded_update_undoes_a_nan_update_from_the_declared_state() -> None:
     learner = _trained_sac()
     before = {k: v.clone() for k, v in learner.critic.state_dict().items()}

@@ -347,6 +347,41 @@ def test_the_gradient_path_gives_the_tensor_steps_value_and_gradients(layout: st
     torch.testing.assert_close(single.detach(), step.apply(states.float(), actions.float()), rtol=0.0, atol=1e-5)
 
 
+@pytest.mark.parametrize("per_member", [False, True])
+@pytest.mark.parametrize("closing", ["none", "rows", "channels"])
+def test_the_compiled_contact_test_is_the_moved_state_compared_with_its_floors(per_member: bool, closing: str) -> None:
+    """``EgoScanStep.contact``: member n touches where some channel of ``apply(state, action) + delta[n]`` is at or
+    under its floor and ``closing`` lets that channel count, the booleans :func:`core.sage.fear.with_contact` reads from
+    the state itself; states shared by the members or one per member."""
+    from core.sage.fear import with_contact
+    from sims.ugv.env import ego_motion_layout
+
+    step = EgoScanStep.of(WorldModelConfig(**ego_motion_layout()), 58, 2)
+    assert step is not None
+    rng = np.random.default_rng(7)
+    members, rows = 5, 300
+    scans = random_scenes(rng, members * rows if per_member else rows, step.sectors)
+    states = torch.as_tensor(np.concatenate([scans, rng.normal(size=(len(scans), 4))], -1), dtype=torch.float32)
+    actions = torch.as_tensor(rng.uniform(-1, 1, (len(scans), 2)), dtype=torch.float32)
+    if per_member:
+        states, actions = states.reshape(members, rows, -1), actions.reshape(members, rows, -1)
+    delta = torch.as_tensor(rng.normal(scale=0.08, size=(members, rows, 58)), dtype=torch.float32)
+    floors = torch.full((step.sectors,), 0.1) + 0.05 * torch.rand(
+        step.sectors, generator=torch.Generator().manual_seed(0)
+    )
+    mask = {
+        "none": None,
+        "rows": torch.as_tensor(rng.random((rows, step.sectors)) < 0.5),
+        "channels": torch.as_tensor(rng.random(step.sectors) < 0.5),
+    }[closing]
+    moved = step.apply(states, actions)
+    imagined = (moved if per_member else moved.expand(members, rows, -1)) + delta
+    expected = with_contact(torch.zeros(1, members, rows), imagined.unsqueeze(0), floors, mask)[0].bool()
+    got = step.contact(states, actions, delta[..., : step.sectors], floors, mask)
+    assert 0.05 < float(expected.float().mean()) < 0.95  # some members touch, some do not: the test can fail
+    assert torch.equal(got, expected)
+
+
 def test_a_bound_step_reads_its_buffers_when_called() -> None:
     """The gate kernel binds its rollout's strided buffers once: each call moves what they hold then, into its
     output, as apply does."""
