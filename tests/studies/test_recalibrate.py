@@ -42,7 +42,7 @@ def test_choose_beta_takes_the_best_mean_ranking_and_breaks_ties_towards_the_run
 
 def test_recalibrated_bounds_are_the_fear_quantiles_of_the_drives_states(policy: Path, tmp_path: Path) -> None:
     """The same drives (fixed seeds) measured for two β: each folder's bounds are what its own sample and fear
-    give, they differ with β, and nothing but κ and the bounds moved in the model."""
+    give, they differ with β, and nothing but κ, the bounds and the disagreement reference moved in the model."""
     source = load_agent(policy)
     outs = {}
     for beta in (0.5, 0.9):
@@ -62,7 +62,7 @@ def test_recalibrated_bounds_are_the_fear_quantiles_of_the_drives_states(policy:
         torch.testing.assert_close(model.tau_bounds, stored, atol=1e-5, rtol=0)
         before, after = source.world_model.state_dict(), agent.world_model.state_dict()
         moved = {name for name in before if not torch.equal(before[name], after[name])}
-        assert moved <= {"sigma_scale", "tau_bounds"}, moved
+        assert moved <= {"sigma_scale", "tau_bounds", "disagreement_ref"}, moved  # what a calibration measures
         for name, value in source.learner.actor.state_dict().items():
             assert torch.equal(value, agent.learner.actor.state_dict()[name]), name
         assert agent.make_gate() is not None
