@@ -214,6 +214,16 @@ class ReplayBuffer:
         soon[order] = near.astype(np.float32)
         return soon
 
+    def _chains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The stored rows in chronological order, their positions in it, and where each row's episode chain (as far
+        as the buffer holds it) began."""
+        order, continues = self._chronology()
+        # linked[p]: the row at chronological position p follows on from the row before it
+        linked = np.zeros(self.size, bool)
+        linked[1:] = continues[:-1]
+        position = np.arange(self.size)
+        return order, position, np.maximum.accumulate(np.where(linked, 0, position))
+
     def previous_deltas(self, lag: int = 1, scan: ScanAlignment | None = None) -> np.ndarray:
         """Per stored row (the order of :meth:`arrays`): (s_t - s_{t-j}) / j, j = ``lag`` or fewer where the
         episode (as far as the buffer holds it) began fewer than ``lag`` rows before, zeros at its first row: the
@@ -222,12 +232,7 @@ class ReplayBuffer:
         out = np.zeros((n, self.obs_dim), np.float32)
         if n < 2:
             return out
-        order, continues = self._chronology()
-        # linked[p]: the row at chronological position p follows on from the row before it
-        linked = np.zeros(n, bool)
-        linked[1:] = continues[:-1]
-        position = np.arange(n)
-        start = np.maximum.accumulate(np.where(linked, 0, position))  # where each row's chain began
+        order, position, start = self._chains()
         back = np.minimum(position - start, max(int(lag), 1))
         has = back > 0
         cur, prev = order[position[has]], order[position[has] - back[has]]
@@ -241,11 +246,7 @@ class ReplayBuffer:
         out = np.full(n, -1, np.int64)
         if n < 2 or back < 1:
             return out
-        order, continues = self._chronology()
-        linked = np.zeros(n, bool)
-        linked[1:] = continues[:-1]
-        position = np.arange(n)
-        start = np.maximum.accumulate(np.where(linked, 0, position))  # where each row's chain began
+        order, position, start = self._chains()
         has = position - start >= back
         out[order[position[has]]] = order[position[has] - back]
         return out
