@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from core.agents import FINAL_CHECKPOINT, load_agent, load_checkpoint, resolve_checkpoint, save_with_world_model
-from core.sage.fear import CALIBRATION_FILE, CalibrationSample
+from core.sage.calibration import CALIBRATION_FILE, CalibrationSample
 from core.sage.world_model import merge_ensembles
 
 MERGE_FILE = "merge.json"

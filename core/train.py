@@ -16,7 +16,8 @@ another run's policy the expert (:class:`core.experts.PolicyExpert`) in place of
 A run folder holds ``config.json`` ({"run", "agent", "meta"}), ``metrics.jsonl`` (one row per episode: the
 loop's :class:`~core.loop.EpisodeSummary` row, the simulator's metrics and the learner's statistics),
 ``checkpoint.pt`` and ``checkpoints/episode_NNNNN.pt`` (see :mod:`core.agents`), and with a world model
-``calibration.npz``, the states its last fit set κ and the τ bounds on (:class:`core.sage.fear.CalibrationSample`).
+``calibration.npz``, the states its last fit set κ and the τ bounds on
+(:class:`core.sage.calibration.CalibrationSample`).
 """
 
 from __future__ import annotations
@@ -51,9 +52,9 @@ from core.experts import CostSupervisor, PolicyExpert, ScriptedExpert
 from core.learners import make_learner
 from core.loop import EpisodeSummary, Expert, Gate, NoGate, Policy, Runner, StepRecord
 from core.planners import PlannerExpert, PlannerFactory, checked_entry, is_planner
+from core.sage.calibration import CALIBRATION_FILE
 from core.sage.captured import require_cuda
 from core.sage.config import AgentConfig, to_dict, world_model_refit
-from core.sage.fear import CALIBRATION_FILE
 from core.sage.gate import AlwaysGate
 from core.sage.learner import BaseLearner
 

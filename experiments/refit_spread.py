@@ -72,7 +72,7 @@ import numpy as np
 from scipy import stats
 
 import sims
-from core.sage.fear import CALIBRATION_FILE
+from core.sage.calibration import CALIBRATION_FILE
 from experiments.calibration import table_scenarios
 from studies.readme import include
 from studies.spec import TrainSpec

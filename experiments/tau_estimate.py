@@ -1,7 +1,8 @@
 """How noisy is the gate's threshold as the learner estimates it, and how many states does it need?
 
 At every world-model fit the learner sets κ and the τ bounds from the fear of real states of its replay buffer
-(:func:`core.sage.fear.calibrate`): τ_max is the 99th percentile of fear on familiar states, a tail estimate. This
+(:func:`core.sage.calibration.calibrate`): τ_max is the 99th percentile of fear on familiar states, a tail estimate.
+This
 bench drives a committed policy as a world-model refit does (its stochastic actions, no expert, no gate) on the
 scenarios its world model was refitted on, labels the familiar states as the learner does
 (:func:`core.sage.model_trainer.familiar_for_bounds`), then repeats the calibration on independent draws of N of those
@@ -29,7 +30,7 @@ import sims
 from core.agents import LoadedAgent, load_agent
 from core.loop import NoGate, Runner
 from core.replay import ReplayBuffer
-from core.sage.fear import calibrate
+from core.sage.calibration import calibrate
 from core.sage.model_trainer import familiar_for_bounds
 from experiments.refit_spread import REFIT
 from studies.envs import parse_env_overrides

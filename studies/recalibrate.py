@@ -1,7 +1,7 @@
 """Measure a run's τ bounds again for another fear, and choose fear's β from data (``sage gate refit-bounds``).
 
 A world model's τ bounds are quantiles of the fear of familiar states under the policy, measured at its fit
-(:func:`core.sage.fear.calibrate`). Fear is β ĉ + (1-β) σ̂, so a gate that weighs the parts otherwise (or looks
+(:func:`core.sage.calibration.calibrate`). Fear is β ĉ + (1-β) σ̂, so a gate that weighs the parts otherwise (or looks
 further ahead, or aggregates otherwise) needs the bounds measured again on its own fear: a gate loaded with such
 a setting over the run's own is refused (:data:`core.agents.FEAR_SHAPE`). This module drives the run's policy
 with no expert on the scenarios it was trained on, keeps the states as a fit keeps its buffer's
@@ -41,7 +41,7 @@ from core.agents import (
 from core.loop import NoGate, Runner, StepRecord
 from core.metrics import auroc
 from core.replay import ReplayBuffer
-from core.sage.fear import CALIBRATION_FILE
+from core.sage.calibration import CALIBRATION_FILE
 from core.sage.model_trainer import calibration_sample
 from studies.calibrate import labels_within
 

@@ -38,9 +38,10 @@ from torch import Tensor
 from core.device import DeviceError, resolve_device, to_cpu
 from core.protocol import StepRecord
 from core.replay import ReplayBuffer, VirtualBuffer
+from core.sage.calibration import CalibrationSample
 from core.sage.captured import CapturedUpdate, require_cuda
 from core.sage.config import AgentConfig, GateConfig
-from core.sage.fear import CalibrationSample, PolicyFn
+from core.sage.fear import PolicyFn
 from core.sage.gate import SageGate
 from core.sage.model_trainer import WorldModelTrainer, familiar_mean_fear
 from core.sage.networks import Actor

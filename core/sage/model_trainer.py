@@ -22,9 +22,9 @@ import torch
 from torch import Tensor
 
 from core.replay import ReplayBuffer, VirtualBuffer
+from core.sage.calibration import CalibrationSample
 from core.sage.config import AgentConfig, GateConfig
 from core.sage.fear import (
-    CalibrationSample,
     PolicyFn,
     closing_rate,
     contact_reach,

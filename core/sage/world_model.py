@@ -84,7 +84,7 @@ class FoldedModel:
     motion_lag: int
     """k of the motion input (s_t - s_{t-k}) / k (``WorldModelConfig.motion_lag``)."""
     sigma_scale: Tensor
-    """(MAX_HORIZON,) scale κ_k of σ_raw at rollout step k on real states (see :func:`core.sage.fear.calibrate`)."""
+    """(MAX_HORIZON,) scale κ_k of σ_raw at rollout step k on real states (:func:`core.sage.calibration.calibrate`)."""
     curiosity_ref: float
     """Mean one-step curiosity on held-out real transitions at the last fit (the curiosity EMA's start)."""
     scan: ScanAlignment | None = None
@@ -519,7 +519,7 @@ def merge_ensembles(models: Sequence[EnsembleWorldModel]) -> EnsembleWorldModel:
     The models must share their shape and configuration but for ``members``. Each is first moved, exactly, to
     the first one's normalisers (:meth:`EnsembleWorldModel.set_normalisers`), so that every member computes what
     it computed in its own model; the shared soft log-variance bounds become the widest of them. κ and the τ bounds
-    are left unset (NaN): they belong to the new ensemble, so recalibrate it (:func:`core.sage.fear.calibrate`).
+    are left unset (NaN): they belong to the new ensemble, so recalibrate it (:func:`core.sage.calibration.calibrate`).
     ``curiosity_ref``, the curiosity EMA's starting value, is the mean of the models'.
     """
     if len(models) < 2:

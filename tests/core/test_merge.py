@@ -16,8 +16,9 @@ from typer.testing import CliRunner
 
 from core.agents import load_agent, load_checkpoint
 from core.merge import MERGE_FILE, merge_runs
+from core.sage.calibration import CALIBRATION_FILE, CalibrationSample, calibrate
 from core.sage.config import WorldModelConfig
-from core.sage.fear import CALIBRATION_FILE, CalibrationSample, calibrate, rollout
+from core.sage.fear import rollout
 from core.sage.world_model import EnsembleWorldModel, merge_ensembles
 from core.train import RunConfig, train
 from tests.core.sage.test_world_model import ACT, OBS, known_system

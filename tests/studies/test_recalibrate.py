@@ -13,7 +13,7 @@ import torch
 from typer.testing import CliRunner
 
 from core.agents import load_agent, load_checkpoint
-from core.sage.fear import CALIBRATION_FILE, CalibrationSample
+from core.sage.calibration import CALIBRATION_FILE, CalibrationSample
 from core.train import RunConfig, train
 from studies.recalibrate import BETA_CANDIDATES, RECALIBRATION_FILE, choose_beta, mean_auroc, recalibrate_run
 from tests.core.test_train import point_env, small

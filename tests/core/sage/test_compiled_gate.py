@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import torch
 
+from core.sage.calibration import calibrate
 from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports
 from core.sage.config import GateConfig, WorldModelConfig
-from core.sage.fear import GateKernel, calibrate
+from core.sage.fear import GateKernel
 from core.sage.gate import SageGate
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel

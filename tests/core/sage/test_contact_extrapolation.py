@@ -14,12 +14,11 @@ import torch
 
 from core.agents import fear_shape_moved
 from core.replay import ReplayBuffer
+from core.sage.calibration import CalibrationSample, calibrate
 from core.sage.compiled_gate import CompiledGateKernel
 from core.sage.config import AgentConfig, GateConfig, WorldModelConfig, parse_gate_settings, validate
 from core.sage.fear import (
-    CalibrationSample,
     GateKernel,
-    calibrate,
     closing_rate,
     fear_of,
     rollout,

@@ -11,9 +11,10 @@ import pytest
 import torch
 
 from core.agents import fear_shape_moved
+from core.sage.calibration import calibrate
 from core.sage.compiled_gate import CompiledGateKernel
 from core.sage.config import AgentConfig, GateConfig, WorldModelConfig, parse_gate_settings, validate
-from core.sage.fear import GateKernel, calibrate, fear, fear_of, rollout
+from core.sage.fear import GateKernel, fear, fear_of, rollout
 from core.sage.gate import SageGate
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel

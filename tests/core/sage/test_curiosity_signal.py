@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
+from core.sage.calibration import calibrate
 from core.sage.config import GateConfig, WorldModelConfig
-from core.sage.fear import calibrate
 from core.sage.gate import SageGate
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
+from core.sage.calibration import calibrate
 from core.sage.config import GateConfig, WorldModelConfig, set_field
-from core.sage.fear import CuriosityThreshold, GateKernel, calibrate, fear, rollout
+from core.sage.fear import CuriosityThreshold, GateKernel, fear, rollout
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel
 

@@ -18,11 +18,11 @@ from torch import Tensor
 from core import motion as motion_module
 from core.motion import approach_rate
 from core.sage import fear as fear_module
+from core.sage.calibration import calibrate
 from core.sage.config import GateConfig, WorldModelConfig
 from core.sage.fear import (
     PolicyFn,
     Rollout,
-    calibrate,
     contact_terms,
     fear,
     fear_of,

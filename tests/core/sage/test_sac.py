@@ -350,7 +350,7 @@ def test_actor_batches_mix_real_and_virtual_states() -> None:
 
 # -- the threshold's calibration -------------------------------------------------------------------
 def test_the_tau_bounds_come_from_every_state_of_a_buffer_smaller_than_the_calibration_sample() -> None:
-    from core.sage.fear import calibrate
+    from core.sage.calibration import calibrate
     from core.sage.model_trainer import familiar_for_bounds
 
     learner = filled("sage")  # 600 states, under calibration_states: the fit calibrates on all of them
@@ -365,7 +365,7 @@ def test_the_tau_bounds_come_from_every_state_of_a_buffer_smaller_than_the_calib
 
 
 def test_a_larger_buffer_is_calibrated_on_distinct_states() -> None:
-    from core.sage.fear import calibrate
+    from core.sage.calibration import calibrate
 
     learner = filled("sage")
     learner.cfg.gate.calibration_states = 200
