@@ -45,15 +45,12 @@ FIRST_SEED = 5_000_000
 
 
 def epistemic_disagreement(world_model: Any, obs: np.ndarray, action: np.ndarray, motion: np.ndarray | None) -> float:
-    """sqrt(mean_d var_n(Δ_n,d) / std(Δ_d)²): the members' spread about the next state, in the change's own units."""
+    """The members' spread about the next state (:meth:`~core.sage.world_model.EnsembleWorldModel.disagreement`)."""
     with torch.inference_mode():
         o = torch.from_numpy(np.asarray(obs, np.float32)).view(1, -1)
         a = torch.from_numpy(np.asarray(action, np.float32)).view(1, -1)
         m = None if motion is None else torch.from_numpy(np.asarray(motion, np.float32)).view(1, -1)
-        mean, _ = world_model.predict(o, a, m)
-        d = world_model.obs_dim
-        spread = mean[..., :d].var(0, unbiased=False) / world_model.out_std[:d].pow(2)
-        return float(spread.mean().sqrt())
+        return float(world_model.disagreement(o, a, m)[0])
 
 
 def collect(run: str, scenario: str, episodes: int, first_seed: int) -> dict[str, list[float]]:

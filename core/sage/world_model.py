@@ -216,18 +216,18 @@ class EnsembleWorldModel(nn.Module):
         epistemic part of :meth:`predictive_std` alone (a mover's unpredictability, which every member learned
         alike, does not raise it; a state unlike the training data does)."""
         mean, _ = self.predict(obs, action, motion)
-        d = self.obs_dim
-        spread = mean[..., :d].var(0, unbiased=False) / self.out_std[:d].pow(2)
-        return spread.mean(-1).sqrt()
+        return self._members_variance(mean).mean(-1).sqrt()
+
+    def _members_variance(self, mean: Tensor) -> Tensor:
+        """(B, D) the members' variance of the predicted Δs per state channel, in units of the Δ's std."""
+        delta = mean[..., : self.obs_dim]
+        return (delta - delta.mean(0, keepdim=True)).square().mean(0) / self.out_std[: self.obs_dim].pow(2)
 
     def predictive_std(self, obs: Tensor, action: Tensor, motion: Tensor | None = None) -> Tensor:
         """The state mixture's std per sample: mean over normalised state dims of sqrt(mean σ² + var μ)."""
         mean, logvar = self.predict(obs, action, motion)
-        d = self.obs_dim
-        delta = mean[..., :d]
-        epistemic = (delta - delta.mean(0, keepdim=True)).square().mean(0) / self.out_std[:d].pow(2)
-        aleatoric = logvar[..., :d].exp().mean(0)
-        return (epistemic + aleatoric).sqrt().mean(-1)
+        aleatoric = logvar[..., : self.obs_dim].exp().mean(0)
+        return (self._members_variance(mean) + aleatoric).sqrt().mean(-1)
 
     # -- training --------------------------------------------------------------------------------
     def _nll(self, x: Tensor, y: Tensor, pos_weight: Tensor | None = None) -> Tensor:
