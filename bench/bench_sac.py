@@ -335,14 +335,15 @@ def sizes_table(args: argparse.Namespace) -> None:
         print(f"wrote {args.write}")
 
 
-def write_block(path: Path, block: str) -> None:
-    """Replace the generated block of ``path`` (created with just the block where missing)."""
-    text = path.read_text(encoding="utf-8") if path.exists() else f"{TABLE_START}\n{TABLE_END}\n"
-    if TABLE_START not in text or TABLE_END not in text:
-        raise SystemExit(f"{path} has no generated block ({TABLE_START} ... {TABLE_END})")
-    head, rest = text.split(TABLE_START, 1)
-    _, tail = rest.split(TABLE_END, 1)
-    path.write_text(f"{head}{TABLE_START}\n{block}\n{TABLE_END}{tail}", encoding="utf-8")
+def write_block(path: Path, block: str, start: str = TABLE_START, end: str = TABLE_END) -> None:
+    """Replace the generated block between ``start`` and ``end`` of ``path`` (created with just the block where
+    missing)."""
+    text = path.read_text(encoding="utf-8") if path.exists() else f"{start}\n{end}\n"
+    if start not in text or end not in text:
+        raise SystemExit(f"{path} has no generated block ({start} ... {end})")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    path.write_text(f"{head}{start}\n{block}\n{end}{tail}", encoding="utf-8")
 
 
 def _commit() -> str:

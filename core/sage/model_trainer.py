@@ -195,7 +195,8 @@ class WorldModelTrainer:
         chosen member's imagined trajectory per start); nothing before a fit or with an empty buffer."""
         if not self.ready() or len(buffer) == 0:
             return
-        starts = buffer.sample(self.cfg.virtual_starts, self.rng).obs
+        # the model and the rollout policy (the acting copy) live on the CPU, whatever device the update samples to
+        starts = buffer.sample(self.cfg.virtual_starts, self.rng).obs.cpu()
         with torch.no_grad():
             ro = rollout(
                 self.world_model.folded(),

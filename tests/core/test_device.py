@@ -80,7 +80,9 @@ def test_a_learner_on_the_cpu_device_trains_and_checkpoints(method: str, tmp_pat
     assert again.acting_module in loaded
     for name, module in again._modules_for_state().items():
         for key, value in module.state_dict().items():
-            torch.testing.assert_close(value, getattr(learner, name).state_dict()[key], equal_nan=True, msg=name + key)
+            torch.testing.assert_close(
+                value.cpu(), getattr(learner, name).state_dict()[key], equal_nan=True, msg=name + key
+            )  # ``auto`` is CUDA where there is one
 
 
 def test_checkpoint_state_is_device_free() -> None:

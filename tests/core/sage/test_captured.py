@@ -19,14 +19,20 @@ from core.sage.sac import SAC, CapturedSACUpdate
 
 torch.set_num_threads(1)
 OBS, ACT = 6, 2
+EGO_LAYOUT = {
+    "ego_sectors": 4, "ego_scan_start": -0.6, "ego_sector_width": 0.3, "ego_rays_per_sector": 2,
+    "ego_forward_channel": 0, "ego_forward_scale": 0.01, "ego_turn_channel": 1, "ego_turn_scale": 0.1,
+}  # fmt: skip
+"""A 4-sector scan in the first channels, moved by the action's forward and turn channels (the ego step's tests)."""
 
 
-def sage_learner(prior_rows: int = 0, **overrides: object) -> BaseLearner:
-    """``prior_rows``: the first rows are a base policy's drives in a fine-tuning buffer (the distillation anchor's)."""
+def sage_learner(prior_rows: int = 0, device: str = "cpu", **overrides: object) -> BaseLearner:
+    """``prior_rows``: the first rows are a base policy's drives in a fine-tuning buffer (the distillation anchor's);
+    ``device``: where the update runs (``tests/core/sage/test_cuda.py`` builds the same learner on CUDA)."""
     cfg = for_method("sage", hidden=32, batch_size=64, bc_batch_size=32, **overrides)
     cfg.world_model_config.hidden = 32
     cfg.world_model_config.max_updates_per_fit = 60
-    learner = make_learner("sage", cfg, OBS, ACT, seed=0)
+    learner = make_learner("sage", cfg, OBS, ACT, seed=0, device=device)
     if prior_rows:
         learner.buffer = SharedReplayBuffer(OBS, ACT, learner.buffer.capacity, prior_share=0.5)
     rng = np.random.default_rng(0)
@@ -45,12 +51,12 @@ def sage_learner(prior_rows: int = 0, **overrides: object) -> BaseLearner:
     return learner
 
 
-def d3qn_learner() -> BaseLearner:
-    cfg = for_method("sage", hidden=32, batch_size=64, bc_batch_size=32)
+def d3qn_learner(device: str = "cpu", **overrides: object) -> BaseLearner:
+    cfg = for_method("sage", hidden=32, batch_size=64, bc_batch_size=32, **overrides)
     cfg.method = "sage-d3qn"
     cfg.world_model_config.hidden = 32
     cfg.world_model_config.max_updates_per_fit = 60
-    learner = make_learner("sage-d3qn", cfg, OBS, 1, np.array([0.0]), np.array([2.0]), seed=0)
+    learner = make_learner("sage-d3qn", cfg, OBS, 1, np.array([0.0]), np.array([2.0]), seed=0, device=device)
     rng = np.random.default_rng(0)
     s = rng.normal(size=(401, OBS)).astype(np.float32)
     for i in range(400):
@@ -116,13 +122,8 @@ def test_the_captured_sage_sac_body_over_the_ego_step_agrees_with_the_reference(
     pytest.importorskip("numba")
     from core.sage.config import WorldModelConfig
 
-    # a 4-sector scan in the first channels, moved by the action's forward and turn channels
-    layout = {
-        "ego_sectors": 4, "ego_scan_start": -0.6, "ego_sector_width": 0.3, "ego_rays_per_sector": 2,
-        "ego_forward_channel": 0, "ego_forward_scale": 0.01, "ego_turn_channel": 1, "ego_turn_scale": 0.1,
-    }  # fmt: skip
-    assert set(layout) <= set(WorldModelConfig.__dataclass_fields__)
-    reference = sage_learner(**{f"world_model_config.{k}": v for k, v in layout.items()})
+    assert set(EGO_LAYOUT) <= set(WorldModelConfig.__dataclass_fields__)
+    reference = sage_learner(**{f"world_model_config.{k}": v for k, v in EGO_LAYOUT.items()})
     assert reference.world_model is not None and reference.world_model.ego is not None and reference.fear_active()
     captured = copy.deepcopy(reference)
     assert_same_update(reference, captured, CapturedSACUpdate(captured, eager=True), updates=2)
