@@ -5,7 +5,7 @@
 # four training scenarios' drives), choose (the baseline and the scale sweep on ugv-fields:train:2+, then the rule's
 # choice), test (only for a chosen scale below 1: the test grounds under the amended rule, the 2+ ground first);
 # "all" runs the three. Run from the worktree's root (its code is imported: python -m).
-# Usage: run-ugv-extrapolation-oppoint.sh [DRIVES] [STAGE]
+# Usage: [SCALE=X] run-ugv-extrapolation-oppoint.sh [DRIVES] [STAGE]  (SCALE: test at gate.tau_scale=X, not the rule's)
 set -e
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 PY=${PY:-/work/main/.venv/bin/python}
@@ -38,7 +38,16 @@ if [ "$STAGE" = choose ] || [ "$STAGE" = all ]; then
   $PY -m experiments.pick_operating_point --baseline $BASELINE --sweep $SWEEP
 fi
 if [ "$STAGE" = test ] || [ "$STAGE" = all ]; then
-  SCALE=$($PY -m experiments.pick_operating_point --baseline $BASELINE --sweep $SWEEP --scale-only)
+  CHOSEN=$($PY -m experiments.pick_operating_point --baseline $BASELINE --sweep $SWEEP --scale-only)
+  if [ -n "$SCALE" ]; then
+    # a scale set by hand over the rule's choice (the lead's follow-up in the note): its own cache and tables, so that
+    # no row of another scale is mixed in
+    CACHE=results/generalisation/ugv-extrapolation-oppoint-$SCALE.json
+    SCRATCH=results/generalisation/scratch-extrapolation-oppoint-$SCALE.md
+    stamp "gate.tau_scale=$SCALE set by hand (the rule's choice: $CHOSEN)"
+  else
+    SCALE=$CHOSEN
+  fi
   if [ "$SCALE" = 1 ]; then
     stamp "chosen scale 1: the gate measured on test by run-ugv-contact-extrapolation.sh; nothing measured again"
   else
