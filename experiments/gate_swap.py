@@ -1,0 +1,170 @@
+"""Whose gate is quiet? Fine-tuned versions of a live session on the promotion check's episodes, judged by their own
+gate, by the base's gate, and alone (issue #62: the fine-tuned versions' own gates hand over on few supervised steps
+and the versions collide; docs/notes/adaptation_probe.md, "which of the two candidate causes quiets the gate").
+
+For each version named (default: every published one) of a session's versions folder (``runs/live-.../finetune/
+SESSION/versions``, what :mod:`experiments.live_session` leaves), on the promotion check's own episodes
+(:class:`core.promotion.PromotionConfig`: 15 seeds from 7,000,000, 600 steps at most, the mean action, the scripted
+expert), three ways:
+
+- ``own``: the version with its own gate (its world model, τ bounds and actor in the imagined steps): what the
+  promotion check ran (:func:`core.promotion.evaluate_version`);
+- ``base``: the version's actions judged by ``v0000``'s gate (``v0000``'s world model, τ bounds and actor in the
+  imagined steps after the first action, which is the version's): a gate whose rollout policy was never trained on
+  the session, so neither against its fear nor to imitate the expert;
+- ``alone``: no gate, no expert (the same episodes, for the collisions the policy makes by itself).
+
+Per version and way: the share of steps handed over, the episodes with a collision, the episodes reaching the goal.
+The report (``--out``: ``report.md``, ``report.json``) names its command and commit.
+
+    python -m experiments.gate_swap runs/live-nofear-s0/finetune/SESSION/versions \
+        --out docs/notes/live_session/gate_swap/no_fear_s0
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+WAYS = ("own", "base", "alone")
+
+
+@dataclass
+class Outcome:
+    """One version driven one way over the promotion check's episodes."""
+
+    way: str
+    takeover_share: float
+    collisions: int
+    successes: int
+    episodes: int
+
+
+def drive(
+    version: Path, base: Path, way: str, episodes: int, seed: int, max_steps: int | None, sim: str, scenario: str
+) -> Outcome:
+    """``version`` on ``episodes`` seeds from ``seed`` with the gate ``way`` names (see the module docstring)."""
+    from app.server import make_env
+    from core.agents import load_agent
+    from core.experts import ScriptedExpert
+    from core.loop import Gate, NoGate, Runner, StepRecord
+
+    agent = load_agent(version)
+    gate: Gate = NoGate()
+    if way == "own":
+        gate = agent.make_gate()
+    elif way == "base":
+        gate = load_agent(base).make_gate()  # the base's model, bounds and actor; the runner's a_RL is the version's
+    env = make_env(sim, scenario)  # the env the promotion check builds (the dashboard's, live options on)
+    taken = steps = collisions = successes = 0
+    violated = [False]
+
+    def watch(record: StepRecord) -> None:
+        violated[0] = violated[0] or record.violation
+
+    try:
+        runner = Runner(env, agent.policy, gate, ScriptedExpert(), seed=seed, deterministic=True)
+        runner.step_listeners.append(watch)
+        for _ in range(episodes):
+            violated[0] = False
+            summary = runner.run_episode(max_steps=max_steps)
+            collisions += int(violated[0] or bool(summary.metrics.get("collision", False)))
+            successes += int(bool(summary.metrics.get("success", False)))
+            taken += summary.takeovers
+            steps += summary.steps
+    finally:
+        env.close()
+    return Outcome(way, taken / max(steps, 1), collisions, successes, episodes)
+
+
+def render(report: dict[str, Any]) -> str:
+    lines = [
+        f"# Gate swap, {report['sim']} {report['scenario']}: {report['versions_root']}",
+        "",
+        f"Command: `{report['command']}`  ",
+        f"Commit: `{report['commit']}`",
+        "",
+        f"The promotion check's episodes (seeds {report['seed']}..{report['seed'] + report['episodes'] - 1}, at most "
+        f"{report['max_steps']} steps, the mean action, the scripted expert). own: the version's own gate; base: "
+        "v0000's gate (its world model, τ bounds and actor in the imagined steps) on the version's actions; alone: no "
+        "gate. Cells: takeover share, collisions, goals reached.",
+        "",
+        "| version | own | base | alone |",
+        "|---|---|---|---|",
+    ]
+    for row in report["rows"]:
+        cells = []
+        for way in WAYS:
+            o = row.get(way)
+            n = None if o is None else o["episodes"]
+            cells.append(
+                "-" if o is None else f"{100 * o['takeover_share']:.0f}%, {o['collisions']}/{n}, {o['successes']}/{n}"
+            )
+        lines.append(f"| v{row['number']:04d} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
+    parser.add_argument("versions", type=Path, help="A session's versions folder (v0000, v0001, ...).")
+    parser.add_argument("--only", type=int, nargs="*", default=None, help="Version numbers (default: all).")
+    parser.add_argument("--sim", default="ugv")
+    parser.add_argument("--scenario", default="3")
+    parser.add_argument("--episodes", type=int, default=None, help="Default: the promotion check's (tests: fewer).")
+    parser.add_argument("--max-steps", type=int, default=None, help="Default: the promotion check's.")
+    parser.add_argument("--out", type=Path, required=True, help="Folder for report.md and report.json.")
+    args = parser.parse_args(argv)
+    from core.promotion import PromotionConfig
+    from core.versions import VersionStore
+    from experiments.live_session import current_commit
+
+    if not (args.versions / "v0000").is_dir():
+        print(f"error: {args.versions} holds no v0000 (give a session's versions folder)", file=sys.stderr)
+        return 2
+    store = VersionStore(args.versions)
+    numbers = [v.number for v in store.versions()]
+    chosen = numbers if args.only is None else args.only
+    unknown = sorted(set(chosen) - set(numbers))
+    if unknown:
+        print(f"error: no version {unknown} in {args.versions} (it holds {numbers})", file=sys.stderr)
+        return 2
+    import torch
+
+    torch.set_num_threads(1)
+    check = PromotionConfig()
+    cfg = PromotionConfig(episodes=args.episodes or check.episodes, max_steps=args.max_steps or check.max_steps)
+    command = "python -m experiments.gate_swap " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    report: dict[str, Any] = {
+        "command": command,
+        "commit": current_commit(),
+        "versions_root": str(args.versions),
+        "sim": args.sim,
+        "scenario": args.scenario,
+        "seed": cfg.seed,
+        "episodes": cfg.episodes,
+        "max_steps": cfg.max_steps,
+        "rows": [],
+    }
+    base = store.get(0).path
+    for number in chosen:
+        path = store.get(number).path
+        row: dict[str, Any] = {"number": number}
+        for way in WAYS if number else ("own", "alone"):  # v0000's own gate is the base's
+            o = drive(path, base, way, cfg.episodes, cfg.seed, cfg.max_steps, args.sim, args.scenario)
+            row[way] = vars(o)
+            print(f"v{number:04d} {way}: {o.takeover_share:.0%} handed over, {o.collisions} collisions", flush=True)
+        report["rows"].append(row)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    (args.out / "report.md").write_text(render(report))
+    print(render(report))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
