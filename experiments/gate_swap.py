@@ -32,6 +32,9 @@ from pathlib import Path
 from typing import Any
 
 WAYS = ("own", "base", "alone")
+MOVER_GAP = 0.05
+"""A collision within this many metres of a mover (by the footprint's circles, which only approximate the body the
+simulator collides) counts as a collision with the mover."""
 
 
 @dataclass
@@ -43,6 +46,15 @@ class Outcome:
     collisions: int
     successes: int
     episodes: int
+    mover_gaps: list[float]
+    """Per collided episode, the gap to the nearest mover at the first colliding step (metres; 0 in contact by the
+    footprint's circles, privileged: ``interaction_stats``); inf on a layout without movers or a simulator without
+    the measure."""
+
+    @property
+    def mover_collisions(self) -> int:
+        """Collided episodes whose first colliding step was within ``MOVER_GAP`` of a mover."""
+        return sum(gap <= MOVER_GAP for gap in self.mover_gaps)
 
 
 def drive(
@@ -63,8 +75,12 @@ def drive(
     env = make_env(sim, scenario)  # the env the promotion check builds (the dashboard's, live options on)
     taken = steps = collisions = successes = 0
     violated = [False]
+    gaps: list[float] = []
+    stats = getattr(env.unwrapped, "interaction_stats", None)
 
     def watch(record: StepRecord) -> None:
+        if record.violation and not violated[0]:
+            gaps.append(float(stats()[1]) if stats is not None else float("inf"))
         violated[0] = violated[0] or record.violation
 
     try:
@@ -79,7 +95,7 @@ def drive(
             steps += summary.steps
     finally:
         env.close()
-    return Outcome(way, taken / max(steps, 1), collisions, successes, episodes)
+    return Outcome(way, taken / max(steps, 1), collisions, successes, episodes, gaps)
 
 
 def render(report: dict[str, Any]) -> str:
@@ -92,7 +108,8 @@ def render(report: dict[str, Any]) -> str:
         f"The promotion check's episodes (seeds {report['seed']}..{report['seed'] + report['episodes'] - 1}, at most "
         f"{report['max_steps']} steps, the mean action, the scripted expert). own: the version's own gate; base: "
         "v0000's gate (its world model, τ bounds and actor in the imagined steps) on the version's actions; alone: no "
-        "gate. Cells: takeover share, collisions, goals reached.",
+        "gate. Cells: takeover share, collisions (of them, at the first colliding step within "
+        f"{MOVER_GAP} m of a mover by the footprint's circles), goals reached.",
         "",
         "| version | own | base | alone |",
         "|---|---|---|---|",
@@ -156,8 +173,12 @@ def main(argv: list[str] | None = None) -> int:
         row: dict[str, Any] = {"number": number}
         for way in WAYS if number else ("own", "alone"):  # v0000's own gate is the base's
             o = drive(path, base, way, cfg.episodes, cfg.seed, cfg.max_steps, args.sim, args.scenario)
-            row[way] = vars(o)
-            print(f"v{number:04d} {way}: {o.takeover_share:.0%} handed over, {o.collisions} collisions", flush=True)
+            row[way] = {**vars(o), "mover_collisions": o.mover_collisions}
+            print(
+                f"v{number:04d} {way}: {o.takeover_share:.0%} handed over, {o.collisions} collisions "
+                f"({o.mover_collisions} with a mover)",
+                flush=True,
+            )
         report["rows"].append(row)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "report.json").write_text(json.dumps(report, indent=2) + "\n")

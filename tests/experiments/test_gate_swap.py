@@ -20,6 +20,7 @@ def test_each_version_is_driven_each_way_and_v0000_not_by_its_own_gate_twice(tmp
     (row,) = report["rows"]
     assert row["number"] == 0 and set(row) == {"number", "own", "alone"}
     assert row["alone"]["takeover_share"] == 0.0  # no gate: nobody hands over
+    assert 0 <= row["alone"]["mover_collisions"] <= row["alone"]["collisions"] == len(row["alone"]["mover_gaps"])
     assert 0.0 <= row["own"]["takeover_share"] <= 1.0 and row["own"]["episodes"] == 1
     assert "| v0000 |" in (out / "report.md").read_text()
 
