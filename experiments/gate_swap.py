@@ -24,6 +24,7 @@ The report (``--out``: ``report.md``, ``report.json``) names its command and com
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import shlex
 import sys
@@ -31,8 +32,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 WAYS = ("own", "base", "alone")
 MOVER_GAP = 0.05
+LOOKBACK = 20
+"""Steps before a collision that its summary looks back over (2 s on the UGV)."""
 """A collision within this many metres of a mover (by the footprint's circles, which only approximate the body the
 simulator collides) counts as a collision with the mover."""
 
@@ -50,6 +55,13 @@ class Outcome:
     """Per collided episode, the gap to the nearest mover at the first colliding step (metres; 0 in contact by the
     footprint's circles, privileged: ``interaction_stats``); inf on a layout without movers or a simulator without
     the measure."""
+
+    speed_before: list[float]
+    """Per collided episode, the executed forward command's mean over the last ``LOOKBACK`` steps up to the first
+    colliding one, as a share of full speed ((a0 + 1) / 2 on the UGV's [-1, 1] command): near 1 the robot drove
+    into it, near 0 it stood and was hit."""
+    handed_over_before: list[bool]
+    """Per collided episode, whether the expert held control at any of the last ``LOOKBACK`` steps up to it."""
 
     @property
     def mover_collisions(self) -> int:
@@ -76,11 +88,17 @@ def drive(
     taken = steps = collisions = successes = 0
     violated = [False]
     gaps: list[float] = []
+    speeds: list[float] = []
+    handed: list[bool] = []
+    recent: collections.deque[tuple[float, bool]] = collections.deque(maxlen=LOOKBACK)
     stats = getattr(env.unwrapped, "interaction_stats", None)
 
     def watch(record: StepRecord) -> None:
+        recent.append(((float(np.asarray(record.action).reshape(-1)[0]) + 1.0) / 2.0, bool(record.takeover)))
         if record.violation and not violated[0]:
             gaps.append(float(stats()[1]) if stats is not None else float("inf"))
+            speeds.append(sum(v for v, _ in recent) / len(recent))
+            handed.append(any(taken for _, taken in recent))
         violated[0] = violated[0] or record.violation
 
     try:
@@ -88,6 +106,7 @@ def drive(
         runner.step_listeners.append(watch)
         for _ in range(episodes):
             violated[0] = False
+            recent.clear()
             summary = runner.run_episode(max_steps=max_steps)
             collisions += int(violated[0] or bool(summary.metrics.get("collision", False)))
             successes += int(bool(summary.metrics.get("success", False)))
@@ -95,7 +114,15 @@ def drive(
             steps += summary.steps
     finally:
         env.close()
-    return Outcome(way, taken / max(steps, 1), collisions, successes, episodes, gaps)
+    return Outcome(way, taken / max(steps, 1), collisions, successes, episodes, gaps, speeds, handed)
+
+
+def _cell(outcome: dict[str, Any] | None) -> str:
+    if outcome is None:
+        return "-"
+    n = outcome["episodes"]
+    share, hits, movers = 100 * outcome["takeover_share"], outcome["collisions"], outcome["mover_collisions"]
+    return f"{share:.0f}%, {hits}/{n} ({movers} mover), {outcome['successes']}/{n}"
 
 
 def render(report: dict[str, Any]) -> str:
@@ -115,15 +142,27 @@ def render(report: dict[str, Any]) -> str:
         "|---|---|---|---|",
     ]
     for row in report["rows"]:
-        cells = []
-        for way in WAYS:
-            o = row.get(way)
-            n = None if o is None else o["episodes"]
-            cells.append(
-                "-" if o is None else f"{100 * o['takeover_share']:.0f}%, {o['collisions']}/{n}, {o['successes']}/{n}"
-            )
+        cells = [_cell(row.get(way)) for way in WAYS]
+        lines.append(f"| v{row['number']:04d} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        f"The collided episodes: the mean forward command over the last {LOOKBACK} steps up to the first colliding one "
+        "(share of full speed; mean over the episodes), and in how many the expert held control at any of those steps.",
+        "",
+        "| version | own | base | alone |",
+        "|---|---|---|---|",
+    ]
+    for row in report["rows"]:
+        cells = [_before(row.get(way)) for way in WAYS]
         lines.append(f"| v{row['number']:04d} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _before(outcome: dict[str, Any] | None) -> str:
+    if outcome is None or not outcome.get("speed_before"):
+        return "-"
+    speeds, handed = outcome["speed_before"], outcome["handed_over_before"]
+    return f"speed {sum(speeds) / len(speeds):.2f}, expert {sum(handed)}/{len(handed)}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -135,7 +174,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=None, help="Default: the promotion check's (tests: fewer).")
     parser.add_argument("--max-steps", type=int, default=None, help="Default: the promotion check's.")
     parser.add_argument("--out", type=Path, required=True, help="Folder for report.md and report.json.")
+    parser.add_argument("--rerender", action="store_true", help="Only write --out's report.md again from its json.")
     args = parser.parse_args(argv)
+    if args.rerender:
+        if not (args.out / "report.json").is_file():
+            print(f"error: no report.json in {args.out}", file=sys.stderr)
+            return 2
+        (args.out / "report.md").write_text(render(json.loads((args.out / "report.json").read_text())))
+        return 0
     from core.promotion import PromotionConfig
     from core.versions import VersionStore
     from experiments.live_session import current_commit

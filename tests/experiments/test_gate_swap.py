@@ -22,7 +22,7 @@ def test_each_version_is_driven_each_way_and_v0000_not_by_its_own_gate_twice(tmp
     assert row["alone"]["takeover_share"] == 0.0  # no gate: nobody hands over
     assert 0 <= row["alone"]["mover_collisions"] <= row["alone"]["collisions"] == len(row["alone"]["mover_gaps"])
     assert 0.0 <= row["own"]["takeover_share"] <= 1.0 and row["own"]["episodes"] == 1
-    assert "| v0000 |" in (out / "report.md").read_text()
+    assert "| v0000 |" in (out / "report.md").read_text() and " mover), " in (out / "report.md").read_text()
 
 
 def test_a_folder_without_versions_or_an_unknown_version_is_one_error_line(
