@@ -144,6 +144,7 @@ def render(report: dict[str, Any]) -> str:
     for row in report["rows"]:
         cells = [_cell(row.get(way)) for way in WAYS]
         lines.append(f"| v{row['number']:04d} | " + " | ".join(cells) + " |")
+    lines += ["", *summary_lines(report["rows"])]
     lines += [
         "",
         f"The collided episodes: the mean forward command over the last {LOOKBACK} steps up to the first colliding one "
@@ -156,6 +157,31 @@ def render(report: dict[str, Any]) -> str:
         cells = [_before(row.get(way)) for way in WAYS]
         lines.append(f"| v{row['number']:04d} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def summary_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """Per way, over the fine-tuned versions (v0000 left out): the median takeover share and collisions, and over all
+    their collided episodes pooled, how many had the expert in control in the steps before and the mean speed."""
+    import statistics
+
+    lines = []
+    for way in WAYS:
+        outcomes = [row[way] for row in rows if row["number"] > 0 and row.get(way)]
+        if not outcomes:
+            continue
+        shares = [o["takeover_share"] for o in outcomes]
+        hits = [o["collisions"] for o in outcomes]
+        handed = [h for o in outcomes for h in o["handed_over_before"]]
+        speeds = [v for o in outcomes for v in o["speed_before"]]
+        lines.append(
+            f"- {way}, {len(outcomes)} fine-tuned versions: takeover median {100 * statistics.median(shares):.0f}% "
+            f"({100 * min(shares):.0f}-{100 * max(shares):.0f}%), collisions median {statistics.median(hits):g}/"
+            f"{outcomes[0]['episodes']} ({min(hits)}-{max(hits)}); of their {len(handed)} collided episodes, "
+            f"{sum(handed)} with the expert in control in the {LOOKBACK} steps before"
+            + (f", mean speed then {sum(speeds) / len(speeds):.2f} of full" if speeds else "")
+            + "."
+        )
+    return lines
 
 
 def _before(outcome: dict[str, Any] | None) -> str:
