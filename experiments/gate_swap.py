@@ -70,7 +70,15 @@ class Outcome:
 
 
 def drive(
-    version: Path, base: Path, way: str, episodes: int, seed: int, max_steps: int | None, sim: str, scenario: str
+    version: Path,
+    base: Path,
+    way: str,
+    episodes: int,
+    seed: int,
+    max_steps: int | None,
+    sim: str,
+    scenario: str,
+    gate_settings: dict[str, Any] | None = None,
 ) -> Outcome:
     """``version`` on ``episodes`` seeds from ``seed`` with the gate ``way`` names (see the module docstring)."""
     from app.server import make_env
@@ -81,9 +89,11 @@ def drive(
     agent = load_agent(version)
     gate: Gate = NoGate()
     if way == "own":
-        gate = agent.make_gate()
+        gate = agent.make_gate(**(gate_settings or {}))
     elif way == "base":
-        gate = load_agent(base).make_gate()  # the base's model, bounds and actor; the runner's a_RL is the version's
+        gate = load_agent(base).make_gate(
+            **(gate_settings or {})
+        )  # the base's model, bounds and actor; the runner's a_RL is the version's
     env = make_env(sim, scenario)  # the env the promotion check builds (the dashboard's, live options on)
     taken = steps = collisions = successes = 0
     violated = [False]
@@ -132,6 +142,7 @@ def render(report: dict[str, Any]) -> str:
         f"Command: `{report['command']}`  ",
         f"Commit: `{report['commit']}`",
         "",
+        *([f"Gate settings over every gate: `{report['gate_settings']}`.", ""] if report.get("gate_settings") else []),
         f"The promotion check's episodes (seeds {report['seed']}..{report['seed'] + report['episodes'] - 1}, at most "
         f"{report['max_steps']} steps, the mean action, the scripted expert). own: the version's own gate; base: "
         "v0000's gate (its world model, τ bounds and actor in the imagined steps) on the version's actions; alone: no "
@@ -199,6 +210,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenario", default="3")
     parser.add_argument("--episodes", type=int, default=None, help="Default: the promotion check's (tests: fewer).")
     parser.add_argument("--max-steps", type=int, default=None, help="Default: the promotion check's.")
+    parser.add_argument(
+        "--set", dest="gate", action="append", default=[], help="gate.KEY=VALUE over every gate driven (repeatable)."
+    )
     parser.add_argument("--out", type=Path, required=True, help="Folder for report.md and report.json.")
     parser.add_argument("--rerender", action="store_true", help="Only write --out's report.md again from its json.")
     args = parser.parse_args(argv)
@@ -209,9 +223,17 @@ def main(argv: list[str] | None = None) -> int:
         (args.out / "report.md").write_text(render(json.loads((args.out / "report.json").read_text())))
         return 0
     from core.promotion import PromotionConfig
+    from core.sage.config import parse_gate_settings
     from core.versions import VersionStore
     from experiments.live_session import current_commit
 
+    try:
+        if any(not pair.startswith("gate.") for pair in args.gate):
+            raise ValueError("only gate.KEY=VALUE settings are taken")
+        gate_settings = parse_gate_settings([pair.removeprefix("gate.") for pair in args.gate])
+    except ValueError as exc:
+        print(f"error: --set: {exc}", file=sys.stderr)
+        return 2
     if not (args.versions / "v0000").is_dir():
         print(f"error: {args.versions} holds no v0000 (give a session's versions folder)", file=sys.stderr)
         return 2
@@ -237,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": cfg.seed,
         "episodes": cfg.episodes,
         "max_steps": cfg.max_steps,
+        "gate_settings": gate_settings,
         "rows": [],
     }
     base = store.get(0).path
@@ -244,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
         path = store.get(number).path
         row: dict[str, Any] = {"number": number}
         for way in WAYS if number else ("own", "alone"):  # v0000's own gate is the base's
-            o = drive(path, base, way, cfg.episodes, cfg.seed, cfg.max_steps, args.sim, args.scenario)
+            o = drive(path, base, way, cfg.episodes, cfg.seed, cfg.max_steps, args.sim, args.scenario, gate_settings)
             row[way] = {**vars(o), "mover_collisions": o.mover_collisions}
             print(
                 f"v{number:04d} {way}: {o.takeover_share:.0%} handed over, {o.collisions} collisions "

@@ -34,3 +34,12 @@ def test_a_folder_without_versions_or_an_unknown_version_is_one_error_line(
     store.ensure_initial("policies/ugv-default")
     assert main([str(store.root), "--only", "3", "--out", str(tmp_path / "out")]) == 2
     assert "no version [3]" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("pair", "says"), [("gate.no_such=1", "unknown config field"), ("env.x=1", "only gate.")])
+def test_a_bad_gate_setting_is_one_error_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], pair: str, says: str
+) -> None:
+    assert main([str(tmp_path), "--set", pair, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --set") and says in err and len(err.strip().splitlines()) == 1
