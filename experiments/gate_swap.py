@@ -267,7 +267,13 @@ def main(argv: list[str] | None = None) -> int:
         path = store.get(number).path
         row: dict[str, Any] = {"number": number}
         for way in WAYS if number else ("own", "alone"):  # v0000's own gate is the base's
-            o = drive(path, base, way, cfg.episodes, cfg.seed, cfg.max_steps, args.sim, args.scenario, gate_settings)
+            try:
+                o = drive(
+                    path, base, way, cfg.episodes, cfg.seed, cfg.max_steps, args.sim, args.scenario, gate_settings
+                )
+            except ValueError as exc:  # e.g. a gate setting that changes fear on bounds measured without it
+                print(f"error: v{number:04d} {way}: {exc}", file=sys.stderr)
+                return 1
             row[way] = {**vars(o), "mover_collisions": o.mover_collisions}
             print(
                 f"v{number:04d} {way}: {o.takeover_share:.0%} handed over, {o.collisions} collisions "

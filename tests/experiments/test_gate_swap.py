@@ -43,3 +43,14 @@ def test_a_bad_gate_setting_is_one_error_line(
     assert main([str(tmp_path), "--set", pair, "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --set") and says in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_gate_setting_the_versions_bounds_do_not_fit_is_one_error_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    store = VersionStore(tmp_path / "versions")
+    store.ensure_initial("policies/ugv-default")
+    argv = [str(store.root), "--set", "gate.contact_extrapolation=true", "--episodes", "1", "--max-steps", "5"]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: v0000 own:") and "recalibrate" in err and len(err.strip().splitlines()) == 1
