@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import collections
 import json
+import math
 import shlex
 import sys
 from dataclasses import dataclass
@@ -62,6 +63,9 @@ class Outcome:
     into it, near 0 it stood and was hit."""
     handed_over_before: list[bool]
     """Per collided episode, whether the expert held control at any of the last ``LOOKBACK`` steps up to it."""
+    peak_fear_ratio: list[float]
+    """Per collided episode, the largest F/τ of the last ``LOOKBACK`` steps up to it (NaN without a gate): near 1 or
+    above the gate came close or fired; far below it saw nothing."""
 
     @property
     def mover_collisions(self) -> int:
@@ -100,15 +104,20 @@ def drive(
     gaps: list[float] = []
     speeds: list[float] = []
     handed: list[bool] = []
-    recent: collections.deque[tuple[float, bool]] = collections.deque(maxlen=LOOKBACK)
+    peaks: list[float] = []
+    recent: collections.deque[tuple[float, bool, float]] = collections.deque(maxlen=LOOKBACK)
     stats = getattr(env.unwrapped, "interaction_stats", None)
 
     def watch(record: StepRecord) -> None:
-        recent.append(((float(np.asarray(record.action).reshape(-1)[0]) + 1.0) / 2.0, bool(record.takeover)))
+        speed = (float(np.asarray(record.action).reshape(-1)[0]) + 1.0) / 2.0
+        ratio = record.fear / record.threshold if record.threshold > 0 else math.nan
+        recent.append((speed, bool(record.takeover), ratio))
         if record.violation and not violated[0]:
             gaps.append(float(stats()[1]) if stats is not None else float("inf"))
-            speeds.append(sum(v for v, _ in recent) / len(recent))
-            handed.append(any(taken for _, taken in recent))
+            speeds.append(sum(v for v, _, _ in recent) / len(recent))
+            handed.append(any(taken for _, taken, _ in recent))
+            ratios = [r for _, _, r in recent if math.isfinite(r)]
+            peaks.append(max(ratios) if ratios else math.nan)
         violated[0] = violated[0] or record.violation
 
     try:
@@ -124,7 +133,7 @@ def drive(
             steps += summary.steps
     finally:
         env.close()
-    return Outcome(way, taken / max(steps, 1), collisions, successes, episodes, gaps, speeds, handed)
+    return Outcome(way, taken / max(steps, 1), collisions, successes, episodes, gaps, speeds, handed, peaks)
 
 
 def _cell(outcome: dict[str, Any] | None) -> str:
@@ -184,12 +193,18 @@ def summary_lines(rows: list[dict[str, Any]]) -> list[str]:
         hits = [o["collisions"] for o in outcomes]
         handed = [h for o in outcomes for h in o["handed_over_before"]]
         speeds = [v for o in outcomes for v in o["speed_before"]]
+        peaks = [r for o in outcomes for r in o.get("peak_fear_ratio", []) if r is not None and math.isfinite(r)]
         lines.append(
             f"- {way}, {len(outcomes)} fine-tuned versions: takeover median {100 * statistics.median(shares):.0f}% "
             f"({100 * min(shares):.0f}-{100 * max(shares):.0f}%), collisions median {statistics.median(hits):g}/"
             f"{outcomes[0]['episodes']} ({min(hits)}-{max(hits)}); of their {len(handed)} collided episodes, "
             f"{sum(handed)} with the expert in control in the {LOOKBACK} steps before"
             + (f", mean speed then {sum(speeds) / len(speeds):.2f} of full" if speeds else "")
+            + (
+                f", peak F/τ then median {statistics.median(peaks):.2f} ({sum(r >= 1 for r in peaks)} at ≥ 1)"
+                if peaks
+                else ""
+            )
             + "."
         )
     return lines
