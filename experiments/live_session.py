@@ -42,6 +42,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from core.dotted import Section, route_settings
+
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_POLICY = "policies/ugv-default"
 ALONE_SEED = 9_000_000
@@ -71,6 +73,22 @@ class SessionPlan:
     """Cut each alone episode here (None: the scenario's own time limit, as the cycles study)."""
     finetune_settings: tuple[str, ...] = ()
     """``key=value`` edits of the live FinetuneConfig (none for the measured runs)."""
+    learner_settings: tuple[str, ...] = ()
+    """``key=value`` edits of the fine-tuning rounds' learner (:class:`core.sage.config.AgentConfig` field paths,
+    ``fear_regularisation=false``, ``gate.horizon=5``), applied after SAGE's switches
+    (``FinetuneConfig.overrides``). They reach the fine-tuned versions only, their gate included (a version's gate
+    is built from its checkpoint's configuration); ``v0000`` is the policy deployed, as it was trained."""
+
+
+SET_SECTIONS: dict[str, Section] = {
+    "finetune": Section("finetune"),
+    "learner": Section("learner"),
+    "world_model": Section("learner", "world_model_config."),
+    "gate": Section("learner", "gate."),
+}
+"""The ``--set`` sections this experiment takes: ``finetune.`` (the rounds' FinetuneConfig), ``learner.`` and
+``world_model.`` (the rounds' learner, as ``sage cycles`` reads them) and ``gate.`` (the fine-tuned versions' gate,
+the learner's ``gate.`` fields)."""
 
 
 @dataclass
@@ -87,6 +105,31 @@ def current_commit() -> str:
     return out.stdout.strip() or "unknown"
 
 
+def split_set(pairs: list[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``--set`` pairs as (FinetuneConfig settings, learner overrides), by :data:`SET_SECTIONS`; a pair of another
+    section or not of the form ``section.key=value`` is a ValueError naming the sections taken."""
+    routed = route_settings(pairs, SET_SECTIONS)
+    return tuple(routed.get("finetune", [])), tuple(routed.get("learner", []))
+
+
+def round_config(plan: SessionPlan) -> Any:
+    """The rounds' :class:`core.finetune.FinetuneConfig`: the defaults, seeded with the session seed, the plan's
+    settings and learner overrides. Each is checked here (a ValueError names the bad one), so that a typo is one line
+    before the session, not a worker that fails minutes into it."""
+    from core.finetune import FinetuneConfig, adaptation_config
+    from core.sage.config import apply_overrides
+
+    rounds = FinetuneConfig(seed=plan.seed, overrides=plan.learner_settings).with_settings(plan.finetune_settings)
+    if plan.learner_settings:
+        from core.agents import load_checkpoint
+        from core.sage.config import from_dict
+
+        # on the configuration the rounds will edit (the policy's, with SAGE's switches), as the Finetuner does
+        trained = from_dict(load_checkpoint(plan.policy)["agent_config"])
+        apply_overrides(adaptation_config(trained) if rounds.adapt_as_sage else trained, list(plan.learner_settings))
+    return rounds
+
+
 # -- the live session ---------------------------------------------------------------------------------------------
 def run_session(plan: SessionPlan, work: Path, say: Any = print) -> dict[str, Any]:
     """Drive the dashboard's loop headless with its fine-tuning worker; returns the session's record."""
@@ -98,7 +141,6 @@ def run_session(plan: SessionPlan, work: Path, say: Any = print) -> dict[str, An
     from app.policies import load_policy
     from app.server import make_env
     from core.agents import warm_gate_kernels
-    from core.finetune import FinetuneConfig
     from core.promotion import PromotionConfig
     from core.sessions import SessionStore
 
@@ -108,7 +150,7 @@ def run_session(plan: SessionPlan, work: Path, say: Any = print) -> dict[str, An
     np.random.seed(plan.seed)
     warm_gate_kernels([plan.policy])  # as `sage serve` does before its loop starts (a first compile takes seconds)
     store = SessionStore(work / "sessions")
-    rounds = FinetuneConfig(seed=plan.seed).with_settings(plan.finetune_settings)
+    rounds = round_config(plan)
     settings = FinetuneSettings(work / "finetune", rounds, promotion=PromotionConfig())
     config = LiveConfig(
         sim=plan.sim,
@@ -298,12 +340,38 @@ def compare(final: dict[str, Any], base: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def supervised_summary(versions: list[dict[str, Any]]) -> dict[str, Any]:
+    """The promotion check's supervised episodes (each version with its own gate and the expert), the fine-tuned
+    versions judged against ``v0000``: how often their gate handed over (median and range of the takeover share)
+    and in how many episodes they collided (median and range). None where nothing of the kind was judged."""
+    import statistics
+
+    def judged(v: dict[str, Any]) -> bool:
+        return v.get("supervised_takeover") is not None and v.get("supervised_collisions") is not None
+
+    base = next((v for v in versions if v["number"] == 0 and judged(v)), None)
+    tuned = [v for v in versions if v["number"] > 0 and judged(v)]
+    shares = [float(v["supervised_takeover"]) for v in tuned]
+    hits = [int(v["supervised_collisions"]) for v in tuned]
+    return {
+        "v0_takeover": None if base is None else base["supervised_takeover"],
+        "v0_collisions": None if base is None else base["supervised_collisions"],
+        "episodes": None if base is None else base.get("supervised_episodes"),
+        "fine_tuned_judged": len(tuned),
+        "takeover_median": statistics.median(shares) if shares else None,
+        "takeover_range": [min(shares), max(shares)] if shares else None,
+        "collisions_median": statistics.median(hits) if hits else None,
+        "collisions_range": [min(hits), max(hits)] if hits else None,
+    }
+
+
 def version_fields(versions: list[dict[str, Any]]) -> dict[str, Any]:
     return {
         "versions": versions,
         "published": len(versions) - 1,
         "promoted": [v["number"] for v in versions if v["number"] > 0 and v["promoted"]],
         "rolled_back": [v["number"] for v in versions if v["rolled_back"]],
+        "supervised": supervised_summary(versions),
     }
 
 
@@ -319,8 +387,7 @@ def rerender(folder: Path) -> dict[str, Any]:
     there, and write both files anew (the run's command and commit stay; ``rendered_at`` names this commit)."""
     report = json.loads((folder / "report.json").read_text())
     root = Path(report["versions_root"])
-    if root.is_dir():
-        report.update(version_fields(version_rows(root)))
+    report.update(version_fields(version_rows(root) if root.is_dir() else report["versions"]))
     report["target_met"] = target_met(report["in_control"], report["versions"], report["comparison"])
     report["rendered_at"] = current_commit()
     (folder / "report.json").write_text(json.dumps(report, indent=2, default=str) + "\n")
@@ -431,6 +498,19 @@ def render(report: dict[str, Any]) -> str:
         supervised = "-" if share is None else f"{_pct(share)}, {hits}/{v.get('supervised_episodes')}"
         cells = [f"v{v['number']:04d}", parent, updates, samples, supervised, promoted, reason]
         lines.append("| " + " | ".join(cells) + " |")
+    summary = report.get("supervised") or supervised_summary(report["versions"])
+    if summary["fine_tuned_judged"] and summary["v0_takeover"] is not None:
+        low, high = summary["takeover_range"]
+        few, many = summary["collisions_range"]
+        lines += [
+            "",
+            f"The {summary['fine_tuned_judged']} fine-tuned versions judged, supervised: takeover median "
+            f"{_pct(summary['takeover_median'])} (range {_pct(low)}-{_pct(high)}), collisions median "
+            f"{summary['collisions_median']:g}/{summary['episodes']} (range {few}-{many}); v0000: "
+            f"{_pct(summary['v0_takeover'])}, {summary['v0_collisions']}/{summary['episodes']}.",
+        ]
+    if report["plan"].get("learner_settings"):
+        lines += ["", f"Learner overrides of the rounds: `{', '.join(report['plan']['learner_settings'])}`."]
     lines += ["", "## Takeover share over the session (1-minute bins of simulated time)", ""]
     lines += ["| minute | steps | takeover share | versions driving |", "|---|---|---|---|"]
     for row in report["takeover_bins"]:
@@ -494,7 +574,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policy", default=DEFAULT_POLICY)
     parser.add_argument("--alone-episodes", type=int, default=20)
     parser.add_argument("--alone-max-steps", type=int, default=None)
-    parser.add_argument("--set", dest="settings", action="append", default=[], help="finetune.KEY=VALUE (tests).")
+    parser.add_argument(
+        "--set",
+        dest="settings",
+        action="append",
+        default=[],
+        help="finetune.KEY=VALUE (the rounds), learner.KEY=VALUE / world_model.KEY=VALUE (the rounds' learner), "
+        "gate.KEY=VALUE (the fine-tuned versions' gate); repeatable.",
+    )
     parser.add_argument("--work", type=Path, default=None, help="Sessions and versions (default: runs/live-sSEED).")
     parser.add_argument("--out", type=Path, required=True, help="Folder for report.md and report.json.")
     parser.add_argument("--rerender", action="store_true", help="Only write --out's report again from its json.")
@@ -505,12 +592,11 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         print(render(rerender(args.out)))
         return 0
-    settings = []
-    for pair in args.settings:
-        if not pair.startswith("finetune."):
-            print(f"error: --set {pair}: only finetune.KEY=VALUE settings are taken", file=sys.stderr)
-            return 2
-        settings.append(pair.removeprefix("finetune."))
+    try:
+        finetune_settings, learner_settings = split_set(args.settings)
+    except ValueError as exc:
+        print(f"error: --set {exc}", file=sys.stderr)
+        return 2
     if args.steps < 1 or args.alone_episodes < 1 or not 0.1 <= args.speed <= 20.0:
         print("error: --steps and --alone-episodes must be >= 1, --speed in [0.1, 20]", file=sys.stderr)
         return 2
@@ -531,8 +617,14 @@ def main(argv: list[str] | None = None) -> int:
         policy=args.policy,
         alone_episodes=args.alone_episodes,
         alone_max_steps=args.alone_max_steps,
-        finetune_settings=tuple(settings),
+        finetune_settings=finetune_settings,
+        learner_settings=learner_settings,
     )
+    try:
+        round_config(plan)
+    except ValueError as exc:
+        print(f"error: --set: {exc}", file=sys.stderr)
+        return 2
     import torch
 
     torch.set_num_threads(1)

@@ -8,7 +8,16 @@ from pathlib import Path
 
 import pytest
 
-from experiments.live_session import SessionLog, main, mcnemar_exact, takeover_bins
+from experiments.live_session import (
+    SessionLog,
+    SessionPlan,
+    main,
+    mcnemar_exact,
+    round_config,
+    split_set,
+    supervised_summary,
+    takeover_bins,
+)
 
 
 def test_a_short_session_writes_its_report_with_every_field(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -54,3 +63,52 @@ def test_takeover_bins_are_minutes_of_simulated_time() -> None:
     assert [row["steps"] for row in rows] == [600, 600, 50]
     assert rows[0]["takeover_share"] == pytest.approx(0.5) and rows[1]["takeover_share"] == 0.0
     assert rows[1]["versions"] == [0, 2] and rows[2]["takeover_share"] == 1.0
+
+
+def test_set_routes_learner_world_model_and_gate_settings_to_the_rounds_learner() -> None:
+    finetune, learner = split_set(
+        ["finetune.round_keep=1", "learner.fear_regularisation=false", "world_model.epochs=3", "gate.horizon=5"]
+    )
+    assert finetune == ("round_keep=1",)
+    assert learner == ("fear_regularisation=false", "world_model_config.epochs=3", "gate.horizon=5")
+    rounds = round_config(SessionPlan(finetune_settings=finetune[:1], learner_settings=learner[:1]))
+    assert rounds.overrides == ("fear_regularisation=false",) and rounds.round_keep == 1.0
+    with pytest.raises(ValueError, match="names no section"):
+        split_set(["env.speed=2"])
+
+
+@pytest.mark.parametrize(
+    ("pair", "says"),
+    [
+        ("env.speed=2", "names no section"),
+        ("learner.no_such_field=1", "unknown config field 'no_such_field'"),
+        ("gate.no_such_field=1", "unknown config field 'gate.no_such_field'"),
+        ("learner.imitation=perhaps", "cannot read 'perhaps'"),
+        ("finetune.round_keep=7", "round_keep must be in"),
+    ],
+)
+def test_a_bad_set_is_one_error_line_before_any_session(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], pair: str, says: str
+) -> None:
+    assert main(["--set", pair, "--work", str(tmp_path / "work"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --set") and says in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "work").exists()
+
+
+def test_the_supervised_summary_is_of_the_fine_tuned_versions_judged() -> None:
+    def row(number: int, share: float | None, hits: int | None) -> dict[str, object]:
+        return {
+            "number": number,
+            "supervised_takeover": share,
+            "supervised_collisions": hits,
+            "supervised_episodes": 15,
+        }
+
+    summary = supervised_summary(
+        [row(0, 0.36, 1), row(1, 0.10, 6), row(2, 0.02, 2), row(3, 0.30, 4), row(4, None, None)]
+    )
+    assert summary["fine_tuned_judged"] == 3 and (summary["v0_takeover"], summary["v0_collisions"]) == (0.36, 1)
+    assert summary["takeover_median"] == pytest.approx(0.10) and summary["takeover_range"] == [0.02, 0.30]
+    assert summary["collisions_median"] == 4 and summary["collisions_range"] == [2, 6]
+    assert supervised_summary([row(0, 0.36, 1)])["takeover_median"] is None
