@@ -70,7 +70,8 @@ class VersionFollower:
             sessions_root,
             session_id,
             settings.config,
-            evaluator=functools.partial(evaluate_version, make_env=make_env),
+            # the regression test (promotion.regression_scenarios) drives each of its scenarios: scenario_env
+            evaluator=functools.partial(evaluate_version, make_env=make_env, scenario_env=scenario_env),
             promotion=settings.promotion,
             # the base policy's own drives beside the session's takeovers in every round (core.finetune.drive_alone)
             prior=None if scenario_env is None else functools.partial(drive_alone, make_env=scenario_env),

@@ -23,6 +23,13 @@ and :func:`takeover_pass_probability` compute these, ``tests/core/test_promotion
   one gets past this test alone about one round in six at this rate. Where collisions under supervision are rare
   (the gate prevents most), the test cannot tell versions apart at all and the takeover test decides.
 
+A regression test (off by default: ``regression_scenarios``) guards what fine-tuning may forget: the candidate drives
+ALONE (deterministic, no gate, no expert) on ``regression_episodes`` fixed seeds of each of those scenarios (the base
+policy's own, e.g. UGV 1-2 for the UGV default) and fails if it succeeds in fewer of them, on any scenario, than
+``v0000`` (the policy the operator deployed) on the same seeds. A version that drives worse alone on the base's own
+scenarios than the base does is a regression, whatever it gained under supervision. ``supervised=False`` skips the
+supervised tests above, so that the regression test can be measured alone.
+
 Otherwise the version is kept on disk, marked with the reason, and never offered to the loop by the follower, and
 the next round continues from the version in control (:func:`core.finetune.line_head`), not from the rejected
 one. The verdict is ``promotion.json`` in the version's folder (written atomically); ``v0000``, the policy the
@@ -70,10 +77,25 @@ class PromotionConfig:
     """Episodes a newly deployed version drives live before :class:`LiveWatch` judges it."""
     live_takeover_margin: float = 0.10
     """Live takeover rates are noisy (a person decides when to take over): roll back only beyond this margin."""
+    supervised: bool = True
+    """Run the supervised tests (collisions and takeover, with gate and expert, beside the version in control);
+    False leaves the regression test alone to decide (it then needs ``regression_scenarios``)."""
+    regression_scenarios: tuple[str, ...] = ()
+    """Scenarios the candidate drives ALONE before it may drive (the regression test: it must succeed in as many of
+    each one's episodes as ``v0000`` on the same seeds); empty: no regression test."""
+    regression_episodes: int = 10
+    """Episodes alone per regression scenario (seeds ``regression_seed + i``, the same for every version)."""
+    regression_seed: int = 8_000_000
+    """Seed of the first regression episode; apart from the evaluation, training and policy-alone seeds."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1 or self.live_window < 1:
             raise ValueError("episodes >= 1 and live_window >= 1 are needed")
+        if self.regression_episodes < 1:
+            raise ValueError("regression_episodes >= 1 is needed")
+        if not self.supervised and not self.regression_scenarios:
+            raise ValueError("with supervised=False the regression test must run: give regression_scenarios")
+        object.__setattr__(self, "regression_scenarios", tuple(str(s) for s in self.regression_scenarios))
         if self.takeover_margin < 0 or self.live_takeover_margin < 0:
             raise ValueError("takeover margins must be >= 0")
 
@@ -95,6 +117,10 @@ class Evaluation:
     """Each episode's share of steps under expert control, in seed order (the paired test reads these)."""
     episode_collided: list[bool] = field(default_factory=list)
     """Whether each episode had a safety violation, in seed order."""
+    regression: dict[str, list[bool]] = field(default_factory=dict)
+    """Per regression scenario, whether each episode ALONE succeeded, in seed order (empty: no regression test)."""
+    regression_seed: int | None = None
+    """Seed of the first regression episode (the test compares two versions only on the same seeds)."""
 
     @property
     def violation_rate(self) -> float:
@@ -130,8 +156,45 @@ def paired_takeover(candidate: Evaluation, incumbent: Evaluation, margin: float)
     return wins, losses
 
 
-def decide(candidate: Evaluation, incumbent: Evaluation, cfg: PromotionConfig) -> Decision:
-    """Promote only a candidate that passes the collision test and the takeover test (the module docstring)."""
+def regression_failure(candidate: Evaluation, base: Evaluation, cfg: PromotionConfig) -> str | None:
+    """Why the candidate fails the regression test against the base (``v0000``): the first scenario of
+    ``cfg.regression_scenarios`` on which it succeeds alone in fewer episodes than the base; None when it passes."""
+    for scenario in cfg.regression_scenarios:
+        mine, theirs = candidate.regression.get(scenario), base.regression.get(scenario)
+        same_seeds = candidate.regression_seed == base.regression_seed
+        if mine is None or theirs is None or len(mine) != len(theirs) or not same_seeds:
+            raise ValueError(f"regression scenario {scenario}: the two evaluations do not hold the same seeds")
+        if sum(mine) < sum(theirs):
+            return (
+                f"regression: alone on scenario {scenario} it succeeded in {sum(mine)}/{len(mine)} episodes, "
+                f"the base policy (v0000) in {sum(theirs)}/{len(theirs)}"
+            )
+    return None
+
+
+def decide(
+    candidate: Evaluation, incumbent: Evaluation | None, cfg: PromotionConfig, base: Evaluation | None = None
+) -> Decision:
+    """Promote only a candidate that passes the regression test against ``base`` (with ``regression_scenarios``)
+    and, with ``supervised``, the collision and takeover tests against ``incumbent`` (the module docstring)."""
+    regression = ""
+    if cfg.regression_scenarios:
+        if base is None:
+            raise ValueError("the regression test needs the base policy's evaluation")
+        failure = regression_failure(candidate, base, cfg)
+        if failure is not None:
+            return Decision(False, failure)
+        regression = f"no worse alone than the base policy on scenarios {', '.join(cfg.regression_scenarios)}"
+        if not cfg.supervised:
+            return Decision(True, regression + " (supervised tests off)")
+        regression = "; " + regression
+    if incumbent is None:
+        raise ValueError("the supervised tests need the version in control's evaluation")
+    decision = _decide_supervised(candidate, incumbent, cfg)
+    return Decision(decision.promoted, decision.reason + regression) if decision.promoted else decision
+
+
+def _decide_supervised(candidate: Evaluation, incumbent: Evaluation, cfg: PromotionConfig) -> Decision:
     if candidate.violation_episodes > incumbent.violation_episodes:
         return Decision(
             False,
@@ -194,53 +257,87 @@ def takeover_pass_probability(p_win: float, p_loss: float, episodes: int) -> flo
 
 
 def evaluate_version(
-    path: Path, cfg: PromotionConfig, *, make_env: Callable[[], gym.Env[Any, Any]], hold_steps: int | None = None
+    path: Path,
+    cfg: PromotionConfig,
+    *,
+    make_env: Callable[[], gym.Env[Any, Any]],
+    hold_steps: int | None = None,
+    scenario_env: Callable[[str], gym.Env[Any, Any]] | None = None,
 ) -> Evaluation:
-    """Run ``path`` (a version folder or checkpoint) with its gate and the scripted expert on the fixed seeds."""
+    """Run ``path`` (a version folder or checkpoint) with its gate and the scripted expert on the fixed seeds (with
+    ``cfg.supervised``), and alone on each of ``cfg.regression_scenarios`` (built by ``scenario_env(name)``, which
+    the regression test needs)."""
     from core.agents import load_agent
     from core.experts import ScriptedExpert
     from core.loop import Gate, NoGate, Runner, StepRecord
 
     started = time.perf_counter()
     agent = load_agent(path)
+    regression: dict[str, list[bool]] = {}
+    if cfg.regression_scenarios:
+        if scenario_env is None:
+            raise ValueError("the regression test needs scenario_env, a factory of each scenario's environment")
+        for scenario in cfg.regression_scenarios:
+            regression[scenario] = _alone_successes(agent.policy, scenario_env(scenario), cfg)
+    episodes = cfg.episodes if cfg.supervised else 0
     gate: Gate = NoGate()
     if agent.has_world_model:
         gate = agent.make_gate() if hold_steps is None else agent.make_gate(hold_steps=hold_steps)
-    env = make_env()
     violations = takeovers = steps = successes = 0
     per_takeover: list[float] = []
     per_collided: list[bool] = []
+    env = make_env() if episodes else None
     try:
-        runner = Runner(env, agent.policy, gate, ScriptedExpert(), seed=cfg.seed, deterministic=True)
-        violated: list[bool] = [False]
+        if env is not None:
+            runner = Runner(env, agent.policy, gate, ScriptedExpert(), seed=cfg.seed, deterministic=True)
+            violated: list[bool] = [False]
 
-        def watch(record: StepRecord) -> None:
-            violated[0] = violated[0] or record.violation
+            def watch(record: StepRecord) -> None:
+                violated[0] = violated[0] or record.violation
 
-        runner.step_listeners.append(watch)
-        for _ in range(cfg.episodes):
-            violated[0] = False
-            summary = runner.run_episode(max_steps=cfg.max_steps)
-            collided = violated[0] or _flag(summary.metrics.get("collision"))
-            violations += int(collided)
-            successes += int(_flag(summary.metrics.get("success")))
-            takeovers += summary.takeovers
-            steps += summary.steps
-            per_takeover.append(summary.takeovers / max(summary.steps, 1))
-            per_collided.append(collided)
+            runner.step_listeners.append(watch)
+            for _ in range(episodes):
+                violated[0] = False
+                summary = runner.run_episode(max_steps=cfg.max_steps)
+                collided = violated[0] or _flag(summary.metrics.get("collision"))
+                violations += int(collided)
+                successes += int(_flag(summary.metrics.get("success")))
+                takeovers += summary.takeovers
+                steps += summary.steps
+                per_takeover.append(summary.takeovers / max(summary.steps, 1))
+                per_collided.append(collided)
     finally:
-        env.close()
+        if env is not None:
+            env.close()
     return Evaluation(
-        episodes=cfg.episodes,
+        episodes=episodes,
         violation_episodes=violations,
         takeover_rate=takeovers / max(steps, 1),
-        success_rate=successes / cfg.episodes,
+        success_rate=successes / max(episodes, 1),
         steps=steps,
         seconds=round(time.perf_counter() - started, 3),
-        seeds=[cfg.seed + i for i in range(cfg.episodes)],
+        seeds=[cfg.seed + i for i in range(episodes)],
         episode_takeover=per_takeover,
         episode_collided=per_collided,
+        regression=regression,
+        regression_seed=cfg.regression_seed if regression else None,
     )
+
+
+def _alone_successes(policy: Any, env: gym.Env[Any, Any], cfg: PromotionConfig) -> list[bool]:
+    """The policy ALONE (deterministic, no gate, no expert) on the regression seeds: each episode's success."""
+    from core.experts import ScriptedExpert
+    from core.loop import NoGate, Runner
+
+    outcomes: list[bool] = []
+    try:
+        runner = Runner(env, policy, NoGate(), ScriptedExpert(), seed=cfg.regression_seed, deterministic=True)
+        for _ in range(cfg.regression_episodes):
+            summary = runner.run_episode(max_steps=cfg.max_steps)
+            outcomes.append(_flag(summary.metrics.get("success")))
+    finally:
+        env.close()
+    return outcomes
 
 
 def _flag(value: Any) -> bool:

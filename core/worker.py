@@ -192,7 +192,10 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
 def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> dict[str, Any]:
     """Evaluate version ``number`` beside the latest promoted version before it and write its verdict.
 
-    The incumbent's evaluation is cached in its own ``promotion.json``, so each version is evaluated once."""
+    The incumbent's evaluation is cached in its own ``promotion.json``, so each version is evaluated once; so is
+    ``v0000``'s regression record (the regression test, with ``promotion.regression_scenarios``)."""
+    import dataclasses
+
     from core.promotion import Evaluation, PromotionConfig, decide, read_verdict, write_verdict
 
     cfg = promotion or PromotionConfig()
@@ -201,35 +204,66 @@ def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> 
         verdict: dict[str, Any] = {"promoted": True, "evaluated": False, "reason": "not evaluated (no evaluator)"}
         write_verdict(candidate.path, verdict)
         return verdict
-    incumbent = next((v for v in reversed(versions.versions()) if v.number < number and v.promoted), None)
-    if incumbent is None:
-        incumbent = versions.get(0)
-    cached = read_verdict(incumbent.path) or {}
-    record = cached.get("evaluation")
-    if (
-        isinstance(record, dict)
-        and cached.get("evaluation_seed") == cfg.seed
-        and record.get("episodes") == cfg.episodes
-        and record.get("episode_takeover")  # the paired test reads each episode's share
-    ):
-        before = Evaluation.from_dict(cached["evaluation"])
-    else:
-        before = evaluator(incumbent.path, cfg)
-        base_verdict = cached or {"promoted": True, "reason": "the policy deployed by the operator"}
-        write_verdict(incumbent.path, {**base_verdict, "evaluation": before.as_dict(), "evaluation_seed": cfg.seed})
+    base = _base_regression(versions, evaluator, cfg) if cfg.regression_scenarios else None
+    before: Evaluation | None = None
+    incumbent = None
+    if cfg.supervised:
+        incumbent = next((v for v in reversed(versions.versions()) if v.number < number and v.promoted), None)
+        if incumbent is None:
+            incumbent = versions.get(0)
+        cached = read_verdict(incumbent.path) or {}
+        record = cached.get("evaluation")
+        if (
+            isinstance(record, dict)
+            and cached.get("evaluation_seed") == cfg.seed
+            and record.get("episodes") == cfg.episodes
+            and record.get("episode_takeover")  # the paired test reads each episode's share
+        ):
+            before = Evaluation.from_dict(cached["evaluation"])
+        else:
+            # the incumbent needs the supervised record only (the regression test compares with v0000)
+            before = evaluator(incumbent.path, dataclasses.replace(cfg, regression_scenarios=()))
+            base_verdict = cached or {"promoted": True, "reason": "the policy deployed by the operator"}
+            write_verdict(incumbent.path, {**base_verdict, "evaluation": before.as_dict(), "evaluation_seed": cfg.seed})
     after = evaluator(candidate.path, cfg)
-    decision = decide(after, before, cfg)
+    decision = decide(after, before, cfg, base)
     verdict = {
         "promoted": decision.promoted,
         "evaluated": True,
         "reason": decision.reason,
-        "against": incumbent.number,
+        "against": None if incumbent is None else incumbent.number,
         "evaluation": after.as_dict(),
         "evaluation_seed": cfg.seed,
-        "incumbent": before.as_dict(),
+        "incumbent": None if before is None else before.as_dict(),
     }
+    if base is not None:
+        verdict["base_regression"] = base.regression
     write_verdict(candidate.path, verdict)
     return verdict
+
+
+def _base_regression(versions: Any, evaluator: Any, cfg: Any) -> Any:
+    """``v0000`` alone on the regression scenarios' seeds, evaluated once and cached in its ``promotion.json``."""
+    import dataclasses
+
+    from core.promotion import Evaluation, read_verdict, write_verdict
+
+    base = versions.get(0)
+    cached = read_verdict(base.path) or {}
+    key = {"seed": cfg.regression_seed, "episodes": cfg.regression_episodes, "max_steps": cfg.max_steps}
+    record = cached.get("regression")
+    if (
+        isinstance(record, dict)
+        and cached.get("regression_for") == key
+        and all(scenario in record.get("regression", {}) for scenario in cfg.regression_scenarios)
+    ):
+        return Evaluation.from_dict(record)
+    evaluation = evaluator(base.path, dataclasses.replace(cfg, supervised=False))
+    if isinstance(record, dict) and cached.get("regression_for") == key:  # keep the scenarios measured before
+        evaluation.regression = {**record.get("regression", {}), **evaluation.regression}
+    base_verdict = cached or {"promoted": True, "reason": "the policy deployed by the operator"}
+    write_verdict(base.path, {**base_verdict, "regression": evaluation.as_dict(), "regression_for": key})
+    return evaluation
 
 
 # -- the supervisor in the loop's process -----------------------------------------------------------------------------

@@ -83,8 +83,9 @@ class CyclesConfig:
     promotion: PromotionConfig | None = None
     """Judge every fine-tuned version as the live worker does before it may drive (:mod:`core.promotion`: beside
     the version in control, on the cycle's scenario with gate and expert, on the promotion's own seeds): a
-    version not promoted is not deployed, and the next round continues from the version in control. None: every
-    published version is deployed in the next cycle."""
+    version not promoted is not deployed, and the next round continues from the version in control. With
+    ``regression_scenarios`` the version must also drive alone on those scenarios no worse than ``v0000`` (the
+    regression test). None: every published version is deployed in the next cycle."""
     finetune: FinetuneConfig = field(default_factory=lambda: FinetuneConfig(min_steps=1, min_takeover_samples=0))
     """Each cycle is the unit of data the study chose, so its round runs whatever its size (the live worker's
     minimum-data rule guards rounds that nobody asked for)."""
@@ -355,7 +356,9 @@ def run_cycles(
                     f"{result.ingested.takeovers} takeover samples, {result.seconds:.1f} s"
                 )
                 if cfg.promotion is not None:
-                    evaluator = functools.partial(evaluate_version, make_env=functools.partial(make_env, cfg.scenario))
+                    evaluator = functools.partial(
+                        evaluate_version, make_env=functools.partial(make_env, cfg.scenario), scenario_env=make_env
+                    )
                     verdict = judge(versions, result.version.number, evaluator, cfg.promotion)
                     rounds[-1]["promotion"] = {"promoted": verdict["promoted"], "reason": verdict["reason"]}
                     if not verdict["promoted"]:

@@ -112,6 +112,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
                 config.get("finetune", ())
             ),
             max_episode_steps=config.get("max_episode_steps"),
+            promotion=promotion_of(config),
         )
         run_cycles(cfg, out, env_factory(sim))
     rows = read_cycles(out)["cycles"]
@@ -136,6 +137,21 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     }
 
 
+def promotion_of(settings: Mapping[str, Any]) -> Any:
+    """The promotion a trial's versions must pass before they drive (:class:`core.promotion.PromotionConfig`), or
+    None (the default: every version drives). ``promotion``: the live worker's supervised tests beside the version
+    in control; ``regression_scenarios``: the regression test, each version alone on those scenarios no worse than
+    ``v0000``; either one switches promotion on, and a rejected version is not deployed."""
+    from core.promotion import PromotionConfig
+
+    supervised = bool(settings.get("promotion", False))
+    regression = tuple(str(s) for s in settings.get("regression_scenarios", ()) or ())
+    if not supervised and not regression:
+        return None
+    max_steps = settings.get("max_episode_steps") or PromotionConfig().max_steps
+    return PromotionConfig(supervised=supervised, regression_scenarios=regression, max_steps=max_steps)
+
+
 def check_settings(settings: Mapping[str, Any]) -> None:
     """The scenario and the unseen one must be names the simulator knows, and differ (a procedural field such as
     ``ugv-fields:test:7`` is a scenario like UGV 3; it has no built-in unseen one, so the study is given one with
@@ -153,6 +169,11 @@ def check_settings(settings: Mapping[str, Any]) -> None:
             scenario_kwargs(sim, name)
         except (ValueError, OSError) as error:  # the descriptor's own message, as one line
             raise ValueError(f"--set study.{key}={name}: {str(error).splitlines()[0]}") from None
+    for name in settings.get("regression_scenarios", ()) or ():
+        try:
+            scenario_kwargs(sim, str(name))
+        except (ValueError, OSError) as error:
+            raise ValueError(f"--set study.regression_scenarios={name}: {str(error).splitlines()[0]}") from None
     if unseen == scenario:
         raise ValueError(f"--set study.unseen_scenario={unseen}: the unseen scenario must differ from the scenario")
 
@@ -191,7 +212,15 @@ STUDY = StudyDef(
         "after the first whose supervised collision rate is above the first's. Collisions end the episode. The paper "
         "shows this study as curves (Fig. field_test_1), so no paper numbers stand beside.",
     ),
-    settings={"sim": "ugv", "scenario": "3", "unseen_scenario": "", "policy": str(DEFAULT_POLICY), "finetune": ()},
+    settings={
+        "sim": "ugv",
+        "scenario": "3",
+        "unseen_scenario": "",
+        "policy": str(DEFAULT_POLICY),
+        "finetune": (),
+        "promotion": False,
+        "regression_scenarios": (),
+    },
     check_settings=check_settings,
     learner_overrides=False,
     budget_text=budget_text,

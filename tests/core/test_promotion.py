@@ -203,3 +203,65 @@ def test_the_promotion_rule_passes_a_better_version_in_most_rounds_and_a_worse_o
 
     assert passes(0.7) == pytest.approx(takeover_pass_probability(0.7, 0.3, episodes), abs=0.02)
     assert passes(0.3) == pytest.approx(takeover_pass_probability(0.3, 0.7, episodes), abs=0.02)
+
+
+def alone(successes: dict[str, int], episodes: int = 10, supervised: Evaluation | None = None) -> Evaluation:
+    """An evaluation whose regression record succeeds alone in ``successes[scenario]`` of ``episodes`` episodes."""
+    record = supervised or Evaluation(0, 0, 0.0, 0.0, 0, 0.1)
+    record.regression = {s: [i < n for i in range(episodes)] for s, n in successes.items()}
+    record.regression_seed = PromotionConfig().regression_seed
+    return record
+
+
+def test_the_regression_test_rejects_a_candidate_worse_alone_than_the_base_and_promotes_one_no_worse() -> None:
+    cfg = PromotionConfig(supervised=False, regression_scenarios=("1", "2"))
+    base = alone({"1": 10, "2": 9})
+    worse = decide(alone({"1": 10, "2": 8}), None, cfg, base)
+    assert not worse.promoted and "regression" in worse.reason and "scenario 2" in worse.reason
+    assert "8/10" in worse.reason and "9/10" in worse.reason
+    kept = decide(alone({"1": 10, "2": 9}), None, cfg, base)
+    assert kept.promoted and "no worse alone" in kept.reason
+    # with the supervised tests on, both must pass: a version no worse alone but colliding more is still refused
+    both = PromotionConfig(regression_scenarios=("1", "2"))
+    assert not decide(alone({"1": 10, "2": 9}, supervised=evaluation(2, 0.1)), evaluation(0, 0.1), both, base).promoted
+    assert decide(alone({"1": 10, "2": 10}, supervised=evaluation(0, 0.1)), evaluation(0, 0.1), both, base).promoted
+    assert not decide(alone({"1": 9, "2": 10}, supervised=evaluation(0, 0.0)), evaluation(0, 0.1), both, base).promoted
+    with pytest.raises(ValueError, match="regression_scenarios"):
+        PromotionConfig(supervised=False)  # no test at all
+
+
+def test_judge_runs_the_regression_test_against_v0000_cached_and_rejects_a_forgetting_version(
+    deployed: Path,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    versions = VersionStore(tmp_path / "versions")
+    versions.ensure_initial(deployed)
+    forgetful, keeper = broken_copy(versions, versions.get(0).path), broken_copy(versions, versions.get(0).path)
+    alone_successes = {0: 10, forgetful: 6, keeper: 10}
+    calls: list[tuple[str, bool, tuple[str, ...]]] = []
+
+    def fake(path: Path, cfg: PromotionConfig) -> Evaluation:
+        calls.append((Path(path).name, cfg.supervised, cfg.regression_scenarios))
+        number = int(Path(path).name[1:])
+        return alone({s: alone_successes[number] for s in cfg.regression_scenarios}, cfg.regression_episodes)
+
+    cfg = PromotionConfig(supervised=False, regression_scenarios=("1", "2"))
+    rejected = judge(versions, forgetful, fake, cfg)
+    assert not rejected["promoted"] and "regression" in rejected["reason"] and "6/10" in rejected["reason"]
+    assert not is_promoted(versions.get(forgetful).path, forgetful)
+    promoted = judge(versions, keeper, fake, cfg)
+    assert promoted["promoted"], promoted
+    assert [name for name, _, _ in calls] == ["v0000", f"v{forgetful:04d}", f"v{keeper:04d}"]  # v0000 once: cached
+    assert read_verdict(versions.get(0).path)["regression"]["regression"]["1"] == [True] * 10
+
+
+def test_evaluate_version_drives_the_regression_scenarios_alone_on_fixed_seeds(deployed: Path) -> None:  # noqa: F811
+    cfg = PromotionConfig(episodes=2, max_steps=40, supervised=False, regression_scenarios=("static",))
+    scenario_env = functools.partial(envs.make)
+    first = evaluate_version(deployed, cfg, make_env=functools.partial(envs.make, "static"), scenario_env=scenario_env)
+    again = evaluate_version(deployed, cfg, make_env=functools.partial(envs.make, "static"), scenario_env=scenario_env)
+    assert first.episodes == 0 and first.seeds == []  # the supervised tests are off
+    assert len(first.regression["static"]) == cfg.regression_episodes
+    assert first.regression == again.regression  # deterministic, the same seeds
+    with pytest.raises(ValueError, match="scenario_env"):
+        evaluate_version(deployed, cfg, make_env=functools.partial(envs.make, "static"))

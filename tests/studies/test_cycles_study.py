@@ -103,3 +103,18 @@ def test_the_cycles_study_refuses_a_bad_scenario_in_one_line(tmp_path: Path) -> 
         assert words in result.output and "Traceback" not in result.output
         assert len(result.output.strip().splitlines()) == 1
     assert not (tmp_path / "never").exists()  # refused before any trial
+
+
+def test_the_cycles_study_can_judge_its_versions_by_the_regression_test_alone(tmp_path: Path) -> None:
+    from studies.cycles_study import promotion_of
+
+    assert promotion_of(get_study("cycles").settings) is None  # by default every version drives, as before
+    config = {"seed": 0, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
+    trial({**config, "method": "sage", "regression_scenarios": ["1", "2"]})
+    tuned = json.loads((tmp_path / "sage-s0" / "cycles.json").read_text())
+    promotion = tuned["config"]["promotion"]
+    assert promotion["supervised"] is False and list(promotion["regression_scenarios"]) == ["1", "2"]
+    verdict = tuned["rounds"][0]["promotion"]
+    assert "regression" in verdict["reason"] or "no worse alone" in verdict["reason"]
+    # a rejected version is not deployed: the last cycle drives the version in control
+    assert tuned["cycles"][-1]["version"] == (1 if verdict["promoted"] else 0)
