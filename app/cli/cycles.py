@@ -23,6 +23,7 @@ from app.cli.options import (
     LEARNER_SECTIONS,
     LEARNER_SET_HELP,
     NamedChoicesCommand,
+    checked_scenarios,
     fail,
     one_scenario,
     routed_settings,
@@ -79,6 +80,13 @@ def register(app: typer.Typer) -> None:
             bool,
             typer.Option(help="Judge each version as the live worker does; deploy only promoted ones (15 episodes)."),
         ] = False,
+        regression_scenario: Annotated[
+            list[str] | None,
+            typer.Option(
+                help="A regression test against forgetting (repeatable, e.g. 1 and 2): a version is deployed only if, "
+                "ALONE on this scenario's fixed seeds, it succeeds in as many episodes as the starting policy."
+            ),
+        ] = None,
         frozen: Annotated[
             bool, typer.Option(help="The control: deploy the first version in every cycle, never fine-tuned.")
         ] = False,
@@ -112,6 +120,7 @@ def register(app: typer.Typer) -> None:
         if not Path(policy_path).exists():
             fail(f"no policy at {policy_path!r} (give --policy a run folder or a checkpoint)")
         sim = runs_sim([policy_path], sim)
+        regression = checked_scenarios(sim, regression_scenario or [], "--regression-scenario")
         folder = out or Path("runs") / f"cycles-{sim}-{name}-s{seed}"
         try:
             make_env = env_factory(sim)
@@ -129,7 +138,13 @@ def register(app: typer.Typer) -> None:
                 steps_per_cycle=steps_per_cycle,
                 fine_tune=not frozen,
                 promotion=(
-                    PromotionConfig(max_steps=max_episode_steps or PromotionConfig().max_steps) if promote else None
+                    PromotionConfig(
+                        supervised=promote,
+                        regression_scenarios=regression,
+                        max_steps=max_episode_steps or PromotionConfig().max_steps,
+                    )
+                    if promote or regression
+                    else None
                 ),
                 alone_episodes=alone_episodes,
                 unseen_scenario=unseen_scenario,

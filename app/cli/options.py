@@ -99,6 +99,20 @@ def scenario_list(values: Sequence[str] | None) -> list[str]:
     return names
 
 
+def checked_scenarios(sim: str, values: Sequence[str], flag: str) -> tuple[str, ...]:
+    """Scenario names given to ``flag`` (repeatable, each may be comma-separated), each one ``sim`` knows; one line
+    and exit 2 otherwise."""
+    import sims
+
+    names = tuple(part.strip() for value in values for part in value.split(",") if part.strip())
+    for name in names:
+        try:
+            sims.descriptor(sim).scenario_kwargs(name)
+        except (ValueError, OSError) as exc:
+            fail(f"{flag} {name}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
+    return names
+
+
 def one_scenario(values: Sequence[str] | None, command: str) -> str | None:
     """The one scenario of a command that drives one (None when not given)."""
     names = scenario_list(values)

@@ -10,7 +10,15 @@ from typing import Annotated, Any, NoReturn
 
 import typer
 
-from app.cli.options import GATE_SET_HELP, GateSetRetired, gate_pairs, one_scenario, policy_sim, refuse_retired
+from app.cli.options import (
+    GATE_SET_HELP,
+    GateSetRetired,
+    checked_scenarios,
+    gate_pairs,
+    one_scenario,
+    policy_sim,
+    refuse_retired,
+)
 from app.messages import EXPERT_MODES
 
 
@@ -56,6 +64,14 @@ def register(app: typer.Typer) -> None:
             bool, typer.Option(help="Fine-tune a trained policy on the session in a worker process.")
         ] = True,
         set_: Annotated[list[str] | None, typer.Option("--set", help=f"For each policy: {GATE_SET_HELP}")] = None,
+        regression_scenario: Annotated[
+            list[str] | None,
+            typer.Option(
+                help="A regression test against forgetting (repeatable, e.g. the policy's own 1 and 2): a fine-tuned "
+                "version drives only if, ALONE on this scenario's fixed seeds, it succeeds in as many episodes as the "
+                "policy the session started from (core.promotion)."
+            ),
+        ] = None,
         gate_set: GateSetRetired = None,
     ) -> None:
         """Serve the live dashboard: the SAGE loop at wall-clock rate, its fear / curiosity / threshold
@@ -65,12 +81,14 @@ def register(app: typer.Typer) -> None:
         import uvicorn
 
         from app.server import ServerSettings, create_app
+        from core.promotion import PromotionConfig
 
         if expert not in EXPERT_MODES:
             _fail(f"--expert must be one of {', '.join(EXPERT_MODES)}, not {expert!r}")
         refuse_retired(gate_set=gate_set)
         scenario_name, sim = one_scenario(scenario, "sage serve"), policy_sim(policy, sim)
         gate_settings = _check_startup(sim, scenario_name, policy, gate_pairs(set_))
+        regression = checked_scenarios(sim, regression_scenario or [], "--regression-scenario")
         # bound here, before the banner, the loop, the worker or a session exist: a busy or forbidden port is one
         # line now, not uvicorn's error after a session was recorded; uvicorn then serves on this very socket
         listener = bind_listener(host, port)
@@ -89,6 +107,7 @@ def register(app: typer.Typer) -> None:
             finetune=finetune,
             allow_hosts=list(allow_host or []),
             gate_settings=gate_settings,
+            promotion=PromotionConfig(regression_scenarios=regression),
             worker_stop_wait=0.5,
         )
         typer.echo(f"SAGE dashboard on http://{host}:{port}/  (Ctrl+C to stop)")

@@ -6,6 +6,7 @@ import os
 import socket
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from typer.testing import CliRunner
@@ -123,3 +124,21 @@ def test_ctrl_c_ends_the_server_within_seconds(tmp_path: Path) -> None:
         if server.poll() is None:
             server.kill()
             server.wait(10)
+
+
+def test_regression_scenarios_reach_the_promotion_and_a_bad_one_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import uvicorn
+
+    import app.server
+
+    code, out = run("--regression-scenario", "9", "--sessions", str(tmp_path / "s"))
+    _one_line_before_anything(code, out, tmp_path / "s")
+    assert "--regression-scenario 9" in out
+    seen: list[Any] = []
+    monkeypatch.setattr(app.server, "create_app", lambda settings: seen.append(settings) or object())
+    monkeypatch.setattr(uvicorn.Server, "run", lambda self, sockets=None: None)
+    code, out = run("--regression-scenario", "1,2", "--port", "0", "--sessions", str(tmp_path / "s"))
+    assert code == 0, out
+    assert seen and seen[0].promotion.regression_scenarios == ("1", "2") and seen[0].promotion.supervised

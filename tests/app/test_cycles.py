@@ -207,3 +207,29 @@ def test_with_promotion_a_rejected_version_never_drives_and_the_next_round_conti
     assert [c["version"] for c in result.cycles] == [0, 0, 2]  # v0001 was rejected: v0000 drove on
     assert [r["promotion"]["promoted"] for r in result.rounds] == [False, True]
     assert VersionStore(result.out / "versions").get(2).parent == 0  # not continued from the rejected v0001
+
+
+def test_regression_scenarios_switch_the_promotion_on_and_a_bad_one_is_one_line(
+    policy: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import studies.cycles as cycles_module
+
+    bad = CliRunner().invoke(
+        app, ["cycles", "--policy", str(policy), "--regression-scenario", "nosuch", "--out", str(tmp_path / "b")]
+    )
+    assert (
+        bad.exit_code == 2
+        and len(bad.output.strip().splitlines()) == 1
+        and "--regression-scenario nosuch" in bad.output
+    )
+    seen: list[CyclesConfig] = []
+
+    def capture(config: CyclesConfig, *args: Any, **kwargs: Any) -> Any:
+        seen.append(config)
+        raise ValueError("captured")
+
+    monkeypatch.setattr(cycles_module, "run_cycles", capture)
+    args = ["cycles", "--policy", str(policy), "--regression-scenario", "1", "--regression-scenario", "2"]
+    CliRunner().invoke(app, [*args, "--out", str(tmp_path / "r")])
+    assert seen and seen[0].promotion is not None
+    assert seen[0].promotion.regression_scenarios == ("1", "2") and not seen[0].promotion.supervised
