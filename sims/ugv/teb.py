@@ -27,6 +27,7 @@ Costs per control step, measured by ``bench/bench_baselines.py``: a few to a few
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -247,13 +248,63 @@ class MoverTracker:
         return out
 
 
+@dataclass(frozen=True)
+class _BandLayout:
+    """Where each entry of the band's Jacobian goes, for n poses and m obstacles per pose, built once per (n, m).
+
+    :meth:`TebOptimizer._jacobian` computes the entries term by term (the terms' order below) and adds them into the
+    matrix of the free variables in one ``np.add.at``, in that order: an entry that two terms reach sums them in
+    the order the term-by-term writes did, and the fixed variables' entries (the first pose, the last position) go
+    to a spare column that is cut off."""
+
+    flat: np.ndarray
+    """Flat index into the (rows, free + 1) matrix of every entry, in the terms' order."""
+    shape: tuple[int, int]
+    """(rows, free variables + 1): the last column collects the fixed variables' entries."""
+
+
+@functools.lru_cache(maxsize=64)
+def _band_layout(n: int, m: int) -> _BandLayout:
+    segments = n - 1
+    j = np.arange(segments)
+    X, Y, T, U = 3 * j, 3 * j + 1, 3 * j + 2, 3 * n + j  # full columns of pose j (pose j + 1 is + 3) and log dt_j
+    p_cols = np.stack([X, X + 3, Y, Y + 3, T], axis=1)  # what progress_j depends on
+    pose_x = np.repeat(3 * (j + 1)[:, None], m, axis=1)  # obstacles act on poses 1..n-1
+    blocks = np.arange(7 * segments)  # kinematics, forward, speed, yaw rate, acc v, acc w, time: one row each
+    kin, fwd, speed, yaw, acc_v, acc_w, time = (blocks[b * segments : (b + 1) * segments] for b in range(7))
+    clearance = 7 * segments + np.arange(segments * m).reshape(segments, m)
+    inflation = clearance + segments * m
+    rows_cols: list[tuple[np.ndarray, np.ndarray]] = [
+        (kin, X), (kin, X + 3), (kin, Y), (kin, Y + 3), (kin, T), (kin, T + 3),
+        (np.repeat(fwd, 5), p_cols),
+        (np.repeat(speed, 5), p_cols), (speed, U),
+        (yaw, T + 3), (yaw, T), (yaw, U),
+        (np.repeat(acc_v, 5), p_cols), (np.repeat(acc_v[1:], 5), p_cols[:-1]), (acc_v, U), (acc_v[1:], U[:-1]),
+        (acc_w, T + 3), (acc_w, T), (acc_w[1:], T[:-1] + 3), (acc_w[1:], T[:-1]), (acc_w, U), (acc_w[1:], U[:-1]),
+        (time, U),
+        (clearance, pose_x), (clearance, pose_x + 1), (inflation, pose_x), (inflation, pose_x + 1),
+    ]  # fmt: skip
+    rows = np.concatenate([r.ravel() for r, _ in rows_cols])
+    cols = np.concatenate([c.ravel() for _, c in rows_cols])
+    inner = np.arange(1, n - 1)
+    free = np.concatenate([np.stack([3 * inner, 3 * inner + 1], axis=1).ravel(), 3 * np.arange(1, n) + 2, U])
+    spare = len(free)
+    column_of = np.full(3 * n + segments, spare)
+    column_of[free] = np.arange(len(free))
+    shape = (7 * segments + 2 * segments * m, len(free) + 1)
+    flat = rows * shape[1] + column_of[cols]
+    flat.flags.writeable = False  # shared between calls
+    return _BandLayout(flat, shape)
+
+
 class TebOptimizer:
     """The band's least-squares problem for one obstacle association (see the module docstring).
 
     Variables: the x, y of the free poses 1..n-2, the headings of poses 1..n-1 (the last pose's position is the
     band's target, its heading free) and u_j = log ΔT_j (so that every interval stays positive without bounds).
-    Residuals and their analytic Jacobian are written out term by term; MINPACK's Levenberg-Marquardt
-    (``least_squares(method="lm")``) solves the small dense problem."""
+    Residuals and their analytic Jacobian are written out term by term; MINPACK's Levenberg-Marquardt (``lmder``,
+    through ``scipy.optimize.leastsq``) solves the small dense problem. Within a solve the terms both share are
+    computed once per point (the solver asks for the residuals and then the Jacobian at each accepted point)."""
 
     def __init__(self, cfg: TebConfig, v_max: float, w_max: float) -> None:
         self.cfg, self.v_max, self.w_max = cfg, v_max, w_max
@@ -296,7 +347,16 @@ class TebOptimizer:
     def residuals(
         self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
     ) -> np.ndarray:
-        cfg, t = self.cfg, self._terms(z, start, end_xy, n, v0, w0, obstacles)
+        return self._residuals(self._terms(z, start, end_xy, n, v0, w0, obstacles))
+
+    def jacobian(
+        self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
+    ) -> np.ndarray:
+        """d residuals / d z, written out (checked against finite differences in the tests)."""
+        return self._jacobian(self._terms(z, start, end_xy, n, v0, w0, obstacles), n, obstacles.shape[1])
+
+    def _residuals(self, t: dict[str, Any]) -> np.ndarray:
+        cfg = self.cfg
         c, s, d = t["c"], t["s"], t["d"]
         relu = np.maximum
         return np.concatenate(
@@ -313,110 +373,103 @@ class TebOptimizer:
             ]
         )
 
-    def jacobian(
-        self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
-    ) -> np.ndarray:
-        """d residuals / d z, written out (checked against finite differences in the tests)."""
-        cfg, t = self.cfg, self._terms(z, start, end_xy, n, v0, w0, obstacles)
+    def _jacobian(self, t: dict[str, Any], n: int, m: int) -> np.ndarray:
+        cfg, layout = self.cfg, _band_layout(n, m)
         c, s, d, dts = t["c"], t["s"], t["d"], t["dts"]
-        segments, m = n - 1, obstacles.shape[1]
-        # full variables: x_i, y_i, th_i for every pose (3 n), then log dt_j (n - 1); free ones picked at the end
-        full = np.zeros((7 * segments + 2 * segments * m, 3 * n + segments))
-        j = np.arange(segments)
-        X, Y, T = 3 * j, 3 * j + 1, 3 * j + 2  # columns of pose j; pose j + 1 is + 3
-        U = 3 * n + j  # log dt_j
-        row = 0
-
-        # non-holonomic kinematics
-        k = math.sqrt(cfg.weight_kinematics)
-        r = row + j
-        full[r, X], full[r, X + 3] = k * (s[:-1] + s[1:]), -k * (s[:-1] + s[1:])
-        full[r, Y], full[r, Y + 3] = -k * (c[:-1] + c[1:]), k * (c[:-1] + c[1:])
-        full[r, T] = k * (-s[:-1] * d[:, 1] - c[:-1] * d[:, 0])
-        full[r, T + 3] = k * (-s[1:] * d[:, 1] - c[1:] * d[:, 0])
-        row += segments
-
-        # d progress_j: wrt x_j, x_j+1, y_j, y_j+1, th_j
+        first = np.arange(n - 1) == 0
+        # d progress_j / d (x_j, x_j+1, y_j, y_j+1, th_j)
         dp = np.stack([-c[:-1], c[:-1], -s[:-1], s[:-1], -s[:-1] * d[:, 0] + c[:-1] * d[:, 1]], axis=1)
-        p_cols = np.stack([X, X + 3, Y, Y + 3, T], axis=1)
-
-        def put(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> None:
-            np.add.at(full, (np.repeat(rows, cols.shape[1]), cols.ravel()), values.ravel())
-
-        # forward driving
-        active = (t["progress"] < 0).astype(float)
-        put(row + j, p_cols, -math.sqrt(cfg.weight_forward) * active[:, None] * dp)
-        row += segments
-
-        # speed limit: v = p / dt, d v / d log dt = -v
+        k = math.sqrt(cfg.weight_kinematics)
         sv = math.sqrt(cfg.weight_velocity)
-        active = (t["v"] > self.v_max).astype(float)
-        put(row + j, p_cols, sv * active[:, None] * dp / dts[:, None])
-        full[row + j, U] = -sv * active * t["v"]
-        row += segments
-
-        # yaw-rate limit: w = turn / dt
-        sign_w = np.sign(t["w"])
-        active = (np.abs(t["w"]) > self.w_max).astype(float)
-        full[row + j, T + 3] = sv * active * sign_w / dts
-        full[row + j, T] = -sv * active * sign_w / dts
-        full[row + j, U] = -sv * active * np.abs(t["w"])
-        row += segments
-
-        # accelerations: a_j = (q_j - q_{j-1}) / span_j, span_j = (dt_{j-1} + dt_j) / 2 (dt_{-1} = dt_0)
         sa = math.sqrt(cfg.weight_acceleration)
-        for name, limit, q in (("acc_v", cfg.acc_limit_v, "v"), ("acc_w", cfg.acc_limit_w, "w")):
-            acc, qv, spans = t[name], t[q], t["spans"]
-            gain = sa * (np.abs(acc) > limit) * np.sign(acc) / spans  # d r / d (q_j - q_{j-1}) * span
-            if q == "v":
-                dq = dp / dts[:, None]  # d v_j / d (p_cols)
-                put(row + j, p_cols, gain[:, None] * dq)
-                put(row + j[1:], p_cols[:-1], -gain[1:, None] * dq[:-1])
-            else:
-                full[row + j, T + 3] += gain / dts
-                full[row + j, T] -= gain / dts
-                full[row + j[1:], T[:-1] + 3] -= gain[1:] / dts[:-1]
-                full[row + j[1:], T[:-1]] += gain[1:] / dts[:-1]
-            # through dt_j: d q_j / d log dt_j = -q_j; d span_j / d log dt_j = dt_j / 2 (both halves for j = 0)
-            dspan_own = np.where(j == 0, dts, 0.5 * dts)
-            full[row + j, U] += gain * (-qv) - gain * acc * dspan_own
-            # through dt_{j-1}: q_{j-1} and span_j
-            full[row + j[1:], U[:-1]] += gain[1:] * qv[:-1] - gain[1:] * acc[1:] * 0.5 * dts[:-1]
-            row += segments
-
-        # time
-        full[row + j, U] = math.sqrt(cfg.weight_time) * dts
-        row += segments
-
-        # obstacle clearance and inflation, on poses 1..n-1
+        forward = (t["progress"] < 0).astype(float)
+        speeding = (t["v"] > self.v_max).astype(float)
+        sign_w = np.sign(t["w"])
+        turning = (np.abs(t["w"]) > self.w_max).astype(float)
+        spans = t["spans"]
+        dspan_own = np.where(first, dts, 0.5 * dts)  # d span_j / d log dt_j (both halves for j = 0)
+        # accelerations: a_j = (q_j - q_{j-1}) / span_j, span_j = (dt_{j-1} + dt_j) / 2 (dt_{-1} = dt_0);
+        # gain = d r / d (q_j - q_{j-1}) * span
+        acc_v, v = t["acc_v"], t["v"]
+        gain_v = sa * (np.abs(acc_v) > cfg.acc_limit_v) * np.sign(acc_v) / spans
+        dq = dp / dts[:, None]  # d v_j / d (progress columns)
+        acc_w, w = t["acc_w"], t["w"]
+        gain_w = sa * (np.abs(acc_w) > cfg.acc_limit_w) * np.sign(acc_w) / spans
         unit = t["offsets"] / t["gaps"][..., None]  # (n - 1, m, 2)
-        pose_x = 3 * (j + 1)
-        for weight, dist in ((cfg.weight_obstacle, cfg.min_obstacle_dist), (cfg.weight_inflation, cfg.inflation_dist)):
-            active = (t["gaps"] < dist).astype(float)
-            rows = row + np.arange(segments * m).reshape(segments, m)
-            full[rows, np.repeat(pose_x[:, None], m, axis=1)] = -math.sqrt(weight) * active * unit[..., 0]
-            full[rows, np.repeat(pose_x[:, None] + 1, m, axis=1)] = -math.sqrt(weight) * active * unit[..., 1]
-            row += segments * m
-
-        inner = np.arange(1, n - 1)
-        free = np.concatenate(
-            [np.stack([3 * inner, 3 * inner + 1], axis=1).ravel(), 3 * np.arange(1, n) + 2, 3 * n + j]
-        )
-        return full[:, free]
+        near = (t["gaps"] < cfg.min_obstacle_dist).astype(float)
+        inflated = (t["gaps"] < cfg.inflation_dist).astype(float)
+        so, si = math.sqrt(cfg.weight_obstacle), math.sqrt(cfg.weight_inflation)
+        values = np.concatenate(
+            [
+                # non-holonomic kinematics
+                k * (s[:-1] + s[1:]), -k * (s[:-1] + s[1:]), -k * (c[:-1] + c[1:]), k * (c[:-1] + c[1:]),
+                k * (-s[:-1] * d[:, 1] - c[:-1] * d[:, 0]), k * (-s[1:] * d[:, 1] - c[1:] * d[:, 0]),
+                # forward driving
+                (-math.sqrt(cfg.weight_forward) * forward[:, None] * dp).ravel(),
+                # speed limit: v = p / dt, d v / d log dt = -v
+                (sv * speeding[:, None] * dp / dts[:, None]).ravel(), -sv * speeding * v,
+                # yaw-rate limit: w = turn / dt
+                sv * turning * sign_w / dts, -sv * turning * sign_w / dts, -sv * turning * np.abs(w),
+                # linear acceleration, through the progress of segments j and j - 1, then through dt_j (d v_j / d log
+                # dt_j = -v_j, and span_j) and dt_{j-1} (v_{j-1} and span_j)
+                (gain_v[:, None] * dq).ravel(), (-gain_v[1:, None] * dq[:-1]).ravel(),
+                gain_v * (-v) - gain_v * acc_v * dspan_own,
+                gain_v[1:] * v[:-1] - gain_v[1:] * acc_v[1:] * 0.5 * dts[:-1],
+                # angular acceleration, the same way through the headings
+                gain_w / dts, -(gain_w / dts), -(gain_w[1:] / dts[:-1]), gain_w[1:] / dts[:-1],
+                gain_w * (-w) - gain_w * acc_w * dspan_own,
+                gain_w[1:] * w[:-1] - gain_w[1:] * acc_w[1:] * 0.5 * dts[:-1],
+                # time
+                math.sqrt(cfg.weight_time) * dts,
+                # obstacle clearance and inflation, on poses 1..n-1
+                (-so * near * unit[..., 0]).ravel(), (-so * near * unit[..., 1]).ravel(),
+                (-si * inflated * unit[..., 0]).ravel(), (-si * inflated * unit[..., 1]).ravel(),
+            ]
+        )  # fmt: skip
+        jacobian = np.zeros(layout.shape)
+        np.add.at(jacobian.ravel(), layout.flat, values)
+        return jacobian[:, :-1]
 
     def solve(self, band: Band, v0: float, w0: float, obstacles: np.ndarray) -> tuple[Band, float]:
         """Optimise the band for fixed obstacle associations (n - 1, m, 2); returns it and its cost."""
-        n = len(band.poses)
+        n, m = len(band.poses), obstacles.shape[1]
         start, end_xy = band.poses[0].copy(), band.poses[-1, :2].copy()
-        result = optimize.least_squares(
-            self.residuals,
+        last: dict[str, Any] = {"z": b""}
+
+        def terms(z: np.ndarray) -> dict[str, Any]:
+            key = z.tobytes()  # the very bits: a point the solver asks for again
+            if key != last["z"]:
+                last.clear()
+                last["z"], last["terms"] = key, self._terms(z, start, end_xy, n, v0, w0, obstacles)
+            return last["terms"]
+
+        def residuals(z: np.ndarray) -> np.ndarray:
+            t = terms(z)
+            if "residuals" not in last:
+                last["residuals"] = self._residuals(t)
+            return last["residuals"]
+
+        def jacobian(z: np.ndarray) -> np.ndarray:
+            t = terms(z)
+            if "jacobian" not in last:
+                last["jacobian"] = self._jacobian(t, n, m)
+            return last["jacobian"]
+
+        # what least_squares(method="lm") asked of MINPACK before (its tolerances, its factor, its scaling by the
+        # Jacobian's columns), without its wrappers' per-call copies and checks
+        x, _cov, info, _message, _status = optimize.leastsq(
+            residuals,
             self.pack(band),
-            jac=self.jacobian,
-            method="lm",
-            max_nfev=self.cfg.max_evaluations,
-            args=(start, end_xy, n, v0, w0, obstacles),
+            Dfun=jacobian,
+            full_output=True,
+            ftol=1e-8,
+            xtol=1e-8,
+            gtol=1e-8,
+            maxfev=self.cfg.max_evaluations,
+            factor=100.0,
         )
-        return self.unpack(result.x, start, end_xy, n), float(result.cost)
+        fvec = info["fvec"]
+        return self.unpack(x, start, end_xy, n), float(0.5 * np.dot(fvec, fvec))
 
 
 class TebPlanner:

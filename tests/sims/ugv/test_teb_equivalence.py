@@ -6,8 +6,9 @@
 - the planner's state while the robot is driven along recorded episodes: its costmap, global path and tracked
   movers (deterministic: equal up to rounding), and its commands. MINPACK's Levenberg-Marquardt (scipy 1.17.1)
   does not return the same bits for the same problem from one call to the next (it depends on the process's heap;
-  the residuals and Jacobian do not), so the reference's own commands, recomputed, leave it by up to 1 on a few
-  percent of steps; the commands are held to the same share.
+  the residuals and Jacobian do not), so the reference's own commands, recomputed in a fresh process, agree with
+  the recording on only 78-98% of steps per scenario (measured) and leave it by up to 1 on the others; the
+  commands are held to a share of agreement that a changed solver setting would not reach.
 
 Regenerate (only with the reference code checked out): ``python -m tests.sims.ugv.test_teb_equivalence``.
 """
@@ -33,7 +34,7 @@ STATE_COLUMNS = slice(7, None)
 """Columns of a trace row that are the planner's deterministic state (costmap, path, movers)."""
 COMMAND_AGREEMENT = 0.7
 """Share of steps whose command must equal the reference's within 1e-6 (the reference itself, recomputed, keeps
-72-98% per scenario: see the module docstring)."""
+78-98% per scenario: see the module docstring)."""
 
 
 def trace(
