@@ -119,9 +119,12 @@ class Costmap:
 
     def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell indices (iy, ix) of points (P, 2) and whether each lies on the grid."""
+        return self._cells(xy[:, 0], xy[:, 1])
+
+    def _cells(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ny, nx = self.occupied.shape
-        ix = np.floor((xy[:, 0] - self.x0) / self.res).astype(int)
-        iy = np.floor((xy[:, 1] - self.y0) / self.res).astype(int)
+        ix = np.floor((px - self.x0) / self.res).astype(int)
+        iy = np.floor((py - self.y0) / self.res).astype(int)
         inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
         return iy, ix, inside
 
@@ -133,9 +136,9 @@ class Costmap:
         # clear along each ray up to one cell short of its end
         steps = np.arange(0.0, max_range, 0.5 * res)
         along = steps[None, :] < (ranges[:, None] - res)
-        points = np.array([x, y]) + directions[:, None, :] * steps[None, :, None]
-        free = points[along]
-        iy, ix, inside = self.cells(free)
+        # only the points each ray passes (the same products and sums as the whole rays x steps grid would take)
+        ray, step = np.nonzero(along)
+        iy, ix, inside = self._cells(x + directions[ray, 0] * steps[step], y + directions[ray, 1] * steps[step])
         self.occupied[iy[inside], ix[inside]] = False
         hit = ranges < max_range - 1e-6
         ends = np.array([x, y]) + directions[hit] * ranges[hit, None]
@@ -200,6 +203,14 @@ def _dijkstra(
     return dist[:n].reshape(ny, nx)
 
 
+@functools.lru_cache(maxsize=8)
+def _diamond(reach: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cell offsets (dy, dx) within ``reach`` 4-connected steps: what ``reach`` binary dilations by a cross add."""
+    dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]
+    keep = np.abs(dy) + np.abs(dx) <= reach
+    return dy[keep], dx[keep]
+
+
 class MoverTracker:
     """Moving obstacles from consecutive scans: the scan's hit points are split into clusters (neighbouring rays
     whose ends lie close together), small clusters are matched to the previous scan's by nearest centroid, and
@@ -224,12 +235,20 @@ class MoverTracker:
         if len(points):
             breaks = np.flatnonzero(np.hypot(*np.diff(points, axis=0).T) > cfg.cluster_gap) + 1
             clusters = [c for c in np.split(points, breaks) if np.ptp(c, axis=0).max(initial=0.0) <= cfg.mover_size]
+        centres = [cluster.mean(axis=0) for cluster in clusters]
+        nearest: list[tuple[dict[str, Any], float]] = []
+        if centres and self._tracks:
+            # every cluster's distance to every previous track at once; the first nearest track on a tie, as min() did
+            before = np.array([track["centre"] for track in self._tracks])
+            now = np.array(centres)
+            gaps = np.hypot(before[None, :, 0] - now[:, None, 0], before[None, :, 1] - now[:, None, 1])
+            picks = gaps.argmin(axis=1)
+            nearest = [(self._tracks[k], float(gaps[i, k])) for i, k in enumerate(picks)]
         tracks = []
-        for cluster in clusters:
-            centre = cluster.mean(axis=0)
-            previous = min(self._tracks, key=lambda t: float(np.hypot(*(t["centre"] - centre))), default=None)
+        for i, (cluster, centre) in enumerate(zip(clusters, centres, strict=True)):
             velocity, age = np.zeros(2), 1
-            if previous is not None and float(np.hypot(*(previous["centre"] - centre))) <= cfg.track_gate:
+            if nearest and nearest[i][1] <= cfg.track_gate:
+                previous = nearest[i][0]
                 measured = (centre - previous["centre"]) / self.dt
                 velocity = (1 - cfg.velocity_smoothing) * previous["velocity"] + cfg.velocity_smoothing * measured
                 age = previous["age"] + 1
@@ -327,18 +346,28 @@ class TebOptimizer:
     def _terms(
         self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
     ) -> dict[str, Any]:
-        band = self.unpack(z, start, end_xy, n)
-        xy, th, dts = band.poses[:, :2], band.poses[:, 2], band.dts
+        # what unpack() gives, in contiguous arrays, and the same arithmetic as np.diff / np.linalg.norm (which
+        # cost more in call overhead than in arithmetic at these sizes)
+        k = n - 2
+        xy = np.empty((n, 2))
+        xy[0], xy[1:-1], xy[-1] = start[:2], z[: 2 * k].reshape(k, 2), end_xy
+        th = np.empty(n)
+        th[0], th[1:] = start[2], z[2 * k : 2 * k + n - 1]
+        dts = np.exp(z[2 * k + n - 1 :])
         d = xy[1:] - xy[:-1]
         c, s = np.cos(th), np.sin(th)
         progress = c[:-1] * d[:, 0] + s[:-1] * d[:, 1]
         turn = (th[1:] - th[:-1] + math.pi) % (2 * math.pi) - math.pi
         v, w = progress / dts, turn / dts
-        spans = 0.5 * (np.concatenate([dts[:1], dts[:-1]]) + dts)
-        acc_v = np.diff(np.concatenate([[v0], v])) / spans
-        acc_w = np.diff(np.concatenate([[w0], w])) / spans
+        previous_dts = np.empty(n - 1)
+        previous_dts[0], previous_dts[1:] = dts[0], dts[:-1]
+        spans = 0.5 * (previous_dts + dts)
+        change_v, change_w = np.empty(n - 1), np.empty(n - 1)
+        change_v[0], change_v[1:] = v[0] - v0, v[1:] - v[:-1]
+        change_w[0], change_w[1:] = w[0] - w0, w[1:] - w[:-1]
+        acc_v, acc_w = change_v / spans, change_w / spans
         offsets = xy[1:, None, :] - obstacles  # (n - 1, m, 2)
-        gaps = np.maximum(np.linalg.norm(offsets, axis=2), 1e-9)
+        gaps = np.maximum(np.sqrt(np.add.reduce(offsets * offsets, axis=2)), 1e-9)
         return {
             "xy": xy, "th": th, "dts": dts, "d": d, "c": c, "s": s, "progress": progress, "turn": turn,
             "v": v, "w": w, "spans": spans, "acc_v": acc_v, "acc_w": acc_w, "offsets": offsets, "gaps": gaps,
@@ -542,10 +571,14 @@ class TebPlanner:
         iy, ix, inside = self.costmap.cells(ahead)
         if not inside.any():
             return False
-        near = ndimage.binary_dilation(
-            self.costmap.occupied, iterations=max(1, int(self.cfg.planner_inflation / self.costmap.res))
-        )
-        return bool(near[iy[inside], ix[inside]][3:].any())
+        # the path's cells past the first three against the occupied cells dilated by the inflation (a cross
+        # dilated `reach` times: the cells within `reach` steps), looked up around those cells only
+        iy, ix = iy[inside][3:], ix[inside][3:]
+        occupied = self.costmap.occupied
+        dy, dx = _diamond(max(1, int(self.cfg.planner_inflation / self.costmap.res)))
+        yy, xx = iy[:, None] + dy, ix[:, None] + dx
+        on_grid = (yy >= 0) & (yy < occupied.shape[0]) & (xx >= 0) & (xx < occupied.shape[1])
+        return bool(occupied[yy[on_grid], xx[on_grid]].any())
 
     def _path_ahead(self, x: float, y: float, length: float) -> np.ndarray:
         assert self.path is not None

@@ -144,3 +144,35 @@ def test_the_planner_decides_as_the_reference_along_its_recorded_episode(
 
 if __name__ == "__main__":
     record()
+
+
+def test_a_blocked_path_is_what_the_dilated_costmap_says() -> None:
+    """The local look-up around the path's cells answers as the whole costmap dilated by the inflation did."""
+    from scipy import ndimage
+
+    env = sims.make("ugv", scenario="1")
+    planner = TebPlanner(env)
+    obs, _ = env.reset(seed=SEED)
+    planner.act(obs)
+    costmap = planner.costmap
+    assert costmap is not None
+    ny, nx = costmap.occupied.shape
+    rng = np.random.default_rng(4)
+    answers = []
+    for _ in range(300):
+        costmap.occupied = rng.random((ny, nx)) < rng.uniform(0.0005, 0.02)
+        # a wandering path, from anywhere on the grid (or just off it) in any direction
+        start = np.array(
+            [costmap.x0 + rng.uniform(-0.5, nx * costmap.res + 0.5), costmap.y0 + rng.uniform(0, ny * 0.1)]
+        )
+        heading = rng.uniform(-np.pi, np.pi) + np.cumsum(rng.normal(0.0, 0.3, 40))
+        planner.path = start + np.cumsum(0.1 * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+        x, y = planner.path[rng.integers(0, 10)] + rng.normal(0.0, 0.05, 2)
+        ahead = planner._path_ahead(x, y, 3.0)
+        iy, ix, inside = costmap.cells(ahead)
+        reach = max(1, int(planner.cfg.planner_inflation / costmap.res))
+        near = ndimage.binary_dilation(costmap.occupied, iterations=reach)
+        expected = bool(inside.any()) and bool(near[iy[inside], ix[inside]][3:].any())
+        assert planner._path_blocked(x, y) == expected
+        answers.append(expected)
+    assert 0.2 < np.mean(answers) < 0.8  # both answers are exercised
