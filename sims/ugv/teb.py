@@ -37,6 +37,7 @@ from scipy import ndimage, optimize, sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from sims.ugv import _teb_kernel
 from sims.ugv.expert import Grid, extract_path
 
 FAR = 1e3
@@ -327,6 +328,23 @@ class TebOptimizer:
 
     def __init__(self, cfg: TebConfig, v_max: float, w_max: float) -> None:
         self.cfg, self.v_max, self.w_max = cfg, v_max, w_max
+        weights = np.empty(_teb_kernel.WEIGHTS)
+        weights[: _teb_kernel.V_MAX] = [
+            math.sqrt(w)
+            for w in (
+                cfg.weight_kinematics, cfg.weight_forward, cfg.weight_velocity, cfg.weight_acceleration,
+                cfg.weight_time, cfg.weight_obstacle, cfg.weight_inflation,
+            )
+        ]  # fmt: skip
+        weights[_teb_kernel.V_MAX :] = [
+            v_max,
+            w_max,
+            cfg.acc_limit_v,
+            cfg.acc_limit_w,
+            cfg.min_obstacle_dist,
+            cfg.inflation_dist,
+        ]
+        self._weights = weights
 
     @staticmethod
     def pack(band: Band) -> np.ndarray:
@@ -345,33 +363,18 @@ class TebOptimizer:
 
     def _terms(
         self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
-    ) -> dict[str, Any]:
-        # what unpack() gives, in contiguous arrays, and the same arithmetic as np.diff / np.linalg.norm (which
-        # cost more in call overhead than in arithmetic at these sizes)
+    ) -> tuple[np.ndarray, ...]:
+        """What residuals and Jacobian share at ``z``; the transcendental functions here, in numpy, the rest
+        compiled (:mod:`sims.ugv._teb_kernel`)."""
         k = n - 2
-        xy = np.empty((n, 2))
-        xy[0], xy[1:-1], xy[-1] = start[:2], z[: 2 * k].reshape(k, 2), end_xy
         th = np.empty(n)
         th[0], th[1:] = start[2], z[2 * k : 2 * k + n - 1]
-        dts = np.exp(z[2 * k + n - 1 :])
-        d = xy[1:] - xy[:-1]
         c, s = np.cos(th), np.sin(th)
-        progress = c[:-1] * d[:, 0] + s[:-1] * d[:, 1]
-        turn = (th[1:] - th[:-1] + math.pi) % (2 * math.pi) - math.pi
-        v, w = progress / dts, turn / dts
-        previous_dts = np.empty(n - 1)
-        previous_dts[0], previous_dts[1:] = dts[0], dts[:-1]
-        spans = 0.5 * (previous_dts + dts)
-        change_v, change_w = np.empty(n - 1), np.empty(n - 1)
-        change_v[0], change_v[1:] = v[0] - v0, v[1:] - v[:-1]
-        change_w[0], change_w[1:] = w[0] - w0, w[1:] - w[:-1]
-        acc_v, acc_w = change_v / spans, change_w / spans
-        offsets = xy[1:, None, :] - obstacles  # (n - 1, m, 2)
-        gaps = np.maximum(np.sqrt(np.add.reduce(offsets * offsets, axis=2)), 1e-9)
-        return {
-            "xy": xy, "th": th, "dts": dts, "d": d, "c": c, "s": s, "progress": progress, "turn": turn,
-            "v": v, "w": w, "spans": spans, "acc_v": acc_v, "acc_w": acc_w, "offsets": offsets, "gaps": gaps,
-        }  # fmt: skip
+        dts = np.exp(z[2 * k + n - 1 :])
+        segment_terms, slot_terms = _teb_kernel.band_terms(
+            z, start, end_xy, float(v0), float(w0), np.ascontiguousarray(obstacles, dtype=np.float64), c, s, dts, th
+        )
+        return segment_terms, slot_terms, c, s, dts
 
     def residuals(
         self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
@@ -384,80 +387,12 @@ class TebOptimizer:
         """d residuals / d z, written out (checked against finite differences in the tests)."""
         return self._jacobian(self._terms(z, start, end_xy, n, v0, w0, obstacles), n, obstacles.shape[1])
 
-    def _residuals(self, t: dict[str, Any]) -> np.ndarray:
-        cfg = self.cfg
-        c, s, d = t["c"], t["s"], t["d"]
-        relu = np.maximum
-        return np.concatenate(
-            [
-                math.sqrt(cfg.weight_kinematics) * ((c[:-1] + c[1:]) * d[:, 1] - (s[:-1] + s[1:]) * d[:, 0]),
-                math.sqrt(cfg.weight_forward) * relu(0.0, -t["progress"]),
-                math.sqrt(cfg.weight_velocity) * relu(0.0, t["v"] - self.v_max),
-                math.sqrt(cfg.weight_velocity) * relu(0.0, np.abs(t["w"]) - self.w_max),
-                math.sqrt(cfg.weight_acceleration) * relu(0.0, np.abs(t["acc_v"]) - cfg.acc_limit_v),
-                math.sqrt(cfg.weight_acceleration) * relu(0.0, np.abs(t["acc_w"]) - cfg.acc_limit_w),
-                math.sqrt(cfg.weight_time) * t["dts"],
-                math.sqrt(cfg.weight_obstacle) * relu(0.0, cfg.min_obstacle_dist - t["gaps"]).ravel(),
-                math.sqrt(cfg.weight_inflation) * relu(0.0, cfg.inflation_dist - t["gaps"]).ravel(),
-            ]
-        )
+    def _residuals(self, terms: tuple[np.ndarray, ...]) -> np.ndarray:
+        return _teb_kernel.band_residuals(*terms, self._weights)
 
-    def _jacobian(self, t: dict[str, Any], n: int, m: int) -> np.ndarray:
-        cfg, layout = self.cfg, _band_layout(n, m)
-        c, s, d, dts = t["c"], t["s"], t["d"], t["dts"]
-        first = np.arange(n - 1) == 0
-        # d progress_j / d (x_j, x_j+1, y_j, y_j+1, th_j)
-        dp = np.stack([-c[:-1], c[:-1], -s[:-1], s[:-1], -s[:-1] * d[:, 0] + c[:-1] * d[:, 1]], axis=1)
-        k = math.sqrt(cfg.weight_kinematics)
-        sv = math.sqrt(cfg.weight_velocity)
-        sa = math.sqrt(cfg.weight_acceleration)
-        forward = (t["progress"] < 0).astype(float)
-        speeding = (t["v"] > self.v_max).astype(float)
-        sign_w = np.sign(t["w"])
-        turning = (np.abs(t["w"]) > self.w_max).astype(float)
-        spans = t["spans"]
-        dspan_own = np.where(first, dts, 0.5 * dts)  # d span_j / d log dt_j (both halves for j = 0)
-        # accelerations: a_j = (q_j - q_{j-1}) / span_j, span_j = (dt_{j-1} + dt_j) / 2 (dt_{-1} = dt_0);
-        # gain = d r / d (q_j - q_{j-1}) * span
-        acc_v, v = t["acc_v"], t["v"]
-        gain_v = sa * (np.abs(acc_v) > cfg.acc_limit_v) * np.sign(acc_v) / spans
-        dq = dp / dts[:, None]  # d v_j / d (progress columns)
-        acc_w, w = t["acc_w"], t["w"]
-        gain_w = sa * (np.abs(acc_w) > cfg.acc_limit_w) * np.sign(acc_w) / spans
-        unit = t["offsets"] / t["gaps"][..., None]  # (n - 1, m, 2)
-        near = (t["gaps"] < cfg.min_obstacle_dist).astype(float)
-        inflated = (t["gaps"] < cfg.inflation_dist).astype(float)
-        so, si = math.sqrt(cfg.weight_obstacle), math.sqrt(cfg.weight_inflation)
-        values = np.concatenate(
-            [
-                # non-holonomic kinematics
-                k * (s[:-1] + s[1:]), -k * (s[:-1] + s[1:]), -k * (c[:-1] + c[1:]), k * (c[:-1] + c[1:]),
-                k * (-s[:-1] * d[:, 1] - c[:-1] * d[:, 0]), k * (-s[1:] * d[:, 1] - c[1:] * d[:, 0]),
-                # forward driving
-                (-math.sqrt(cfg.weight_forward) * forward[:, None] * dp).ravel(),
-                # speed limit: v = p / dt, d v / d log dt = -v
-                (sv * speeding[:, None] * dp / dts[:, None]).ravel(), -sv * speeding * v,
-                # yaw-rate limit: w = turn / dt
-                sv * turning * sign_w / dts, -sv * turning * sign_w / dts, -sv * turning * np.abs(w),
-                # linear acceleration, through the progress of segments j and j - 1, then through dt_j (d v_j / d log
-                # dt_j = -v_j, and span_j) and dt_{j-1} (v_{j-1} and span_j)
-                (gain_v[:, None] * dq).ravel(), (-gain_v[1:, None] * dq[:-1]).ravel(),
-                gain_v * (-v) - gain_v * acc_v * dspan_own,
-                gain_v[1:] * v[:-1] - gain_v[1:] * acc_v[1:] * 0.5 * dts[:-1],
-                # angular acceleration, the same way through the headings
-                gain_w / dts, -(gain_w / dts), -(gain_w[1:] / dts[:-1]), gain_w[1:] / dts[:-1],
-                gain_w * (-w) - gain_w * acc_w * dspan_own,
-                gain_w[1:] * w[:-1] - gain_w[1:] * acc_w[1:] * 0.5 * dts[:-1],
-                # time
-                math.sqrt(cfg.weight_time) * dts,
-                # obstacle clearance and inflation, on poses 1..n-1
-                (-so * near * unit[..., 0]).ravel(), (-so * near * unit[..., 1]).ravel(),
-                (-si * inflated * unit[..., 0]).ravel(), (-si * inflated * unit[..., 1]).ravel(),
-            ]
-        )  # fmt: skip
-        jacobian = np.zeros(layout.shape)
-        np.add.at(jacobian.ravel(), layout.flat, values)
-        return jacobian[:, :-1]
+    def _jacobian(self, terms: tuple[np.ndarray, ...], n: int, m: int) -> np.ndarray:
+        layout = _band_layout(n, m)
+        return _teb_kernel.band_jacobian(*terms, self._weights, layout.flat, layout.shape)[:, :-1]
 
     def solve(self, band: Band, v0: float, w0: float, obstacles: np.ndarray) -> tuple[Band, float]:
         """Optimise the band for fixed obstacle associations (n - 1, m, 2); returns it and its cost."""
@@ -465,7 +400,7 @@ class TebOptimizer:
         start, end_xy = band.poses[0].copy(), band.poses[-1, :2].copy()
         last: dict[str, Any] = {"z": b""}
 
-        def terms(z: np.ndarray) -> dict[str, Any]:
+        def terms(z: np.ndarray) -> tuple[np.ndarray, ...]:
             key = z.tobytes()  # the very bits: a point the solver asks for again
             if key != last["z"]:
                 last.clear()
