@@ -7,10 +7,12 @@ loop on its own episodes). Denoiser weights do not change the cost, so the diffu
 
     .venv/bin/python bench/bench_baselines.py [--states 300] [--teb-episodes 2]
 
-``--before REV`` instead times the TEB planner as it is against the planner of commit REV (``sims/ugv/teb.py`` as git
-holds it there) side by side in one run: the robot is driven along the same recorded episodes (the current planner's
-own, closed loop, ``--teb-episodes`` per scenario), each planner decides every step of them, in interleaved rounds;
-``--write docs/speed.md`` writes that comparison into the document's generated block.
+``--before REV`` instead times the two costliest baselines of the UGV study as they are against their code at commit
+REV (the module as git holds it there) side by side in one run, in interleaved rounds: the TEB planner
+(``sims/ugv/teb.py``), deciding every step of the same recorded episodes (the current planner's own, closed loop,
+``--teb-episodes`` per scenario, the robot following the recording), and Diffusion-QL (``core/sage/diffusion.py``)
+at the study's sizes: its offline update (batch 256 from a buffer of UGV-sized transitions) and its action (best of 10
+candidates). ``--write docs/speed.md`` writes that comparison into the document's generated block.
 
     .venv/bin/python -m bench.bench_baselines --before c00700f --teb-episodes 2 --rounds 3 --write docs/speed.md
 """
@@ -33,6 +35,7 @@ import torch
 
 import sims
 from core.learners import make_learner, preset
+from core.sage.diffusion import DiffusionPolicy
 from core.sage.learner import ActorPolicy
 from core.sage.networks import Actor
 from sims.ugv.teb import TebPlanner
@@ -143,38 +146,83 @@ def replay_times(
     return times
 
 
-def compare_teb(args: argparse.Namespace) -> None:
-    """The TEB planner now against the planner of ``args.before``, on the same driven steps, interleaved rounds."""
+def diffusion_ql(policy_type: Any, seed: int = 0) -> Any:
+    """A Diffusion-QL learner of ``policy_type`` at the UGV study's sizes, its buffer holding 2,000 random UGV-sized
+    expert transitions (the update's cost does not depend on what they hold)."""
+    from core.protocol import StepRecord
+
+    torch.manual_seed(seed)
+    policy = policy_type(preset("diffusion-ql"), 58, 2, -np.ones(2), np.ones(2), seed)
+    rng = np.random.default_rng(seed)
+    for t in range(2000):
+        obs, action = rng.normal(size=58).astype(np.float32), rng.uniform(-1, 1, 2).astype(np.float32)
+        policy.store(
+            StepRecord(
+                episode=0, t=t, obs=obs, a_rl=action, a_expert=action, action=action, takeover=True, gate_fired=False,
+                actor="expert", fear=0.0, threshold=0.0, curiosity=0.0, reward=float(rng.normal()), cost=0.0,
+                violation=False, terminated=False, truncated=False, next_obs=rng.normal(size=58).astype(np.float32),
+                wall_time=0.0,
+            )
+        )  # fmt: skip
+    return policy
+
+
+def timed_calls(fn: Callable[[], object], calls: int, clock: Callable[[], float]) -> float:
+    """ms per call of ``fn`` over ``calls`` calls."""
+    start = clock()
+    for _ in range(calls):
+        fn()
+    return 1e3 * (clock() - start) / calls
+
+
+def compare(args: argparse.Namespace) -> None:
+    """The TEB planner and Diffusion-QL now against their code at ``args.before``, interleaved rounds."""
     from bench.bench_sac import _commit, _loadavg
     from core.device import processor_name
 
-    before = module_at(args.before, "sims/ugv/teb.py", "teb_before")
+    clock = CLOCKS[args.clock]
+    teb_before = module_at(args.before, "sims/ugv/teb.py", "teb_before")
+    diffusion_before = module_at(args.before, "core/sage/diffusion.py", "diffusion_before")
     driven = driven_episodes(args.teb_episodes)
-    contenders = {f"TEB planner at {args.before}": before.TebPlanner, "TEB planner now": TebPlanner}
-    per_round: dict[str, list[float]] = {name: [] for name in contenders}
-    steps: dict[str, list[float]] = {name: [] for name in contenders}
+    planners = {"before": teb_before.TebPlanner, "now": TebPlanner}
+    learners = {"before": diffusion_ql(diffusion_before.DiffusionPolicy), "now": diffusion_ql(DiffusionPolicy)}
+    observation = np.random.default_rng(1).normal(size=58).astype(np.float32)
+    rows = {
+        "TEB planner, ms per decision": {
+            when: (lambda planner_type=planner_type: float(np.mean(replay_times(planner_type, driven, clock))))
+            for when, planner_type in planners.items()
+        },
+        "Diffusion-QL offline update (batch 256), ms": {
+            when: (lambda learner=learner: timed_calls(learner.update, args.updates, clock))
+            for when, learner in learners.items()
+        },
+        "Diffusion-QL action (best of 10 candidates), ms": {
+            when: (
+                lambda learner=learner: timed_calls(lambda: learner.act(observation, True), 10 * args.updates, clock)
+            )
+            for when, learner in learners.items()
+        },
+    }
+    for learner in learners.values():  # first calls build what later ones reuse
+        learner.update()
+        learner.act(observation, True)
+    measured: dict[str, dict[str, list[float]]] = {row: {"before": [], "now": []} for row in rows}
     for _ in range(args.rounds):
-        for name, planner_type in contenders.items():
-            times = replay_times(planner_type, driven, CLOCKS[args.clock])
-            per_round[name].append(float(np.mean(times)))
-            steps[name] += times
-    old = next(iter(contenders))
-    lines = [
-        "| planner | mean ms per decision (median of rounds) | median ms | p95 ms | before / now |",
-        "|---|---|---|---|---|",
-    ]
-    reference = statistics.median(per_round[old])
-    for name in contenders:
-        mean = statistics.median(per_round[name])
-        median, p95 = statistics.median(steps[name]), float(np.percentile(steps[name], 95))
-        lines.append(f"| {name} | {mean:.2f} | {median:.2f} | {p95:.2f} | {reference / mean:.2f}x |")
+        for row, contenders in rows.items():
+            for when, measure in contenders.items():
+                measured[row][when].append(measure())
+    lines = [f"| what | at {args.before} | now | before / now |", "|---|---|---|---|"]
+    for row, times in measured.items():
+        before, now = statistics.median(times["before"]), statistics.median(times["now"])
+        lines.append(f"| {row} | {before:.2f} | {now:.2f} | {before / now:.2f}x |")
     decisions = sum(len(a) for a in driven.values())
     load = ", ".join(f"{x:.2f}" for x in _loadavg())
     note = (
         f"`python -m bench.bench_baselines {' '.join(sys.argv[1:])}` at commit {_commit()}, one thread of "
-        f"{processor_name()}; {decisions} decisions per round ({args.teb_episodes} episodes of each UGV scenario 1-4, "
-        f"driven by the current planner's recorded actions), {args.rounds} interleaved rounds, {args.clock} clock; "
-        f"load average {load} at the end; {time.strftime('%Y-%m-%d', time.gmtime())}."
+        f"{processor_name()} (torch {torch.__version__}); medians of {args.rounds} interleaved rounds, {args.clock} "
+        f"clock: TEB on {decisions} decisions a round ({args.teb_episodes} episodes of each UGV scenario 1-4, driven "
+        f"by the current planner's recorded actions), Diffusion-QL on {args.updates} updates and {10 * args.updates} "
+        f"actions a round; load average {load} at the end; {time.strftime('%Y-%m-%d', time.gmtime())}."
     )
     table = "\n".join(lines)
     print(table)
@@ -200,6 +248,7 @@ def main() -> None:
     parser.add_argument("--teb-episodes", type=int, default=2)
     parser.add_argument("--before", metavar="REV", help="time the TEB planner against its code at this git commit")
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds of --before (default 3)")
+    parser.add_argument("--updates", type=int, default=40, help="Diffusion-QL updates a round of --before")
     parser.add_argument("--clock", choices=sorted(CLOCKS), default="wall", help="--before: wall (default) or cpu time")
     parser.add_argument("--write", type=Path, help="--before: write the comparison into this markdown file's block")
     args = parser.parse_args()
@@ -207,7 +256,7 @@ def main() -> None:
     if args.write and not args.before:
         parser.error("--write writes the --before comparison: give --before REV")
     if args.before:
-        compare_teb(args)
+        compare(args)
         return
     observations = states(args.states)
     low, high = -np.ones(2), np.ones(2)
