@@ -58,6 +58,8 @@ def band_terms(
     n = len(th)
     segments = n - 1
     m = obstacles.shape[1]
+    if len(z) < 2 * (n - 2) or len(dts) != segments or obstacles.shape[0] != segments or obstacles.shape[2] != 2:
+        raise ValueError("band_terms: z, dts or obstacles do not fit the band's poses")
     xy = np.empty((n, 2))
     xy[0, 0], xy[0, 1] = start[0], start[1]
     for i in range(1, n - 1):
@@ -88,6 +90,13 @@ def band_terms(
             slot_terms[0, j, i], slot_terms[1, j, i] = ox, oy
             slot_terms[2, j, i] = gap if (gap >= 1e-9 or gap != gap) else 1e-9  # np.maximum(gap, 1e-9)
     return segment_terms, slot_terms
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def entries(segments: int, m: int) -> int:
+    """How many Jacobian entries :func:`band_jacobian` computes for a band of ``segments`` and ``m`` obstacle slots
+    (the writes below are unchecked: the layout must hold exactly these)."""
+    return 39 * segments - 9 + 4 * segments * m
 
 
 @numba.njit(cache=True, nogil=True)
@@ -153,6 +162,8 @@ def band_jacobian(
         gain_v[j] = sa * (1.0 if abs(acc_v[j]) > weights[ACC_LIMIT_V] else 0.0) * _sign(acc_v[j]) / spans[j]
         gain_w[j] = sa * (1.0 if abs(acc_w[j]) > weights[ACC_LIMIT_W] else 0.0) * _sign(acc_w[j]) / spans[j]
         dspan_own[j] = dts[j] if j == 0 else 0.5 * dts[j]
+    if len(flat) != entries(segments, m):
+        raise ValueError("band_jacobian: the layout does not fit the band")
     values = np.empty(len(flat))
     e = 0
     # non-holonomic kinematics

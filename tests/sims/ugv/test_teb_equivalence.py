@@ -176,3 +176,19 @@ def test_a_blocked_path_is_what_the_dilated_costmap_says() -> None:
         assert planner._path_blocked(x, y) == expected
         answers.append(expected)
     assert 0.2 < np.mean(answers) < 0.8  # both answers are exercised
+
+
+def test_the_compiled_kernels_refuse_arrays_that_do_not_fit_the_band() -> None:
+    """Their writes are unchecked (numba): a layout or obstacle array of the wrong size is an error, not a write past
+    an array's end."""
+    from sims.ugv import _teb_kernel
+
+    optimizer = TebOptimizer(TebConfig(), 0.6, 1.0)
+    n, m = 4, 2
+    z = np.zeros(2 * (n - 2) + 2 * (n - 1))
+    args = (np.zeros(3), np.ones(2), n, 0.0, 0.0, np.ones((n - 1, m, 2)))
+    terms = optimizer._terms(z, *args)
+    with pytest.raises(ValueError, match="layout"):
+        _teb_kernel.band_jacobian(*terms, optimizer._weights, np.zeros(3, dtype=np.int64), (10, 10))
+    with pytest.raises(ValueError, match="obstacles"):
+        optimizer._terms(z, *args[:-1], np.ones((n - 2, m, 2)))
