@@ -11,9 +11,9 @@ mission goal and the lidar scan. It never reads the layout or the movers' script
    string pulling (the same path tools as the scripted expert, on the sensed map instead of the layout).
    Replanned every ``replan_every`` seconds, and at once when the path ahead runs into a newly seen obstacle.
 3. **Timed elastic band.** Poses (x, y, θ) from the robot to the point ``lookahead`` metres along the path, and
-   the time interval ΔT between each pair, optimised as one sparse nonlinear least-squares problem by
-   ``scipy.optimize.least_squares`` (trust-region reflective, numerical Jacobian over its sparsity pattern, ΔT
-   bounded). Penalties, each a residual as in TEB's hyper-graph: non-holonomic kinematics (both headings of a
+   the time interval ΔT between each pair (as log ΔT, so always positive), optimised as one nonlinear
+   least-squares problem by MINPACK's Levenberg-Marquardt (``scipy.optimize.leastsq``) with the analytic Jacobian
+   (residuals and Jacobian compiled, :mod:`sims.ugv._teb_kernel`). Penalties, each a residual as in TEB's hyper-graph: non-holonomic kinematics (both headings of a
    segment make equal angles with it), forward driving, speed and yaw-rate limits, acceleration limits (from the
    current velocity on), clearance to the nearest sensed obstacle points (a hard-ish minimum and a soft
    inflation), and total time. Obstacle points are associated with each pose by a k-d tree, re-associated
@@ -22,7 +22,7 @@ mission goal and the lidar scan. It never reads the layout or the movers' script
    band leaves the robot's next poses too close to an obstacle, it stops and plans again next step.
 
 Costs per control step, measured by ``bench/bench_baselines.py``: a few to a few tens of milliseconds, inside the
-10 Hz budget.
+10 Hz budget (``--before REV`` compares it with an earlier commit's planner on the same steps: docs/speed.md).
 """
 
 from __future__ import annotations
