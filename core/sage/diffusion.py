@@ -87,6 +87,7 @@ class DiffusionPolicy(BaseLearner):
             self.denoiser_target = copy.deepcopy(self.denoiser)
             self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=dcfg.lr)
         self._generator = torch.Generator().manual_seed(self.seed)
+        self._ddim_cache: dict[tuple[int, int, int], list[tuple[Tensor, Tensor, Tensor, Tensor, Tensor, bool]]] = {}
         self._scale = (self.action_high - self.action_low) / 2
         self._centre = (self.action_high + self.action_low) / 2
 
@@ -111,18 +112,40 @@ class DiffusionPolicy(BaseLearner):
         noisy = alpha_bar.sqrt() * x0 + (1 - alpha_bar).sqrt() * noise
         return (self.denoiser(noisy, levels, obs) - noise).pow(2).sum(-1).mean()
 
+    def _ddim_steps(self, batch: int) -> list[tuple[Tensor, Tensor, Tensor, Tensor, Tensor, bool]]:
+        """Per reverse step: its level for each of ``batch`` rows, √(1 − ᾱ_k), √ᾱ_k, √ᾱ_next, √(1 − ᾱ_next) and
+        whether a next level follows. The same 0-d tensors the step computed every time, made once per settings and
+        batch size (the settings may change between calls: ``sampling_steps`` at evaluation time)."""
+        total, steps = len(self.alpha_bars) - 1, self.cfg.diffusion.sampling_steps
+        key = (steps, total, batch)
+        cache = self._ddim_cache
+        if key not in cache:
+            levels = torch.linspace(total, 0, steps + 1).round().long().tolist()
+            plan = []
+            for k, k_next in itertools.pairwise(levels):
+                alpha_bar, alpha_next = self.alpha_bars[k], self.alpha_bars[k_next]
+                plan.append(
+                    (
+                        torch.full((batch,), k),
+                        (1 - alpha_bar).sqrt(),
+                        alpha_bar.sqrt(),
+                        alpha_next.sqrt(),
+                        (1 - alpha_next).sqrt(),
+                        k_next > 0,
+                    )
+                )
+            cache[key] = plan
+        return cache[key]
+
     def sample(self, obs: Tensor, deterministic: bool = False, denoiser: Denoiser | None = None) -> Tensor:
         """Actions for a batch of observations by DDIM over ``sampling_steps`` levels (differentiable)."""
         denoiser = denoiser or self.denoiser
-        total, steps = len(self.alpha_bars) - 1, self.cfg.diffusion.sampling_steps
-        levels = torch.linspace(total, 0, steps + 1).round().long().tolist()
         shape = (obs.shape[0], self.act_dim)
         x = torch.zeros(shape) if deterministic else torch.randn(shape, generator=self._generator)
-        for k, k_next in itertools.pairwise(levels):
-            alpha_bar, alpha_next = self.alpha_bars[k], self.alpha_bars[k_next]
-            eps = denoiser(x, torch.full((shape[0],), k), obs)
-            x0 = ((x - (1 - alpha_bar).sqrt() * eps) / alpha_bar.sqrt()).clamp(-1.0, 1.0)
-            x = alpha_next.sqrt() * x0 + (1 - alpha_next).sqrt() * eps if k_next > 0 else x0
+        for level, noise_scale, signal_scale, next_signal, next_noise, more in self._ddim_steps(shape[0]):
+            eps = denoiser(x, level, obs)
+            x0 = ((x - noise_scale * eps) / signal_scale).clamp(-1.0, 1.0)
+            x = next_signal * x0 + next_noise * eps if more else x0
         return x.clamp(-1.0, 1.0) * self._scale + self._centre
 
     # -- acting ------------------------------------------------------------------------------------
@@ -186,12 +209,18 @@ class DiffusionPolicy(BaseLearner):
         critic_loss.backward()
         self.critic_optimizer.step()
         action = self.sample(expert.obs)
-        q = self.critic(expert.obs, action)
-        q_term = q[0] if self.rng.random() < 0.5 else q[1]
-        q_loss = -q_term.mean() / q.abs().mean().detach().clamp(min=1e-6)
-        loss = bc_loss + self.cfg.diffusion.q_weight * q_loss
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        # the policy loss reaches the denoiser through the critics' input; their own weights' gradients would be
+        # thrown away (the critic's next step starts from zero_grad), so they are not computed
+        self.critic.requires_grad_(False)
+        try:
+            q = self.critic(expert.obs, action)
+            q_term = q[0] if self.rng.random() < 0.5 else q[1]
+            q_loss = -q_term.mean() / q.abs().mean().detach().clamp(min=1e-6)
+            loss = bc_loss + self.cfg.diffusion.q_weight * q_loss
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+        finally:
+            self.critic.requires_grad_(True)
         if self.cfg.max_grad_norm is not None:
             torch.nn.utils.clip_grad_norm_(self.denoiser.parameters(), self.cfg.max_grad_norm)
         self.optimizer.step()

@@ -11,9 +11,9 @@ mission goal and the lidar scan. It never reads the layout or the movers' script
    string pulling (the same path tools as the scripted expert, on the sensed map instead of the layout).
    Replanned every ``replan_every`` seconds, and at once when the path ahead runs into a newly seen obstacle.
 3. **Timed elastic band.** Poses (x, y, θ) from the robot to the point ``lookahead`` metres along the path, and
-   the time interval ΔT between each pair, optimised as one sparse nonlinear least-squares problem by
-   ``scipy.optimize.least_squares`` (trust-region reflective, numerical Jacobian over its sparsity pattern, ΔT
-   bounded). Penalties, each a residual as in TEB's hyper-graph: non-holonomic kinematics (both headings of a
+   the time interval ΔT between each pair (as log ΔT, so always positive), optimised as one nonlinear
+   least-squares problem by MINPACK's Levenberg-Marquardt (``scipy.optimize.leastsq``) with the analytic Jacobian
+   (residuals and Jacobian compiled, :mod:`sims.ugv._teb_kernel`). Penalties, each a residual as in TEB's hyper-graph: non-holonomic kinematics (both headings of a
    segment make equal angles with it), forward driving, speed and yaw-rate limits, acceleration limits (from the
    current velocity on), clearance to the nearest sensed obstacle points (a hard-ish minimum and a soft
    inflation), and total time. Obstacle points are associated with each pose by a k-d tree, re-associated
@@ -22,11 +22,12 @@ mission goal and the lidar scan. It never reads the layout or the movers' script
    band leaves the robot's next poses too close to an obstacle, it stops and plans again next step.
 
 Costs per control step, measured by ``bench/bench_baselines.py``: a few to a few tens of milliseconds, inside the
-10 Hz budget.
+10 Hz budget (``--before REV`` compares it with an earlier commit's planner on the same steps: docs/speed.md).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -36,6 +37,7 @@ from scipy import ndimage, optimize, sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from sims.ugv import _teb_kernel
 from sims.ugv.expert import Grid, extract_path
 
 FAR = 1e3
@@ -118,9 +120,12 @@ class Costmap:
 
     def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell indices (iy, ix) of points (P, 2) and whether each lies on the grid."""
+        return self._cells(xy[:, 0], xy[:, 1])
+
+    def _cells(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ny, nx = self.occupied.shape
-        ix = np.floor((xy[:, 0] - self.x0) / self.res).astype(int)
-        iy = np.floor((xy[:, 1] - self.y0) / self.res).astype(int)
+        ix = np.floor((px - self.x0) / self.res).astype(int)
+        iy = np.floor((py - self.y0) / self.res).astype(int)
         inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
         return iy, ix, inside
 
@@ -132,9 +137,9 @@ class Costmap:
         # clear along each ray up to one cell short of its end
         steps = np.arange(0.0, max_range, 0.5 * res)
         along = steps[None, :] < (ranges[:, None] - res)
-        points = np.array([x, y]) + directions[:, None, :] * steps[None, :, None]
-        free = points[along]
-        iy, ix, inside = self.cells(free)
+        # only the points each ray passes (the same products and sums as the whole rays x steps grid would take)
+        ray, step = np.nonzero(along)
+        iy, ix, inside = self._cells(x + directions[ray, 0] * steps[step], y + directions[ray, 1] * steps[step])
         self.occupied[iy[inside], ix[inside]] = False
         hit = ranges < max_range - 1e-6
         ends = np.array([x, y]) + directions[hit] * ranges[hit, None]
@@ -199,6 +204,14 @@ def _dijkstra(
     return dist[:n].reshape(ny, nx)
 
 
+@functools.lru_cache(maxsize=8)
+def _diamond(reach: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cell offsets (dy, dx) within ``reach`` 4-connected steps: what ``reach`` binary dilations by a cross add."""
+    dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]
+    keep = np.abs(dy) + np.abs(dx) <= reach
+    return dy[keep], dx[keep]
+
+
 class MoverTracker:
     """Moving obstacles from consecutive scans: the scan's hit points are split into clusters (neighbouring rays
     whose ends lie close together), small clusters are matched to the previous scan's by nearest centroid, and
@@ -223,12 +236,20 @@ class MoverTracker:
         if len(points):
             breaks = np.flatnonzero(np.hypot(*np.diff(points, axis=0).T) > cfg.cluster_gap) + 1
             clusters = [c for c in np.split(points, breaks) if np.ptp(c, axis=0).max(initial=0.0) <= cfg.mover_size]
+        centres = [cluster.mean(axis=0) for cluster in clusters]
+        nearest: list[tuple[dict[str, Any], float]] = []
+        if centres and self._tracks:
+            # every cluster's distance to every previous track at once; the first nearest track on a tie, as min() did
+            before = np.array([track["centre"] for track in self._tracks])
+            now = np.array(centres)
+            gaps = np.hypot(before[None, :, 0] - now[:, None, 0], before[None, :, 1] - now[:, None, 1])
+            picks = gaps.argmin(axis=1)
+            nearest = [(self._tracks[k], float(gaps[i, k])) for i, k in enumerate(picks)]
         tracks = []
-        for cluster in clusters:
-            centre = cluster.mean(axis=0)
-            previous = min(self._tracks, key=lambda t: float(np.hypot(*(t["centre"] - centre))), default=None)
+        for i, (cluster, centre) in enumerate(zip(clusters, centres, strict=True)):
             velocity, age = np.zeros(2), 1
-            if previous is not None and float(np.hypot(*(previous["centre"] - centre))) <= cfg.track_gate:
+            if nearest and nearest[i][1] <= cfg.track_gate:
+                previous = nearest[i][0]
                 measured = (centre - previous["centre"]) / self.dt
                 velocity = (1 - cfg.velocity_smoothing) * previous["velocity"] + cfg.velocity_smoothing * measured
                 age = previous["age"] + 1
@@ -247,16 +268,83 @@ class MoverTracker:
         return out
 
 
+@dataclass(frozen=True)
+class _BandLayout:
+    """Where each entry of the band's Jacobian goes, for n poses and m obstacles per pose, built once per (n, m).
+
+    :meth:`TebOptimizer._jacobian` computes the entries term by term (the terms' order below) and adds them into the
+    matrix of the free variables in one ``np.add.at``, in that order: an entry that two terms reach sums them in
+    the order the term-by-term writes did, and the fixed variables' entries (the first pose, the last position) go
+    to a spare column that is cut off."""
+
+    flat: np.ndarray
+    """Flat index into the (rows, free + 1) matrix of every entry, in the terms' order."""
+    shape: tuple[int, int]
+    """(rows, free variables + 1): the last column collects the fixed variables' entries."""
+
+
+@functools.lru_cache(maxsize=64)
+def _band_layout(n: int, m: int) -> _BandLayout:
+    segments = n - 1
+    j = np.arange(segments)
+    X, Y, T, U = 3 * j, 3 * j + 1, 3 * j + 2, 3 * n + j  # full columns of pose j (pose j + 1 is + 3) and log dt_j
+    p_cols = np.stack([X, X + 3, Y, Y + 3, T], axis=1)  # what progress_j depends on
+    pose_x = np.repeat(3 * (j + 1)[:, None], m, axis=1)  # obstacles act on poses 1..n-1
+    blocks = np.arange(7 * segments)  # kinematics, forward, speed, yaw rate, acc v, acc w, time: one row each
+    kin, fwd, speed, yaw, acc_v, acc_w, time = (blocks[b * segments : (b + 1) * segments] for b in range(7))
+    clearance = 7 * segments + np.arange(segments * m).reshape(segments, m)
+    inflation = clearance + segments * m
+    rows_cols: list[tuple[np.ndarray, np.ndarray]] = [
+        (kin, X), (kin, X + 3), (kin, Y), (kin, Y + 3), (kin, T), (kin, T + 3),
+        (np.repeat(fwd, 5), p_cols),
+        (np.repeat(speed, 5), p_cols), (speed, U),
+        (yaw, T + 3), (yaw, T), (yaw, U),
+        (np.repeat(acc_v, 5), p_cols), (np.repeat(acc_v[1:], 5), p_cols[:-1]), (acc_v, U), (acc_v[1:], U[:-1]),
+        (acc_w, T + 3), (acc_w, T), (acc_w[1:], T[:-1] + 3), (acc_w[1:], T[:-1]), (acc_w, U), (acc_w[1:], U[:-1]),
+        (time, U),
+        (clearance, pose_x), (clearance, pose_x + 1), (inflation, pose_x), (inflation, pose_x + 1),
+    ]  # fmt: skip
+    rows = np.concatenate([r.ravel() for r, _ in rows_cols])
+    cols = np.concatenate([c.ravel() for _, c in rows_cols])
+    inner = np.arange(1, n - 1)
+    free = np.concatenate([np.stack([3 * inner, 3 * inner + 1], axis=1).ravel(), 3 * np.arange(1, n) + 2, U])
+    spare = len(free)
+    column_of = np.full(3 * n + segments, spare)
+    column_of[free] = np.arange(len(free))
+    shape = (7 * segments + 2 * segments * m, len(free) + 1)
+    flat = rows * shape[1] + column_of[cols]
+    flat.flags.writeable = False  # shared between calls
+    return _BandLayout(flat, shape)
+
+
 class TebOptimizer:
     """The band's least-squares problem for one obstacle association (see the module docstring).
 
     Variables: the x, y of the free poses 1..n-2, the headings of poses 1..n-1 (the last pose's position is the
     band's target, its heading free) and u_j = log ΔT_j (so that every interval stays positive without bounds).
-    Residuals and their analytic Jacobian are written out term by term; MINPACK's Levenberg-Marquardt
-    (``least_squares(method="lm")``) solves the small dense problem."""
+    Residuals and their analytic Jacobian are written out term by term; MINPACK's Levenberg-Marquardt (``lmder``,
+    through ``scipy.optimize.leastsq``) solves the small dense problem. Within a solve the terms both share are
+    computed once per point (the solver asks for the residuals and then the Jacobian at each accepted point)."""
 
     def __init__(self, cfg: TebConfig, v_max: float, w_max: float) -> None:
         self.cfg, self.v_max, self.w_max = cfg, v_max, w_max
+        weights = np.empty(_teb_kernel.WEIGHTS)
+        weights[: _teb_kernel.V_MAX] = [
+            math.sqrt(w)
+            for w in (
+                cfg.weight_kinematics, cfg.weight_forward, cfg.weight_velocity, cfg.weight_acceleration,
+                cfg.weight_time, cfg.weight_obstacle, cfg.weight_inflation,
+            )
+        ]  # fmt: skip
+        weights[_teb_kernel.V_MAX :] = [
+            v_max,
+            w_max,
+            cfg.acc_limit_v,
+            cfg.acc_limit_w,
+            cfg.min_obstacle_dist,
+            cfg.inflation_dist,
+        ]
+        self._weights = weights
 
     @staticmethod
     def pack(band: Band) -> np.ndarray:
@@ -275,148 +363,86 @@ class TebOptimizer:
 
     def _terms(
         self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
-    ) -> dict[str, Any]:
-        band = self.unpack(z, start, end_xy, n)
-        xy, th, dts = band.poses[:, :2], band.poses[:, 2], band.dts
-        d = xy[1:] - xy[:-1]
+    ) -> tuple[np.ndarray, ...]:
+        """What residuals and Jacobian share at ``z``; the transcendental functions here, in numpy, the rest
+        compiled (:mod:`sims.ugv._teb_kernel`)."""
+        k = n - 2
+        th = np.empty(n)
+        th[0], th[1:] = start[2], z[2 * k : 2 * k + n - 1]
         c, s = np.cos(th), np.sin(th)
-        progress = c[:-1] * d[:, 0] + s[:-1] * d[:, 1]
-        turn = (th[1:] - th[:-1] + math.pi) % (2 * math.pi) - math.pi
-        v, w = progress / dts, turn / dts
-        spans = 0.5 * (np.concatenate([dts[:1], dts[:-1]]) + dts)
-        acc_v = np.diff(np.concatenate([[v0], v])) / spans
-        acc_w = np.diff(np.concatenate([[w0], w])) / spans
-        offsets = xy[1:, None, :] - obstacles  # (n - 1, m, 2)
-        gaps = np.maximum(np.linalg.norm(offsets, axis=2), 1e-9)
-        return {
-            "xy": xy, "th": th, "dts": dts, "d": d, "c": c, "s": s, "progress": progress, "turn": turn,
-            "v": v, "w": w, "spans": spans, "acc_v": acc_v, "acc_w": acc_w, "offsets": offsets, "gaps": gaps,
-        }  # fmt: skip
+        dts = np.exp(z[2 * k + n - 1 :])
+        segment_terms, slot_terms = _teb_kernel.band_terms(
+            z, start, end_xy, float(v0), float(w0), np.ascontiguousarray(obstacles, dtype=np.float64), c, s, dts, th
+        )
+        return segment_terms, slot_terms, c, s, dts
+
+    def load_kernels(self) -> None:
+        """Compile the band's kernels, or load them from numba's on-disk cache (some 0.3 s; 10-15 s the first time in
+        a checkout), by evaluating a small band once."""
+        n = 3
+        z = np.zeros(2 * (n - 2) + 2 * (n - 1))
+        args = (np.zeros(3), np.ones(2), n, 0.0, 0.0, np.ones((n - 1, 1, 2)))
+        self.residuals(z, *args)
+        self.jacobian(z, *args)
 
     def residuals(
         self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
     ) -> np.ndarray:
-        cfg, t = self.cfg, self._terms(z, start, end_xy, n, v0, w0, obstacles)
-        c, s, d = t["c"], t["s"], t["d"]
-        relu = np.maximum
-        return np.concatenate(
-            [
-                math.sqrt(cfg.weight_kinematics) * ((c[:-1] + c[1:]) * d[:, 1] - (s[:-1] + s[1:]) * d[:, 0]),
-                math.sqrt(cfg.weight_forward) * relu(0.0, -t["progress"]),
-                math.sqrt(cfg.weight_velocity) * relu(0.0, t["v"] - self.v_max),
-                math.sqrt(cfg.weight_velocity) * relu(0.0, np.abs(t["w"]) - self.w_max),
-                math.sqrt(cfg.weight_acceleration) * relu(0.0, np.abs(t["acc_v"]) - cfg.acc_limit_v),
-                math.sqrt(cfg.weight_acceleration) * relu(0.0, np.abs(t["acc_w"]) - cfg.acc_limit_w),
-                math.sqrt(cfg.weight_time) * t["dts"],
-                math.sqrt(cfg.weight_obstacle) * relu(0.0, cfg.min_obstacle_dist - t["gaps"]).ravel(),
-                math.sqrt(cfg.weight_inflation) * relu(0.0, cfg.inflation_dist - t["gaps"]).ravel(),
-            ]
-        )
+        return self._residuals(self._terms(z, start, end_xy, n, v0, w0, obstacles))
 
     def jacobian(
         self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
     ) -> np.ndarray:
         """d residuals / d z, written out (checked against finite differences in the tests)."""
-        cfg, t = self.cfg, self._terms(z, start, end_xy, n, v0, w0, obstacles)
-        c, s, d, dts = t["c"], t["s"], t["d"], t["dts"]
-        segments, m = n - 1, obstacles.shape[1]
-        # full variables: x_i, y_i, th_i for every pose (3 n), then log dt_j (n - 1); free ones picked at the end
-        full = np.zeros((7 * segments + 2 * segments * m, 3 * n + segments))
-        j = np.arange(segments)
-        X, Y, T = 3 * j, 3 * j + 1, 3 * j + 2  # columns of pose j; pose j + 1 is + 3
-        U = 3 * n + j  # log dt_j
-        row = 0
+        return self._jacobian(self._terms(z, start, end_xy, n, v0, w0, obstacles), n, obstacles.shape[1])
 
-        # non-holonomic kinematics
-        k = math.sqrt(cfg.weight_kinematics)
-        r = row + j
-        full[r, X], full[r, X + 3] = k * (s[:-1] + s[1:]), -k * (s[:-1] + s[1:])
-        full[r, Y], full[r, Y + 3] = -k * (c[:-1] + c[1:]), k * (c[:-1] + c[1:])
-        full[r, T] = k * (-s[:-1] * d[:, 1] - c[:-1] * d[:, 0])
-        full[r, T + 3] = k * (-s[1:] * d[:, 1] - c[1:] * d[:, 0])
-        row += segments
+    def _residuals(self, terms: tuple[np.ndarray, ...]) -> np.ndarray:
+        return _teb_kernel.band_residuals(*terms, self._weights)
 
-        # d progress_j: wrt x_j, x_j+1, y_j, y_j+1, th_j
-        dp = np.stack([-c[:-1], c[:-1], -s[:-1], s[:-1], -s[:-1] * d[:, 0] + c[:-1] * d[:, 1]], axis=1)
-        p_cols = np.stack([X, X + 3, Y, Y + 3, T], axis=1)
-
-        def put(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> None:
-            np.add.at(full, (np.repeat(rows, cols.shape[1]), cols.ravel()), values.ravel())
-
-        # forward driving
-        active = (t["progress"] < 0).astype(float)
-        put(row + j, p_cols, -math.sqrt(cfg.weight_forward) * active[:, None] * dp)
-        row += segments
-
-        # speed limit: v = p / dt, d v / d log dt = -v
-        sv = math.sqrt(cfg.weight_velocity)
-        active = (t["v"] > self.v_max).astype(float)
-        put(row + j, p_cols, sv * active[:, None] * dp / dts[:, None])
-        full[row + j, U] = -sv * active * t["v"]
-        row += segments
-
-        # yaw-rate limit: w = turn / dt
-        sign_w = np.sign(t["w"])
-        active = (np.abs(t["w"]) > self.w_max).astype(float)
-        full[row + j, T + 3] = sv * active * sign_w / dts
-        full[row + j, T] = -sv * active * sign_w / dts
-        full[row + j, U] = -sv * active * np.abs(t["w"])
-        row += segments
-
-        # accelerations: a_j = (q_j - q_{j-1}) / span_j, span_j = (dt_{j-1} + dt_j) / 2 (dt_{-1} = dt_0)
-        sa = math.sqrt(cfg.weight_acceleration)
-        for name, limit, q in (("acc_v", cfg.acc_limit_v, "v"), ("acc_w", cfg.acc_limit_w, "w")):
-            acc, qv, spans = t[name], t[q], t["spans"]
-            gain = sa * (np.abs(acc) > limit) * np.sign(acc) / spans  # d r / d (q_j - q_{j-1}) * span
-            if q == "v":
-                dq = dp / dts[:, None]  # d v_j / d (p_cols)
-                put(row + j, p_cols, gain[:, None] * dq)
-                put(row + j[1:], p_cols[:-1], -gain[1:, None] * dq[:-1])
-            else:
-                full[row + j, T + 3] += gain / dts
-                full[row + j, T] -= gain / dts
-                full[row + j[1:], T[:-1] + 3] -= gain[1:] / dts[:-1]
-                full[row + j[1:], T[:-1]] += gain[1:] / dts[:-1]
-            # through dt_j: d q_j / d log dt_j = -q_j; d span_j / d log dt_j = dt_j / 2 (both halves for j = 0)
-            dspan_own = np.where(j == 0, dts, 0.5 * dts)
-            full[row + j, U] += gain * (-qv) - gain * acc * dspan_own
-            # through dt_{j-1}: q_{j-1} and span_j
-            full[row + j[1:], U[:-1]] += gain[1:] * qv[:-1] - gain[1:] * acc[1:] * 0.5 * dts[:-1]
-            row += segments
-
-        # time
-        full[row + j, U] = math.sqrt(cfg.weight_time) * dts
-        row += segments
-
-        # obstacle clearance and inflation, on poses 1..n-1
-        unit = t["offsets"] / t["gaps"][..., None]  # (n - 1, m, 2)
-        pose_x = 3 * (j + 1)
-        for weight, dist in ((cfg.weight_obstacle, cfg.min_obstacle_dist), (cfg.weight_inflation, cfg.inflation_dist)):
-            active = (t["gaps"] < dist).astype(float)
-            rows = row + np.arange(segments * m).reshape(segments, m)
-            full[rows, np.repeat(pose_x[:, None], m, axis=1)] = -math.sqrt(weight) * active * unit[..., 0]
-            full[rows, np.repeat(pose_x[:, None] + 1, m, axis=1)] = -math.sqrt(weight) * active * unit[..., 1]
-            row += segments * m
-
-        inner = np.arange(1, n - 1)
-        free = np.concatenate(
-            [np.stack([3 * inner, 3 * inner + 1], axis=1).ravel(), 3 * np.arange(1, n) + 2, 3 * n + j]
-        )
-        return full[:, free]
+    def _jacobian(self, terms: tuple[np.ndarray, ...], n: int, m: int) -> np.ndarray:
+        layout = _band_layout(n, m)
+        return _teb_kernel.band_jacobian(*terms, self._weights, layout.flat, layout.shape)[:, :-1]
 
     def solve(self, band: Band, v0: float, w0: float, obstacles: np.ndarray) -> tuple[Band, float]:
         """Optimise the band for fixed obstacle associations (n - 1, m, 2); returns it and its cost."""
-        n = len(band.poses)
+        n, m = len(band.poses), obstacles.shape[1]
         start, end_xy = band.poses[0].copy(), band.poses[-1, :2].copy()
-        result = optimize.least_squares(
-            self.residuals,
+        last: dict[str, Any] = {"z": b""}
+
+        def terms(z: np.ndarray) -> tuple[np.ndarray, ...]:
+            key = z.tobytes()  # the very bits: a point the solver asks for again
+            if key != last["z"]:
+                last.clear()
+                last["z"], last["terms"] = key, self._terms(z, start, end_xy, n, v0, w0, obstacles)
+            return last["terms"]
+
+        def residuals(z: np.ndarray) -> np.ndarray:
+            t = terms(z)
+            if "residuals" not in last:
+                last["residuals"] = self._residuals(t)
+            return last["residuals"]
+
+        def jacobian(z: np.ndarray) -> np.ndarray:
+            t = terms(z)
+            if "jacobian" not in last:
+                last["jacobian"] = self._jacobian(t, n, m)
+            return last["jacobian"]
+
+        # what least_squares(method="lm") asked of MINPACK before (its tolerances, its factor, its scaling by the
+        # Jacobian's columns), without its wrappers' per-call copies and checks
+        x, _cov, info, _message, _status = optimize.leastsq(
+            residuals,
             self.pack(band),
-            jac=self.jacobian,
-            method="lm",
-            max_nfev=self.cfg.max_evaluations,
-            args=(start, end_xy, n, v0, w0, obstacles),
+            Dfun=jacobian,
+            full_output=True,
+            ftol=1e-8,
+            xtol=1e-8,
+            gtol=1e-8,
+            maxfev=self.cfg.max_evaluations,
+            factor=100.0,
         )
-        return self.unpack(result.x, start, end_xy, n), float(result.cost)
+        fvec = info["fvec"]
+        return self.unpack(x, start, end_xy, n), float(0.5 * np.dot(fvec, fvec))
 
 
 class TebPlanner:
@@ -431,6 +457,7 @@ class TebPlanner:
         self.half_width = robot.width / 2
         self.dt = sim.config.dt
         self.optimizer = TebOptimizer(self.cfg, self.v_max, self.w_max)
+        self.optimizer.load_kernels()  # here, not in the first control step
         self.tracker = MoverTracker(self.cfg, self.dt)
         self._episode = None
         self.costmap: Costmap | None = None
@@ -489,10 +516,14 @@ class TebPlanner:
         iy, ix, inside = self.costmap.cells(ahead)
         if not inside.any():
             return False
-        near = ndimage.binary_dilation(
-            self.costmap.occupied, iterations=max(1, int(self.cfg.planner_inflation / self.costmap.res))
-        )
-        return bool(near[iy[inside], ix[inside]][3:].any())
+        # the path's cells past the first three against the occupied cells dilated by the inflation (a cross
+        # dilated `reach` times: the cells within `reach` steps), looked up around those cells only
+        iy, ix = iy[inside][3:], ix[inside][3:]
+        occupied = self.costmap.occupied
+        dy, dx = _diamond(max(1, int(self.cfg.planner_inflation / self.costmap.res)))
+        yy, xx = iy[:, None] + dy, ix[:, None] + dx
+        on_grid = (yy >= 0) & (yy < occupied.shape[0]) & (xx >= 0) & (xx < occupied.shape[1])
+        return bool(occupied[yy[on_grid], xx[on_grid]].any())
 
     def _path_ahead(self, x: float, y: float, length: float) -> np.ndarray:
         assert self.path is not None
