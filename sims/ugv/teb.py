@@ -13,7 +13,8 @@ mission goal and the lidar scan. It never reads the layout or the movers' script
 3. **Timed elastic band.** Poses (x, y, θ) from the robot to the point ``lookahead`` metres along the path, and
    the time interval ΔT between each pair (as log ΔT, so always positive), optimised as one nonlinear
    least-squares problem by MINPACK's Levenberg-Marquardt (``scipy.optimize.leastsq``) with the analytic Jacobian
-   (residuals and Jacobian compiled, :mod:`sims.ugv._teb_kernel`). Penalties, each a residual as in TEB's hyper-graph: non-holonomic kinematics (both headings of a
+   (residuals and Jacobian compiled, :mod:`sims.ugv._teb_kernel`). Penalties, each a residual as in TEB's
+   hyper-graph: non-holonomic kinematics (both headings of a
    segment make equal angles with it), forward driving, speed and yaw-rate limits, acceleration limits (from the
    current velocity on), clearance to the nearest sensed obstacle points (a hard-ish minimum and a soft
    inflation), and total time. Obstacle points are associated with each pose by a k-d tree, re-associated
@@ -429,18 +430,20 @@ class TebOptimizer:
             return last["jacobian"]
 
         # what least_squares(method="lm") asked of MINPACK before (its tolerances, its factor, its scaling by the
-        # Jacobian's columns), without its wrappers' per-call copies and checks
-        x, _cov, info, _message, _status = optimize.leastsq(
-            residuals,
-            self.pack(band),
-            Dfun=jacobian,
-            full_output=True,
-            ftol=1e-8,
-            xtol=1e-8,
-            gtol=1e-8,
-            maxfev=self.cfg.max_evaluations,
-            factor=100.0,
-        )
+        # Jacobian's columns), without its wrappers' per-call copies and checks. full_output (for the final fvec) also
+        # makes leastsq form the covariance, unused here, which overflows on an ill-conditioned band: not a warning
+        with np.errstate(over="ignore", invalid="ignore"):
+            x, _cov, info, _message, _status = optimize.leastsq(
+                residuals,
+                self.pack(band),
+                Dfun=jacobian,
+                full_output=True,
+                ftol=1e-8,
+                xtol=1e-8,
+                gtol=1e-8,
+                maxfev=self.cfg.max_evaluations,
+                factor=100.0,
+            )
         fvec = info["fvec"]
         return self.unpack(x, start, end_xy, n), float(0.5 * np.dot(fvec, fvec))
 
