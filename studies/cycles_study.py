@@ -162,18 +162,14 @@ def check_settings(settings: Mapping[str, Any]) -> None:
     sim = str(settings.get("sim", "ugv"))
     scenario = str(settings.get("scenario", "3"))
     unseen = str(settings.get("unseen_scenario", "")) or unseen_of(sim, scenario)
-    for key, name in (("scenario", scenario), ("unseen_scenario", unseen)):
+    regression = [("regression_scenarios", str(name)) for name in settings.get("regression_scenarios", ()) or ()]
+    for key, name in (("scenario", scenario), ("unseen_scenario", unseen), *regression):
         if not name:
             continue
         try:
             scenario_kwargs(sim, name)
         except (ValueError, OSError) as error:  # the descriptor's own message, as one line
             raise ValueError(f"--set study.{key}={name}: {str(error).splitlines()[0]}") from None
-    for name in settings.get("regression_scenarios", ()) or ():
-        try:
-            scenario_kwargs(sim, str(name))
-        except (ValueError, OSError) as error:
-            raise ValueError(f"--set study.regression_scenarios={name}: {str(error).splitlines()[0]}") from None
     if unseen == scenario:
         raise ValueError(f"--set study.unseen_scenario={unseen}: the unseen scenario must differ from the scenario")
 
