@@ -208,10 +208,9 @@ def rollout(
     m = None
     if model.motion and motion is not None:
         m = motion.unsqueeze(0).expand(n, batch, d)
-    # the Δs means and the violation logit (the log-variance columns feed no rollout); the logit alone as a row per
-    # member, read by a product and a sum: a one-column baddbmm costs several times more on a CPU (bench/bench_sac.py)
+    # the Δs means and the violation logit (the log-variance columns feed no rollout); the logit alone
     mean_weight, mean_bias = model.out_weight[..., : d + 1], model.out_bias[..., : d + 1]
-    logit_row, logit_bias = model.out_weight[..., d].unsqueeze(1).contiguous(), model.out_bias[..., d]
+    logit_weight, logit_bias = model.out_weight[..., d : d + 1], model.out_bias[..., d : d + 1]
     states, actions, costs = [s], [], []
     last_contact = None
     """(N, B) bool: the last imagined state's contact, where it is tested without the state (states_needed=False)."""
@@ -222,7 +221,7 @@ def rollout(
             h = F.silu(torch.baddbmm(bias, h, weight))
         actions.append(a)
         if last and not states_needed:
-            costs.append((h * logit_row).sum(-1) + logit_bias)
+            costs.append(torch.baddbmm(logit_bias, h, logit_weight)[..., 0])
             if contact is not None:  # the last state's values for the contact test; no gradient goes through it
                 with torch.no_grad():
                     delta = torch.baddbmm(mean_bias[..., :d], h, mean_weight[..., :d])
