@@ -8,6 +8,7 @@ slows them alike; the printed ratios come from the same run.
 
     .venv/bin/python -m bench.bench_sac [--rounds 5] [--updates 200] [--ego] [--device] [--clock wall|cpu]
     .venv/bin/python -m bench.bench_sac --batch 256,1024 --ensemble 5,7 [--ego] [--write docs/speed.md]
+    .venv/bin/python -m bench.bench_sac --before REV [--batch 256,1024] [--rounds 7] [--clock cpu]
 
 ``--ego`` adds SAGE-SAC over the ego step (the UGV default's world model, ``sims.ugv.env.ego_motion_layout``), without
 and with the gate's imagined contact (``gate.imagined_contact`` with the UGV's floors: what the committed UGV policy's
