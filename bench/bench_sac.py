@@ -8,6 +8,7 @@ slows them alike; the printed ratios come from the same run.
 
     .venv/bin/python -m bench.bench_sac [--rounds 5] [--updates 200] [--ego] [--device] [--clock wall|cpu]
     .venv/bin/python -m bench.bench_sac --batch 256,1024 --ensemble 5,7 [--ego] [--write docs/speed.md]
+    .venv/bin/python -m bench.bench_sac --before REV [--batch 256,1024] [--rounds 7] [--clock cpu]
 
 ``--ego`` adds SAGE-SAC over the ego step (the UGV default's world model, ``sims.ugv.env.ego_motion_layout``), without
 and with the gate's imagined contact (``gate.imagined_contact`` with the UGV's floors: what the committed UGV policy's
@@ -21,6 +22,10 @@ step and tests it in the same call, without a graph (``core.sage.fear.rollout``,
 each batch, SAGE-SAC (and with ``--ego`` over the ego step, without and with contact) at each batch and ensemble size,
 the ratios to SAC at the same batch, interleaved as above; ``--write docs/speed.md`` writes that table with the
 command, the commit and the processor into the file's generated block.
+
+``--before REV`` times instead SAGE-SAC over the ego step + contact with ``core/sage/fear.py`` as git holds it at REV
+against it now, on one learner at each ``--batch`` (5 members), beside our SAC, in interleaved rounds: each round's
+now/before time and the + contact / SAC ratios, so that a change to the fear terms' cost is measured in one process.
 
 ``--device`` adds SAC and SAGE-SAC on CUDA, eager and replayed as a CUDA graph (``learner.cuda_graph``), beside the CPU,
 where torch sees a GPU; elsewhere it says so. ``bench/gpu_check.py`` measures batches 256 to 4096.
@@ -207,11 +212,19 @@ def main() -> None:
         "--ensemble", type=_sizes, help="cost table: these world-model ensemble sizes (comma-separated)"
     )
     parser.add_argument("--write", type=Path, help="cost table: write it into this markdown file's generated block")
+    parser.add_argument(
+        "--before",
+        metavar="REV",
+        help="SAGE-SAC over the ego step + contact with core/sage/fear.py at this git commit against it now",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     from core.device import processor_name
 
     print(f"processor: {processor_name()}")
+    if args.before:
+        before_rows(args)
+        return
     if args.batch or args.ensemble:
         sizes_table(args)
         return
@@ -270,13 +283,74 @@ def main() -> None:
 
 def measure(contenders: dict[str, Callable[[], None]], rounds: int, updates: int, clock: str) -> dict[str, float]:
     """Median updates per second of each contender over ``rounds`` interleaved rounds (after a warm-up)."""
+    rates = measure_rounds(contenders, rounds, updates, clock)
+    return {name: statistics.median(values) for name, values in rates.items()}
+
+
+def measure_rounds(
+    contenders: dict[str, Callable[[], None]], rounds: int, updates: int, clock: str
+) -> dict[str, list[float]]:
+    """Updates per second of each contender in each of ``rounds`` interleaved rounds (after a warm-up)."""
     for fn in contenders.values():  # warm-up
         rate(fn, 20)
     rates: dict[str, list[float]] = {name: [] for name in contenders}
     for _ in range(rounds):
         for name, fn in contenders.items():
             rates[name].append(rate(fn, updates, clock=CLOCKS[clock]))
-    return {name: statistics.median(values) for name, values in rates.items()}
+    return rates
+
+
+def before_rows(args: argparse.Namespace) -> None:
+    """``--before REV``: SAGE-SAC over the ego step + contact with the fear terms of ``core/sage/fear.py`` at REV (the
+    learner's ``fear`` swapped for that module's during its update) and now, on the same learner, and our SAC, in
+    interleaved rounds at each batch; per round the now / before time and each side's ratio to SAC."""
+    import core.sage.sac as sac_module
+    from bench.bench_baselines import module_at
+    from sims.ugv.descriptor import contact_floors
+    from sims.ugv.env import ego_motion_layout
+
+    old = module_at(args.before, "core/sage/fear.py", "fear_before")
+
+    def with_old_fear(update: Callable[[], Any]) -> Callable[[], None]:
+        def run() -> None:
+            current, sac_module.fear = sac_module.fear, old.fear
+            try:
+                update()
+            finally:
+                sac_module.fear = current
+
+        return run
+
+    contact = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
+    rng = np.random.default_rng(0)
+    batches = args.batch or [BATCH]
+    contenders: dict[str, Callable[[], None]] = {}
+    for batch in batches:
+        touching = ours("sage", rng, world_model={**ego_motion_layout(), "members": 5}, batch=batch, **contact)
+        contenders[f"sac {batch}"] = ours("sac", rng, batch=batch).update
+        contenders[f"before {batch}"] = with_old_fear(touching.update)
+        contenders[f"now {batch}"] = touching.update
+    rates = measure_rounds(contenders, args.rounds, args.updates, args.clock)
+    ms = {name: [1000.0 / value for value in values] for name, values in rates.items()}
+    print(
+        f"SAGE-SAC over the ego step + contact, core/sage/fear.py at {args.before} (before) and now, 5 members, one "
+        f"thread, {args.clock} clock, {args.rounds} interleaved rounds of {args.updates} updates (ms per update):"
+    )
+    for batch in batches:
+        sac, before, now = ms[f"sac {batch}"], ms[f"before {batch}"], ms[f"now {batch}"]
+        for i in range(args.rounds):
+            print(
+                f"  batch {batch} round {i + 1}: SAC {sac[i]:6.2f}  before {before[i]:6.2f} ({before[i] / sac[i]:.2f}x)"
+                f"  now {now[i]:6.2f} ({now[i] / sac[i]:.2f}x)  now/before {now[i] / before[i]:.3f}"
+            )
+        ratios = [n / b for n, b in zip(now, before, strict=True)]
+        print(
+            f"  batch {batch} medians: SAC {statistics.median(sac):.2f}, before {statistics.median(before):.2f} ms "
+            f"({statistics.median(b / s for b, s in zip(before, sac, strict=True)):.2f}x SAC), now "
+            f"{statistics.median(now):.2f} ms ({statistics.median(n / s for n, s in zip(now, sac, strict=True)):.2f}x "
+            f"SAC); now/before median {statistics.median(ratios):.3f}, range {min(ratios):.3f}-{max(ratios):.3f}"
+        )
+    print(f"load average while measuring: {', '.join(f'{x:.2f}' for x in _loadavg())}")
 
 
 TABLE_START = "<!-- bench_sac sizes: start (generated by bench/bench_sac.py --write; do not edit) -->"
