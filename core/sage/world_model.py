@@ -480,7 +480,8 @@ class EnsembleWorldModel(nn.Module):
             state_dict = {**state_dict, "disagreement_ref": torch.tensor(float("nan"))}
         state_dict = {**unmeasured_novelty(self.novelty_center.shape[0]), **state_dict}  # saved before the option
         # the reference set has as many rows as its calibration kept: take the saved shape
-        self.novelty_states = torch.zeros_like(state_dict["novelty_states"], dtype=self.novelty_states.dtype)
+        own = self.novelty_states
+        self.novelty_states = torch.zeros(state_dict["novelty_states"].shape, dtype=own.dtype, device=own.device)
         if "pos_weight" not in state_dict and "out.bias" in state_dict:
             # a checkpoint from before the violation classifier: its cost column was a Gaussian regression, which
             # means nothing as a logit. Keep its dynamics and uncertainty; its ĉ says "no violation known" until
