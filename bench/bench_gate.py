@@ -7,10 +7,12 @@ Sizes are the UGV's: 58 observations, 2 actions, the default world model (5 x 2 
 (2 x 128). The world model is fitted briefly on synthetic transitions (the weights' values do not change
 the cost). Both variants are timed in interleaved rounds in the same run; the median of all steps is printed.
 
-    .venv/bin/python bench/bench_gate.py [--steps 3000] [--members 10 25] [--ego]
+    .venv/bin/python bench/bench_gate.py [--steps 3000] [--members 10 25] [--ego] [--novelty]
 
 ``--ego`` also times the gate whose world model learns over the UGV's ego step (``WorldModelConfig.ego_*``,
 :class:`core.motion.EgoScanStep`: the scan moved geometrically at every imagined step and in the curiosity).
+``--novelty`` also times the gate whose curiosity is the state's novelty (``gate.curiosity_signal=novelty``,
+:mod:`core.sage.novelty`) against a full reference set (2,048 states of 58 observations and their motion input).
 """
 
 from __future__ import annotations
@@ -25,11 +27,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from core.sage.calibration import calibrate
 from core.sage.config import GateConfig, WorldModelConfig
 from core.sage.fear import step_scales
 from core.sage.gate import SageGate
 from core.sage.learner import ActorPolicy
 from core.sage.networks import Actor
+from core.sage.novelty import HELD_OUT_STATES, REFERENCE_STATES
 from core.sage.world_model import EnsembleWorldModel
 
 OBS_DIM, ACT_DIM = 58, 2
@@ -103,6 +107,16 @@ def setup(members: int = 5, ego: bool = False) -> tuple[EnsembleWorldModel, Acto
     return model, actor, obs, nxt
 
 
+def novelty_gate(actor: Actor) -> SageGate:
+    """A gate whose curiosity is state novelty, its model calibrated on enough states for a full reference set."""
+    model = setup()[0]
+    rng = np.random.default_rng(1)
+    states = torch.from_numpy(rng.random((REFERENCE_STATES + HELD_OUT_STATES, OBS_DIM)).astype(np.float32))
+    cfg = GateConfig(curiosity_signal="novelty", curiosity_reference="fitted")
+    calibrate(model, actor.deterministic, states, cfg.horizon, cfg=cfg, motion=0.01 * torch.randn_like(states))
+    return SageGate(model, actor, cfg)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=3000)
@@ -115,6 +129,7 @@ def main() -> None:
         help="also time the batched gate with ensembles of these sizes (a merged ensemble, sage gate merge)",
     )
     parser.add_argument("--ego", action="store_true", help="also time the gate over the UGV's ego step")
+    parser.add_argument("--novelty", action="store_true", help="also time the gate whose curiosity is state novelty")
     args = parser.parse_args()
     torch.set_num_threads(1)
     model, actor, observations, next_observations = setup()
@@ -128,6 +143,8 @@ def main() -> None:
         ego_model = setup(ego=True)[0]
         larger["batched, ego step"] = SageGate(ego_model, actor, cfg)
         larger["torch kernel, ego step"] = SageGate(ego_model, actor, cfg, compiled=False)
+    if args.novelty:
+        larger["novelty curiosity"] = novelty_gate(actor)
 
     def other_step(name: str) -> Callable[[int], float]:
         def step(i: int) -> float:
@@ -188,6 +205,9 @@ def main() -> None:
     for n in args.members:
         ratio = statistics.median(cpu[f"batched, N={n}"]) / statistics.median(cpu[names[0]])
         print(f"batched N={n} / N={model.members} (CPU medians): {ratio:.2f}x")
+    if args.novelty:
+        added = (statistics.median(cpu["novelty curiosity"]) - statistics.median(cpu[names[0]])) * 1e3
+        print(f"novelty curiosity / the paper's (CPU medians): {added:+.3f} ms a step")
     if args.ego:
         ratio = statistics.median(cpu["batched, ego step"]) / statistics.median(cpu[names[0]])
         print(f"ego step / without (CPU medians): {ratio:.2f}x")

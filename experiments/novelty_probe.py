@@ -10,6 +10,9 @@ hide a novelty signal. This probe records, for the policy with its own gate and 
 - ``epistemic``: the members' disagreement about the next state, sqrt(mean over channels of the members' variance
   of the predicted change, in units of the change's std): the ensemble's own measure of "not seen in training",
   without the aleatoric part that a mover's unpredictability carries;
+- ``novelty``: how far the state (with its motion input) lies from the reference set of training states that a
+  calibration for ``gate.curiosity_signal=novelty`` kept (:mod:`core.sage.novelty`; NaN for a run without one: make
+  one with ``sage gate refit-bounds ... --set gate.curiosity_signal=novelty --set gate.curiosity_reference=fitted``);
 - ``fear`` and ``sigma`` (σ̂) for comparison;
 
 and prints each signal's AUROC for "this step is on unseen ground", overall and within strata of the episode's
@@ -37,10 +40,11 @@ from core.agents import load_agent
 from core.loop import Runner, StepRecord
 from core.metrics import auroc
 from core.motion import motion_between
+from core.sage.novelty import novelty_features
 
 SEEN = ("1", "2", "sims/ugv/scenarios/clutter.yaml", "sims/ugv/scenarios/movers.yaml")
 UNSEEN = ("ugv-fields:test",)
-SIGNALS = ("curiosity", "epistemic", "fear", "sigma")
+SIGNALS = ("curiosity", "epistemic", "novelty", "fear", "sigma")
 FIRST_SEED = 5_000_000
 
 
@@ -51,6 +55,17 @@ def epistemic_disagreement(world_model: Any, obs: np.ndarray, action: np.ndarray
         a = torch.from_numpy(np.asarray(action, np.float32)).view(1, -1)
         m = None if motion is None else torch.from_numpy(np.asarray(motion, np.float32)).view(1, -1)
         return float(world_model.disagreement(o, a, m)[0])
+
+
+def state_novelty(world_model: Any, obs: np.ndarray, motion: np.ndarray | None) -> float:
+    """The state's novelty against the model's reference set (:mod:`core.sage.novelty`); NaN without one."""
+    reference = world_model.novelty_reference()
+    if reference is None:
+        return math.nan
+    with torch.inference_mode():
+        o = torch.from_numpy(np.asarray(obs, np.float32)).view(1, -1)
+        m = None if motion is None else torch.from_numpy(np.asarray(motion, np.float32)).view(1, -1)
+        return float(reference(novelty_features(o, m, world_model.motion))[0])
 
 
 def collect(run: str, scenario: str, episodes: int, first_seed: int) -> dict[str, list[float]]:
@@ -68,6 +83,7 @@ def collect(run: str, scenario: str, episodes: int, first_seed: int) -> dict[str
         previous = state["previous"]
         motion = None if previous is None else motion_between(previous.reshape(1, -1), r.obs.reshape(1, -1), wm.scan)
         out["epistemic"].append(epistemic_disagreement(wm, r.obs, r.action, motion))
+        out["novelty"].append(state_novelty(wm, r.obs, motion))
         out["curiosity"].append(state["arriving"])
         out["fear"].append(float(r.fear))
         out["sigma"].append(float(gate.detail.sigma))

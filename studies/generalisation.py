@@ -615,6 +615,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: --set {exc}", file=sys.stderr)
         return 2
+    if gate_settings and not args.cached_only:
+        try:  # the settings and the run together: refused here in one line, not inside the first drive
+            load_agent(run).make_gate(**gate_settings)
+        except ValueError as exc:
+            print(f"error: --set {exc}", file=sys.stderr)
+            return 2
     if args.grounds != "both":
         grounds = {name: scenarios for name, scenarios in grounds.items() if name.startswith(args.grounds)}
     from studies.results import current_commit

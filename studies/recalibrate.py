@@ -42,7 +42,9 @@ from core.loop import NoGate, Runner, StepRecord
 from core.metrics import auroc
 from core.replay import ReplayBuffer
 from core.sage.calibration import CALIBRATION_FILE
+from core.sage.config import GateConfig
 from core.sage.model_trainer import calibration_sample
+from core.sage.world_model import EnsembleWorldModel
 from studies.calibrate import labels_within
 
 RECALIBRATION_FILE = "recalibration.json"
@@ -55,6 +57,17 @@ RECALIBRATION_SEED = 5_000_000
 """Episode seeds of the drives (seed + episode index per scenario block): apart from the evaluation's
 (:data:`studies.calibrate.EVAL_SEED`), so that the states the bounds are set on are not the episodes that judge
 them."""
+
+
+def fitted_reference(world_model: EnsembleWorldModel, cfg: GateConfig) -> float | None:
+    """The fixed curiosity reference a gate of ``cfg`` reads on this calibrated model; None for a moving average."""
+    if cfg.curiosity_reference != "fitted":
+        return None
+    if cfg.curiosity_signal == "disagreement":
+        return float(world_model.disagreement_ref)
+    if cfg.curiosity_signal == "novelty":
+        return float(world_model.novelty_ref)
+    return float(world_model.curiosity_ref)
 
 
 @dataclass
@@ -79,6 +92,9 @@ class Recalibration:
     beta_auroc: dict[str, dict[str, float]] = field(default_factory=dict)
     """With ``choose_beta``: per scenario with a violation, fear's AUROC at each candidate β (keys as text)."""
     label_s: float = 1.0
+    curiosity_reference: float | None = None
+    """The fixed reference curiosity is read against (``gate.curiosity_reference=fitted``) as measured on these drives:
+    the disagreement's or the state novelty's mean on the calibration states; None for the paper's moving average."""
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -101,6 +117,9 @@ class Recalibration:
             f" -> {self.bounds[0]:.3f}-{self.bounds[1]:.3f} on {self.familiar_states} familiar of "
             f"{self.calibration_states} states"
         )
+        if self.curiosity_reference is not None:
+            signal = self.settings.get("curiosity_signal", "its")
+            lines.append(f"curiosity ({signal}) read against its mean on these states: {self.curiosity_reference:.4f}")
         return "\n".join(lines)
 
 
@@ -214,6 +233,7 @@ def recalibrate_run(
     agent_config = json.loads(json.dumps(payload["agent_config"]))
     agent_config["gate"] = json.loads(json.dumps(dataclasses.asdict(gate_cfg)))
     result = Recalibration(
+        curiosity_reference=fitted_reference(world_model, gate_cfg),
         run=str(run),
         out=str(out),
         scenarios=list(scenarios),

@@ -54,6 +54,8 @@ def calibrate(
             world_model.tau_bounds.copy_(torch.tensor([lo, max(hi, lo + 1e-3)]))
         # the policy's own action on each state, as its gate sees most transitions
         world_model.disagreement_ref.fill_(float(world_model.disagreement(obs, policy(obs), motion).mean()))
+        if cfg is not None and cfg.curiosity_signal == "novelty":  # only a gate that reads it keeps the set
+            world_model.set_novelty_reference(obs, motion)
     world_model.touch()
     return scale
 

@@ -158,9 +158,9 @@ class GateConfig:
     curiosity_smoothing: float = 0.3
     """Weight of the newest curiosity in the short moving average that ρ reads, so that τ does not jump with
     every noisy transition (1: no smoothing)."""
-    curiosity_signal: Literal["error", "disagreement"] = "error"
-    """What curiosity measures: "error", the prediction error on the transition that happened (the paper's C), or
-    "disagreement", the members' spread about its next state (the ensemble's epistemic uncertainty)."""
+    curiosity_signal: Literal["error", "disagreement", "novelty"] = "error"
+    """What curiosity is: "error", the transition's prediction error (the paper's C); "disagreement", the members'
+    spread about its next state; "novelty", the new state's distance to calibration states (needs reference fitted)."""
     curiosity_reference: Literal["recent", "fitted"] = "recent"
     """What ρ compares curiosity with: "recent", its moving average (the paper's), or "fitted", the signal's mean on
     the model's calibration states, held fixed (ground that stays unfamiliar keeps τ low)."""
@@ -482,6 +482,11 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"gate.calibration_states must be >= 100, got {cfg.gate.calibration_states}")
     if not 0.0 < cfg.gate.curiosity_smoothing <= 1.0:
         raise ValueError(f"gate.curiosity_smoothing must be in (0, 1], got {cfg.gate.curiosity_smoothing}")
+    if cfg.gate.curiosity_signal == "novelty" and cfg.gate.curiosity_reference != "fitted":
+        raise ValueError(
+            "gate.curiosity_signal=novelty is a distance to the calibration states, read against its mean on them: "
+            "set gate.curiosity_reference=fitted too"
+        )
     if not 0.0 <= cfg.gate.release <= 1.0:
         raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
     if cfg.world_model_config.motion_lag < 1:

@@ -42,6 +42,7 @@ from core.sage.fear import (
     unexplained_change,
 )
 from core.sage.networks import Actor
+from core.sage.novelty import NoveltyReference, novelty_features
 from core.sage.world_model import EnsembleWorldModel
 
 
@@ -115,6 +116,7 @@ class SageGate:
         self.actor = policy if isinstance(policy, Actor) else None
         self.policy: PolicyFn = policy.deterministic if isinstance(policy, Actor) else policy
         self.cfg = cfg or GateConfig()
+        self._novelty: tuple[int, NoveltyReference | None] | None = None
         self.threshold = CuriosityThreshold(self.cfg, self._curiosity_reference(), self._model_bounds())
         self._reference_version = world_model.version
         self._kernel: tuple[int, GateKernel] | None = None
@@ -185,18 +187,29 @@ class SageGate:
         """Curiosity's starting average (``curiosity_reference="recent"``) or fixed reference ("fitted"): the
         signal's value on the model's last fit or calibration. A fitted model that never measured its disagreement
         (a checkpoint from before the setting) is refused with the command that measures it."""
-        if self.cfg.curiosity_signal == "error":
+        signal = self.cfg.curiosity_signal
+        if signal == "error":
             return float(self.world_model.curiosity_ref)
-        value = float(self.world_model.disagreement_ref)
+        if signal == "disagreement":
+            value = float(self.world_model.disagreement_ref)
+        else:  # "novelty": measured along with its reference set
+            value = float(self.world_model.novelty_ref) if self.novelty_reference() is not None else math.nan
         if math.isfinite(value):
             return value
         if bool(self.world_model.fitted):
+            what = "disagreement on" if signal == "disagreement" else "reference set of"
             raise ValueError(
-                "gate.curiosity_signal=disagreement needs the world model's disagreement on its calibration states, "
+                f"gate.curiosity_signal={signal} needs the world model's {what} its calibration states, "
                 "which this checkpoint never measured: run `sage gate refit-bounds RUN --scenario ... --out NEW` "
                 "with the same --set, and use NEW"
             )
         return 1.0  # not fitted yet: the first fit's calibration measures it
+
+    def novelty_reference(self) -> NoveltyReference | None:
+        """The model's state-novelty reference (``curiosity_signal="novelty"``), built once per model version."""
+        if self._novelty is None or self._novelty[0] != self.world_model.version:
+            self._novelty = (self.world_model.version, self.world_model.novelty_reference())
+        return self._novelty[1]
 
     def _model_bounds(self) -> tuple[float, float] | None:
         """The (τ_min, τ_max) measured at the model's last calibration, when the config asks for them."""
@@ -286,23 +299,35 @@ class SageGate:
             s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
             motion = self._motion(obs)
+            curiosity = math.nan  # "novelty" reads the state arrived at, once this one is in the history (below)
             if self.cfg.curiosity_signal == "disagreement":
                 curiosity = float(self.world_model.disagreement(o, a, motion)[0])
-            elif kernel is not None:
+            elif self.cfg.curiosity_signal == "error" and kernel is not None:
                 last_obs, last_action, version = self._last
                 reuse = version == self.world_model.version and last_obs is obs and np.array_equal(last_action, action)
                 curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)
-            else:
+            elif self.cfg.curiosity_signal == "error":
                 curiosity = float(curiosity_folded(self.world_model, o, a, s1, motion)[0])
             if self.cfg.contact_extrapolation and self.cfg.contact_floors:
                 # the movers' own change per sector: the next scan against this one moved by the robot's action
                 channels = len(self.cfg.contact_floors)
                 self._changes.append(unexplained_change(self.world_model.base(o, a), s1, channels).clone())
         self._history.append(np.asarray(obs, dtype=np.float32).reshape(-1).copy())
+        if self.cfg.curiosity_signal == "novelty":
+            curiosity = self._novelty_of(next_obs)
         self.detail.rho = self.threshold.rho(curiosity)
         self.threshold.update(curiosity)
         self.detail.curiosity = curiosity
         return curiosity
+
+    def _novelty_of(self, state: np.ndarray) -> float:
+        """The novelty of the state the next decision is made in, with the motion input that decision will read."""
+        reference = self.novelty_reference()
+        if reference is None:
+            return math.nan
+        with torch.inference_mode():
+            s = torch.from_numpy(np.asarray(state, dtype=np.float32)).view(1, -1)
+            return float(reference(novelty_features(s, self._motion(state), self.world_model.motion))[0])
 
     def state(self) -> dict[str, float]:
         """What persists across episodes (the curiosity average, named by the signal it averages), for checkpoints."""
@@ -310,7 +335,7 @@ class SageGate:
 
     def _ema_key(self) -> str:
         # an average of another signal is on another scale: each signal's has its own name
-        return "curiosity_ema" if self.cfg.curiosity_signal == "error" else "disagreement_ema"
+        return "curiosity_ema" if self.cfg.curiosity_signal == "error" else f"{self.cfg.curiosity_signal}_ema"
 
     def load_state(self, state: dict[str, float]) -> None:
         key = self._ema_key()

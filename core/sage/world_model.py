@@ -52,6 +52,7 @@ from torch import Tensor, nn
 from core.motion import EgoScanStep, ScanAlignment, approach_rate
 from core.sage.config import WorldModelConfig
 from core.sage.networks import VectorizedLinear
+from core.sage.novelty import NoveltyReference, fit_reference, novelty_features, novelty_width
 
 STD_FLOOR = 1e-3
 IN_STD_FLOOR = 1e-2
@@ -163,6 +164,15 @@ class EnsembleWorldModel(nn.Module):
         self.register_buffer("disagreement_ref", torch.tensor(float("nan")))
         """The members' mean disagreement about the next state on the last calibration's states (NaN: not measured),
         the fixed reference of a gate with ``curiosity_signal="disagreement"``, ``curiosity_reference="fitted"``."""
+        features = novelty_width(obs_dim, self.motion)
+        self.register_buffer("novelty_states", torch.zeros(0, features))
+        """The reference set of ``curiosity_signal="novelty"`` (:mod:`core.sage.novelty`): (K, F) calibration states'
+        features, K <= REFERENCE_STATES; none until a calibration for that gate measures them."""
+        self.register_buffer("novelty_center", torch.zeros(features))
+        self.register_buffer("novelty_scale", torch.ones(features))
+        """The calibration states' mean and spread per feature: the units novelty is measured in."""
+        self.register_buffer("novelty_ref", torch.tensor(0.0))
+        """The novelty's mean on calibration states held out of the set, its fixed reference (with no set: none)."""
         self.register_buffer("fitted", torch.tensor(False))
         self.register_buffer("pos_weight", torch.tensor(1.0))
         """Class-balancing weight of the last fit (n_neg / n_pos); log of it is taken out of the cost logit."""
@@ -217,6 +227,21 @@ class EnsembleWorldModel(nn.Module):
         alike, does not raise it; a state unlike the training data does)."""
         mean, _ = self.predict(obs, action, motion)
         return self._members_variance(mean).mean(-1).sqrt()
+
+    def novelty_reference(self) -> NoveltyReference | None:
+        """The reference set ready to score states (:mod:`core.sage.novelty`); None until a calibration measured it."""
+        if not len(self.novelty_states):
+            return None
+        return NoveltyReference.of(self.novelty_states.float(), self.novelty_center.float(), self.novelty_scale.float())
+
+    @torch.no_grad()
+    def set_novelty_reference(self, obs: Tensor, motion: Tensor | None = None) -> None:
+        """Measure the state novelty's reference set, units and mean on these (calibration) states."""
+        states, center, scale, mean = fit_reference(novelty_features(obs, motion, self.motion).float())
+        self.novelty_states = states
+        self.novelty_center.copy_(center)
+        self.novelty_scale.copy_(scale)
+        self.novelty_ref.fill_(mean)
 
     def _members_variance(self, mean: Tensor) -> Tensor:
         """(B, D) the members' variance of the predicted Δs per state channel, in units of the Δ's std."""
@@ -442,15 +467,21 @@ class EnsembleWorldModel(nn.Module):
             saved_geometry.double(), self.ego_geometry.double(), rtol=1e-3, atol=1e-6
         ):
             return False
-        return all(tuple(state_dict[k].shape) == tuple(v.shape) for k, v in own.items() if k in state_dict) and all(
-            k in own for k in state_dict
-        )
+        return all(
+            tuple(state_dict[k].shape) == tuple(v.shape)
+            for k, v in own.items()
+            if k in state_dict and k != "novelty_states"  # as many rows as its calibration kept
+        ) and all(k in own for k in state_dict)
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):  # type: ignore[no-untyped-def]
         if "ego_geometry" not in state_dict:  # saved before the ego step was an option: learned over none
             state_dict = {**state_dict, "ego_geometry": torch.zeros(0)}
         if "disagreement_ref" not in state_dict:  # saved before it was measured: unknown until a calibration
             state_dict = {**state_dict, "disagreement_ref": torch.tensor(float("nan"))}
+        state_dict = {**unmeasured_novelty(self.novelty_center.shape[0]), **state_dict}  # saved before the option
+        # the reference set has as many rows as its calibration kept: take the saved shape
+        own = self.novelty_states
+        self.novelty_states = torch.zeros(state_dict["novelty_states"].shape, dtype=own.dtype, device=own.device)
         if "pos_weight" not in state_dict and "out.bias" in state_dict:
             # a checkpoint from before the violation classifier: its cost column was a Gaussian regression, which
             # means nothing as a logit. Keep its dynamics and uncertainty; its ĉ says "no violation known" until
@@ -558,10 +589,21 @@ def merge_ensembles(models: Sequence[EnsembleWorldModel]) -> EnsembleWorldModel:
     state["min_logvar"] = torch.stack([twin.min_logvar.detach() for twin in moved]).amin(0)
     state["curiosity_ref"] = torch.stack([m.curiosity_ref for m in models]).mean()
     state["disagreement_ref"] = torch.tensor(float("nan"))  # the union's members disagree anew: calibrate it
+    state.update(unmeasured_novelty(first.novelty_center.shape[0]))  # measured again on the union's calibration
     state["sigma_scale"] = torch.ones(MAX_HORIZON)
     state["tau_bounds"] = torch.tensor([float("nan"), float("nan")])
     merged.load_state_dict(state)
     return merged
+
+
+def unmeasured_novelty(features: int) -> dict[str, Tensor]:
+    """The novelty buffers of a model whose calibration never measured them (:mod:`core.sage.novelty`)."""
+    return {
+        "novelty_states": torch.zeros(0, features),
+        "novelty_center": torch.zeros(features),
+        "novelty_scale": torch.ones(features),
+        "novelty_ref": torch.tensor(0.0),
+    }
 
 
 def _approach_channels(cfg: WorldModelConfig, obs_dim: int) -> tuple[int, int] | None:

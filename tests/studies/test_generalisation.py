@@ -133,6 +133,21 @@ def test_the_entry_point_takes_gate_settings_only(capsys: pytest.CaptureFixture[
     assert len(err) == 2 and "gate settings only" in err[0] and "no_such_setting" in err[1]
 
 
+def test_gate_settings_the_run_cannot_take_are_refused_in_one_line_before_any_drive(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def drive(*args: object, **kwargs: object) -> None:
+        raise AssertionError("drove before refusing the settings")
+
+    monkeypatch.setattr(generalisation, "generalisation_table", drive)
+    novelty = ["--sim", "ugv", "--episodes", "1", "--set", "gate.curiosity_signal=novelty"]
+    assert generalisation.main(novelty) == 2  # against a moving average: meaningless
+    # the committed policy's calibration kept no reference set of states
+    assert generalisation.main([*novelty, "--set", "gate.curiosity_reference=fitted"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "curiosity_reference=fitted" in err[0] and "refit-bounds" in err[1]
+
+
 def test_extra_grounds_are_attached_from_their_files_in_place_of_their_earlier_text(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -75,6 +75,19 @@ def test_recalibrated_bounds_are_the_fear_quantiles_of_the_drives_states(policy:
         recalibrate_run(policy, point_env, ["static"], 1, outs[0.5], DT)
 
 
+def test_refit_bounds_for_state_novelty_keeps_its_reference_set_in_the_run(policy: Path, tmp_path: Path) -> None:
+    settings = {"curiosity_signal": "novelty", "curiosity_reference": "fitted"}
+    assert load_agent(policy).world_model.novelty_reference() is None
+    result = recalibrate_run(policy, point_env, ["static"], 3, tmp_path / "novelty", DT, gate_settings=settings)
+    agent = load_agent(tmp_path / "novelty")
+    model = agent.world_model
+    assert model.novelty_reference() is not None and len(model.novelty_states) > 0
+    assert result.curiosity_reference == pytest.approx(float(model.novelty_ref)) and result.curiosity_reference > 0
+    assert "read against its mean on these states" in result.summary()
+    gate = agent.make_gate()
+    assert gate.cfg.curiosity_signal == "novelty" and gate.threshold.ema == pytest.approx(float(model.novelty_ref))
+
+
 def test_a_gate_that_changes_fear_over_bounds_measured_on_another_is_refused(policy: Path) -> None:
     agent = load_agent(policy)
     for setting in ({"beta": 0.8}, {"horizon": 3}, {"aggregate": "discounted_mean"}, {"tau_max_quantile": 0.95}):
