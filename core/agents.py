@@ -29,6 +29,9 @@ import numpy as np
 import torch
 
 from core.device import to_cpu
+from core.familiar import STATE_KEY as BASE_FIRST_KEY
+from core.familiar import BaseFirstPolicy
+from core.protocol import Policy
 from core.sage.config import AgentConfig, GateConfig, from_dict, set_field, to_dict, validate
 from core.sage.gate import SageGate
 from core.sage.learner import BaseLearner
@@ -95,13 +98,24 @@ def fear_shape_moved(own: GateConfig | dict[str, Any], new: GateConfig) -> list[
 
 # -- writing --------------------------------------------------------------------------------------
 def save_checkpoint(
-    path: Path, learner: BaseLearner, meta: AgentMeta, dtype: str = "float32", config: AgentConfig | None = None
+    path: Path,
+    learner: BaseLearner,
+    meta: AgentMeta,
+    dtype: str = "float32",
+    config: AgentConfig | None = None,
+    extra_state: dict[str, Any] | None = None,
 ) -> Path:
     """Write the learner's state (``dtype`` ``float16`` halves the file, for committed policies); ``config``: the
-    learner config to record, when it is not the one the learner ran with (a world-model-only refit)."""
+    learner config to record, when it is not the one the learner ran with (a world-model-only refit);
+    ``extra_state``: entries beside the learner's (a fine-tuned version's base ground, :mod:`core.familiar`)."""
     if dtype not in ("float32", "float16"):
         raise ValueError(f"checkpoint dtype must be float32 or float16, got {dtype!r}")
     state = to_cpu(learner.state_dict())  # device-free: a run trained on a GPU loads on a CPU and back
+    if extra_state:
+        clash = sorted(set(extra_state) & set(state))
+        if clash:
+            raise ValueError(f"extra checkpoint entries {', '.join(clash)} would replace the learner's own")
+        state.update(to_cpu(extra_state))
     if dtype == "float16":
         state = halved(state)
     payload = {
@@ -239,9 +253,10 @@ class LoadedAgent:
     learner: BaseLearner
     """The run's learner, built for acting only (its networks loaded, frozen)."""
     world_model: EnsembleWorldModel | None
-    policy: LearnerPolicy
-    """``policy.act(obs, deterministic)`` (:class:`core.loop.Policy`); the training-time stochastic policy when
-    ``deterministic`` is False."""
+    policy: Policy
+    """``policy.act(obs, deterministic)`` (:class:`core.loop.Policy`): a :class:`LearnerPolicy`, or a
+    :class:`core.familiar.BaseFirstPolicy` for a fine-tuned version that lets the base drive first; the training-time
+    stochastic policy when ``deterministic`` is False."""
     gate_state: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -304,7 +319,7 @@ def load_agent(path: str | Path) -> LoadedAgent:
     config = from_dict(payload["agent_config"])
     state = payload["state"]
     learner = _learner_for_acting(payload["file"], meta, config)
-    parts = {name: value for name, value in state.items() if name not in ("world_model", "gate")}
+    parts = {name: value for name, value in state.items() if name not in ("world_model", "gate", BASE_FIRST_KEY)}
     try:
         loaded = learner.load_state_dict(parts, strict=False)
     except RuntimeError as exc:
@@ -323,7 +338,35 @@ def load_agent(path: str | Path) -> LoadedAgent:
             raise ValueError(f"{payload['file']}: world model weights do not match its config: {exc}") from None
         world_model.requires_grad_(False).eval()
     gate_state = {k: float(v) for k, v in state.get("gate", {}).items() if math.isfinite(float(v))}
-    return LoadedAgent(Path(payload["file"]), meta, config, learner, world_model, LearnerPolicy(learner), gate_state)
+    policy: Policy = LearnerPolicy(learner)
+    if BASE_FIRST_KEY in state:
+        policy = _base_first_policy(
+            payload["file"], meta, config, learner, world_model, state[BASE_FIRST_KEY], gate_state
+        )
+    return LoadedAgent(Path(payload["file"]), meta, config, learner, world_model, policy, gate_state)
+
+
+def _base_first_policy(
+    file: str,
+    meta: AgentMeta,
+    config: AgentConfig,
+    learner: BaseLearner,
+    world_model: EnsembleWorldModel | None,
+    saved: dict[str, Any],
+    gate_state: dict[str, float],
+) -> BaseFirstPolicy:
+    """A fine-tuned version that lets the base drive first (:mod:`core.familiar`): the base's acting weights in a
+    second learner of the same configuration, watched by a gate on the version's world model and settings."""
+    if world_model is None or not world_model.fitted:
+        raise ValueError(f"{file}: it lets the base drive first, but has no fitted world model to watch the base with")
+    base = _learner_for_acting(file, meta, config)
+    try:
+        base.load_state_dict({base.acting_module: saved["acting"]}, strict=False)
+    except (KeyError, RuntimeError) as exc:
+        raise ValueError(f"{file}: the base weights it carries do not fit its config: {exc}") from None
+    getattr(base, base.acting_module).requires_grad_(False).eval()
+    watch = base.make_gate(config.gate, world_model=world_model, state=gate_state)
+    return BaseFirstPolicy(LearnerPolicy(learner), LearnerPolicy(base), watch)
 
 
 class LearnerPolicy:

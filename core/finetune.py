@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from core.agents import AgentMeta, load_checkpoint, meta_of
+from core.familiar import STATE_KEY as BASE_FIRST_KEY
 from core.learners import make_learner
 from core.prior import PriorSource as PriorSource
 from core.prior import SharedReplayBuffer as SharedReplayBuffer
@@ -129,6 +130,12 @@ class FinetuneConfig:
     average with the version in control, each element; so across rounds an exponential average of the rounds'
     results). α, λ and the optimiser states are the round's. 1.0: the round's weights (before this field). 0.5 was
     chosen by a five-seed UGV 3 cycles arm under a rule written before it (docs/notes/adaptation_probe.md)."""
+    base_first: bool = False
+    """Publish versions that let the base policy drive first (:mod:`core.familiar`): each version carries v0000's
+    acting weights beside its own and acts as v0000 wherever its gate, watching v0000's action, would not ask for
+    help; where it would (where v0000 is out of its depth, where the takeovers were recorded) the version's own actor
+    acts, and the loop's gate judges that as always. What the rounds learn then acts only there, so the base's skills
+    elsewhere are not forgotten (issue 62). False: the version acts alone (the behaviour before this field)."""
     tau_bounds: TauBoundsRule = "hold"
     """What a world-model refit does to the gate's threshold bounds (τ_min, τ_max, measured on the fear of
     familiar states): ``hold`` keeps the base's within the run of rounds, so that a change in takeover rate is the
@@ -484,6 +491,8 @@ class Finetuner:
         """Steps of the base policy's own drives in the buffer (None until collected)."""
         self.prior_error: str | None = None
         """Why the base policy's drives could not be collected (the rounds then learn from the session alone)."""
+        self.base_first_state: dict[str, Any] | None = None
+        """What every version carries with ``base_first``: v0000's acting weights (read once, :meth:`base_weights`)."""
         self.done: list[int] = []
         self.rounds = 0
         self.session_meta = {"episodes_total": 0, "takeover_samples": 0}
@@ -556,6 +565,13 @@ class Finetuner:
             self.buffer.adding_prior = False
         self.prior_steps = len(steps)
         return self.prior_steps
+
+    def base_weights(self) -> dict[str, Any] | None:
+        """With ``base_first``: v0000's acting weights, the part of every published version that drives first."""
+        if self.cfg.base_first and self.base_first_state is None:
+            acting = load_checkpoint(self.versions.get(0).path)["state"][self.learner.acting_module]
+            self.base_first_state = {"acting": {name: value.detach().cpu().clone() for name, value in acting.items()}}
+        return self.base_first_state
 
     def _ingest(self, episodes: list[int]) -> Ingested:
         """Ingest the episodes one by one, holding the takeover rows of every ``round(1 / holdout_share)``-th
@@ -722,6 +738,7 @@ class Finetuner:
             "steps": self.session_steps(),
             "prior_steps": self.prior_steps or 0,
             "prior_error": self.prior_error,
+            "base_first": self.cfg.base_first,
             "takeover_samples": self.session_meta["takeover_samples"],
             "heldout_takeover_samples": len(self.heldout_obs),
             "updates_planned": planned,
@@ -735,7 +752,9 @@ class Finetuner:
             "config": dataclasses.asdict(cfg),
             "method": self.method,
         }
-        result.version = self.versions.publish(learner, self._meta(ingested, result.updates), metrics)
+        base_first = self.base_weights()
+        extra = None if base_first is None else {BASE_FIRST_KEY: base_first}
+        result.version = self.versions.publish(learner, self._meta(ingested, result.updates), metrics, extra)
         self.base = result.version  # the next round continues this line (unless the promotion check rejects it)
         self.rounds += 1
         result.seconds = time.time() - started

@@ -146,6 +146,9 @@ class Runner:
             self.env.reset(seed=episode_seed, options=options) if options else self.env.reset(seed=episode_seed)
         )
         self.gate.reset()
+        started = getattr(self.policy, "episode_started", None)
+        if started is not None:  # a policy that watches its own steps (core.familiar.BaseFirstPolicy)
+            started()
         if self.expert is not None:
             self.expert.reset()
         self._acc = {
@@ -205,6 +208,9 @@ class Runner:
                 action = np.asarray(executed, dtype=np.asarray(action).dtype).reshape(np.shape(action))
                 a_expert = action
             curiosity = float(self.gate.observe(obs, action, next_obs))
+            stepped = getattr(self.policy, "stepped", None)
+            if stepped is not None:  # what was executed, whoever chose it
+                stepped(obs, action, next_obs)
         except Exception as exc:
             self.end_episode(error=f"{type(exc).__name__}: {exc}", reason="error")
             log.warning("step failed in episode %d: %s", self.episode, traceback.format_exc())

@@ -154,12 +154,23 @@ class VersionStore:
         metrics = {"version": 0, "parent": None, "created": time.time(), "source": str(source), "updates": 0}
         return self._publish(0, lambda folder: shutil.copyfile(source, folder / CHECKPOINT_FILE), metrics)
 
-    def publish(self, learner: BaseLearner, meta: AgentMeta, metrics: dict[str, Any]) -> Version:
-        """Write the learner as the next version (atomically: all of it appears at once, or nothing)."""
+    def publish(
+        self,
+        learner: BaseLearner,
+        meta: AgentMeta,
+        metrics: dict[str, Any],
+        extra_state: dict[str, Any] | None = None,
+    ) -> Version:
+        """Write the learner as the next version (atomically: all of it appears at once, or nothing); ``extra_state``:
+        entries added to the checkpoint's state beside the learner's (e.g. :data:`core.familiar.STATE_KEY`)."""
         latest = self.latest()
         number = 0 if latest is None else latest.number + 1
         metrics = {**metrics, "version": number, "created": time.time()}
-        return self._publish(number, lambda folder: save_checkpoint(folder / CHECKPOINT_FILE, learner, meta), metrics)
+
+        def write(folder: Path) -> Path:
+            return save_checkpoint(folder / CHECKPOINT_FILE, learner, meta, extra_state=extra_state)
+
+        return self._publish(number, write, metrics)
 
     def _publish(self, number: int, write: Callable[[Path], Any], metrics: dict[str, Any]) -> Version:
         self.root.mkdir(parents=True, exist_ok=True)
