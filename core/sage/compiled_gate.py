@@ -262,8 +262,15 @@ class CompiledGateKernel(GateKernel):
         self._inv_obs_std = model.inv_obs_std.reshape(-1).numpy()
 
     def __call__(
-        self, obs: Tensor, action: Tensor, motion: Tensor | None = None, closing_rate: Tensor | None = None
+        self,
+        obs: Tensor,
+        action: Tensor,
+        motion: Tensor | None = None,
+        closing_rate: Tensor | None = None,
+        mover_velocity: Tensor | None = None,
     ) -> tuple[float, float, float]:
+        if mover_velocity is not None:  # the gate builds the torch kernel for its mover model (SageGate.kernel)
+            raise ValueError("the compiled gate kernel has no mover model: use the torch GateKernel")
         d, a = self.d, self.act_dim
         x = self._x
         x[0, :, :d] = obs.numpy()
