@@ -151,8 +151,7 @@ class SageGate:
             from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports
 
             layers, folded = actor.deterministic_layers(), self.world_model.folded()
-            # the compiled rollout has no mover model: the torch kernel's rollout carries it
-            compiled = self.compiled and compiled_kernel_supports(folded, layers) and self.cfg.mover_model == "none"
+            compiled = self.compiled and compiled_kernel_supports(folded, layers)
             build = CompiledGateKernel if compiled else GateKernel
             kernel = build(folded, layers, actor.action_scale, actor.action_bias, self.cfg)
             self._kernel = (self.world_model.version, kernel)

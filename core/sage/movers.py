@@ -205,33 +205,29 @@ def mover_contact(step: EgoScanStep, obs: Tensor, velocity: Tensor, actions: Ten
         ranges = obs[:, :s]
         moving = (velocity.abs().sum(-1) > 0) & (ranges < 1.0)  # (B, S)
         m, n, b = actions.shape[0], actions.shape[1], actions.shape[2]
-        out = torch.zeros(m, n, b, dtype=torch.bool, device=obs.device)
         if not bool(moving.any()):
-            return out
+            return torch.zeros(m, n, b, dtype=torch.bool, device=obs.device)
         px, py = ranges * g.cos, ranges * g.sin  # (B, S)
         vx, vy = velocity[..., 0].to(obs.dtype), velocity[..., 1].to(obs.dtype)
-        x = torch.zeros(n, b, dtype=obs.dtype, device=obs.device)
-        y, heading = torch.zeros_like(x), torch.zeros_like(x)
+        # every member's imagined pose after each step, in the real state's frame: the arcs summed (all steps at once)
+        distance = actions[..., step.forward_channel].to(obs.dtype) * step.forward_scale + step.forward_offset
+        turn = actions[..., step.turn_channel].to(obs.dtype) * step.turn_scale  # (m, N, B)
+        half = 0.5 * turn
+        small = half.abs() <= 1e-6
+        sinc = torch.sin(half) / torch.where(small, torch.ones_like(half), half)
+        chord = distance * torch.where(small, torch.ones_like(half), sinc)
+        heading = torch.cumsum(turn, 0)
+        along = heading - half  # the heading before each step, turned by half its turn
+        x = torch.cumsum(chord * torch.cos(along), 0).unsqueeze(-1)  # (m, N, B, 1)
+        y = torch.cumsum(chord * torch.sin(along), 0).unsqueeze(-1)
+        ahead = torch.arange(1, m + 1, dtype=obs.dtype, device=obs.device).view(m, 1, 1, 1)
+        dx, dy = px + ahead * vx - x, py + ahead * vy - y  # (m, N, B, S): the points moved k steps, from pose k
+        c, sn = torch.cos(heading).unsqueeze(-1), torch.sin(heading).unsqueeze(-1)
+        lx, ly = c * dx + sn * dy, c * dy - sn * dx
         floor = floors.to(obs.device, obs.dtype)
         width = floor.shape[0]
-        for k in range(m):
-            a = actions[k]
-            distance = a[..., step.forward_channel] * step.forward_scale + step.forward_offset
-            turn = a[..., step.turn_channel] * step.turn_scale
-            half = 0.5 * turn
-            small = half.abs() <= 1e-6
-            sinc = torch.sin(half) / torch.where(small, torch.ones_like(half), half)
-            chord = distance * torch.where(small, torch.ones_like(half), sinc)
-            x = x + chord * torch.cos(heading + half)
-            y = y + chord * torch.sin(heading + half)
-            heading = heading + turn
-            qx, qy = px + (k + 1) * vx, py + (k + 1) * vy  # (B, S) in the frame of the real state
-            dx, dy = qx.unsqueeze(0) - x.unsqueeze(-1), qy.unsqueeze(0) - y.unsqueeze(-1)  # (N, B, S)
-            c, sn = torch.cos(heading).unsqueeze(-1), torch.sin(heading).unsqueeze(-1)
-            lx, ly = c * dx + sn * dy, c * dy - sn * dx
-            sector = torch.floor((torch.atan2(ly, lx) - step.start) / step.width)
-            inside = (sector >= 0) & (sector < width)
-            limit = floor[sector.clamp(0, width - 1).long()]
-            touching = inside & (torch.hypot(lx, ly) <= limit) & moving.unsqueeze(0)
-            out[k] = touching.any(-1)
-        return out
+        sector = torch.floor((torch.atan2(ly, lx) - step.start) / step.width)
+        inside = (sector >= 0) & (sector < width)
+        limit = floor[sector.clamp(0, width - 1).long()]
+        touching = inside & (torch.hypot(lx, ly) <= limit) & moving
+        return touching.any(-1)

@@ -225,15 +225,17 @@ def crossing_episode(steps: int) -> tuple[np.ndarray, np.ndarray]:
 
 def test_the_gate_fears_the_crossing_and_its_two_paths_agree() -> None:
     """Live: once it has a track the gate reads the walker's velocity, and its ĉ reaches 1 steps before the gate without
-    the mover model; the torch kernel and the generic rollout give the same fears."""
+    the mover model; the generic rollout, the torch kernel and the compiled kernel give the same fears."""
     model, actor, _ = fitted()
     obs, actions = crossing_episode(10)
     records = {}
     for name, cfg in (("off", gate_cfg("none")), ("on", gate_cfg("cartesian"))):
-        gates = [SageGate(model, actor.deterministic, cfg), SageGate(model, actor, cfg)]
-        # the torch kernel has the movers, the compiled one not
-        assert gates[0].kernel() is None
-        assert type(gates[1].kernel()) is (GateKernel if name == "on" else CompiledGateKernel)
+        gates = [
+            SageGate(model, actor.deterministic, cfg),
+            SageGate(model, actor, cfg, compiled=False),
+            SageGate(model, actor, cfg, compiled=True),
+        ]
+        assert [type(g.kernel()) for g in gates[1:]] == [GateKernel, CompiledGateKernel] and gates[0].kernel() is None
         rows = []
         for t in range(len(actions)):
             row = []
@@ -241,7 +243,8 @@ def test_the_gate_fears_the_crossing_and_its_two_paths_agree() -> None:
                 decision = gate.decide(obs[t], actions[t])
                 gate.observe(obs[t], actions[t], obs[t + 1])
                 row.append((decision.fear, gate.detail.cost))
-            np.testing.assert_allclose(row[0], row[1], rtol=1e-5, atol=1e-6)
+            for other in row[1:]:
+                np.testing.assert_allclose(other, row[0], rtol=1e-5, atol=1e-6)
             rows.append(row[0][1])
         records[name] = np.array(rows)
     early = records["on"][:HISTORY]
