@@ -48,32 +48,52 @@ from torch import Tensor
 
 from core.motion import EgoScanStep, _geometry
 
-
-def _points(step: EgoScanStep, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(S, 2) each sector's return at the mean bearing of its rays, and (S,) bool whether it is a return."""
-    g = _geometry(step, torch.float64)
-    cos, sin = g.cos.numpy(), g.sin.numpy()
-    r = np.asarray(ranges, np.float64)[: step.sectors]
-    return np.stack([r * cos, r * sin], axis=-1), r < 1.0
+_LAYOUT: dict[EgoScanStep, tuple[np.ndarray, np.ndarray, float]] = {}
 
 
-def _segments(step: EgoScanStep, ranges: np.ndarray) -> list[tuple[int, int]]:
-    """[first, last] sector of each run of neighbouring returns of one surface (the ego step's joint rule)."""
-    g = _geometry(step, torch.float64)
-    r = np.asarray(ranges, np.float64)[: step.sectors]
-    hit = r < 1.0
-    out: list[tuple[int, int]] = []
-    i = 0
-    while i < step.sectors:
-        if not hit[i]:
-            i += 1
-            continue
-        j = i
-        while j + 1 < step.sectors and hit[j + 1] and max(r[j], r[j + 1]) <= g.joint_ratio * min(r[j], r[j + 1]):
-            j += 1
-        out.append((i, j))
-        i = j + 1
-    return out
+def _layout(step: EgoScanStep) -> tuple[np.ndarray, np.ndarray, float]:
+    """(S,) cos and sin of each sector's return bearing (the mean of its rays', as the ego step places it) and the
+    ego step's joint ratio (cached per step)."""
+    if step not in _LAYOUT:
+        g = _geometry(step, torch.float64)
+        _LAYOUT[step] = (g.cos.numpy().copy(), g.sin.numpy().copy(), float(g.joint_ratio))
+    return _LAYOUT[step]
+
+
+class _Segments:
+    """The runs of neighbouring returns of one surface in a scan (the ego step's joint rule), as arrays: first and
+    last sector, centroid (in the scan's frame, until moved), extent (first to last return), a sector's spacing at
+    the centroid's range, and whether the field of view cuts it (it touches the first or last sector)."""
+
+    def __init__(self, step: EgoScanStep, ranges: np.ndarray) -> None:
+        cos, sin, ratio = _layout(step)
+        s = step.sectors
+        r = np.asarray(ranges, np.float64)[:s]
+        hit = r < 1.0
+        near, far = np.minimum(r[:-1], r[1:]), np.maximum(r[:-1], r[1:])
+        joined = hit[:-1] & hit[1:] & (far <= ratio * near)
+        starts = hit.copy()
+        starts[1:] &= ~joined
+        ends = hit.copy()
+        ends[:-1] &= ~joined
+        self.first, self.last = np.flatnonzero(starts), np.flatnonzero(ends)
+        points = np.stack([np.where(hit, r * cos, 0.0), np.where(hit, r * sin, 0.0)], axis=-1)
+        total = np.concatenate([np.zeros((1, 2)), np.cumsum(points, axis=0)])
+        count = (self.last - self.first + 1)[:, None]
+        self.centroid = (total[self.last + 1] - total[self.first]) / np.maximum(count, 1)
+        self.extent = np.hypot(*(points[self.last] - points[self.first]).T)
+        self.spacing = np.hypot(*self.centroid.T) * step.width
+        self.cut = (self.first == 0) | (self.last == s - 1)
+
+    def __len__(self) -> int:
+        return len(self.first)
+
+    def moved(self, pose: tuple[float, float, float]) -> None:
+        """Move the centroids into the frame after a step (``pose`` from :func:`arc`)."""
+        x, y, turn = pose
+        c, s = math.cos(turn), math.sin(turn)
+        dx, dy = self.centroid[:, 0] - x, self.centroid[:, 1] - y
+        self.centroid = np.stack([c * dx + s * dy, c * dy - s * dx], axis=-1)
 
 
 def arc(step: EgoScanStep, action: np.ndarray) -> tuple[float, float, float]:
@@ -86,46 +106,26 @@ def arc(step: EgoScanStep, action: np.ndarray) -> tuple[float, float, float]:
     return chord * math.cos(half), chord * math.sin(half), turn
 
 
-def _into_next_frame(points: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:
-    """(..., 2) points of the frame before a step, in the frame after it (``pose`` from :func:`arc`)."""
-    x, y, turn = pose
+def _compose(first: tuple[float, float, float], second: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The pose after ``first`` then ``second`` (each in the frame before it), in the frame before ``first``."""
+    x, y, turn = first
     c, s = math.cos(turn), math.sin(turn)
-    dx, dy = points[..., 0] - x, points[..., 1] - y
-    return np.stack([c * dx + s * dy, c * dy - s * dx], axis=-1)
+    return x + c * second[0] - s * second[1], y + s * second[0] + c * second[1], turn + second[2]
 
 
-class _Segment:
-    __slots__ = ("centroid", "cut", "extent", "first", "last", "spacing")
-
-    def __init__(self, first: int, last: int, points: np.ndarray, width: float, sectors: int) -> None:
-        self.first, self.last = first, last
-        run = points[first : last + 1]
-        self.centroid = run.mean(0)
-        self.extent = float(np.hypot(*(run[-1] - run[0])))
-        # a sector's spacing at the segment's range: the centroid's and the extent's quantisation
-        self.spacing = float(np.hypot(*self.centroid)) * width
-        self.cut = first == 0 or last == sectors - 1
-
-
-def _scan_segments(step: EgoScanStep, ranges: np.ndarray) -> list[_Segment]:
-    points, _ = _points(step, ranges)
-    return [_Segment(i, j, points, step.width, step.sectors) for i, j in _segments(step, ranges)]
-
-
-def _match(segment: _Segment, at: np.ndarray, before: list[_Segment], centroids: np.ndarray, reach: float) -> int:
-    """Index of the segment of the scan before (``centroids``: theirs in the newest frame) nearest ``segment``'s
-    centroid (``at``, in that frame) within ``reach`` plus a sector's spacing, with an extent that agrees within one
-    and a half spacings and not cut by the field of view; -1: none."""
-    if not before:
+def _match(at: np.ndarray, extent: float, spacing: float, before: _Segments, reach: float) -> int:
+    """Index of the segment of the scan before (its centroids in the same frame as ``at``) nearest the centroid ``at``
+    within ``reach`` plus a sector's spacing, with an extent that agrees within one and a half spacings and not cut by
+    the field of view; -1: none."""
+    if not len(before):
         return -1
-    distance = np.hypot(*(centroids - at).T)
+    distance = np.hypot(*(before.centroid - at).T)
     best = int(np.argmin(distance))
-    other = before[best]
-    allowance = max(segment.spacing, other.spacing)
+    allowance = max(spacing, float(before.spacing[best]))
     # a segment gains or loses a sector at either end as it moves: its extent by up to a spacing, not two
-    if distance[best] > reach + allowance or abs(other.extent - segment.extent) > 1.5 * allowance or other.cut:
+    if distance[best] > reach + allowance or abs(float(before.extent[best]) - extent) > 1.5 * allowance:
         return -1
-    return best
+    return -1 if bool(before.cut[best]) else best
 
 
 def mover_velocities(
@@ -145,51 +145,55 @@ def mover_velocities(
     history = len(scans) - 1
     if history < 2 or len(actions) != history:
         raise ValueError(f"mover velocities need L + 1 >= 3 scans and L actions, got {len(scans)} and {len(actions)}")
-    newest = _scan_segments(step, scans[-1])
-    candidates = [g for g in newest if not g.cut and g.extent <= max_size]
-    if not candidates:
+    newest = _Segments(step, scans[-1])
+    candidates = np.flatnonzero(~newest.cut & (newest.extent <= max_size))
+    if not len(candidates):
         return out
     # the ego step's prediction of each newest sector from the one before: what it leaves unexplained may move
     with torch.no_grad():
         moved = step.apply(torch.from_numpy(scans[-2:-1, :s]).float(), torch.from_numpy(actions[-1:]).float())
-    unexplained = np.abs(scans[-1, :s] - moved[0].double().numpy())
+    unexplained = np.abs(scans[-1, :s] - moved[0].double().numpy()) > min_speed
+    changed = unexplained | np.concatenate([[False], unexplained[:-1]]) | np.concatenate([unexplained[1:], [False]])
+    counts = np.concatenate([[0], np.cumsum(changed)])
+    candidates = candidates[counts[newest.last[candidates] + 1] - counts[newest.first[candidates]] > 0]
+    if not len(candidates):
+        return out  # the ego step explains every one: static, whatever their centroids' quantisation says
     # every older scan's segments, their centroids moved into the newest frame by the executed actions (distances
-    # between two scans' centroids are the same in any frame: the association is made here)
-    older: list[tuple[list[_Segment], np.ndarray]] = []
-    for j in range(history):
-        segments = _scan_segments(step, scans[j])
-        centroids = np.array([g.centroid for g in segments]).reshape(-1, 2)
-        for action in actions[j:]:
-            centroids = _into_next_frame(centroids, arc(step, action))
-        older.append((segments, centroids))
+    # between two scans' centroids are the same in any frame: the association is made there)
+    older: list[_Segments] = []
+    pose = (0.0, 0.0, 0.0)
+    for j in range(history - 1, -1, -1):
+        pose = _compose(arc(step, actions[j]), pose)  # scan j's frame -> the newest
+        segments = _Segments(step, scans[j])
+        segments.moved(pose)
+        older.append(segments)  # newest first
     times = np.arange(-history, 1, dtype=np.float64)
-    for segment in candidates:
-        lo, hi = max(segment.first - 1, 0), min(segment.last + 1, s - 1)
-        if float(unexplained[lo : hi + 1].max()) <= min_speed:
-            continue  # the ego step explains it: static, whatever its centroid's quantisation says
-        chain = [segment.centroid]
-        current, here = segment, segment.centroid
-        for segments, centroids in reversed(older):
-            found = _match(current, here, segments, centroids, max_speed)
+    centred = times - times.mean()
+    for index in candidates:
+        here = newest.centroid[index]
+        extent, spacing = float(newest.extent[index]), float(newest.spacing[index])
+        chain = [here]
+        for segments in older:
+            found = _match(here, extent, spacing, segments, max_speed)
             if found < 0:
                 break
-            current, here = segments[found], centroids[found]
+            here = segments.centroid[found]
+            extent, spacing = float(segments.extent[found]), float(segments.spacing[found])
             chain.append(here)
         if len(chain) < history + 1:
             continue  # not seen in every scan: newly appeared, occluded, merged
         track = np.array(chain[::-1])  # oldest first, in the newest frame
         # the least-squares velocity over the whole track: a centroid's quantisation (a segment gains or loses a
         # sector) is bounded, a mover's displacement grows with the track
-        velocity = ((times - times.mean())[:, None] * (track - track.mean(0))).sum(0) / np.square(
-            times - times.mean()
-        ).sum()
+        velocity = (centred[:, None] * (track - track.mean(0))).sum(0) / np.square(centred).sum()
         speed = float(np.hypot(*velocity))
-        if speed < max(min_speed, segment.spacing / history):
+        spacing = float(newest.spacing[index])
+        if speed < max(min_speed, spacing / history):
             continue
         steps = np.diff(track, axis=0)
-        if float(np.hypot(*(steps - velocity).T).max()) > max(0.5 * speed, segment.spacing, min_speed):
+        if float(np.hypot(*(steps - velocity).T).max()) > max(0.5 * speed, spacing, min_speed):
             continue  # not steady over the track (beyond a sector's quantisation): an edge, a jump
-        out[segment.first : segment.last + 1] = velocity
+        out[newest.first[index] : newest.last[index] + 1] = velocity
     return out
 
 
