@@ -42,6 +42,24 @@ if [ "$STAGE" = choose ] || [ "$STAGE" = all ]; then
   stamp "the rule's choice (baseline $BASELINE_VIOLATIONS of 150 at $TAKEOVER; test only below $BASELINE_VIOLATIONS)"
   $PY -c "$PICK" $SWEEP "$TAKEOVER" $BASELINE_VIOLATIONS
 fi
+# follow-up (the note's "grid extended upwards", written after the first two rows): scales 1.1 and 1.05 on the same
+# episodes, the choice over the four rows
+SWEEP_UP=results/generalisation/mover-model-sweep-up-train2.json
+JOINED=results/generalisation/mover-model-sweep-joined-train2.json
+if [ "$STAGE" = up ]; then
+  stamp "follow-up sweep on ugv-fields:train:2+ at scales 1.1 and 1.05, $EPISODES episodes a scale"
+  [ -e $SWEEP_UP ] || $TIME $PY -m app.cli gate choose-scale $RUN --scenario ugv-fields:train:2+ --episodes $EPISODES \
+      --scale 1.1 --scale 1.05 --violation-share 0 --takeover "$TAKEOVER" --out $SWEEP_UP
+  $PY -c "import json, sys; rows = [r for f in sys.argv[2:] for r in json.load(open(f))['rows']]
+json.dump({'rows': rows}, open(sys.argv[1], 'w'), indent=1)" $JOINED $SWEEP_UP $SWEEP
+  stamp "the rule's choice over the four rows (baseline $BASELINE_VIOLATIONS of 150 at $TAKEOVER; test only below $BASELINE_VIOLATIONS)"
+  $PY -c "import json, sys
+for r in json.load(open(sys.argv[1]))['rows']:
+    print('tau_scale %g: %d of %d, takeover %.1f%%' % (r['scale'], r['violations'], r['episodes'], 100 * r['takeover_rate']))" $JOINED
+  $PY -c "$PICK" $JOINED "$TAKEOVER" $BASELINE_VIOLATIONS
+  SWEEP=$JOINED
+  STAGE=test
+fi
 if [ "$STAGE" = test ] || [ "$STAGE" = all ]; then
   SCALE=$($PY -c "$PICK" $SWEEP "$TAKEOVER" $BASELINE_VIOLATIONS)
   if [ "$SCALE" = none ]; then
