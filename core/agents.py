@@ -79,6 +79,11 @@ FEAR_SHAPE = (
     "contact_needs_closing",
     "contact_horizon",
     "contact_extrapolation",
+    "mover_model",
+    "mover_history",
+    "mover_max_speed",
+    "mover_max_size",
+    "mover_min_speed",
 )
 """Gate settings that change the fear a model's τ bounds were measured on (or the quantiles they were taken at):
 a gate that sets one over a run's own needs the bounds measured again (``sage gate refit-bounds``)."""

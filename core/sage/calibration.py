@@ -26,6 +26,7 @@ def calibrate(
     safe: Tensor | None = None,
     motion: Tensor | None = None,
     closing_rate: Tensor | None = None,
+    mover_velocity: Tensor | None = None,
 ) -> Tensor:
     """Set κ_k, the ``quantile`` of σ_raw at each rollout step k from real states ``obs`` under ``policy``; with
     ``cfg``, also the threshold bounds (τ_min, τ_max): the ``tau_min_quantile`` and ``tau_max_quantile`` of the
@@ -33,14 +34,28 @@ def calibrate(
     each simulator's threshold sits where its familiar, safe fear lies (a UGV-tuned constant range put every SUMO
     and highway fear below τ_max; quantiles over all states, near-misses included, put τ above most of the
     fear that precedes a collision). ``closing_rate``: each state's closing the real scans before it showed, for a
-    gate that extrapolates it (:func:`closing_rate`, ``GateConfig.contact_extrapolation``; None: none)."""
+    gate that extrapolates it (:func:`closing_rate`, ``GateConfig.contact_extrapolation``; None: none).
+    ``mover_velocity``: (B, S, 2) each state's movers as the real scans before it showed, for a gate with a mover
+    model (:func:`core.sage.movers.mover_velocities`, ``GateConfig.mover_model``; None: none)."""
     with torch.no_grad():
         folded = world_model.folded()
         learned = min(horizon, MAX_HORIZON)
         steps = min(contact_reach(cfg, horizon), MAX_HORIZON)  # the gate's imagined contact may reach further
         terms = contact_terms(cfg, motion)
         rate = closing_rate if cfg is not None and cfg.contact_extrapolation else None
-        ro = rollout(folded, policy, obs, policy(obs), steps, motion, *terms, learned_steps=learned, closing_rate=rate)
+        movers = mover_velocity if cfg is not None and cfg.mover_model != "none" else None
+        ro = rollout(
+            folded,
+            policy,
+            obs,
+            policy(obs),
+            steps,
+            motion,
+            *terms,
+            learned_steps=learned,
+            closing_rate=rate,
+            mover_velocity=movers,
+        )
         scale = torch.quantile(ro.sigma_raw[:learned], quantile, dim=1).clamp_min(1e-6)
         world_model.sigma_scale[: len(scale)] = scale
         world_model.sigma_scale[len(scale) :] = scale[-1]
@@ -80,6 +95,9 @@ class CalibrationSample:
     closing_rate: np.ndarray | None = None
     """(B, n) each state's closing per step that the real scans before it showed (``gate.contact_extrapolation``'s
     :func:`closing_rate`); None where the gate it was drawn for does not extrapolate (read as none)."""
+    mover_velocity: np.ndarray | None = None
+    """(B, S, 2) each state's movers as the real scans before it showed (``gate.mover_model``'s
+    :func:`core.sage.movers.mover_velocities`); None where the gate it was drawn for has no mover model (none)."""
 
     def __post_init__(self) -> None:
         n = len(self.obs)
@@ -88,6 +106,8 @@ class CalibrationSample:
             parts["motion"] = self.motion
         if self.closing_rate is not None:
             parts["closing_rate"] = self.closing_rate
+        if self.mover_velocity is not None:
+            parts["mover_velocity"] = self.mover_velocity
         for name, values in parts.items():
             if len(values) != n:
                 raise ValueError(f"calibration sample: {name} has {len(values)} rows, obs has {n}")
@@ -102,6 +122,8 @@ class CalibrationSample:
             arrays["motion"] = self.motion
         if self.closing_rate is not None:
             arrays["closing_rate"] = self.closing_rate
+        if self.mover_velocity is not None:
+            arrays["mover_velocity"] = self.mover_velocity
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez_compressed(tmp, **arrays)
         tmp.replace(path)
@@ -124,6 +146,7 @@ class CalibrationSample:
             familiar=arrays["familiar"].astype(bool),
             motion=arrays["motion"].astype(np.float32) if "motion" in arrays else None,
             closing_rate=arrays["closing_rate"].astype(np.float32) if "closing_rate" in arrays else None,
+            mover_velocity=arrays["mover_velocity"].astype(np.float32) if "mover_velocity" in arrays else None,
         )
 
     def calibrate(self, world_model: EnsembleWorldModel, policy: PolicyFn, cfg: GateConfig) -> None:
@@ -138,6 +161,7 @@ class CalibrationSample:
             safe=torch.from_numpy(self.familiar),
             motion=None if self.motion is None else torch.from_numpy(self.motion),
             closing_rate=None if self.closing_rate is None else torch.from_numpy(self.closing_rate),
+            mover_velocity=None if self.mover_velocity is None else torch.from_numpy(self.mover_velocity),
         )
 
     @classmethod
@@ -154,6 +178,7 @@ class CalibrationSample:
             familiar=np.concatenate([s.familiar for s in samples]),
             motion=np.concatenate([s.motion for s in samples]) if with_motion == {True} else None,  # type: ignore[misc]
             closing_rate=_joined_rates(samples),
+            mover_velocity=_joined_movers(samples),
         )
 
     def subset(self, index: np.ndarray) -> CalibrationSample:
@@ -164,6 +189,7 @@ class CalibrationSample:
             familiar=self.familiar[index],
             motion=None if self.motion is None else self.motion[index],
             closing_rate=None if self.closing_rate is None else self.closing_rate[index],
+            mover_velocity=None if self.mover_velocity is None else self.mover_velocity[index],
         )
 
 
@@ -178,4 +204,18 @@ def _joined_rates(samples: list[CalibrationSample]) -> np.ndarray | None:
     width = widths.pop()
     return np.concatenate(
         [s.closing_rate if s.closing_rate is not None else np.zeros((len(s), width), np.float32) for s in samples]
+    )
+
+
+def _joined_movers(samples: list[CalibrationSample]) -> np.ndarray | None:
+    """The samples' mover velocities joined; a sample without them (drawn for a gate without a mover model) reads as
+    none moving, zeros. None when no sample has them."""
+    shapes = {s.mover_velocity.shape[1:] for s in samples if s.mover_velocity is not None}
+    if not shapes:
+        return None
+    if len(shapes) > 1:
+        raise ValueError("calibration samples disagree on the mover velocities' sectors")
+    shape = shapes.pop()
+    return np.concatenate(
+        [s.mover_velocity if s.mover_velocity is not None else np.zeros((len(s), *shape), np.float32) for s in samples]
     )

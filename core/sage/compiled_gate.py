@@ -32,6 +32,7 @@ from core._ego_kernel import scan as ego_scan
 # bounded bearing, error_model=numpy (issue 63).
 from core.sage.config import GateConfig
 from core.sage.fear import GateKernel, closing_channels
+from core.sage.movers import mover_contact
 from core.sage.world_model import FoldedModel
 
 
@@ -262,7 +263,12 @@ class CompiledGateKernel(GateKernel):
         self._inv_obs_std = model.inv_obs_std.reshape(-1).numpy()
 
     def __call__(
-        self, obs: Tensor, action: Tensor, motion: Tensor | None = None, closing_rate: Tensor | None = None
+        self,
+        obs: Tensor,
+        action: Tensor,
+        motion: Tensor | None = None,
+        closing_rate: Tensor | None = None,
+        mover_velocity: Tensor | None = None,
     ) -> tuple[float, float, float]:
         d, a = self.d, self.act_dim
         x = self._x
@@ -275,7 +281,7 @@ class CompiledGateKernel(GateKernel):
         rate = self._no_closing_rate
         if self.cfg.contact_extrapolation and closing_rate is not None:
             rate = np.ascontiguousarray(closing_rate.reshape(-1).numpy(), np.float32)
-        return gate_rollout(
+        terms = gate_rollout(
             x,
             self._outputs,
             self._probability,
@@ -300,6 +306,28 @@ class CompiledGateKernel(GateKernel):
             float(self.cfg.beta),
             self.learned,
         )
+        if mover_velocity is None or self.contact is None or self.ego is None:
+            return terms
+        return self._with_movers(obs, mover_velocity, terms)
+
+    def _with_movers(self, obs: Tensor, mover_velocity: Tensor, terms: tuple[float, float, float]) -> tuple[float, ...]:
+        """The gate's mover model over the compiled rollout: the movers' imagined contact (in the members' imagined
+        poses from the actions the rollout wrote into ``x``) raises the probabilities it wrote, and ĉ and F^m are
+        aggregated again as :func:`gate_rollout` aggregates them (σ̂ unchanged)."""
+        assert self.contact is not None and self.ego is not None
+        touching = mover_contact(self.ego, obs, mover_velocity, self.actions[: self.m], self.contact)[..., 0]
+        if not bool(touching.any()):
+            return terms
+        probability = np.maximum(self._probability, touching.numpy().astype(np.float32))
+        self._probability[...] = probability
+        cost = probability.astype(np.float64).mean(1)
+        sigma = terms[2]
+        c = (
+            float(cost.max())
+            if self._weights.shape[0] == 0
+            else float((cost[: len(self._weights)] * self._weights).sum())
+        )
+        return self.cfg.beta * c + (1.0 - self.cfg.beta) * sigma, c, sigma
 
     def curiosity(
         self,

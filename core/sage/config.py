@@ -193,6 +193,21 @@ class GateConfig:
     contact_extrapolation: bool = False
     """With ``imagined_contact``: each scan sector's closing that the robot's motion leaves unexplained, seen two steps
     running, is extrapolated over the imagined steps in the contact test. The gate's only."""
+    mover_model: Literal["none", "cartesian"] = "none"
+    """With ``imagined_contact``: "cartesian" also moves the scan's small movers at constant velocity into each member's
+    imagined poses (:mod:`core.sage.movers`); needs the ego step. "none": off. The gate's only."""
+    mover_history: int = 4
+    """The mover model's track in steps (>= 2): a mover is followed back through this many + 1 real scans, its
+    velocity the slope of its centroids."""
+    mover_max_speed: float = 0.02
+    """The mover model's largest displacement of a mover in one step, in the scan's range units (the UGV: 2 m/s at
+    10 Hz over a 10 m reach; its generated movers drive at most 1 m/s): the association radius between scans."""
+    mover_max_size: float = 0.12
+    """The mover model's largest object, in range units (the UGV: 1.2 m, over the 0.94 m diagonal of its largest
+    generated vehicle): a longer segment of returns is structure and never moves."""
+    mover_min_speed: float = 0.002
+    """The mover model's noise floor, in range units per step (the UGV: 0.2 m/s, above the ego step's mean error of
+    0.022 m a step): slower points are static, left to the imagined contact of the ego-moved scan."""
 
     @property
     def hold(self) -> int:
@@ -549,6 +564,30 @@ def validate(cfg: AgentConfig) -> None:
             "gate.contact_extrapolation extrapolates closing scan sectors in the imagined contact test: it needs "
             "gate.imagined_contact"
         )
+    if cfg.gate.mover_model not in ("none", "cartesian"):
+        raise ValueError(f"gate.mover_model must be none or cartesian, got {cfg.gate.mover_model!r}")
+    if cfg.gate.mover_model != "none":
+        if not cfg.gate.imagined_contact:
+            raise ValueError(
+                "gate.mover_model adds movers to the imagined contact test: it needs gate.imagined_contact"
+            )
+        if not cfg.world_model_config.ego_sectors:
+            raise ValueError(
+                "gate.mover_model places the scan's returns by the world model's ego step: it needs "
+                "world_model_config.ego_sectors (the UGV's ego-motion model)"
+            )
+        movers = {
+            "gate.mover_max_speed": cfg.gate.mover_max_speed,
+            "gate.mover_max_size": cfg.gate.mover_max_size,
+            "gate.mover_min_speed": cfg.gate.mover_min_speed,
+        }
+        for name, value in movers.items():
+            if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a finite number > 0, got {value}")
+        if not isinstance(cfg.gate.mover_history, int) or cfg.gate.mover_history < 2:
+            raise ValueError(f"gate.mover_history must be an integer >= 2, got {cfg.gate.mover_history}")
+        if cfg.gate.mover_min_speed >= cfg.gate.mover_max_speed:
+            raise ValueError("gate.mover_min_speed must be under gate.mover_max_speed")
     if cfg.gate.contact_needs_closing and not cfg.world_model_config.motion_input:
         raise ValueError("gate.contact_needs_closing reads the motion input: it needs world_model_config.motion_input")
     if not 0.0 < cfg.gamma < 1.0:

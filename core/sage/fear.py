@@ -46,6 +46,7 @@ from torch import Tensor
 
 from core.motion import approach_rate
 from core.sage.config import GateConfig
+from core.sage.movers import mover_contact
 from core.sage.world_model import FoldedModel, approach_width
 
 PolicyFn = Callable[[Tensor], Tensor]
@@ -182,6 +183,7 @@ def rollout(
     states_needed: bool = True,
     learned_steps: int | None = None,
     closing_rate: Tensor | None = None,
+    mover_velocity: Tensor | None = None,
 ) -> Rollout:
     """Roll every member m steps from (obs, action) under ``policy``, all members in each baddbmm. ``motion``:
     the last observed change of state (zeros when None), for a model with the motion input; later steps take
@@ -200,7 +202,12 @@ def rollout(
     the gate's ``contact_horizon`` (:func:`contact_reach`). None: every step counts both.
 
     ``closing_rate``: (B, n) the channels' closing the real scans show (:func:`closing_rate`), extrapolated over the
-    imagined steps in the contact test (:func:`with_contact`; ``GateConfig.contact_extrapolation``). None: none."""
+    imagined steps in the contact test (:func:`with_contact`; ``GateConfig.contact_extrapolation``). None: none.
+
+    ``mover_velocity``: (B, S, 2) the velocity of each sector's return that the real scans show moving
+    (:func:`core.sage.movers.mover_velocities`, ``GateConfig.mover_model``); each member's imagined contact then also
+    counts those points moved at constant velocity into its imagined poses (:func:`core.sage.movers.mover_contact`;
+    needs ``contact`` and the model's ego step). None: none."""
     n, d = model.members, model.obs_dim
     batch = obs.shape[0]
     s = obs.unsqueeze(0).expand(n, batch, d)
@@ -267,6 +274,10 @@ def rollout(
     else:  # the steps before the last tested on their states, the last one's test already made (no extrapolation)
         earlier = with_contact(learned[:-1], torch.stack(states[1:]), contact, closing) if horizon > 1 else learned[:-1]
         cost = torch.cat([earlier, torch.maximum(learned[-1:], last_contact.unsqueeze(0).to(learned.dtype))])
+    if mover_velocity is not None and contact is not None and model.ego is not None:
+        # the movers' points at constant velocity, seen from each member's imagined poses: ĉ only, like contact
+        touching = mover_contact(model.ego, obs, mover_velocity, torch.stack(actions), contact)
+        cost = torch.maximum(cost, touching.to(cost.dtype))
     return Rollout(torch.stack(states), torch.stack(actions), cost, sigma_raw, learned_steps)
 
 
@@ -507,11 +518,17 @@ class GateKernel:
         return h
 
     def __call__(
-        self, obs: Tensor, action: Tensor, motion: Tensor | None = None, closing_rate: Tensor | None = None
+        self,
+        obs: Tensor,
+        action: Tensor,
+        motion: Tensor | None = None,
+        closing_rate: Tensor | None = None,
+        mover_velocity: Tensor | None = None,
     ) -> tuple[float, float, float]:
         """(F^m, ĉ, σ̂) of a (1, D) state and (1, A) first action (``motion``: the last observed change of state,
         zeros when None; ``closing_rate``: (1, n) the real scans' closing, extrapolated in the contact test where the
-        gate asks for it, :func:`closing_rate`); call under ``torch.inference_mode``."""
+        gate asks for it, :func:`closing_rate`; ``mover_velocity``: (1, S, 2) the movers the real scans show, for the
+        gate's mover model, :func:`rollout`); call under ``torch.inference_mode``."""
         states, actions = self.state_steps, self.action_steps
         states[0].copy_(obs)
         actions[0].copy_(action)
@@ -563,6 +580,9 @@ class GateKernel:
         closing = closing_channels(self.cfg, motion, self.contact)  # None unless contact needs closing
         rate = closing_rate if self.cfg.contact_extrapolation else None
         self.probability = with_contact(probability, self.states[1:], self.contact, closing, rate)
+        if mover_velocity is not None and self.contact is not None and self.ego is not None:
+            touching = mover_contact(self.ego, obs, mover_velocity, self.actions[: self.m], self.contact)
+            self.probability = torch.maximum(self.probability, touching.to(self.probability.dtype))
         cost = self.probability.sum(1)
         if self.weights is None:
             c, sg = float(cost.max()) * self.inv_members, float(sigma.max())

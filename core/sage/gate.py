@@ -41,6 +41,7 @@ from core.sage.fear import (
     rollout,
     unexplained_change,
 )
+from core.sage.movers import mover_velocities
 from core.sage.networks import Actor
 from core.sage.novelty import NoveltyReference, novelty_features
 from core.sage.world_model import EnsembleWorldModel
@@ -132,6 +133,11 @@ class SageGate:
         self._changes: collections.deque[torch.Tensor] = collections.deque(maxlen=2)
         """The scan sectors' changes the robot's own motion left unexplained over this episode's last two observed
         steps (``gate.contact_extrapolation``; :func:`core.sage.fear.unexplained_change`), oldest first."""
+        self._transitions: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = collections.deque(
+            maxlen=max(self.cfg.mover_history, 2)
+        )
+        """This episode's last ``gate.mover_history`` observed transitions (obs, encoded action, next obs), oldest
+        first: the scans and actions the mover model reads (``gate.mover_model``; :func:`core.sage.movers`)."""
 
     def _encoded(self, action: Any) -> np.ndarray:
         if self.encode is not None:
@@ -164,6 +170,7 @@ class SageGate:
         self.threshold.reset_smoothing()
         self._history.clear()
         self._changes.clear()
+        self._transitions.clear()
 
     def closing_rate(self) -> torch.Tensor | None:
         """(1, n) each scan sector's closing per step, the movers' own (<= 0), from the episode's last two observed
@@ -172,6 +179,25 @@ class SageGate:
         if not self.cfg.contact_extrapolation or len(self._changes) < 2:
             return None
         return closing_rate(self._changes[0], self._changes[1])
+
+    def mover_velocity(self) -> torch.Tensor | None:
+        """(1, S, 2) each scan sector's velocity that the episode's last ``gate.mover_history`` + 1 real scans show
+        (zeros: static), for the mover model (:func:`core.sage.movers.mover_velocities`). None when the gate has none,
+        the model no ego step, or the episode has shown fewer steps."""
+        ego = self.world_model.ego
+        if self.cfg.mover_model == "none" or ego is None or len(self._transitions) < self.cfg.mover_history:
+            return None
+        transitions = list(self._transitions)
+        scans = np.stack([obs[: ego.sectors] for obs, _, _ in transitions] + [transitions[-1][2][: ego.sectors]])
+        velocity = mover_velocities(
+            ego,
+            scans,
+            np.stack([action for _, action, _ in transitions]),
+            self.cfg.mover_max_speed,
+            self.cfg.mover_max_size,
+            self.cfg.mover_min_speed,
+        )
+        return torch.from_numpy(velocity.astype(np.float32)).unsqueeze(0)
 
     def _motion(self, obs: np.ndarray) -> torch.Tensor | None:
         """(s_t - s_{t-k}) / k as a (1, D) tensor, k = ``motion_lag`` or the steps seen so far in this episode
@@ -244,8 +270,12 @@ class SageGate:
             kernel = self.kernel()
             motion = self._motion(obs)
             rate = self.closing_rate()
+            movers = self.mover_velocity()
             if kernel is not None:
-                value, cost, sigma = kernel(o, a, motion, rate)
+                if movers is None:
+                    value, cost, sigma = kernel(o, a, motion, rate)
+                else:
+                    value, cost, sigma = kernel(o, a, motion, rate, movers)
                 self._last = (obs, a_rl, self.world_model.version)
                 self._horizon_source = kernel
             else:
@@ -254,7 +284,16 @@ class SageGate:
                 contact = contact_terms(self.cfg, motion)
                 horizon = self.cfg.horizon
                 ro = rollout(
-                    folded, self.policy, o, a, steps, motion, *contact, learned_steps=horizon, closing_rate=rate
+                    folded,
+                    self.policy,
+                    o,
+                    a,
+                    steps,
+                    motion,
+                    *contact,
+                    learned_steps=horizon,
+                    closing_rate=rate,
+                    mover_velocity=movers,
                 )
                 terms = fear_of(folded, ro, self.cfg)
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
@@ -312,6 +351,14 @@ class SageGate:
                 # the movers' own change per sector: the next scan against this one moved by the robot's action
                 channels = len(self.cfg.contact_floors)
                 self._changes.append(unexplained_change(self.world_model.base(o, a), s1, channels).clone())
+        if self.cfg.mover_model != "none":
+            self._transitions.append(
+                (
+                    np.asarray(obs, dtype=np.float64).reshape(-1).copy(),
+                    self._encoded(action).astype(np.float64).reshape(-1),
+                    np.asarray(next_obs, dtype=np.float64).reshape(-1).copy(),
+                )
+            )
         self._history.append(np.asarray(obs, dtype=np.float32).reshape(-1).copy())
         if self.cfg.curiosity_signal == "novelty":
             curiosity = self._novelty_of(next_obs)

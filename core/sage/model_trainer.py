@@ -33,6 +33,7 @@ from core.sage.fear import (
     sample_member_transitions,
     unexplained_change,
 )
+from core.sage.movers import mover_velocities
 from core.sage.world_model import EnsembleWorldModel, FitReport
 
 SAFE_LABEL = 0.1
@@ -89,6 +90,7 @@ def calibration_sample(
         familiar=familiar[idx],
         motion=None if motion is None else motion[idx],
         closing_rate=buffer_closing_rates(buffer, world_model, gate, idx),
+        mover_velocity=buffer_mover_velocities(buffer, world_model, gate, idx),
     )
 
 
@@ -116,6 +118,29 @@ def buffer_closing_rates(
             changes.append(unexplained_change(moved, torch.from_numpy(data["next_obs"][rows]), channels))
     rates[known] = closing_rate(*changes).numpy()
     return rates
+
+
+def buffer_mover_velocities(
+    buffer: ReplayBuffer, world_model: EnsembleWorldModel, gate: GateConfig, idx: np.ndarray
+) -> np.ndarray | None:
+    """(len(idx), S, 2) the movers the gate would have read at each of the stored rows ``idx``
+    (:meth:`core.sage.gate.SageGate.mover_velocity`: from the episode's ``gate.mover_history`` transitions before the
+    row), for a gate with a mover model; zeros where the episode had not yet shown them. None for a gate without one
+    (or a model without the ego step)."""
+    ego = world_model.ego
+    if gate.mover_model == "none" or not gate.contact_floors or ego is None:
+        return None
+    data = buffer.arrays()
+    s, history = ego.sectors, gate.mover_history
+    out = np.zeros((len(idx), s, 2), np.float32)
+    before = np.stack([buffer.preceding_rows(back)[idx] for back in range(history, 0, -1)])  # oldest first
+    for row in np.flatnonzero((before >= 0).all(0)):
+        rows = before[:, row]
+        scans = np.concatenate([data["obs"][rows][:, :s], data["next_obs"][rows[-1:]][:, :s]])
+        out[row] = mover_velocities(
+            ego, scans, data["action"][rows], gate.mover_max_speed, gate.mover_max_size, gate.mover_min_speed
+        )
+    return out
 
 
 def familiar_mean_fear(sample: CalibrationSample, fear: Callable[[Tensor], Tensor]) -> float | None:
