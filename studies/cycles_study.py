@@ -172,6 +172,19 @@ def check_settings(settings: Mapping[str, Any]) -> None:
             raise ValueError(f"--set study.{key}={name}: {str(error).splitlines()[0]}") from None
     if unseen == scenario:
         raise ValueError(f"--set study.unseen_scenario={unseen}: the unseen scenario must differ from the scenario")
+    from core.agents import resolve_checkpoint
+
+    policy = str(settings.get("policy", DEFAULT_POLICY))
+    try:
+        resolve_checkpoint(policy)
+    except (FileNotFoundError, ValueError) as error:
+        raise ValueError(f"--set study.policy={policy}: {str(error).splitlines()[0]}") from None
+
+
+def prepare(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
+    """The starting policy as an absolute path: the trials run in their own folders (Ray's working directory), where
+    a path given relative to where the study was started would name nothing."""
+    return {"policy": str(Path(str(settings.get("policy", DEFAULT_POLICY))).resolve())}
 
 
 def figures(out: Path, settings: dict[str, Any]) -> list[Path]:
@@ -218,6 +231,7 @@ STUDY = StudyDef(
         "regression_scenarios": (),
     },
     check_settings=check_settings,
+    prepare=prepare,
     learner_overrides=False,
     budget_text=budget_text,
     figures=figures,

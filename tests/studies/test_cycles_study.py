@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from studies.cycles_study import METRICS, cycles_above_first, cycles_for, figures, steps_per_cycle, trial
 from studies.registry import get_study
 
@@ -94,6 +96,7 @@ def test_the_cycles_study_refuses_a_bad_scenario_in_one_line(tmp_path: Path) -> 
         (["study.scenario=9"], "give 1-4"),
         (["study.scenario=ugv-fields:test:1", "study.unseen_scenario=ugv-fields:test:1"], "must differ"),
         (["study.scenario=4", "study.unseen_scenario=bogus"], "study.unseen_scenario=bogus"),
+        (["study.policy=runs/no-such-policy"], "study.policy=runs/no-such-policy"),
     ):
         args = ["study", "cycles", "--budget", "small", "--out", str(tmp_path / "never")]
         for pair in pairs:
@@ -103,6 +106,17 @@ def test_the_cycles_study_refuses_a_bad_scenario_in_one_line(tmp_path: Path) -> 
         assert words in result.output and "Traceback" not in result.output
         assert len(result.output.strip().splitlines()) == 1
     assert not (tmp_path / "never").exists()  # refused before any trial
+
+
+def test_the_cycles_study_hands_its_trials_the_starting_policy_as_an_absolute_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from studies.cycles_study import DEFAULT_POLICY, prepare
+
+    monkeypatch.chdir(DEFAULT_POLICY.parents[1])  # the repository root, where the path below is relative
+    given = Path("policies") / DEFAULT_POLICY.name
+    prepared = prepare(tmp_path, {"policy": str(given)})
+    assert Path(prepared["policy"]).is_absolute() and Path(prepared["policy"]) == DEFAULT_POLICY
 
 
 def test_the_cycles_study_can_judge_its_versions_by_the_regression_test_alone(tmp_path: Path) -> None:
