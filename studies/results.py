@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import subprocess
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -47,14 +48,34 @@ def wall_and_device(wall_s: float, device: str | None) -> str:
 def summarise(
     rows: Sequence[Mapping[str, Any]], keys: Sequence[str], metrics: Sequence[str]
 ) -> dict[tuple[str, ...], dict[str, Interval]]:
-    """Mean ± 95% CI of each metric over the seeds of each row key, keys in order of first appearance."""
+    """Mean ± 95% CI of each metric over the seeds of each row key, keys in order of first appearance. A NaN value
+    is a metric that does not apply to that seed (e.g. a takeover share of a method that never hands over): the
+    interval is over the seeds that have it (n says how many), an undefined one (NaN mean, n 0) where none has."""
     groups: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
     for row in rows:
         missing = [k for k in (*keys, "seed", *metrics) if k not in row]
         if missing:
             raise ValueError(f"result row {dict(row)} lacks {missing}")
         groups.setdefault(tuple(str(row[k]) for k in keys), []).append(row)
-    return {key: {m: mean_ci([r[m] for r in group]) for m in metrics} for key, group in groups.items()}
+    return {key: {m: _applicable_ci([r[m] for r in group]) for m in metrics} for key, group in groups.items()}
+
+
+def _applicable_ci(values: Sequence[Any]) -> Interval:
+    applicable = [float(v) for v in values if not math.isnan(float(v))]
+    return mean_ci(applicable) if applicable else Interval(math.nan, math.nan, 0)
+
+
+NOT_APPLICABLE = "–"
+"""A table cell whose metric no seed of the row has (it does not apply there)."""
+
+
+def format_cell(cell: Interval, seeds: int) -> str:
+    """``mean ± half`` at three digits; ``–`` where no seed has the metric; ``(n=k)`` after it where only ``k`` of
+    the row's ``seeds`` have it."""
+    if cell.n == 0:
+        return NOT_APPLICABLE
+    text = cell.format(3)
+    return text if cell.n == seeds or cell.n == 1 else f"{text} (n={cell.n})"
 
 
 def write_results(
@@ -117,15 +138,15 @@ def write_results(
     ]
     data: list[dict[str, Any]] = []
     for key, cells in summary.items():
-        n = next(iter(cells.values())).n
+        n = max(cell.n for cell in cells.values())
         method = dict(zip(keys, key, strict=True)).get("method")
         row_text = [*key, f"{n} eval" if method in planners else str(n)]
         entry: dict[str, Any] = {**dict(zip(keys, key, strict=True)), "seeds": n, "metrics": {}}
         for m in metrics:
             paper = paper_value(study, key, m)
-            row_text += [cells[m].format(3), paper.format() if paper else "—"]
+            row_text += [format_cell(cells[m], n), paper.format() if paper else "—"]
             entry["metrics"][m] = {
-                "mean": cells[m].mean,
+                "mean": cells[m].mean,  # NaN (JSON's NaN, as a single seed's half-width) where it does not apply
                 "ci95_half_width": cells[m].half_width,
                 "paper": None if paper is None else {"mean": paper.mean, "spread": paper.spread},
             }

@@ -14,6 +14,7 @@ panels into the folder.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -149,6 +150,9 @@ class StudyRun:
     """The training episodes' rows (demonstrations left out), in order."""
     switch: int
     """Index (0-based, in ``rows``) of the first C2 episode."""
+    takes_over: bool = True
+    """Whether the method hands control to an expert (its config's ``takeover``; a method without one, e.g. SAC,
+    has no takeover share to speak of)."""
 
 
 def read_run(path: str | Path, label: str | None = None) -> StudyRun:
@@ -176,13 +180,18 @@ def read_run(path: str | Path, label: str | None = None) -> StudyRun:
     if switch is None:  # a run without study.json: the first episode on another route than the first one
         routes = [r.get("route") for r in rows]
         switch = next((i for i, route in enumerate(routes) if route != routes[0]), None)
-        if switch is None:
+        if switch is None and study.get("protocol") != PROTOCOL:
             raise ValueError(f"{folder} is not a route-shift run: no study.json and every episode on one route")
-    method = study.get("method")
-    if method is None and (folder / "config.json").is_file():
-        method = json.loads((folder / "config.json").read_text()).get("agent", {}).get("method")
-    method = method or "?"
-    return StudyRun(folder, label or method_label(method), method, rows, int(switch))
+        if switch is None:  # a route-shift run (switch by steps) that ended before C2 began: every episode is C1
+            switch = len(rows)
+    agent: dict[str, Any] = {}
+    if (folder / "config.json").is_file():
+        agent = json.loads((folder / "config.json").read_text()).get("agent", {})
+    method = study.get("method") or agent.get("method") or "?"
+    takes_over = agent.get("takeover")
+    if takes_over is None:  # no config: a run whose episodes were never taken over is taken as one without a gate
+        takes_over = any(int(r.get("takeovers", 0)) > 0 for r in rows)
+    return StudyRun(folder, label or method_label(method), method, rows, int(switch), bool(takes_over))
 
 
 PHASE_COLUMNS = ("success", "collision", "red_light", "timeout", "takeover_rate", "mean_fear", "mean_curiosity")
@@ -210,6 +219,55 @@ def phase_table(runs: list[StudyRun], part: int = 3) -> str:
     for run in runs:
         named.update(phase_rows(run, part))
     return format_table(named, PHASE_COLUMNS)
+
+
+SHIFT_KEYS = ("success", "collision", "red_light")
+"""The per-episode outcomes averaged over each part of a phase in the study's table."""
+
+
+def _share(rows: list[dict[str, Any]], key: str) -> float:
+    """Mean of a 0/1 outcome over ``rows``; NaN when there are none (the table shows "–")."""
+    return float(sum(float(r.get(key, 0.0)) for r in rows) / len(rows)) if rows else math.nan
+
+
+def _takeover_share(rows: list[dict[str, Any]]) -> float:
+    """The expert's share of the steps of ``rows`` (NaN when they hold none)."""
+    steps = sum(int(r["steps"]) for r in rows)
+    return sum(int(r.get("takeovers", 0)) for r in rows) / steps if steps else math.nan
+
+
+def shift_metrics(run: StudyRun, part: int = 3) -> dict[str, float]:
+    """The route-shift study's training metrics of one run (one method, one seed), for its table.
+
+    ``c1_late_*``, ``c2_early_*``, ``c2_late_*``: success, collision and red-light shares of the last ``1/part`` of
+    C1's episodes and of the first and last ``1/part`` of C2's (at least one episode each). ``c2_takeover_rate``:
+    the expert's share of all of C2's steps. Over C2, read per seed so that the table's interval is that of a
+    paired difference: ``c2_takeover_early`` / ``c2_takeover_late``, the expert's share of the steps of C2's first
+    and last ``1/part`` of episodes, ``c2_takeover_change`` late minus early (negative: the takeover falls as the
+    policy adapts), and ``c2_collision_change`` the same for collisions. NaN, shown as "–", where a metric does not
+    apply: no C2 episodes; a change with fewer than two C2 episodes (its two ends would be the same episodes);
+    takeover shares of a method that never hands over (``c2_takeover_rate`` stays 0 there, as measured)."""
+    if part < 1:
+        raise ValueError(f"part must be at least 1, got {part}")
+    c1, c2 = run.rows[: run.switch], run.rows[run.switch :]
+    c1_late = c1[-max(1, len(c1) // part) :] if c1 else []
+    c2_early = c2[: max(1, len(c2) // part)] if c2 else []
+    c2_late = c2[-max(1, len(c2) // part) :] if c2 else []
+    result: dict[str, float] = {}
+    for name, rows in (("c1_late", c1_late), ("c2_early", c2_early), ("c2_late", c2_late)):
+        for key in SHIFT_KEYS:
+            result[f"{name}_{key}"] = _share(rows, key)
+    steps = sum(int(r["steps"]) for r in c2)
+    result["c2_takeover_rate"] = sum(int(r.get("takeovers", 0)) for r in c2) / max(steps, 1)
+    over_time = len(c2) >= 2
+    early = _takeover_share(c2_early) if run.takes_over else math.nan
+    late = _takeover_share(c2_late) if run.takes_over else math.nan
+    result["c2_takeover_early"], result["c2_takeover_late"] = early, late
+    result["c2_takeover_change"] = late - early if over_time else math.nan
+    result["c2_collision_change"] = (
+        result["c2_late_collision"] - result["c2_early_collision"] if over_time else math.nan
+    )
+    return result
 
 
 def method_label(method: str) -> str:

@@ -22,7 +22,9 @@ Protocol, the same for every method on every training seed (:class:`studies.rout
 
 The table reports, per method, mean ± 95% interval over seeds: success, collision and red-light rates of the last
 third of C1 (stable?), the first third of C2 (the drop) and the last third of C2 (recovered?), the expert's share of
-steps in C2, and the final policy alone on each route (``eval_episodes`` each). The paper shows this study as curves,
+steps in C2 (overall, in its first and last third, and their per-seed change: falling as the policy adapts?), the
+change in collisions from C2's first to its last third, and the final policy alone on each route (``eval_episodes``
+each); :func:`studies.route_shift.shift_metrics` computes the training ones. The paper shows this study as curves,
 so no numbers stand beside; ``learning_curves.png`` draws ours.
 """
 
@@ -49,6 +51,10 @@ METRICS = (
     *(f"c2_early_{k}" for k in PHASE_KEYS),
     *(f"c2_late_{k}" for k in PHASE_KEYS),
     "c2_takeover_rate",
+    "c2_takeover_early",
+    "c2_takeover_late",
+    "c2_takeover_change",
+    "c2_collision_change",
     "eval_route1_success",
     "eval_route2_success",
     "eval_route2_collision",
@@ -60,7 +66,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     from core.agents import load_agent
     from core.train import evaluate
     from studies.envs import env_factory
-    from studies.route_shift import read_run
+    from studies.route_shift import read_run, shift_metrics
     from studies.spec import TrainSpec
     from studies.training import train_once
 
@@ -85,15 +91,11 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
         config,
     )
     run = read_run(out)
-    c1, c2 = run.rows[: run.switch], run.rows[run.switch :]
-    result: dict[str, float] = {"train_episodes": float(len(run.rows)), "c2_episodes": float(len(c2))}
-    for name, rows in (("c1_late", c1[-max(1, len(c1) // 3) :]), ("c2_early", c2[: max(1, len(c2) // 3)]),
-                       ("c2_late", c2[-max(1, len(c2) // 3) :])):  # fmt: skip
-        for key in PHASE_KEYS:
-            values = [float(r.get(key, 0.0)) for r in rows]
-            result[f"{name}_{key}"] = float(np.mean(values)) if values else float("nan")
-    steps = sum(int(r["steps"]) for r in c2)
-    result["c2_takeover_rate"] = sum(int(r.get("takeovers", 0)) for r in c2) / max(steps, 1)
+    result: dict[str, float] = {
+        "train_episodes": float(len(run.rows)),
+        "c2_episodes": float(len(run.rows) - run.switch),
+    }
+    result.update(shift_metrics(run))
     policy = load_agent(out).policy
     episodes = int(config["eval_episodes"])
     evaluated = evaluate(policy, env_factory("sumo"), ["c1", "c2"], episodes, seed, None, False, progress=False)
@@ -161,7 +163,11 @@ STUDY = StudyDef(
         f"name, e.g. sac (one policy per route, {EXPERT_DEMOS} demonstrations cloned, then the budget's "
         "expert_steps); learned experts are cached in experts/<expert>/route1 and route2, route 1's supervises C1, "
         "route 2's C2.",
-        "c1_late / c2_early / c2_late: the last third of C1, the first and the last third of C2. eval_*: the final "
+        "c1_late / c2_early / c2_late: the last third of C1's episodes, the first and the last third of C2's. "
+        "c2_takeover_early / c2_takeover_late: the expert's share of the steps of C2's first and last third of "
+        "episodes; c2_takeover_change and c2_collision_change: late minus early, per seed, so that their ± is the "
+        "95% interval of a paired difference (negative: falling over C2). –: does not apply (a method that never "
+        "hands over has no takeover share; no C2 episodes, or fewer than two for a change). eval_*: the final "
         "policy alone, deterministic, eval_episodes per route. The paper shows this study as curves (Fig. "
         "sumo_1), so no paper numbers stand beside; learning_curves.png draws ours over environment steps.",
     ),

@@ -56,7 +56,11 @@ def register(app: typer.Typer) -> None:
         except (FileNotFoundError, ValueError) as exc:
             _fail(str(exc))
         typer.echo(phase_table(studies))
-        for path in write_figures(studies, out, window, prefix):
+        try:
+            paths = write_figures(studies, out, window, prefix)
+        except ValueError as exc:  # e.g. runs whose switch came after different numbers of episodes (by steps)
+            _fail(str(exc))
+        for path in paths:
             typer.echo(f"figure: {path}")
 
     @group.command("learning-curves")

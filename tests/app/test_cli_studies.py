@@ -185,6 +185,19 @@ def test_figure_command_overlays_runs_with_labels(route_shift_run, tmp_path: Pat
     assert result.exit_code == 2 and "no metrics.jsonl" in result.output
 
 
+def test_figure_command_refuses_runs_that_switch_at_different_episodes_in_one_line(tmp_path: Path) -> None:
+    # a switch by steps (the study's): each run reaches route 2 after its own number of episodes
+    for name, c1 in (("a", 3), ("b", 5)):
+        run = tmp_path / name
+        run.mkdir()
+        rows = [{"steps": 10, "success": 0.0, "collision": 1.0, "red_light": 0.0, "route": 1 if i < c1 else 2}
+                for i in range(c1 + 2)]  # fmt: skip
+        (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    result = sage("figure", "route-shift", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "fig"))
+    assert result.exit_code == 2 and "switch routes after different numbers of episodes" in result.output
+    assert "Traceback" not in result.output
+
+
 def test_protocol_options_that_do_not_fit_fail_with_a_clear_message(tmp_path: Path) -> None:
     result = sage("train", "--sim", "highway", "--protocol", "route-shift", "--out", str(tmp_path / "x"), "--quiet")
     assert result.exit_code == 2 and "route-shift is the SUMO study" in result.output

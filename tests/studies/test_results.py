@@ -96,3 +96,21 @@ def test_the_header_states_the_wall_time_and_the_device_or_that_it_was_not_recor
     (old / "table.md").write_text("# toy\n\nBudget `smoke` (...), commit `abc`, wall time 2.5 min. Paper columns ...\n")
     shown = section("toy", old, doc)
     assert "wall time 2.5 min (device not recorded). Paper columns" in shown and shown.count("not recorded") == 1
+
+
+def test_a_metric_that_does_not_apply_is_shown_as_a_dash_and_a_partial_one_with_its_seeds(tmp_path: Path) -> None:
+    nan = float("nan")
+    rows = [
+        *({"method": "sac", "seed": s, "takeover_change": nan, "collision": 0.5} for s in range(3)),
+        *(
+            {"method": "sage", "seed": s, "takeover_change": v, "collision": 0.2}
+            for s, v in enumerate([-0.2, -0.4, nan])
+        ),
+    ]
+    table = write_results(tmp_path, "route-shift", rows, ("method",), ("takeover_change", "collision"),
+                          budget("smoke"), 1.0, commit="abc1234")  # fmt: skip
+    lines = table.read_text().splitlines()
+    sac = next(line for line in lines if line.startswith("| sac |"))
+    sage = next(line for line in lines if line.startswith("| sage |"))
+    assert sac.startswith("| sac | 3 | – | — | 0.500 ± 0.000 |")
+    assert sage.startswith("| sage | 3 | -0.300 ± 1.271 (n=2) | — |")  # t(1) * 0.1414 = 12.706 * 0.1

@@ -83,3 +83,52 @@ def test_phase_rows_take_the_end_of_c1_and_both_ends_of_c2() -> None:
         "X: C2 first 1": [6],
         "X: C2 last 1": [8],
     }
+
+
+def _write_run(folder: Path, c1: int, c2_takeovers: list[int], takeover: bool = True) -> Path:
+    """A route-shift run folder as `sage train --protocol route-shift` writes it: one demonstration, ``c1`` route-1
+    episodes, then one C2 episode of 100 steps per entry of ``c2_takeovers`` (its expert-driven steps); a C2
+    episode collides when fewer than half of its steps were taken over."""
+    import json
+
+    rows = [{"episode": 0, "steps": 50, "takeovers": 50, "collision": 0.0, "route": 1, "phase": "demo"}]
+    rows += [{"episode": 1 + i, "steps": 100, "takeovers": 0, "collision": 1.0, "route": 1} for i in range(c1)]
+    rows += [
+        {"episode": 1 + c1 + i, "steps": 100, "takeovers": t, "collision": float(t < 50), "route": 2}
+        for i, t in enumerate(c2_takeovers)
+    ]
+    folder.mkdir(parents=True)
+    (folder / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    # a switch by steps: study.json names no switch episode, the first route-2 episode is it
+    (folder / "study.json").write_text(
+        json.dumps({"protocol": "route-shift", "method": "sage", "switch_episode": None})
+    )
+    (folder / "config.json").write_text(json.dumps({"agent": {"method": "sage", "takeover": takeover}}))
+    return folder
+
+
+def test_a_falling_c2_takeover_gives_a_negative_change_and_rising_collisions_a_positive_one(tmp_path: Path) -> None:
+    from studies.route_shift import read_run, shift_metrics
+
+    # C2: six episodes, the expert driving 90, 80, 60, 40, 20, 10 of each episode's 100 steps
+    run = read_run(_write_run(tmp_path / "sage-s0", c1=3, c2_takeovers=[90, 80, 60, 40, 20, 10]))
+    metrics = shift_metrics(run)
+    assert metrics["c2_takeover_early"] == pytest.approx(0.85) and metrics["c2_takeover_late"] == pytest.approx(0.15)
+    assert metrics["c2_takeover_change"] == pytest.approx(-0.7)
+    assert metrics["c2_takeover_rate"] == pytest.approx(0.5)
+    # the first third never collides (taken over most of the way), the last third always does
+    assert (metrics["c2_early_collision"], metrics["c2_late_collision"], metrics["c2_collision_change"]) == (0, 1, 1)
+    assert metrics["c1_late_collision"] == 1.0  # the demonstration is not a C1 episode
+
+
+def test_no_c2_episodes_or_no_takeovers_give_not_applicable_not_an_error(tmp_path: Path) -> None:
+    import math
+
+    from studies.route_shift import read_run, shift_metrics
+
+    no_c2 = shift_metrics(read_run(_write_run(tmp_path / "a", c1=4, c2_takeovers=[])))
+    assert all(math.isnan(no_c2[k]) for k in ("c2_takeover_early", "c2_takeover_change", "c2_collision_change"))
+    assert math.isnan(no_c2["c2_early_collision"]) and no_c2["c1_late_collision"] == 1.0
+    ungated = shift_metrics(read_run(_write_run(tmp_path / "b", c1=2, c2_takeovers=[0, 0, 0], takeover=False)))
+    assert math.isnan(ungated["c2_takeover_early"]) and math.isnan(ungated["c2_takeover_change"])
+    assert ungated["c2_takeover_rate"] == 0.0 and ungated["c2_collision_change"] == 0.0
