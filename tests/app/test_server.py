@@ -243,6 +243,12 @@ def test_the_default_server_opens_on_the_ugv_with_the_committed_policy(tmp_path)
     folder = ROOT / "policies" / "ugv-default"
     committed = (folder / "checkpoint.pt").is_file() or any((folder / "checkpoints").glob("*.pt"))
     default = folder if committed else None
+    if default is not None:
+        from core.agents import warm_gate_kernels
+
+        # as `sage serve` does before it serves: a fresh clone compiles the gate's kernels once (numba's cache is
+        # cold), which is not the loop's first step; under the parallel suite it would share the CPU with other tests
+        warm_gate_kernels([str(default)])
     settings = ServerSettings(sessions=tmp_path, policy_roots=[ROOT / "policies", ROOT / "runs"])
     live, thread = start_server(settings)
     try:
