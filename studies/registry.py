@@ -23,7 +23,7 @@ from typing import Any
 
 from studies.budgets import Budget, budget
 from studies.results import write_results
-from studies.sweep import TrialFn, run_sweep, trial_gpu_share
+from studies.sweep import SweepError, TrialFn, TrialLedger, run_sweep, trial_gpu_share
 
 
 @dataclass(frozen=True)
@@ -73,6 +73,9 @@ class StudyDef:
     """``figures(results folder, settings) -> paths``: the study's own figures from its trials' run folders,
     drawn after the table."""
 
+
+LEDGER = "trials"
+"""The results folder's subfolder of finished trials' rows (committed; a study resumes from it on any machine)."""
 
 PREPARED_NOTES = "table_notes"
 """The key of a ``prepare`` result whose sentences go under the table rather than to the trials."""
@@ -176,7 +179,8 @@ def run_study(
     ablation at the same budgets and seeds), stated under the table too. ``device``: where every trial's updates
     run (resolved, ``cpu`` or ``cuda``: :func:`core.device.resolve_device`); on CUDA each trial asks Ray for a share of
     the GPU. The table states it. The Ray experiment state lives in
-    ``out/sweep``: rerunning the same command resumes it.
+    ``out/sweep`` and each finished trial's row in ``out/trials`` (:class:`studies.sweep.TrialLedger`, committed with
+    the table): rerunning the same command resumes, on this machine or another.
     """
     study = get_study(name)
     spent: Budget = budget(budget_name)
@@ -218,29 +222,41 @@ def run_study(
         prepared = dict(study.prepare(out, settings))
         prepared_notes = [str(n) for n in prepared.pop(PREPARED_NOTES, [])]
         settings.update(prepared)
-    rows = run_sweep(
-        study.trial,
-        chosen_methods,
-        seeds,
-        out / "sweep",
-        name,
-        settings=settings,
-        address=address,
-        cpus=cpus,
-        max_concurrent=max_concurrent,
-        gpu_share=trial_gpu_share(device, max_concurrent or cpus),
-    )
+    wall_log = out / LEDGER / "wall_times.json"
+    try:
+        rows = run_sweep(
+            study.trial,
+            chosen_methods,
+            seeds,
+            out / "sweep",
+            name,
+            settings=settings,
+            address=address,
+            cpus=cpus,
+            max_concurrent=max_concurrent,
+            gpu_share=trial_gpu_share(device, max_concurrent or cpus),
+            ledger=TrialLedger.for_results(out / LEDGER, settings, out),
+        )
+    except SweepError:  # a stopped or partly failed invocation spent its wall time too: the log keeps it
+        _log_wall_time(wall_log, time.perf_counter() - start, max_concurrent, finished=False)
+        raise
     wall_s = time.perf_counter() - start
-    runs = _log_wall_time(out / "sweep" / "wall_times.json", wall_s, max_concurrent)
+    runs = _log_wall_time(wall_log, wall_s, max_concurrent)
     total_s = sum(float(r["wall_s"]) for r in runs)
     table_rows = [r for row in rows for r in _unpack(row, study.row_keys, study.metrics)]
     trial_s = sum(float(row.get("trial_seconds", 0.0)) for row in rows)
     changed = [f"{k}={v}" for k, v in (overrides or {}).items()]
+    elsewhere = [r for r in rows if not (Path(settings["runs_dir"]) / f"{r['method']}-s{r['seed']}").is_dir()]
+    if elsewhere and study.figures is not None:
+        prepared_notes.append(
+            f"{len(elsewhere)} of {len(rows)} trials ran on another machine (their rows are from `{LEDGER}/`, their "
+            "run folders are not here): the figures drawn from run folders show only the others."
+        )
     timing = (
         f"The trials ran {trial_s / 60:.1f} min in total ({len(rows)} trials, at most "
         f"{max_concurrent or 'one per core'} at once). The wall time above is the sum over the {len(runs)} "
-        f"invocation(s) of this command on this results folder (this one: {wall_s / 60:.1f} min); a rerun resumes "
-        "finished trials from the sweep folder instead of running them again."
+        f"invocation(s) of this command on this results folder, stopped ones included (this one: {wall_s / 60:.1f} "
+        f"min); a rerun resumes: finished trials are read from `{LEDGER}/`, not run again."
     )
     table = write_results(
         out,
@@ -282,9 +298,11 @@ def run_study(
     return table
 
 
-def _log_wall_time(path: Path, wall_s: float, max_concurrent: int | None) -> list[dict[str, Any]]:
-    """Append this invocation's wall time to the sweep folder's log and return every entry: a study that was
-    interrupted and resumed reports the wall time it really took, not only its last (resuming) run's."""
+def _log_wall_time(
+    path: Path, wall_s: float, max_concurrent: int | None, finished: bool = True
+) -> list[dict[str, Any]]:
+    """Append this invocation's wall time to the results folder's log (committed with the ledger) and return every
+    entry: a study that was interrupted and resumed, here or elsewhere, reports the wall time it really took."""
     runs: list[dict[str, Any]] = []
     if path.exists():
         try:
@@ -292,7 +310,8 @@ def _log_wall_time(path: Path, wall_s: float, max_concurrent: int | None) -> lis
             runs = [r for r in loaded if isinstance(r, dict) and isinstance(r.get("wall_s"), (int, float))]
         except (OSError, ValueError):
             runs = []  # an unreadable log loses only earlier timings, never the results
-    runs.append({"wall_s": wall_s, "max_concurrent": max_concurrent, "finished": time.strftime("%Y-%m-%dT%H:%M:%S")})
+    ended = time.strftime("%Y-%m-%dT%H:%M:%S")
+    runs.append({"wall_s": wall_s, "max_concurrent": max_concurrent, "ended": ended, "finished": finished})
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(runs, indent=1))
     return runs

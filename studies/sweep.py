@@ -10,13 +10,20 @@ counts finished trials.
 A trial is a plain picklable function ``trial(config) -> {metric: value}``; ``config`` holds ``method``,
 ``seed`` and the sweep's fixed settings. Each trial process sets torch to one thread so that concurrent
 trials do not oversubscribe the cores.
+
+Tune's state lives on the machine that ran it. A :class:`TrialLedger` keeps each finished trial's row beside the
+results, one small JSON file a trial written as the trial finishes, in a folder meant to be committed: a study that
+outlives a session (or a machine) resumes from it anywhere, running only the trials it lacks.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import socket
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,17 +34,151 @@ class SweepError(RuntimeError):
     """Some trials failed; the finished ones are kept in the sweep folder and a rerun resumes the rest."""
 
 
+class SweepInterrupted(SweepError):
+    """The sweep was stopped (Ctrl+C) before every trial finished; the finished ones are kept for a rerun."""
+
+
+class LedgerError(ValueError):
+    """A trial ledger row that ran with other settings or cannot be read; ``str()`` is one line saying what to do."""
+
+
+CASE = "trial"
+"""The config key of a sweep's (method, seed) when it runs only some pairs of its grid (a ledger held the rest)."""
+
+
+def _trial_config(config: Mapping[str, Any]) -> dict[str, Any]:
+    """A trial's config with its (method, seed) at the top level, however the sweep laid out its grid."""
+    flat = {k: v for k, v in config.items() if k != CASE}
+    flat.update(config.get(CASE) or {})
+    return flat
+
+
 def _run_trial(config: dict[str, Any], trial: TrialFn) -> dict[str, float]:
     """Inside the Ray worker: one torch thread, then the trial itself (its return value is the result)."""
     import torch
 
     torch.set_num_threads(1)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    result = dict(trial(dict(config)))
+    result = dict(trial(_trial_config(config)))
     bad = [k for k, v in result.items() if not isinstance(v, (int, float))]
     if bad:
         raise TypeError(f"trial results must be numbers; {bad} are not")
     return result
+
+
+INVOCATION_KEYS = frozenset({"methods"})
+"""Sweep settings that say what one invocation runs, not how a trial runs: left out of a ledger's settings."""
+
+
+@dataclass(frozen=True)
+class TrialLedger:
+    """Finished trials' rows, ``<method>-s<seed>.json`` in ``folder``, each with the settings it ran with.
+
+    Meant to be committed beside a study's table: Tune's experiment state (``sweep/``) and the run folders are not,
+    so without it a study interrupted on one machine starts again from nothing on the next. ``settings`` are the
+    sweep's fixed settings with the machine's paths (``root``, the results folder, and the checkout) written as
+    placeholders, so that the same study on another machine reads the same; a ledger row run with other settings is
+    refused, never mixed into a table.
+    """
+
+    folder: Path
+    settings: Mapping[str, Any]
+
+    @classmethod
+    def for_results(cls, folder: Path, settings: Mapping[str, Any], root: Path) -> TrialLedger:
+        """The ledger ``folder`` of a study whose results folder is ``root``, for ``settings`` (portable form)."""
+        repo = Path(__file__).resolve().parent.parent
+        swaps = [(str(Path(root).resolve()), "<results>"), (str(repo), "<repo>")]
+        # which methods an invocation runs does not change a trial: a later call may ask for more or fewer of them
+        trial_settings = {k: v for k, v in settings.items() if k not in INVOCATION_KEYS}
+        return cls(Path(folder), _portable(trial_settings, swaps))
+
+    def path(self, method: str, seed: int) -> Path:
+        return self.folder / f"{method}-s{seed}.json"
+
+    @property
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps(self.settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+    def read(self, methods: Sequence[str], seeds: Sequence[int]) -> dict[tuple[str, int], dict[str, Any]]:
+        """The rows this ledger holds for these (method, seed) pairs. :class:`LedgerError` for a row that ran with
+        other settings or cannot be read: the person decides, the table never mixes them."""
+        rows: dict[tuple[str, int], dict[str, Any]] = {}
+        for method in methods:
+            for seed in seeds:
+                path = self.path(method, seed)
+                if not path.is_file():
+                    continue
+                try:
+                    entry = json.loads(path.read_text())
+                    row = {"method": method, "seed": seed, **entry["row"]}
+                    theirs = entry["settings"]
+                except (OSError, ValueError, KeyError, TypeError) as error:
+                    raise LedgerError(
+                        f"{path}: not a trial ledger row ({error}); delete it to run that trial again"
+                    ) from None
+                ours = json.loads(json.dumps(self.settings, default=str))
+                if theirs != ours:
+                    differ = sorted(k for k in {*theirs, *ours} if theirs.get(k) != ours.get(k))
+                    raise LedgerError(
+                        f"{path} ran with other settings ({', '.join(differ)}): give another results folder, or "
+                        "delete that file to run the trial again with these settings"
+                    )
+                rows[(method, seed)] = row
+        return rows
+
+    def write(self, row: Mapping[str, Any]) -> None:
+        """Keep one finished trial's row (atomically: an interrupted write leaves the old file or none)."""
+        method, seed = str(row["method"]), int(row["seed"])
+        entry = {
+            "row": {k: v for k, v in row.items() if k not in ("method", "seed")},
+            "settings": self.settings,
+            "digest": self.digest,
+        }
+        self.folder.mkdir(parents=True, exist_ok=True)
+        path = self.path(method, seed)
+        partial = path.with_suffix(".json.partial")
+        partial.write_text(json.dumps(entry, indent=1, sort_keys=True, default=str) + "\n")
+        partial.replace(path)
+
+
+def _portable(value: Any, swaps: Sequence[tuple[str, str]]) -> Any:
+    """``value`` with absolute paths under the results folder or the checkout written as placeholders."""
+    if isinstance(value, str):
+        for prefix, placeholder in swaps:
+            if value == prefix or value.startswith(prefix + os.sep):
+                return placeholder + value[len(prefix) :]
+        return value
+    if isinstance(value, Mapping):
+        return {str(k): _portable(v, swaps) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_portable(v, swaps) for v in value]
+    return value
+
+
+def _trial_row(config: Mapping[str, Any], metrics: Mapping[str, Any]) -> dict[str, Any] | None:
+    """A finished trial's row from Tune's config and last result; None where the trial reported nothing of its
+    own (it was stopped before it finished)."""
+    own = {k: v for k, v in metrics.items() if k not in _TUNE_KEYS}
+    if not own:
+        return None
+    flat = _trial_config(config)
+    seconds = float(metrics.get("time_total_s") or 0.0)
+    return {"method": flat["method"], "seed": flat["seed"], "trial_seconds": seconds, **own}
+
+
+def _ledger_callback(ledger: TrialLedger) -> Any:
+    from ray.tune import Callback
+
+    class _Ledger(Callback):
+        """Writes each trial's row into the ledger the moment it finishes, so a stop later loses none of them."""
+
+        def on_trial_complete(self, iteration: int, trials: list[Any], trial: Any, **info: Any) -> None:
+            row = _trial_row(trial.config or {}, trial.last_result or {})
+            if row is not None:
+                ledger.write(row)
+
+    return _Ledger()
 
 
 def _progress_callback(total: int) -> Any:
@@ -232,6 +373,7 @@ def run_sweep(
     cpus: int | None = None,
     max_concurrent: int | None = None,
     gpu_share: float = 0.0,
+    ledger: TrialLedger | None = None,
 ) -> list[dict[str, Any]]:
     """Run ``trial`` for every (method, seed), resuming ``storage/name`` if it exists; one row per trial.
     ``gpu_share``: the part of a GPU each trial asks Ray for (:func:`trial_gpu_share`; 0: none, CPU trials).
@@ -239,51 +381,96 @@ def run_sweep(
     Each row holds ``method``, ``seed``, ``trial_seconds`` (the trial's own run time, also for trials restored from
     an earlier run) and the trial's metrics, sorted by method then seed. ``settings``
     are passed to every trial unchanged (budget, study options). ``max_concurrent`` caps simultaneous
-    trials (default: as many as the cores allow). Raises :class:`SweepError` naming the failed trials after
-    all others have finished.
+    trials (default: as many as the cores allow). ``ledger``: where finished trials' rows are kept as they finish
+    and read back first: only the pairs it lacks run (none: no Ray at all). Raises :class:`SweepError` naming the
+    failed trials after all others have finished, :class:`SweepInterrupted` when stopped before the end.
     """
     if not methods or not seeds:
         raise ValueError("a sweep needs at least one method and one seed")
     if len(set(seeds)) != len(seeds) or len(set(methods)) != len(methods):
         raise ValueError(f"duplicate methods or seeds: {list(methods)}, {list(seeds)}")
+    pairs = [(m, s) for m in methods for s in seeds]
+    kept = ledger.read(methods, seeds) if ledger is not None else {}
+    pending = [pair for pair in pairs if pair not in kept]
+    found = dict(kept)
+    if pending:
+        ran = _run_pending(
+            trial, pairs, pending, Path(storage), name, settings, address, cpus, max_concurrent, gpu_share, ledger
+        )
+        found.update(ran)
+    return sorted(found.values(), key=lambda r: (list(methods).index(r["method"]), r["seed"]))
+
+
+def _run_pending(
+    trial: TrialFn,
+    pairs: Sequence[tuple[str, int]],
+    pending: Sequence[tuple[str, int]],
+    storage: Path,
+    name: str,
+    settings: Mapping[str, Any] | None,
+    address: str | None,
+    cpus: int | None,
+    max_concurrent: int | None,
+    gpu_share: float,
+    ledger: TrialLedger | None,
+) -> dict[tuple[str, int], dict[str, Any]]:
+    """Tune over the ``pending`` pairs (or the experiment state in ``storage/name``, resumed): their rows."""
     from ray import tune
 
     ensure_ray(address, cpus)
-    storage = Path(storage).resolve()
+    storage = storage.resolve()
     storage.mkdir(parents=True, exist_ok=True)
     resources = {"cpu": 1, **({"gpu": gpu_share} if gpu_share > 0 else {})}
     trainable = tune.with_resources(tune.with_parameters(_run_trial, trial=trial), resources)
     path = storage / name
-    total = len(methods) * len(seeds)
-    run_config = tune.RunConfig(storage_path=str(storage), name=name, callbacks=[_progress_callback(total)], verbose=0)
+    callbacks = [_progress_callback(len(pending)), *([_ledger_callback(ledger)] if ledger is not None else [])]
+    run_config = tune.RunConfig(storage_path=str(storage), name=name, callbacks=callbacks, verbose=0)
     if tune.Tuner.can_restore(str(path)):
         tuner = tune.Tuner.restore(str(path), trainable, resume_errored=False, restart_errored=True, param_space=None)
     else:
-        param_space = {
-            **dict(settings or {}),
-            "method": tune.grid_search(list(methods)),
-            "seed": tune.grid_search(list(seeds)),
-        }
+        methods = list(dict.fromkeys(m for m, _ in pending))
+        seeds = list(dict.fromkeys(s for _, s in pending))
+        if len(methods) * len(seeds) == len(pending):  # a whole grid: laid out as every earlier sweep was
+            grid = {"method": tune.grid_search(methods), "seed": tune.grid_search(seeds)}
+        else:  # the pairs a ledger lacks
+            grid = {CASE: tune.grid_search([{"method": m, "seed": s} for m, s in pending])}
         tuner = tune.Tuner(
             trainable,
-            param_space=param_space,
+            param_space={**dict(settings or {}), **grid},
             tune_config=tune.TuneConfig(max_concurrent_trials=max_concurrent or 0),
             run_config=run_config,
         )
-    grid = tuner.fit()
-    rows: list[dict[str, Any]] = []
+    try:
+        results = tuner.fit()
+    except KeyboardInterrupt:  # a second Ctrl+C: Tune's own stop was cut short
+        where = ledger.folder if ledger is not None else path
+        raise SweepInterrupted(f"stopped; the trials that had finished are kept in {where}: rerun to resume") from None
+    rows: dict[tuple[str, int], dict[str, Any]] = {}
     failed: list[str] = []
-    for result in grid:
-        config = result.config or {}
+    unfinished = 0
+    for result in results:
+        config = _trial_config(result.config or {})
+        if (config.get("method"), config.get("seed")) not in pairs:
+            continue
         if result.error is not None:
             failed.append(f"{config.get('method')} seed {config.get('seed')}: {result.error!r}")
             continue
-        metrics = {k: v for k, v in (result.metrics or {}).items() if k in _metric_keys(result)}
-        seconds = float((result.metrics or {}).get("time_total_s") or 0.0)
-        rows.append({"method": config["method"], "seed": config["seed"], "trial_seconds": seconds, **metrics})
+        row = _trial_row(result.config or {}, result.metrics or {})
+        if row is None:
+            unfinished += 1
+            continue
+        if ledger is not None:
+            ledger.write(row)  # also the trials a resumed Tune state had finished before the ledger existed
+        rows[(row["method"], row["seed"])] = row
     if failed:
-        raise SweepError(f"{len(failed)} of {total} trials failed (rerun to resume): " + "; ".join(failed))
-    return sorted(rows, key=lambda r: (list(methods).index(r["method"]), r["seed"]))
+        raise SweepError(f"{len(failed)} of {len(pairs)} trials failed (rerun to resume): " + "; ".join(failed))
+    if unfinished:
+        where = ledger.folder if ledger is not None else path
+        raise SweepInterrupted(
+            f"stopped with {unfinished} of {len(pairs)} trials unfinished; the finished ones are kept in {where}: "
+            "rerun the same command to resume"
+        )
+    return rows
 
 
 _TUNE_KEYS = {

@@ -138,10 +138,15 @@ def register(app: typer.Typer) -> None:
         except ValueError as error:
             fail(str(error))
         results = out or Path("results") / f"{name}-{budget}"
-        run_study(
-            name, budget, results, address, cpus, max_concurrent, overrides=overrides, methods=chosen,
-            train_steps=train_steps, learner_overrides=learner_overrides, device=resolved_device,
-        )  # fmt: skip
+        from studies.sweep import ClusterError, LedgerError, SweepError
+
+        try:
+            run_study(
+                name, budget, results, address, cpus, max_concurrent, overrides=overrides, methods=chosen,
+                train_steps=train_steps, learner_overrides=learner_overrides, device=resolved_device,
+            )  # fmt: skip
+        except (SweepError, ClusterError, LedgerError) as error:  # stopped, failed trials, a refused ledger row
+            fail(str(error))
         if results_doc is not None:
             from studies.readme import RESULTS_DOC, SUMMARY_README, update_results, update_summary
 

@@ -62,6 +62,9 @@ def test_a_study_runs_a_subset_of_its_methods_for_a_given_step_budget(ray_local:
         args += [str(tmp_path), "--results-doc", str(readme), "--section", "toy-long"]
         result = CliRunner().invoke(app, args)
         assert result.exit_code == 0, result.output
+        # the same folder with another budget: its committed trials are refused in one line, never mixed in
+        again = CliRunner().invoke(app, [*args[:7], "999", *args[8:]])
+        assert again.exit_code == 2 and "sage-s0.json ran with other settings (train_steps)" in again.output
     finally:
         unregister_study(study.name)
     text = (tmp_path / "table.md").read_text()
@@ -82,14 +85,22 @@ def test_study_runs_every_seed_and_writes_rows_per_split(ray_local: None, toy_st
     assert "over the 1 invocation(s)" in first and "over the 2 invocation(s)" in text
     import json
 
-    runs = json.loads((tmp_path / "sweep" / "wall_times.json").read_text())
-    assert len(runs) == 2 and all(r["wall_s"] > 0 for r in runs)
+    runs = json.loads((tmp_path / "trials" / "wall_times.json").read_text())
+    assert len(runs) == 2 and all(r["wall_s"] > 0 and r["finished"] for r in runs)
     total_min = sum(r["wall_s"] for r in runs) / 60
     assert f"wall time {total_min:.1f} min on the CPU (" in text  # and where: the processor's model name
     # smoke budget: two seeds (0, 1); split a: 0.0, 0.1 -> mean 0.05; split b: 1, 2 -> mean 1.5
     assert "| a | sage | 2 | 0.050 ± 0.635 | — |" in text
     assert "| b | sage | 2 | 1.500 ± 6.353 | — |" in text
     assert (tmp_path / "seeds.csv").read_text().count("\n") == 5  # header + 2 seeds x 2 splits
+    # another machine: the committed ledger without Tune's state (sweep/) gives the same table, running nothing
+    assert sorted(p.name for p in (tmp_path / "trials").glob("*-s*.json")) == ["sage-s0.json", "sage-s1.json"]
+    import shutil
+
+    shutil.rmtree(tmp_path / "sweep")
+    table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)
+    assert "| b | sage | 2 | 1.500 ± 6.353 | — |" in table.read_text()
+    assert not (tmp_path / "sweep").exists()  # no Ray experiment was started
 
 
 def overrides_trial(config: dict[str, Any]) -> dict[str, float]:

@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("ray")
 
-from studies.sweep import SweepError, run_sweep, run_tasks
+from studies.sweep import LedgerError, SweepError, TrialLedger, _trial_row, run_sweep, run_tasks
 
 
 def toy_trial(config: dict[str, Any]) -> dict[str, float]:
@@ -59,3 +59,43 @@ def test_tasks_run_in_fresh_worker_processes_in_order_and_failures_are_named(ray
     assert (tmp_path / "done-4").is_file()  # the sibling of the failed task finished and kept its work
     with pytest.raises(ValueError, match="1 labels for 2 calls"):
         run_tasks(toy_task, [{"value": 1, "folder": "x"}] * 2, labels=["only one"])
+
+
+def test_a_ledger_keeps_finished_trials_so_another_machine_runs_only_the_missing_ones(
+    ray_local: None, tmp_path: Path
+) -> None:
+    ledger = TrialLedger.for_results(tmp_path / "results" / "trials", {"scale": 2.0}, tmp_path / "results")
+    first = run_sweep(toy_trial, ["a"], [1, 3], tmp_path / "machine1", "toy", {"scale": 2.0}, ledger=ledger)
+    assert sorted(p.name for p in ledger.folder.glob("*.json")) == ["a-s1.json", "a-s3.json"]
+    # a fresh machine (no Tune state) asked for more: the ledger's trials are read, only b's run
+    rows = run_sweep(toy_trial, ["a", "b"], [1, 3], tmp_path / "machine2", "toy", {"scale": 2.0}, ledger=ledger)
+    assert [(r["method"], r["seed"], r["score"]) for r in rows] == [
+        ("a", 1, 2.0), ("a", 3, 6.0), ("b", 1, 102.0), ("b", 3, 106.0)
+    ]  # fmt: skip
+    assert [r["worker_pid"] for r in rows[:2]] == [r["worker_pid"] for r in first]  # not run again
+    assert all(r["trial_seconds"] > 0 for r in rows)
+    assert len(list(ledger.folder.glob("*.json"))) == 4
+
+
+def test_a_ledger_refuses_rows_run_with_other_settings_and_reads_paths_portably(tmp_path: Path) -> None:
+    root = tmp_path / "results"
+    ledger = TrialLedger.for_results(root / "trials", {"scale": 2.0, "runs_dir": str(root / "runs")}, root)
+    assert ledger.settings["runs_dir"] == "<results>/runs"  # the same on any machine
+    asked = TrialLedger.for_results(root / "trials", {"scale": 2.0, "methods": ["a"]}, root)
+    assert "methods" not in asked.settings  # which methods one invocation runs does not change a trial
+    ledger.write({"method": "a", "seed": 0, "trial_seconds": 1.0, "score": 5.0})
+    moved = tmp_path / "elsewhere"
+    same = TrialLedger.for_results(root / "trials", {"scale": 2.0, "runs_dir": str(moved / "runs")}, moved)
+    assert same.read(["a"], [0, 1]) == {("a", 0): {"method": "a", "seed": 0, "trial_seconds": 1.0, "score": 5.0}}
+    other = TrialLedger.for_results(root / "trials", {"scale": 3.0, "runs_dir": str(root / "runs")}, root)
+    with pytest.raises(LedgerError, match=r"a-s0.json ran with other settings \(scale\)"):
+        other.read(["a"], [0])
+    (root / "trials" / "a-s0.json").write_text("{not json")
+    with pytest.raises(LedgerError, match="not a trial ledger row"):
+        ledger.read(["a"], [0])
+
+
+def test_a_trial_stopped_before_it_reported_has_no_row() -> None:
+    assert _trial_row({"method": "a", "seed": 0}, {"time_total_s": 3.0, "pid": 1}) is None
+    row = _trial_row({"trial": {"method": "b", "seed": 2}, "scale": 1.0}, {"time_total_s": 3.0, "score": 1.5})
+    assert row == {"method": "b", "seed": 2, "trial_seconds": 3.0, "score": 1.5}
