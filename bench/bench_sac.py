@@ -26,7 +26,8 @@ command, the commit and the processor into the file's generated block.
 ``--before REV`` times instead SAGE-SAC over the ego step + contact with its update's code (``core/sage/fear.py``,
 ``core/sage/sac.py`` and ``core/sage/networks.py``) as git holds it at REV against it now, on one learner at each
 ``--batch`` (5 members), beside our SAC, in interleaved rounds: each round's now/before time and the + contact / SAC
-ratios, so that a change to the update's cost is measured in one process.
+ratios, so that a change to the update's cost is measured in one process. The contenders take turns update by update
+(each update timed alone), so that the shared machine's load falls on both sides alike.
 
 ``--device`` adds SAC and SAGE-SAC on CUDA, eager and replayed as a CUDA graph (``learner.cuda_graph``), beside the CPU,
 where torch sees a GPU; elsewhere it says so. ``bench/gpu_check.py`` measures batches 256 to 4096.
@@ -302,6 +303,29 @@ def measure_rounds(
     return rates
 
 
+def alternated_rounds(
+    contenders: dict[str, Callable[[], None]], rounds: int, updates: int, clock: str
+) -> dict[str, list[float]]:
+    """Milliseconds per update of each contender in each of ``rounds`` rounds (after a warm-up), the contenders taking
+    turns update by update, each update timed alone: a change of the machine's load then falls on all of them alike
+    (rounds of consecutive updates per contender, as :func:`measure_rounds`, leave seconds between the updates that
+    ``--before`` compares, over which a shared machine's load moves the ratio by several per cent)."""
+    read = CLOCKS[clock]
+    for fn in contenders.values():  # warm-up
+        rate(fn, 20)
+    ms: dict[str, list[float]] = {name: [] for name in contenders}
+    for _ in range(rounds):
+        spent = dict.fromkeys(contenders, 0.0)
+        for _ in range(updates):
+            for name, fn in contenders.items():
+                start = read()
+                fn()
+                spent[name] += read() - start
+        for name, seconds in spent.items():
+            ms[name].append(1000.0 * seconds / updates)
+    return ms
+
+
 def before_rows(args: argparse.Namespace) -> None:
     """``--before REV``: SAGE-SAC over the ego step + contact with its update's code at REV and now, on the same
     learner, and our SAC, in interleaved rounds at each batch; per round the now / before time and each side's ratio to
@@ -338,12 +362,11 @@ def before_rows(args: argparse.Namespace) -> None:
         contenders[f"sac {batch}"] = ours("sac", rng, batch=batch).update
         contenders[f"before {batch}"] = with_old_code(touching)
         contenders[f"now {batch}"] = touching.update
-    rates = measure_rounds(contenders, args.rounds, args.updates, args.clock)
-    ms = {name: [1000.0 / value for value in values] for name, values in rates.items()}
+    ms = alternated_rounds(contenders, args.rounds, args.updates, args.clock)
     print(
         f"SAGE-SAC over the ego step + contact, core/sage/{{fear,sac,networks}}.py at {args.before} (before) and now, "
-        "5 members, one "
-        f"thread, {args.clock} clock, {args.rounds} interleaved rounds of {args.updates} updates (ms per update):"
+        f"5 members, one thread, {args.clock} clock, {args.rounds} rounds of {args.updates} updates, the contenders "
+        "taking turns update by update (ms per update):"
     )
     for batch in batches:
         sac, before, now = ms[f"sac {batch}"], ms[f"before {batch}"], ms[f"now {batch}"]
