@@ -20,8 +20,9 @@ step and tests it in the same call, without a graph (``core.sage.fear.rollout``,
 
 ``--batch 256,1024 --ensemble 5,7`` measures instead what larger batches and world-model ensembles cost: our SAC at
 each batch, SAGE-SAC (and with ``--ego`` over the ego step, without and with contact) at each batch and ensemble size,
-the ratios to SAC at the same batch, interleaved as above; ``--write docs/speed.md`` writes that table with the
-command, the commit and the processor into the file's generated block.
+the ratios to SAC at the same batch, the learners taking turns update by update (as ``--before`` below);
+``--write docs/speed.md`` writes that table with the command, the commit and the processor into the file's generated
+block.
 
 ``--before REV`` times instead SAGE-SAC over the ego step + contact with its update's code (``core/sage/fear.py``,
 ``core/sage/sac.py`` and ``core/sage/networks.py``) as git holds it at REV against it now, on one learner at each
@@ -412,8 +413,8 @@ def sizes_table(args: argparse.Namespace) -> None:
                 learner = ours("sage", rng, world_model={**layout, "members": n}, batch=batch, **overrides)
                 assert learner.world_model is not None and learner.world_model.members == n
                 contenders[f"{name} {batch} {n}"] = learner.update
-    median = measure(contenders, args.rounds, args.updates, args.clock)
-    ms = {name: 1000.0 / value for name, value in median.items()}
+    rounds = alternated_rounds(contenders, args.rounds, args.updates, args.clock)
+    ms = {name: statistics.median(values) for name, values in rounds.items()}
     header = ["batch", "world-model members", "our SAC, ms"]
     for name in layouts:
         header += [f"{name}, ms", f"{name} / SAC"]
@@ -429,9 +430,9 @@ def sizes_table(args: argparse.Namespace) -> None:
     load = ", ".join(f"{x:.2f}" for x in _loadavg())
     notes = [
         f"`{command}` at commit {_commit()}, one thread of {processor_name()} (torch {torch.__version__}); median of "
-        f"{args.rounds} interleaved rounds of {args.updates} updates, {args.clock} clock; load average {load} at the "
-        f"end; {time.strftime('%Y-%m-%d', time.gmtime())}. SAC has no world model: its column repeats per ensemble "
-        "size."
+        f"{args.rounds} rounds of {args.updates} updates, the learners taking turns update by update, {args.clock} "
+        f"clock; load average {load} at the end; {time.strftime('%Y-%m-%d', time.gmtime())}. SAC has no world model: "
+        "its column repeats per ensemble size."
     ]
     table = "\n".join(lines)
     print(table)
