@@ -31,26 +31,13 @@ unless a moved return lands within 1e-12 of the robot), and the nearest hit is t
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _meet(ax: float, ay: float, ex: float, ey: float, ux: float, uy: float) -> float:
     """Where the ray u meets the segment A -> A + E (inf: it does not); the arithmetic of ``core.motion._cast``, its
-    second division only where the ray is within the segment.
-
-    Whether it is, ``0 <= across <= 1`` for ``across = (ax uy - ay ux) / den``, is decided without that division where
-    the numerator is clear of both ends: within [0, |den|] the rounded quotient is within [0, 1] (rounding is monotone),
-    beyond |den| (1 + 1e-15) it rounds above 1, under -1e-300 |den| below 0. Only a numerator within rounding of an end
-    (or not finite) is divided, as before, so every hit and miss is the division's (``tests/core/test_ego_kernel.py``);
-    most candidates miss, and a miss now costs no division at all (issue 63)."""
+    second division only where the first finds the ray within the segment."""
     den = ux * ey - uy * ex
     if abs(den) <= 1e-9:
         return math.inf
-    num = ax * uy - ay * ux
-    size = den
-    if den < 0.0:  # (-num) / (-den) is num / den exactly: the same quotient, tested against a positive divisor
-        num, size = -num, -den
-    if not (0.0 <= num <= size < 1e300):
-        if num > size * (1.0 + 1e-15) or num < -1e-300 * size:
-            return math.inf
-        across = num / size
-        if not 0.0 <= across <= 1.0:
-            return math.inf
+    across = (ax * uy - ay * ux) / den
+    if not 0.0 <= across <= 1.0:  # tested first: most candidates miss, and then need no second division
+        return math.inf
     along = (ax * ey - ay * ex) / den
     return along if along > 0.0 else math.inf
 
