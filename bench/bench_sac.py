@@ -20,12 +20,15 @@ step and tests it in the same call, without a graph (``core.sage.fear.rollout``,
 
 ``--batch 256,1024 --ensemble 5,7`` measures instead what larger batches and world-model ensembles cost: our SAC at
 each batch, SAGE-SAC (and with ``--ego`` over the ego step, without and with contact) at each batch and ensemble size,
-the ratios to SAC at the same batch, interleaved as above; ``--write docs/speed.md`` writes that table with the
-command, the commit and the processor into the file's generated block.
+the ratios to SAC at the same batch, the learners taking turns update by update (as ``--before`` below);
+``--write docs/speed.md`` writes that table with the command, the commit and the processor into the file's generated
+block.
 
-``--before REV`` times instead SAGE-SAC over the ego step + contact with ``core/sage/fear.py`` as git holds it at REV
-against it now, on one learner at each ``--batch`` (5 members), beside our SAC, in interleaved rounds: each round's
-now/before time and the + contact / SAC ratios, so that a change to the fear terms' cost is measured in one process.
+``--before REV`` times instead SAGE-SAC over the ego step + contact with its update's code (``core/sage/fear.py``,
+``core/sage/sac.py`` and ``core/sage/networks.py``) as git holds it at REV against it now, on one learner at each
+``--batch`` (5 members), beside our SAC, in interleaved rounds: each round's now/before time and the + contact / SAC
+ratios, so that a change to the update's cost is measured in one process. The contenders take turns update by update
+(each update timed alone), so that the shared machine's load falls on both sides alike.
 
 ``--device`` adds SAC and SAGE-SAC on CUDA, eager and replayed as a CUDA graph (``learner.cuda_graph``), beside the CPU,
 where torch sees a GPU; elsewhere it says so. ``bench/gpu_check.py`` measures batches 256 to 4096.
@@ -215,7 +218,8 @@ def main() -> None:
     parser.add_argument(
         "--before",
         metavar="REV",
-        help="SAGE-SAC over the ego step + contact with core/sage/fear.py at this git commit against it now",
+        help="SAGE-SAC over the ego step + contact with core/sage/{fear,sac,networks}.py at this git commit against "
+        "them now",
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -300,24 +304,53 @@ def measure_rounds(
     return rates
 
 
+def alternated_rounds(
+    contenders: dict[str, Callable[[], None]], rounds: int, updates: int, clock: str
+) -> dict[str, list[float]]:
+    """Milliseconds per update of each contender in each of ``rounds`` rounds (after a warm-up), the contenders taking
+    turns update by update, each update timed alone: a change of the machine's load then falls on all of them alike
+    (rounds of consecutive updates per contender, as :func:`measure_rounds`, leave seconds between the updates that
+    ``--before`` compares, over which a shared machine's load moves the ratio by several per cent)."""
+    read = CLOCKS[clock]
+    for fn in contenders.values():  # warm-up
+        rate(fn, 20)
+    ms: dict[str, list[float]] = {name: [] for name in contenders}
+    for _ in range(rounds):
+        spent = dict.fromkeys(contenders, 0.0)
+        for _ in range(updates):
+            for name, fn in contenders.items():
+                start = read()
+                fn()
+                spent[name] += read() - start
+        for name, seconds in spent.items():
+            ms[name].append(1000.0 * seconds / updates)
+    return ms
+
+
 def before_rows(args: argparse.Namespace) -> None:
-    """``--before REV``: SAGE-SAC over the ego step + contact with the fear terms of ``core/sage/fear.py`` at REV (the
-    learner's ``fear`` swapped for that module's during its update) and now, on the same learner, and our SAC, in
-    interleaved rounds at each batch; per round the now / before time and each side's ratio to SAC."""
-    import core.sage.sac as sac_module
+    """``--before REV``: SAGE-SAC over the ego step + contact with its update's code at REV and now, on the same
+    learner, and our SAC, in interleaved rounds at each batch; per round the now / before time and each side's ratio to
+    SAC. The update at REV is the learner's, its class (and its actor's) swapped for those of ``core/sage/sac.py`` (and
+    ``core/sage/networks.py``) at REV during the call, that module's ``fear`` being ``core/sage/fear.py``'s at REV."""
     from bench.bench_baselines import module_at
     from sims.ugv.descriptor import contact_floors
     from sims.ugv.env import ego_motion_layout
 
-    old = module_at(args.before, "core/sage/fear.py", "fear_before")
+    old_fear = module_at(args.before, "core/sage/fear.py", "fear_before")
+    old_networks = module_at(args.before, "core/sage/networks.py", "networks_before")
+    old_sac = module_at(args.before, "core/sage/sac.py", "sac_before")
+    old_sac.fear = old_fear.fear
 
-    def with_old_fear(update: Callable[[], Any]) -> Callable[[], None]:
+    def with_old_code(learner: BaseLearner) -> Callable[[], None]:
+        actor = learner.actor  # type: ignore[attr-defined]
+
         def run() -> None:
-            current, sac_module.fear = sac_module.fear, old.fear
+            classes = learner.__class__, actor.__class__
+            learner.__class__, actor.__class__ = old_sac.SAC, old_networks.Actor
             try:
-                update()
+                learner.update()
             finally:
-                sac_module.fear = current
+                learner.__class__, actor.__class__ = classes
 
         return run
 
@@ -328,13 +361,13 @@ def before_rows(args: argparse.Namespace) -> None:
     for batch in batches:
         touching = ours("sage", rng, world_model={**ego_motion_layout(), "members": 5}, batch=batch, **contact)
         contenders[f"sac {batch}"] = ours("sac", rng, batch=batch).update
-        contenders[f"before {batch}"] = with_old_fear(touching.update)
+        contenders[f"before {batch}"] = with_old_code(touching)
         contenders[f"now {batch}"] = touching.update
-    rates = measure_rounds(contenders, args.rounds, args.updates, args.clock)
-    ms = {name: [1000.0 / value for value in values] for name, values in rates.items()}
+    ms = alternated_rounds(contenders, args.rounds, args.updates, args.clock)
     print(
-        f"SAGE-SAC over the ego step + contact, core/sage/fear.py at {args.before} (before) and now, 5 members, one "
-        f"thread, {args.clock} clock, {args.rounds} interleaved rounds of {args.updates} updates (ms per update):"
+        f"SAGE-SAC over the ego step + contact, core/sage/{{fear,sac,networks}}.py at {args.before} (before) and now, "
+        f"5 members, one thread, {args.clock} clock, {args.rounds} rounds of {args.updates} updates, the contenders "
+        "taking turns update by update (ms per update):"
     )
     for batch in batches:
         sac, before, now = ms[f"sac {batch}"], ms[f"before {batch}"], ms[f"now {batch}"]
@@ -380,8 +413,8 @@ def sizes_table(args: argparse.Namespace) -> None:
                 learner = ours("sage", rng, world_model={**layout, "members": n}, batch=batch, **overrides)
                 assert learner.world_model is not None and learner.world_model.members == n
                 contenders[f"{name} {batch} {n}"] = learner.update
-    median = measure(contenders, args.rounds, args.updates, args.clock)
-    ms = {name: 1000.0 / value for name, value in median.items()}
+    rounds = alternated_rounds(contenders, args.rounds, args.updates, args.clock)
+    ms = {name: statistics.median(values) for name, values in rounds.items()}
     header = ["batch", "world-model members", "our SAC, ms"]
     for name in layouts:
         header += [f"{name}, ms", f"{name} / SAC"]
@@ -397,9 +430,9 @@ def sizes_table(args: argparse.Namespace) -> None:
     load = ", ".join(f"{x:.2f}" for x in _loadavg())
     notes = [
         f"`{command}` at commit {_commit()}, one thread of {processor_name()} (torch {torch.__version__}); median of "
-        f"{args.rounds} interleaved rounds of {args.updates} updates, {args.clock} clock; load average {load} at the "
-        f"end; {time.strftime('%Y-%m-%d', time.gmtime())}. SAC has no world model: its column repeats per ensemble "
-        "size."
+        f"{args.rounds} rounds of {args.updates} updates, the learners taking turns update by update, {args.clock} "
+        f"clock; load average {load} at the end; {time.strftime('%Y-%m-%d', time.gmtime())}. SAC has no world model: "
+        "its column repeats per ensemble size."
     ]
     table = "\n".join(lines)
     print(table)

@@ -371,6 +371,138 @@ def fear(
     return fear_of(model, ro, cfg)
 
 
+def one_step_fear(model: FoldedModel, policy: PolicyFn, obs: Tensor, action: Tensor, cfg: GateConfig) -> Tensor:
+    """(B,) F^1 of (obs, action): ``fear(model, policy, obs, action, cfg, horizon=1).fear``, the learner's fear term
+    (``learner_fear_horizon`` 1, no motion input), differentiable w.r.t. ``action``, in fewer operations (issue 63).
+
+    One imagined step reads no policy and no state, only each member's violation logit and, with imagined contact,
+    the compiled contact test (:func:`_ego_contact`); ĉ, σ_raw and σ̂ are then statistics over the members of an (N, B)
+    tensor, and the maximum or discounted mean over one step is that step. So it is computed here without autograd's
+    graph (each SiLU as z·sigmoid(z), its sigmoid kept), and the gradient w.r.t. the action is written out by hand
+    (:class:`_OneStepFear`): a SAGE-SAC update's two fear terms ran some sixty small tensor operations and their
+    autograd nodes each, and SiLU's backward computed its sigmoid again. Same formulas as :func:`rollout` and
+    :func:`fear_of`, so the same values up to float32 rounding (``tests/core/sage/test_one_step_fear.py`` holds it to
+    :func:`fear`, values and gradients). Elsewhere (a state that needs a gradient, contact without the compiled test:
+    no ego step or not on the CPU) it is :func:`fear`."""
+    floors, closing = contact_terms(cfg, None)
+    compiled = model.ego is not None and obs.device.type == "cpu"
+    if obs.requires_grad or (floors is not None and not (compiled and floors.shape[0] <= model.obs_dim)):
+        return fear(model, policy, obs, action, cfg, horizon=1).fear
+    if torch.is_grad_enabled() and action.requires_grad:
+        value = _OneStepFear.apply(action, obs, model, cfg, floors, closing)
+        assert isinstance(value, Tensor)
+        return value
+    with torch.no_grad():
+        return _one_step(model, obs, action, cfg, floors, closing, None)
+
+
+def _one_step(
+    model: FoldedModel,
+    obs: Tensor,
+    action: Tensor,
+    cfg: GateConfig,
+    floors: Tensor | None,
+    closing: Tensor | None,
+    saved: dict[str, object] | None,
+) -> Tensor:
+    """:func:`one_step_fear`'s values, without a graph; ``saved``: where given, receives what the backward reads."""
+    n, d = model.members, model.obs_dim
+    batch, width = obs.shape[0], action.shape[-1]
+    weight, bias = model.hidden[0]
+    # the first layer as rollout's first_layer without the motion input: the state's product, then the action's
+    z = torch.baddbmm(bias, obs.unsqueeze(0).expand(n, batch, d), weight[:, :d])
+    z = torch.baddbmm(z, action.unsqueeze(0).expand(n, batch, width), weight[:, d : d + width])
+    layers: list[tuple[Tensor, Tensor]] = []
+    h = z
+    for i, (layer_weight, layer_bias) in enumerate(model.hidden):
+        if i > 0:
+            z = torch.baddbmm(layer_bias, h, layer_weight)
+        gate = torch.sigmoid(z)
+        if saved is None:
+            h = z.mul_(gate)  # SiLU
+        else:
+            h = z * gate
+            layers.append((z, gate))
+    # the violation logit, one column: a product and a sum over each row (a 1-column baddbmm costs some 3 times more)
+    logit = (h * model.out_weight[..., d : d + 1].transpose(1, 2)).sum(-1) + model.out_bias[..., d]
+    probability = torch.sigmoid(logit)  # (N, B)
+    deviation = probability - probability.mean(0)
+    spread = deviation.square().mean(0)
+    sigma_raw = spread.clamp_min(1e-12).sqrt()
+    touching = None
+    if floors is None:
+        member_cost = probability
+    else:  # rollout's last-step contact test: the moved state's first channels, compiled
+        channels = floors.shape[0]
+        delta = torch.baddbmm(model.out_bias[..., :channels], h, model.out_weight[..., :channels])
+        touching = _ego_contact(model, obs, action, delta, floors, closing).to(probability.dtype)
+        member_cost = torch.maximum(probability, touching)
+    cost = member_cost.mean(0)
+    divisor = 2.0 * step_scales(model.sigma_scale, 1)[0]
+    sigma = torch.tanh(sigma_raw / divisor)
+    if saved is not None:
+        saved.update(
+            layers=layers, probability=probability, deviation=deviation, spread=spread, sigma_raw=sigma_raw,
+            touching=touching, divisor=divisor, sigma=sigma,
+        )  # fmt: skip
+    return cfg.beta * cost + (1.0 - cfg.beta) * sigma
+
+
+class _OneStepFear(torch.autograd.Function):
+    """:func:`_one_step` with its gradient w.r.t. the action written out: the derivatives torch's autograd takes through
+    :func:`rollout` and :func:`fear_of` at one step (``maximum`` splitting a tie's gradient in halves, ``clamp_min``
+    passing it where the input is at or above the bound), the model's weights and the states constants."""
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: torch.autograd.function.FunctionCtx,
+        action: Tensor,
+        obs: Tensor,
+        model: FoldedModel,
+        cfg: GateConfig,
+        floors: Tensor | None,
+        closing: Tensor | None,
+    ) -> Tensor:
+        saved: dict[str, object] = {}
+        value = _one_step(model, obs, action, cfg, floors, closing, saved)
+        ctx.saved = saved  # type: ignore[attr-defined]
+        ctx.model, ctx.beta, ctx.action_width = model, cfg.beta, action.shape[-1]  # type: ignore[attr-defined]
+        return value
+
+    @staticmethod
+    def backward(  # type: ignore[override]
+        ctx: torch.autograd.function.FunctionCtx, grad: Tensor
+    ) -> tuple[Tensor, None, None, None, None, None]:
+        saved, model, beta = ctx.saved, ctx.model, ctx.beta  # type: ignore[attr-defined]
+        probability, deviation = saved["probability"], saved["deviation"]
+        members = probability.shape[0]
+        sigma = saved["sigma"]
+        # σ̂ = tanh(σ_raw / divisor), σ_raw = sqrt(max(spread, 1e-12)), spread = mean_n (p_n - mean p)^2
+        grad_raw = (grad * (1.0 - beta)) * (1.0 - sigma * sigma) / saved["divisor"]
+        grad_spread = torch.where(saved["spread"] >= 1e-12, grad_raw / (2.0 * saved["sigma_raw"]), 0.0)
+        grad_deviation = deviation * (grad_spread * (2.0 / members))
+        grad_p = grad_deviation - grad_deviation.mean(0)
+        # ĉ = mean_n max(p_n, contact_n)
+        grad_cost = (grad * beta) / members
+        touching = saved["touching"]
+        if touching is None:
+            grad_p = grad_p + grad_cost
+        else:
+            share = torch.where(probability == touching, 0.5, (probability > touching).to(probability.dtype))
+            grad_p = grad_p + grad_cost * share
+        grad_logit = grad_p * probability * (1.0 - probability)
+        d = model.obs_dim
+        grad_h = grad_logit.unsqueeze(-1) * model.out_weight[..., d : d + 1].transpose(1, 2)
+        weight, layers = model.hidden[0][0], saved["layers"]
+        for i in range(len(layers) - 1, -1, -1):
+            z, gate = layers[i]
+            grad_z = (1.0 - gate).mul_(z).add_(1.0).mul_(gate).mul_(grad_h)  # SiLU'(z) = s (1 + z (1 - s))
+            # into the layer's input: the hidden layer before it, or the first layer's action columns
+            below = model.hidden[i][0] if i > 0 else weight[:, d : d + ctx.action_width]  # type: ignore[attr-defined]
+            grad_h = torch.bmm(grad_z, below.transpose(1, 2))
+        return grad_h.sum(0), None, None, None, None, None  # the members' shares of the one action
+
+
 class CuriosityThreshold:
     """τ_t = τ_max - ρ(C_t)(τ_max - τ_min), ρ(C) = C / (C + EMA of recent C) (see the module docstring), or its
     geometric form (``GateConfig.tau_interpolation``)."""

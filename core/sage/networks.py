@@ -75,9 +75,11 @@ class Actor(nn.Module):
 
     def forward(self, obs: Tensor) -> tuple[Tensor, Tensor]:
         h = self.trunk(obs)
+        return self.mean(h), self._log_std(h)
+
+    def _log_std(self, h: Tensor) -> Tensor:
         log_std = torch.tanh(self.log_std(h))
-        log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (log_std + 1.0)
-        return self.mean(h), log_std
+        return LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (log_std + 1.0)
 
     def deterministic(self, obs: Tensor) -> Tensor:
         """The mode of the squashed Gaussian, in the env's action units."""
@@ -90,7 +92,23 @@ class Actor(nn.Module):
 
     def sample(self, obs: Tensor) -> tuple[Tensor, Tensor]:
         """A reparameterised sample and its log-probability (with the tanh change of variables)."""
-        mean, log_std = self(obs)
+        return self._sampled(*self(obs))
+
+    def sample_with_modes(self, obs: Tensor, *others: Tensor) -> tuple[Tensor, Tensor, list[Tensor]]:
+        """:meth:`sample` of ``obs`` and :meth:`deterministic` of each of ``others``, from one pass of the trunk over
+        all their rows (one forward and one backward of its layers instead of one per batch: the SAGE-SAC actor loss's
+        imitation term, issue 63). The same values up to the float32 rounding of products over more rows, and the same
+        draws of the random generator as :meth:`sample` alone."""
+        if not others:
+            return *self.sample(obs), []
+        rows = len(obs)
+        h = self.trunk(torch.cat([obs, *others]))
+        mean = self.mean(h)
+        action, log_prob = self._sampled(mean[:rows], self._log_std(h[:rows]))
+        modes = torch.tanh(mean[rows:]) * self.action_scale + self.action_bias
+        return action, log_prob, list(modes.split([len(o) for o in others]))
+
+    def _sampled(self, mean: Tensor, log_std: Tensor) -> tuple[Tensor, Tensor]:
         std = log_std.exp()
         noise = torch.randn_like(mean)
         u = mean + std * noise

@@ -47,7 +47,7 @@ from torch import Tensor
 from core.replay import Batch
 from core.sage.captured import CapturedUpdate, fill_batch, static_batch
 from core.sage.config import AgentConfig
-from core.sage.fear import fear
+from core.sage.fear import fear, one_step_fear
 from core.sage.learner import ActorLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, adam, soft_update
 
@@ -86,6 +86,13 @@ def advantage_weights(
     """ω = exp(clip((Q(s,a_E) - Q(s,a_RL)) / (T · max(1, q_scale)), -clip, clip)) (eq:qa_weight, bounded)."""
     scale = temperature * torch.clamp(torch.as_tensor(q_scale, dtype=q_expert.dtype, device=q_expert.device), min=1.0)
     return torch.exp(((q_expert - q_agent) / scale).clamp(-clip, clip))
+
+
+def expert_and_agent_q(critic: EnsembleCritic, imitation: Batch) -> tuple[Tensor, Tensor]:
+    """min_z Q_z(s, a_E) and min_z Q_z(s, a_RL) of the intervention samples, from one critic pass over both (the
+    same values as two passes up to the float32 rounding of products over more rows; issue 63)."""
+    q = critic(torch.cat([imitation.obs, imitation.obs]), torch.cat([imitation.a_expert, imitation.a_rl])).min(0).values
+    return q[: len(imitation.obs)], q[len(imitation.obs) :]
 
 
 def actor_fear_weight(lam: Tensor | float, q_scale: Tensor, fear_scale: str) -> Tensor | float:
@@ -135,6 +142,10 @@ class SAC(ActorLearner):
     def learner_fear(self, obs: Tensor, action: Tensor) -> Tensor:
         """F(s, a) through the frozen world model (differentiable w.r.t. ``action`` under grad mode)."""
         assert self.world_model is not None
+        if self.cfg.learner_fear_horizon == 1:  # the default: one step, its gradient by hand
+            return one_step_fear(
+                self.update_folded(), self.fear_policy, obs.to(self.device), action.to(self.device), self.cfg.gate
+            )
         return fear(
             self.update_folded(),
             self.fear_policy,
@@ -200,7 +211,9 @@ class SAC(ActorLearner):
         ``prior_distill`` on the imitation's scale (no ω: the base's action is not judged by the critic)."""
         cfg = self.cfg
         states, n_real = self.actor_states(batch)
-        action, log_prob = self.actor.sample(states)
+        # the deterministic actions of the imitation and anchor rows from the same trunk pass as the sample
+        others = [rows.obs for rows in (imitation, anchor) if rows is not None]
+        action, log_prob, modes = self.actor.sample_with_modes(states, *others)
         q = self.critic(states, action).min(0).values
         loss = (self.alpha * log_prob - q).mean()
         stats: dict[str, float] = {}
@@ -211,16 +224,15 @@ class SAC(ActorLearner):
             stats["fear_real"] = fear_values[:n_real].mean().item()
             stats["fear_budget"] = self.fear_budget()
         if imitation is not None:
-            with torch.no_grad():
-                q_expert = self.critic(imitation.obs, imitation.a_expert).min(0).values
-                q_agent = self.critic(imitation.obs, imitation.a_rl).min(0).values
+            with torch.no_grad():  # Q(s, a_E) and Q(s, a_RL) in one pass
+                q_expert, q_agent = expert_and_agent_q(self.critic, imitation)
                 omega = advantage_weights(q_expert, q_agent, q_scale, cfg.advantage_temperature, cfg.advantage_clip)
-            error = (self.actor.deterministic(imitation.obs) - imitation.a_expert).pow(2).sum(-1)
+            error = (modes[0] - imitation.a_expert).pow(2).sum(-1)
             bc = (omega * error).mean()
             loss = loss + cfg.bc_weight * q_scale * bc
             stats.update(bc_loss=bc.item(), omega_mean=omega.mean().item())
         if anchor is not None:
-            distill = (self.actor.deterministic(anchor.obs) - anchor.a_rl).pow(2).sum(-1).mean()
+            distill = (modes[-1] - anchor.a_rl).pow(2).sum(-1).mean()
             loss = loss + self.prior_distill * q_scale * distill
             stats["prior_distill_loss"] = distill.item()
         return loss, log_prob, stats
@@ -415,7 +427,8 @@ class CapturedSACUpdate(CapturedUpdate):
         n_real = len(states) if virtual is None else len(states) - len(virtual)
         sac.critic.requires_grad_(False)
         try:
-            action, log_prob = sac.actor.sample(states)
+            others = [rows.obs for rows in (imitation, anchor) if rows is not None]
+            action, log_prob, modes = sac.actor.sample_with_modes(states, *others)  # as SAC.actor_loss
             q_pi = sac.critic(states, action).min(0).values
             actor_loss = (self.alpha() * log_prob - q_pi).mean()
             fear_real = None
@@ -427,16 +440,15 @@ class CapturedSACUpdate(CapturedUpdate):
                 stats.update(fear_real=fear_real.detach(), fear_budget=self.scalars["fear_budget"])
             if imitation is not None:
                 with torch.no_grad():
-                    q_expert = sac.critic(imitation.obs, imitation.a_expert).min(0).values
-                    q_agent = sac.critic(imitation.obs, imitation.a_rl).min(0).values
+                    q_expert, q_agent = expert_and_agent_q(sac.critic, imitation)
                     scale = cfg.advantage_temperature * q_scale
                     omega = torch.exp(((q_expert - q_agent) / scale).clamp(-cfg.advantage_clip, cfg.advantage_clip))
-                error = (sac.actor.deterministic(imitation.obs) - imitation.a_expert).pow(2).sum(-1)
+                error = (modes[0] - imitation.a_expert).pow(2).sum(-1)
                 bc = (omega * error).mean()
                 actor_loss = actor_loss + cfg.bc_weight * q_scale * bc
                 stats.update(bc_loss=bc.detach(), omega_mean=omega.mean())
             if anchor is not None:  # SAC.actor_loss's distillation anchor
-                distill = (sac.actor.deterministic(anchor.obs) - anchor.a_rl).pow(2).sum(-1).mean()
+                distill = (modes[-1] - anchor.a_rl).pow(2).sum(-1).mean()
                 actor_loss = actor_loss + self.scalars["prior_distill"] * q_scale * distill
                 stats.update(prior_distill_loss=distill.detach())
             self.zero(sac.actor_optimizer)

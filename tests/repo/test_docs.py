@@ -17,6 +17,7 @@ CALIBRATION_DOC = ROOT / "docs" / "calibration.md"
 LINKED = [README, ROOT / "ARCHITECTURE.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "experiments" / "README.md"]
 SPEED_BENCHES = {
     "bench_baselines.py",
+    "bench_ego_kernel.py",  # the compiled contact test at a commit against now
     "bench_finetune.py",
     "bench_gate.py",
     "gpu_check.py",  # the CPU-vs-GPU update ratios, for a session with a GPU
