@@ -1,9 +1,10 @@
-"""Every published version of the mover-gate live sessions alone on UGV 3 and 4 (exploratory; the reports' seeds).
+"""Every published version of live sessions alone on UGV 3 and 4 (exploratory; the reports' seeds).
 
-Run from the repository root after the three sessions (their versions folders under runs/ still there):
+Run from the repository root after the sessions (their versions folders under runs/ still there):
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 nice -n 5 python docs/notes/live_session/mover_gate/versions_alone.py \
-        docs/notes/live_session/mover_gate/versions_alone.json
-Versions already driven alone by the session reports (v0, the final, the newest) are read from them, not rerun."""
+        OUT.json [REPORTS_FOLDER [SEED ...]]
+(default: docs/notes/live_session/mover_gate, seeds 0 1 2). Versions already driven alone by the session reports
+(v0, the final, the newest) are read from them, not rerun."""
 
 import json
 import sys
@@ -15,8 +16,9 @@ from experiments.live_session import SessionPlan, alone_outcomes
 
 torch.set_num_threads(1)
 out = {}
-for seed in (0, 1, 2):
-    report = json.loads(Path(f"docs/notes/live_session/mover_gate/s{seed}/report.json").read_text())
+folder = Path(sys.argv[2]) if len(sys.argv) > 2 else Path("docs/notes/live_session/mover_gate")
+for seed in [int(a) for a in sys.argv[3:]] or [0, 1, 2]:
+    report = json.loads((folder / f"s{seed}" / "report.json").read_text())
     root = Path(report["versions_root"])
     done = {
         s: {"v0": report["alone"][s]["v0"], report["in_control"]: report["alone"][s]["final"]} for s in report["alone"]
