@@ -568,3 +568,30 @@ def test_round_keep_publishes_that_share_of_the_rounds_weight_change(setup) -> N
 
     plain = Finetuner(versions, store, session, fast(updates=40), base=0).round()
     assert plain.version is not None and "round_actor_change" not in plain.losses  # 1.0: the rounds as before
+
+
+def test_a_version_keeps_the_bases_gate_and_its_refit_measures_bounds_with_it(deployed: Path, tmp_path: Path) -> None:
+    """A base deployed with its own gate settings (a refit-bounds folder: τ's scale, the fear's shape) publishes
+    versions with the same gate, and a round's world-model refit measures τ's bounds on that gate's fear."""
+    raw = torch.load(deployed / "checkpoint.pt", map_location="cpu", weights_only=True)
+    own = {"tau_scale": 0.7, "beta": 0.8, "horizon": 3, "discount": 0.8, "hold_steps": 2}
+    assert all(raw["agent_config"]["gate"][key] != value for key, value in own.items())  # not the defaults
+    raw["agent_config"]["gate"].update(own)
+    base = tmp_path / "base"
+    base.mkdir()
+    torch.save(raw, base / "checkpoint.pt")
+    versions = VersionStore(tmp_path / "versions")
+    versions.ensure_initial(base)
+    store = SessionStore(tmp_path / "sessions")
+    session = record(store, versions.get(0).path, episodes=4)
+    finetuner = Finetuner(versions, store, session, fast(tau_bounds="refit", min_takeover_samples=0))
+    assert finetuner.learner.model_trainer is not None
+    measured_on = finetuner.learner.model_trainer.cfg.gate  # the gate the refit's calibration reads
+    assert {key: getattr(measured_on, key) for key in own} == own
+    result = finetuner.round()
+    version = result.version
+    assert version is not None, result.reason
+    assert version.metrics["losses"]["tau_refitted"] == 1.0
+    gate = load_checkpoint(version.path)["agent_config"]["gate"]
+    assert {key: gate[key] for key in own} == own
+    assert load_agent(version.path).make_gate().cfg.tau_scale == pytest.approx(0.7)
