@@ -556,7 +556,10 @@ def validate(cfg: AgentConfig) -> None:
         if cfg.gate.contact_horizon < 1:
             raise ValueError(f"gate.contact_horizon must be >= 1 (or None), got {cfg.gate.contact_horizon}")
         if not cfg.gate.imagined_contact:
-            raise ValueError("gate.contact_horizon is the reach of imagined contact: it needs gate.imagined_contact")
+            raise ValueError(
+                "gate.contact_horizon is the reach of imagined contact: it needs gate.imagined_contact (to switch "
+                "imagined contact off, also set gate.contact_horizon=none and gate.mover_model=none)"
+            )
         if cfg.gate.contact_horizon > cfg.gate.horizon and cfg.gate.aggregate != "max":
             raise ValueError("gate.contact_horizon beyond gate.horizon needs gate.aggregate=max")
     if cfg.gate.contact_extrapolation and not cfg.gate.imagined_contact:
@@ -569,7 +572,8 @@ def validate(cfg: AgentConfig) -> None:
     if cfg.gate.mover_model != "none":
         if not cfg.gate.imagined_contact:
             raise ValueError(
-                "gate.mover_model adds movers to the imagined contact test: it needs gate.imagined_contact"
+                "gate.mover_model adds movers to the imagined contact test: it needs gate.imagined_contact (to "
+                "switch imagined contact off, also set gate.mover_model=none)"
             )
         if not cfg.world_model_config.ego_sectors:
             raise ValueError(

@@ -56,7 +56,8 @@ def test_a_committed_policy_deploys_the_operating_point_it_chose(checkpoint: Pat
     """``sage gate choose-scale`` ran on each default's training scenarios: its rows and choice lie beside the policy
     (``tau_scale_choice.json``, where it changed the scale) or in ``docs/notes/choose_scale/<policy>.json``. The
     checkpoint deploys the scale chosen, which met the target on every scenario it was chosen on; where none met,
-    the scale the policy had (1) stays."""
+    the scale the policy had (1) stays. A scale chosen by the operating-point rule on train fields
+    (``experiments.pick_operating_point``, the UGV's mover-model gate) is that rule's pick from the record's rows."""
     import json
 
     from core.agents import load_agent
@@ -70,6 +71,12 @@ def test_a_committed_policy_deploys_the_operating_point_it_chose(checkpoint: Pat
     choice = json.loads((beside if beside.exists() else documented).read_text())
     gate = load_agent(checkpoint.parent).make_gate()
     assert gate.cfg.tau_scale == pytest.approx(choice["scale"])
+    if choice.get("rule") == "pick_operating_point":  # chosen on train fields against the gate it replaced
+        from experiments.pick_operating_point import pick_scale
+
+        assert choice["scale"] == pick_scale(choice["rows"], choice["baseline_takeover"])
+        assert all(getattr(gate.cfg, key) == value for key, value in choice["gate_settings"].items())
+        return
     chosen = [row for row in choice["rows"] if row["scale"] == choice["scale"]]
     if choice["met"]:
         assert chosen and all(row["met"] for row in chosen)

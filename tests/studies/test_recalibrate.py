@@ -172,11 +172,18 @@ def test_imagined_contact_is_another_fear_measured_again_with_the_simulators_flo
     floors = list(sims.descriptor("ugv").contact_floors)
     committed = load_agent("policies/ugv-default")
     assert committed.config.gate.imagined_contact and committed.config.gate.contact_floors == floors
-    with pytest.raises(ValueError, match=r"changes fear itself.*sage gate refit-bounds"):
+    # its contact reaches 1 s and moves the tracked movers: switching contact off says to switch those off too
+    with pytest.raises(ValueError, match=r"needs gate.imagined_contact.*gate.contact_horizon=none"):
         committed.make_gate(imagined_contact=False)
+    off = {"imagined_contact": False, "contact_horizon": None, "mover_model": "none"}
+    with pytest.raises(ValueError, match=r"changes fear itself.*sage gate refit-bounds"):
+        committed.make_gate(**off)
     without = tmp_path / "without"
     args = ["--sim", "ugv", "--scenario", "1", "--episodes", "2"]
     switch_off = ["--set", "gate.imagined_contact=false", "--out", str(without)]
+    result = CliRunner().invoke(app, ["gate", "refit-bounds", "policies/ugv-default", *args, *switch_off])
+    assert result.exit_code != 0 and "gate.contact_horizon=none" in result.output
+    switch_off = ["--set", "gate.contact_horizon=none", "--set", "gate.mover_model=none", *switch_off]
     result = CliRunner().invoke(app, ["gate", "refit-bounds", "policies/ugv-default", *args, *switch_off])
     assert result.exit_code == 0, result.output
     agent = load_agent(without)

@@ -25,7 +25,8 @@ def test_the_horizon_is_what_fear_was_computed_from() -> None:
         horizon = gate.last_horizon()
         assert horizon is not None
         cost = np.array(horizon["cost"])
-        assert cost.shape == (gate.cfg.horizon, agent.world_model.members) and ((cost >= 0) & (cost <= 1)).all()
+        steps = max(gate.cfg.horizon, gate.cfg.contact_horizon or 0)  # imagined contact may reach further
+        assert cost.shape == (steps, agent.world_model.members) and ((cost >= 0) & (cost <= 1)).all()
         np.testing.assert_allclose(horizon["mean"], cost.mean(1), atol=2e-4)
         np.testing.assert_allclose(horizon["spread"], cost.std(1), atol=2e-4)
         # the gate's ĉ is the maximum over the horizon of the members' mean (aggregate "max")
