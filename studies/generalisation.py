@@ -236,6 +236,7 @@ def generalisation_table(
     make = env_factory(sim)
     horizon_steps = max(1, round(horizon_s / descriptor.dt))
     store = Cache(cache)
+    run_key = cache_run_key(run)
     agent: list[Any] = []
 
     def loaded() -> Any:
@@ -256,7 +257,7 @@ def generalisation_table(
         # chunk by chunk, each scenario in turn, so that a run stopped early leaves a balanced sample in the cache
         for offset in range(0, max(max(n, g) for _, n, g in shares), CHUNK):
             for scenario, n_signal, n_gate in shares:
-                key = f"{run}{_settings_tag(gate_settings)}|{sim}|{scenario}|{max_steps}|{first_seed + offset}"
+                key = f"{run_key}{_settings_tag(gate_settings)}|{sim}|{scenario}|{max_steps}|{first_seed + offset}"
                 size = min(CHUNK, n_signal - offset)
                 if size > 0:
                     part = store.get(
@@ -290,6 +291,22 @@ def generalisation_table(
     return rows
 
 
+def cache_run_key(run: str | Path) -> str:
+    """The cache keys' name of a run: its path and a digest of its checkpoint and configuration, so that a policy
+    folder whose gate or weights changed (a default refitted in place) never reuses the old one's episodes."""
+    import hashlib
+
+    path = Path(run)
+    folder = path.parent if path.is_file() else path
+    digest = hashlib.sha256()
+    for name in ("checkpoint.pt", "config.json"):
+        if (folder / name).is_file():
+            digest.update((folder / name).read_bytes())
+    if path.is_file() and path.name != "checkpoint.pt":
+        digest.update(path.read_bytes())
+    return f"{run}#{digest.hexdigest()[:12]}"
+
+
 def _settings_tag(gate_settings: Mapping[str, Any] | None) -> str:
     """The cache key's mark of gate settings over the run's own ("" for none: the keys of a plain run stay)."""
     if not gate_settings:
@@ -311,7 +328,7 @@ def ugv_rows_by_movers(
     import sims
 
     store = Cache(cache)
-    prefix = f"signals|{run}{_settings_tag(gate_settings)}|ugv|{scenario}|{max_steps}|"
+    prefix = f"signals|{cache_run_key(run)}{_settings_tag(gate_settings)}|ugv|{scenario}|{max_steps}|"
     env = sims.descriptor("ugv").make(scenario)
     groups: dict[str, list[SignalPart]] = {"0 movers": [], "1 mover": [], "2-3 movers": []}
     try:

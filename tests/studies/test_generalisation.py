@@ -170,3 +170,16 @@ def test_extra_grounds_are_attached_from_their_files_in_place_of_their_earlier_t
     assert generalisation.main(["--sim", "ugv", "--extras-only", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has no ugv section" in err[0]
+
+
+def test_cached_episodes_are_keyed_by_what_the_run_folder_holds(tmp_path: Path) -> None:
+    """A policy folder refitted in place (another gate, new bounds) must not reuse its old episodes from a cache."""
+    import shutil
+
+    folder = tmp_path / "policy"
+    shutil.copytree(RUN, folder)
+    before = generalisation.cache_run_key(folder)
+    assert before.startswith(f"{folder}#") and generalisation.cache_run_key(folder) == before
+    config = folder / "config.json"
+    config.write_text(config.read_text().replace('"tau_scale": 1.1', '"tau_scale": 1.0'))
+    assert generalisation.cache_run_key(folder) != before
