@@ -222,7 +222,12 @@ def test_the_imagined_horizon_is_streamed_with_each_step_and_replayed_from_the_s
     finally:
         loop.stop()
     steps = [m for m in sent if m["type"] == "step"]
-    assert all(len(m["horizon"]["cost"]) == 5 and len(m["horizon"]["mean"]) == 5 for m in steps)
+    from core.agents import load_agent
+
+    gate = load_agent(policy).config.gate  # the imagined contact may reach further than the fear's horizon
+    reach = max(gate.horizon, gate.contact_horizon or 0)
+    assert reach == 10  # the UGV default's contact test reaches 1 s
+    assert all(len(m["horizon"]["cost"]) == reach and len(m["horizon"]["mean"]) == reach for m in steps)
     replay = open_replay(store, session, 0)
     assert replay.series["horizon"] == [m["horizon"] for m in steps]
 

@@ -7,8 +7,10 @@
   movers (deterministic: equal up to rounding), and its commands. MINPACK's Levenberg-Marquardt (scipy 1.17.1)
   does not return the same bits for the same problem from one call to the next (it depends on the process's heap;
   the residuals and Jacobian do not), so the reference's own commands, recomputed in a fresh process, agree with
-  the recording on only 78-98% of steps per scenario (measured) and leave it by up to 1 on the others; the
-  commands are held to a share of agreement that a changed solver setting would not reach.
+  the recording on only 78-98% of steps per scenario (measured) and leave it by up to 1 on the others. On another
+  processor of this machine kind (2026-11-29) the unchanged code at 682ce2c agreed on 39-76% of steps and the tracked
+  movers' sums differed by up to 1e-4 relative (their regressions sum in an order the processor's SIMD width sets),
+  so the commands are not compared: the solver's decisions are held by the residual and Jacobian test above.
 
 Regenerate (only with the reference code checked out): ``python -m tests.sims.ugv.test_teb_equivalence``.
 """
@@ -30,11 +32,13 @@ STEPS = 150
 SEED = 1000
 REFERENCE = Path(__file__).parent / "data" / "teb_reference.npz"
 PROBLEMS_PER_SCENARIO = 8
-STATE_COLUMNS = slice(7, None)
-"""Columns of a trace row that are the planner's deterministic state (costmap, path, movers)."""
-COMMAND_AGREEMENT = 0.7
-"""Share of steps whose command must equal the reference's within 1e-6 (the reference itself, recomputed, keeps
-78-98% per scenario: see the module docstring)."""
+STATE_COLUMNS = slice(7, 11)
+"""Columns of a trace row that are the planner's deterministic state (costmap, path, the movers' count)."""
+MOVER_COLUMNS = slice(11, None)
+"""The tracked movers' point and velocity sums: equal up to the summation order of their regressions."""
+MOVER_RTOL = 1e-3
+"""Ten times the largest relative difference measured between two processors (1e-4); a changed tracker moves them
+by the movers' own scale."""
 
 
 def trace(
@@ -131,15 +135,14 @@ def test_the_bands_residuals_and_jacobian_are_the_references(reference: dict[str
 
 
 @pytest.mark.parametrize("scenario", SCENARIOS)
-def test_the_planner_decides_as_the_reference_along_its_recorded_episode(
+def test_the_planners_state_is_the_references_along_its_recorded_episode(
     reference: dict[str, np.ndarray], scenario: str
 ) -> None:
     recorded = reference[f"trace_{scenario}"]
     now = trace(scenario, driven=recorded[:, :2])
     assert now.shape == recorded.shape
     assert np.allclose(now[:, STATE_COLUMNS], recorded[:, STATE_COLUMNS], rtol=1e-12, atol=1e-9)
-    agree = np.abs(now[:, :2] - recorded[:, :2]).max(axis=1) < 1e-6
-    assert agree.mean() >= COMMAND_AGREEMENT, f"{agree.mean():.0%} of the commands agree"
+    assert np.allclose(now[:, MOVER_COLUMNS], recorded[:, MOVER_COLUMNS], rtol=MOVER_RTOL, atol=1e-6)
 
 
 if __name__ == "__main__":
