@@ -271,6 +271,8 @@ class SageGate:
             motion = self._motion(obs)
             rate = self.closing_rate()
             movers = self.mover_velocity()
+            if movers is not None and not bool(movers.any()):
+                movers = None  # nothing moves: no moving point can touch (the same fear, without the test's cost)
             if kernel is not None:
                 if movers is None:
                     value, cost, sigma = kernel(o, a, motion, rate)
