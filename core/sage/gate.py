@@ -110,7 +110,8 @@ class SageGate:
         any deterministic torch policy function (generic path, e.g. a discrete learner's one-hot greedy).
         ``encode``: turns the loop's actions into the world model's (a discrete action index into its one-hot);
         None when they are the same. ``compiled``: with an :class:`Actor`, the rollout as one compiled call
-        (:class:`CompiledGateKernel`, where it covers the model) rather than the torch kernel's small operations."""
+        (:class:`CompiledGateKernel`, where it covers the model) rather than the torch kernel's small operations; and
+        the mover model's velocities compiled (:mod:`core.sage.compiled_movers`) rather than numpy's."""
         self.encode = encode
         self.compiled = compiled
         self.world_model = world_model
@@ -189,7 +190,12 @@ class SageGate:
             return None
         transitions = list(self._transitions)
         scans = np.stack([obs[: ego.sectors] for obs, _, _ in transitions] + [transitions[-1][2][: ego.sectors]])
-        velocity = mover_velocities(
+        velocities = mover_velocities
+        if self.compiled:  # numba's import (and a first compilation where its cache is cold) is paid here, once
+            from core.sage.compiled_movers import compiled_mover_velocities
+
+            velocities = compiled_mover_velocities
+        velocity = velocities(
             ego,
             scans,
             np.stack([action for _, action, _ in transitions]),
