@@ -87,3 +87,47 @@ def test_the_compiled_velocities_refuse_a_short_track() -> None:
     scans, _ = drive(World([(0.12, 0.08, 0.025, 0.0, -0.008)]), [FORWARD])
     with pytest.raises(ValueError, match="L \\+ 1 >= 3"):
         compiled_mover_velocities(STEP, scans, np.array([FORWARD]), SPEED, SIZE, NOISE)
+
+
+def test_the_compiled_movers_contact_is_torchs() -> None:
+    """The compiled kernel's movers' contact test (:func:`core.sage.compiled_gate.movers_touching`, float32) gives the
+    booleans of :func:`core.sage.movers.mover_contact` on the rollout's own actions, at every real UGV step with movers
+    (some imagined in contact), and the gate's fear is then the uncompiled gate's (torch kernel, numpy's movers)."""
+    import torch
+
+    import sims
+    from core.agents import load_agent
+    from core.loop import Runner
+    from core.sage.movers import mover_contact
+
+    agent = load_agent(ROOT / "policies" / "ugv-default")
+    compiled, reference = agent.make_gate(), agent.make_gate()
+    reference.compiled = False
+    kernel = compiled.kernel()
+    assert type(kernel).__name__ == "CompiledGateKernel"
+    env = sims.make("ugv", "sims/ugv/scenarios/movers.yaml")
+    runner = Runner(env, agent.policy, compiled, None, seed=5, deterministic=True)
+    compared = touched = 0
+    for _ in range(200):
+        obs = runner.obs if runner.obs is not None else runner.reset()
+        velocity = compiled.mover_velocity()
+        fear_reference = reference.decide(obs, agent.policy.act(obs, deterministic=True)).fear
+        record = runner.step()
+        assert record is not None
+        reference.observe(record.obs, record.action, record.next_obs)
+        if record.done:
+            reference.reset()
+        if velocity is None or not bool(velocity.any()):
+            continue
+        d, a, m = kernel.d, kernel.act_dim, kernel.m
+        with torch.inference_mode():
+            actions = torch.from_numpy(kernel._x[:m, :, d : d + a].copy()).unsqueeze(2)
+            o = torch.from_numpy(record.obs).view(1, -1)
+            expected = mover_contact(kernel.ego, o, velocity, actions, kernel.contact)[..., 0].numpy()
+        np.testing.assert_array_equal(kernel._touching, expected)
+        assert record.fear == pytest.approx(fear_reference, abs=1e-5)
+        compared += 1
+        touched += int(expected.any())
+    env.close()
+    assert compared > 10, compared
+    assert touched > 0, touched
