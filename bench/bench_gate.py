@@ -245,7 +245,7 @@ def profile_parts(agent: Any, recording: list[Transition], passes: int = 2) -> d
         _timed(policy, "act", totals, "policy"),
         _timed(gate, "decide", totals, "decide"),
         _timed(gate, "observe", totals, "observe"),
-        _timed(gate, "mover_velocity", totals, "mover velocities"),
+        _timed(gate, "_mover_velocity", totals, "mover velocities"),
         _timed(compiled_gate, "gate_rollout", totals, "rollout"),
     ):
         movers = hasattr(kernel, "_with_movers")
@@ -264,9 +264,10 @@ def profile_parts(agent: Any, recording: list[Transition], passes: int = 2) -> d
 
 
 def policy_report(
-    path: str, scenario: str, recording: list[Transition], rounds: int, load_start: tuple[float, ...]
+    path: str, scenario: str, recording: list[Transition], rounds: int, load_start: tuple[float, ...], command: str
 ) -> tuple[str, dict[str, float]]:
-    """Time the policy's gates over ``recording``; the report (markdown) and the medians (CPU ms)."""
+    """Time the policy's gates over ``recording``; the report (markdown, naming ``command``) and the medians (CPU
+    ms)."""
     from bench.bench_sac import _commit
     from core.agents import load_agent
     from core.device import processor_name
@@ -294,7 +295,7 @@ def policy_report(
     cfg = gates[DEPLOYED].cfg
     episodes = sum(step.first for step in recording)
     lines = [
-        f"`python -m bench.bench_gate {' '.join(sys.argv[1:])}` at commit {_commit()}, one thread of "
+        f"`{command}` at commit {_commit()}, one thread of "
         f"{processor_name()} (torch {torch.__version__}), {time.strftime('%Y-%m-%d', time.gmtime())}; load average "
         f"{', '.join(f'{x:.2f}' for x in load_start)} at the start, {', '.join(f'{x:.2f}' for x in load_end)} at the "
         f"end, on {os.cpu_count()} cores.",
@@ -342,7 +343,8 @@ def policy_main(args: argparse.Namespace) -> None:
     agent = load_agent(args.policy)
     scenario = args.scenario or default_scenario(agent.meta.sim)
     recording = record(agent, scenario, args.record)
-    report, _ = policy_report(args.policy, scenario, recording, args.rounds, load_start)
+    command = "python -m bench.bench_gate " + " ".join(sys.argv[1:])
+    report, _ = policy_report(args.policy, scenario, recording, args.rounds, load_start, command)
     print(report)
     if args.write:
         from bench.bench_sac import write_block

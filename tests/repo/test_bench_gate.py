@@ -46,7 +46,8 @@ def test_the_timed_gates_are_the_deployed_one_and_its_torch_kernel(recording: li
 def test_the_report_is_written_into_its_block(recording: list[bench_gate.Transition], tmp_path: Path) -> None:
     from bench.bench_sac import write_block
 
-    report, medians = bench_gate.policy_report(str(UGV), "movers", recording, 1, (0.0, 0.0, 0.0))
+    report, medians = bench_gate.policy_report(str(UGV), "movers", recording, 1, (0.0, 0.0, 0.0), "the command")
+    assert report.startswith("`the command` at commit ")
     assert set(medians) == {bench_gate.DEPLOYED, bench_gate.TORCH_KERNEL} and min(medians.values()) > 0
     for part in ("mover velocities", "rollout", "movers' contact", "observe", "policy"):
         assert f"| {part} |" in report
