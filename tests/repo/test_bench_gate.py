@@ -48,7 +48,8 @@ def test_the_report_is_written_into_its_block(recording: list[bench_gate.Transit
 
     report, medians = bench_gate.policy_report(str(UGV), "movers", recording, 1, (0.0, 0.0, 0.0), "the command")
     assert report.startswith("`the command` at commit ")
-    assert set(medians) == {bench_gate.DEPLOYED, bench_gate.TORCH_KERNEL} and min(medians.values()) > 0
+    assert set(medians) == {bench_gate.DEPLOYED, bench_gate.TORCH_KERNEL, bench_gate.SYNTHETIC}
+    assert min(medians.values()) > 0 and "Deployed / synthetic: " in report
     for part in ("mover velocities", "rollout", "movers' contact", "observe", "policy"):
         assert f"| {part} |" in report
     doc = tmp_path / "speed.md"
