@@ -14,8 +14,8 @@ A whole step (m = 5, N = 5 rollout, policy, curiosity, threshold) costs 0.16 ms 
 UGV's ego step (bench/bench_gate.py --ego): the rollout is one compiled call
 (:class:`core.sage.compiled_gate.CompiledGateKernel`) on cached folded weights, where the torch kernel's few dozen
 small operations took twice that. The UGV default's gate as it deploys it (the mover model, contact over 10 steps;
-``bench/bench_gate.py --policy policies/ugv-default``) costs about 1.1 ms a step on a loaded machine, its mover model
-compiled too (:mod:`core.sage.compiled_movers`; 2.8 ms before).
+``bench/bench_gate.py --policy policies/ugv-default``) costs about 1.0 ms a step on a loaded machine (1.3x the
+synthetic gate's in the same run), its mover model compiled too (:mod:`core.sage.compiled_movers`; 2.8 ms before).
 """
 
 from __future__ import annotations
