@@ -422,8 +422,11 @@ def action_bounds(space: Any) -> tuple[np.ndarray, np.ndarray]:
 def warm_gate_kernels(policies: list[str]) -> list[str]:
     """Build (or load from numba's cache) each policy's compiled gate kernel by one decision and one observation of
     its gate on zero states, so that a fresh install pays the one-off compile (seconds) here and not in the first
-    step of a live loop. Returns the policies whose gate runs compiled (those with a world model and a continuous
-    actor the compiled kernel covers)."""
+    step of a live loop; with the mover model, also its compiled velocities (a track of ``gate.mover_history`` steps)
+    and the movers' contact test (a kernel call with a moving sector). Returns the policies whose gate runs compiled
+    (those with a world model and a continuous actor the compiled kernel covers)."""
+    import torch
+
     from core.sage.compiled_gate import CompiledGateKernel
 
     compiled = []
@@ -436,6 +439,18 @@ def warm_gate_kernels(policies: list[str]) -> list[str]:
         action = np.zeros(agent.meta.act_dim, dtype=np.float32)
         gate.decide(obs, action)
         gate.observe(obs, action, obs)
-        if isinstance(gate.kernel(), CompiledGateKernel):
+        kernel = gate.kernel()
+        if gate.cfg.mover_model != "none" and gate.world_model.ego is not None:
+            for _ in range(gate.cfg.mover_history):
+                gate.observe(obs, action, obs)
+            gate.decide(obs, action)  # the velocities of a full track
+            if isinstance(kernel, CompiledGateKernel) and kernel.contact is not None:
+                moving = torch.zeros(1, gate.world_model.ego.sectors, 2)
+                moving[0, 0] = 1.0
+                with torch.inference_mode():
+                    o, a = torch.from_numpy(obs).view(1, -1), torch.from_numpy(action).view(1, -1)
+                    kernel(o, a, None, None, moving)
+            gate.reset()
+        if isinstance(kernel, CompiledGateKernel):
             compiled.append(path)
     return compiled

@@ -32,7 +32,6 @@ from core._ego_kernel import scan as ego_scan
 # bounded bearing, error_model=numpy (issue 63).
 from core.sage.config import GateConfig
 from core.sage.fear import GateKernel, closing_channels
-from core.sage.movers import mover_contact
 from core.sage.world_model import FoldedModel
 
 
@@ -209,6 +208,72 @@ def reused_curiosity(outputs: np.ndarray, base: np.ndarray, next_obs: np.ndarray
     return math.sqrt(total)
 
 
+@numba.njit(cache=True, nogil=True)
+def movers_touching(
+    ranges: np.ndarray,
+    velocity: np.ndarray,
+    x: np.ndarray,
+    act_offset: int,
+    cos: np.ndarray,
+    sin: np.ndarray,
+    numbers: np.ndarray,
+    channels: np.ndarray,
+    floors: np.ndarray,
+    touching: np.ndarray,
+) -> bool:
+    """:func:`core.sage.movers.mover_contact` for one state on the rollout's buffers, in float32 as torch computes it:
+    ``touching`` (m, N) is written, whether some moving point of ``ranges`` (S,) moved at its ``velocity`` (S, 2) to
+    p + k v falls at or under the floor of its sector from member n's imagined pose after k steps, the poses integrated
+    from the actions in ``x[k, n, act_offset:]`` (the rollout's, the first the real one). ``numbers``: start, width,
+    forward scale and offset, turn scale; ``channels``: the action's forward and turn channels. Returns whether any
+    touches. Only the moving points are visited (the others never touch)."""
+    m, n, s = touching.shape[0], touching.shape[1], ranges.shape[0]
+    start, width = np.float32(numbers[0]), np.float32(numbers[1])
+    forward_scale, forward_offset, turn_scale = np.float32(numbers[2]), np.float32(numbers[3]), np.float32(numbers[4])
+    forward_channel, turn_channel = channels[0], channels[1]
+    count = floors.shape[0]
+    moving = np.empty(s, dtype=np.int64)
+    k_moving = 0
+    for i in range(s):
+        if (abs(velocity[i, 0]) + abs(velocity[i, 1]) > 0) and ranges[i] < 1.0:
+            moving[k_moving] = i
+            k_moving += 1
+    px, py = np.empty(s, dtype=np.float32), np.empty(s, dtype=np.float32)
+    for i in range(s):
+        px[i], py[i] = ranges[i] * cos[i], ranges[i] * sin[i]
+    one = np.float32(1.0)
+    anything = False
+    for member in range(n):
+        heading, x_pose, y_pose = np.float32(0.0), np.float32(0.0), np.float32(0.0)
+        for k in range(m):
+            touching[k, member] = False
+            distance = x[k, member, act_offset + forward_channel] * forward_scale + forward_offset
+            turn = x[k, member, act_offset + turn_channel] * turn_scale
+            half = np.float32(0.5) * turn
+            small = abs(half) <= np.float32(1e-6)
+            sinc = np.float32(math.sin(half)) / (one if small else half)
+            chord = distance * (one if small else sinc)
+            heading = heading + turn
+            along = heading - half
+            x_pose = x_pose + chord * np.float32(math.cos(along))
+            y_pose = y_pose + chord * np.float32(math.sin(along))
+            ahead = np.float32(k + 1)
+            c, sn = np.float32(math.cos(heading)), np.float32(math.sin(heading))
+            for q in range(k_moving):
+                i = moving[q]
+                dx = px[i] + ahead * velocity[i, 0] - x_pose
+                dy = py[i] + ahead * velocity[i, 1] - y_pose
+                lx, ly = c * dx + sn * dy, c * dy - sn * dx
+                sector = math.floor((np.float32(math.atan2(ly, lx)) - start) / width)
+                if sector < 0 or sector >= count:
+                    continue
+                if np.float32(math.hypot(lx, ly)) <= floors[int(sector)]:
+                    touching[k, member] = True
+                    anything = True
+                    break
+    return anything
+
+
 def compiled_kernel_supports(model: FoldedModel, actor_layers: list[tuple[Tensor, Tensor]]) -> bool:
     """Whether :class:`CompiledGateKernel` computes this model's and actor's gate: CPU float32 contiguous weights,
     no scan-aligned motion and no approach input."""
@@ -249,10 +314,20 @@ class CompiledGateKernel(GateKernel):
             tuple(b.detach().numpy() for _, b in actor_layers),
         )
         self._scale = (output_scale.detach().float().numpy(), output_bias.detach().float().numpy())
+        self._touching = np.zeros((m, n), dtype=np.bool_)
+        """Whether the movers touch each member at each step (:func:`movers_touching`, written by each call)."""
         if self.ego is not None:
-            from core.motion import _kernel_geometry
+            from core.motion import _geometry, _kernel_geometry
 
             self._geometry = _kernel_geometry(self.ego)
+            bearings = _geometry(self.ego, torch.float32)  # the movers' contact test in float32, as torch's
+            ego = self.ego
+            self._mover_geometry = (
+                bearings.cos.numpy().copy(),
+                bearings.sin.numpy().copy(),
+                np.array([ego.start, ego.width, ego.forward_scale, ego.forward_offset, ego.turn_scale], np.float64),
+                np.array([ego.forward_channel, ego.turn_channel], np.int64),
+            )
         else:
             self._geometry = (np.zeros((1, 2)), np.zeros((1, 3), np.int64), np.zeros(6), np.zeros(2, np.int64))
         self._floors = np.zeros(0, np.float32) if self.contact is None else self.contact.numpy()
@@ -315,10 +390,12 @@ class CompiledGateKernel(GateKernel):
         poses from the actions the rollout wrote into ``x``) raises the probabilities it wrote, and ĉ and F^m are
         aggregated again as :func:`gate_rollout` aggregates them (σ̂ unchanged)."""
         assert self.contact is not None and self.ego is not None
-        touching = mover_contact(self.ego, obs, mover_velocity, self.actions[: self.m], self.contact)[..., 0]
-        if not bool(touching.any()):
+        touching = self._touching
+        ranges = obs.numpy().reshape(-1)[: self.ego.sectors]
+        velocity = np.ascontiguousarray(mover_velocity.reshape(-1, 2).numpy(), np.float32)
+        if not movers_touching(ranges, velocity, self._x, self.d, *self._mover_geometry, self._floors, touching):
             return terms
-        probability = np.maximum(self._probability, touching.numpy().astype(np.float32))
+        probability = np.maximum(self._probability, touching.astype(np.float32))
         self._probability[...] = probability
         cost = probability.astype(np.float64).mean(1)
         sigma = terms[2]

@@ -13,7 +13,9 @@ The loop (:class:`core.loop.Runner`) executes a = (1 - Ξ) a_RL + Ξ a_expert an
 A whole step (m = 5, N = 5 rollout, policy, curiosity, threshold) costs 0.16 ms on one core, 0.24 ms over the
 UGV's ego step (bench/bench_gate.py --ego): the rollout is one compiled call
 (:class:`core.sage.compiled_gate.CompiledGateKernel`) on cached folded weights, where the torch kernel's few dozen
-small operations took twice that.
+small operations took twice that. The UGV default's gate as it deploys it (the mover model, contact over 10 steps;
+``bench/bench_gate.py --policy policies/ugv-default``) costs about 1.0 ms a step on a loaded machine (1.3x the
+synthetic gate's in the same run), its mover model compiled too (:mod:`core.sage.compiled_movers`; 2.8 ms before).
 """
 
 from __future__ import annotations
@@ -110,7 +112,8 @@ class SageGate:
         any deterministic torch policy function (generic path, e.g. a discrete learner's one-hot greedy).
         ``encode``: turns the loop's actions into the world model's (a discrete action index into its one-hot);
         None when they are the same. ``compiled``: with an :class:`Actor`, the rollout as one compiled call
-        (:class:`CompiledGateKernel`, where it covers the model) rather than the torch kernel's small operations."""
+        (:class:`CompiledGateKernel`, where it covers the model) rather than the torch kernel's small operations; and
+        the mover model's velocities compiled (:mod:`core.sage.compiled_movers`) rather than numpy's."""
         self.encode = encode
         self.compiled = compiled
         self.world_model = world_model
@@ -184,12 +187,22 @@ class SageGate:
         """(1, S, 2) each scan sector's velocity that the episode's last ``gate.mover_history`` + 1 real scans show
         (zeros: static), for the mover model (:func:`core.sage.movers.mover_velocities`). None when the gate has none,
         the model no ego step, or the episode has shown fewer steps."""
+        velocity = self._mover_velocity()
+        return None if velocity is None else torch.from_numpy(velocity.astype(np.float32)).unsqueeze(0)
+
+    def _mover_velocity(self) -> np.ndarray | None:
+        """:meth:`mover_velocity` as (S, 2) float64 (what :func:`core.sage.movers.mover_velocities` returns)."""
         ego = self.world_model.ego
         if self.cfg.mover_model == "none" or ego is None or len(self._transitions) < self.cfg.mover_history:
             return None
         transitions = list(self._transitions)
         scans = np.stack([obs[: ego.sectors] for obs, _, _ in transitions] + [transitions[-1][2][: ego.sectors]])
-        velocity = mover_velocities(
+        velocities = mover_velocities
+        if self.compiled:  # numba's import (and a first compilation where its cache is cold) is paid here, once
+            from core.sage.compiled_movers import compiled_mover_velocities
+
+            velocities = compiled_mover_velocities
+        return velocities(
             ego,
             scans,
             np.stack([action for _, action, _ in transitions]),
@@ -197,7 +210,6 @@ class SageGate:
             self.cfg.mover_max_size,
             self.cfg.mover_min_speed,
         )
-        return torch.from_numpy(velocity.astype(np.float32)).unsqueeze(0)
 
     def _motion(self, obs: np.ndarray) -> torch.Tensor | None:
         """(s_t - s_{t-k}) / k as a (1, D) tensor, k = ``motion_lag`` or the steps seen so far in this episode
@@ -270,7 +282,10 @@ class SageGate:
             kernel = self.kernel()
             motion = self._motion(obs)
             rate = self.closing_rate()
-            movers = self.mover_velocity()
+            velocity = self._mover_velocity()
+            movers = None  # nothing moves: no moving point can touch (the same fear, without the test's cost)
+            if velocity is not None and velocity.any():
+                movers = torch.from_numpy(velocity.astype(np.float32)).unsqueeze(0)
             if kernel is not None:
                 if movers is None:
                     value, cost, sigma = kernel(o, a, motion, rate)
@@ -337,16 +352,17 @@ class SageGate:
             a = torch.from_numpy(self._encoded(action)).view(1, -1)
             s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
-            motion = self._motion(obs)
             curiosity = math.nan  # "novelty" reads the state arrived at, once this one is in the history (below)
             if self.cfg.curiosity_signal == "disagreement":
-                curiosity = float(self.world_model.disagreement(o, a, motion)[0])
+                curiosity = float(self.world_model.disagreement(o, a, self._motion(obs))[0])
             elif self.cfg.curiosity_signal == "error" and kernel is not None:
                 last_obs, last_action, version = self._last
                 reuse = version == self.world_model.version and last_obs is obs and np.array_equal(last_action, action)
+                # reusing the decision's first step reads its motion there: none to compute again
+                motion = None if reuse else self._motion(obs)
                 curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)
             elif self.cfg.curiosity_signal == "error":
-                curiosity = float(curiosity_folded(self.world_model, o, a, s1, motion)[0])
+                curiosity = float(curiosity_folded(self.world_model, o, a, s1, self._motion(obs))[0])
             if self.cfg.contact_extrapolation and self.cfg.contact_floors:
                 # the movers' own change per sector: the next scan against this one moved by the robot's action
                 channels = len(self.cfg.contact_floors)

@@ -40,6 +40,7 @@ scan would show none.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -49,6 +50,10 @@ from torch import Tensor
 from core.motion import EgoScanStep, _geometry
 
 _LAYOUT: dict[EgoScanStep, tuple[np.ndarray, np.ndarray, float]] = {}
+_SEGMENTS: dict[tuple[EgoScanStep, bytes], _Segments] = {}
+"""The last scans' segments in their own frames, by step and scan (its float64 bytes): the gate's track reads each
+scan in L + 1 consecutive steps, and a scan's segments depend on nothing else."""
+_SEGMENTS_KEPT = 32
 
 
 def _layout(step: EgoScanStep) -> tuple[np.ndarray, np.ndarray, float]:
@@ -88,12 +93,26 @@ class _Segments:
     def __len__(self) -> int:
         return len(self.first)
 
-    def moved(self, pose: tuple[float, float, float]) -> None:
-        """Move the centroids into the frame after a step (``pose`` from :func:`arc`)."""
+    def moved(self, pose: tuple[float, float, float]) -> _Segments:
+        """A copy whose centroids are moved into the frame after a step (``pose`` from :func:`arc`); the rest shared."""
         x, y, turn = pose
         c, s = math.cos(turn), math.sin(turn)
         dx, dy = self.centroid[:, 0] - x, self.centroid[:, 1] - y
-        self.centroid = np.stack([c * dx + s * dy, c * dy - s * dx], axis=-1)
+        out = copy.copy(self)
+        out.centroid = np.stack([c * dx + s * dy, c * dy - s * dx], axis=-1)
+        return out
+
+
+def _segments(step: EgoScanStep, ranges: np.ndarray) -> _Segments:
+    """``_Segments(step, ranges)`` for a float64 scan, kept for the next steps' tracks (never modified: ``moved``
+    copies)."""
+    key = (step, ranges[: step.sectors].tobytes())
+    found = _SEGMENTS.get(key)
+    if found is None:
+        found = _SEGMENTS[key] = _Segments(step, ranges)
+        while len(_SEGMENTS) > _SEGMENTS_KEPT:
+            _SEGMENTS.pop(next(iter(_SEGMENTS)), None)  # the oldest first (insertion order)
+    return found
 
 
 def arc(step: EgoScanStep, action: np.ndarray) -> tuple[float, float, float]:
@@ -145,7 +164,7 @@ def mover_velocities(
     history = len(scans) - 1
     if history < 2 or len(actions) != history:
         raise ValueError(f"mover velocities need L + 1 >= 3 scans and L actions, got {len(scans)} and {len(actions)}")
-    newest = _Segments(step, scans[-1])
+    newest = _segments(step, scans[-1])
     candidates = np.flatnonzero(~newest.cut & (newest.extent <= max_size))
     if not len(candidates):
         return out
@@ -164,9 +183,7 @@ def mover_velocities(
     pose = (0.0, 0.0, 0.0)
     for j in range(history - 1, -1, -1):
         pose = _compose(arc(step, actions[j]), pose)  # scan j's frame -> the newest
-        segments = _Segments(step, scans[j])
-        segments.moved(pose)
-        older.append(segments)  # newest first
+        older.append(_segments(step, scans[j]).moved(pose))  # newest first
     times = np.arange(-history, 1, dtype=np.float64)
     centred = times - times.mean()
     for index in candidates:

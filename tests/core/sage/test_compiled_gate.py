@@ -170,12 +170,21 @@ def test_unsupported_models_keep_the_torch_kernel() -> None:
     assert type(gate.kernel()) is GateKernel
 
 
-def test_warm_up_builds_the_compiled_kernel_of_a_committed_policy_before_any_live_step() -> None:
+def test_warm_up_builds_the_compiled_kernel_of_a_committed_policy_before_any_live_step(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """``sage serve`` warms the gate of the policy it opens, so a fresh install's one-off compile is not paid by the
-    live loop's first step; a policy with no world model has no gate to warm."""
+    live loop's first step (the UGV default's mover model too: its compiled velocities and contact test are called);
+    a policy with no world model has no gate to warm."""
     from pathlib import Path
 
     from core.agents import warm_gate_kernels
+    from core.sage import compiled_gate, compiled_movers
 
+    calls: list[str] = []
+    for module, name in ((compiled_movers, "compiled_mover_velocities"), (compiled_gate, "movers_touching")):
+        original = getattr(module, name)
+        monkeypatch.setattr(module, name, lambda *a, _f=original, _n=name, **k: calls.append(_n) or _f(*a, **k))
     root = Path(__file__).resolve().parents[3] / "policies"
     assert warm_gate_kernels([str(root / "ugv-default")]) == [str(root / "ugv-default")]
+    assert set(calls) == {"compiled_mover_velocities", "movers_touching"}

@@ -20,7 +20,7 @@ from core.replay import ReplayBuffer
 from core.sage.calibration import CalibrationSample, calibrate
 from core.sage.compiled_gate import CompiledGateKernel
 from core.sage.config import AgentConfig, GateConfig, WorldModelConfig, parse_gate_settings, validate
-from core.sage.fear import GateKernel, fear_of, rollout
+from core.sage.fear import GateKernel, contact_reach, contact_terms, fear_of, rollout
 from core.sage.gate import SageGate
 from core.sage.model_trainer import buffer_mover_velocities
 from core.sage.movers import mover_contact, mover_velocities
@@ -260,6 +260,68 @@ def test_the_gate_fears_the_crossing_and_its_two_paths_agree() -> None:
     assert gate.mover_velocity() is not None
     gate.reset()
     assert gate.mover_velocity() is None  # an episode's movers do not carry into the next
+
+
+def test_the_kept_segments_give_the_velocities_computed_afresh() -> None:
+    """A scan's segments are kept for the next steps' tracks (``core.sage.movers._segments``): along an episode, each
+    step's velocities with the kept segments are those computed with none kept (the same float64 arithmetic), and
+    what is kept stays bounded."""
+    from core.sage import movers
+
+    world = World([(0.12, 0.08, 0.025, 0.0, -0.008), (0.3, -0.1, 0.03, -0.006, 0.0)], [(0.05, 0.2, 0.4, 0.2)])
+    actions = [FORWARD if t % 3 else np.array([0.5, 0.4]) for t in range(14)]
+    scans, _ = drive(world, actions)
+    movers._SEGMENTS.clear()
+    kept = [velocities(scans[: t + 2], actions[: t + 1]) for t in range(HISTORY - 1, len(actions))]
+    assert 0 < len(movers._SEGMENTS) <= movers._SEGMENTS_KEPT
+    fresh = []
+    for t in range(HISTORY - 1, len(actions)):
+        movers._SEGMENTS.clear()
+        fresh.append(velocities(scans[: t + 2], actions[: t + 1]))
+    assert any(v.any() for v in fresh)  # the comparison covers moving segments, not only static ones
+    np.testing.assert_allclose(np.array(kept), np.array(fresh), rtol=0, atol=1e-12)
+
+
+def test_a_world_where_nothing_moves_adds_no_mover_test_and_the_same_fear() -> None:
+    """The gate skips the movers' contact test when no sector moves (all velocities zero): both kernels give the fear
+    they give with the zero velocities passed on, and along the crossing the gate's fear is the generic rollout's
+    with every step's velocities passed on, zeros included (the path before the skip)."""
+    model, actor, _ = fitted()
+    cfg = gate_cfg("cartesian")
+    obs, actions = crossing_episode(10)
+    o, a = torch.from_numpy(obs[:1]), torch.from_numpy(actions[:1])
+    zeros = torch.zeros(1, SECTORS, 2)
+    with torch.inference_mode():
+        for kernel in (SageGate(model, actor, cfg, compiled=c).kernel() for c in (False, True)):
+            assert kernel is not None
+            assert kernel(o, a, None, None, zeros) == pytest.approx(kernel(o, a, None, None), abs=1e-7)
+    gate = SageGate(model, actor, cfg)
+    folded, counts = model.folded(), {True: 0, False: 0}
+    still, _ = drive(World([(0.15, 0.03, 0.03, 0.0, 0.0)]), [FORWARD] * 10)
+    still_obs = np.concatenate([still, np.zeros((len(still), 2))], axis=1).astype(np.float32)
+    for obs in (crossing_episode(10)[0], still_obs):  # a walker crossing, then a post that stands still
+        gate.reset()
+        for t in range(len(actions)):
+            velocity = gate.mover_velocity()
+            decision = gate.decide(obs[t], actions[t])
+            if velocity is not None:
+                counts[bool(velocity.any())] += 1
+                motion = gate._motion(obs[t])
+                with torch.no_grad():
+                    ro = rollout(
+                        folded,
+                        actor.deterministic,
+                        torch.from_numpy(obs[t : t + 1]),
+                        torch.from_numpy(actions[t : t + 1]),
+                        contact_reach(cfg, cfg.horizon),
+                        motion,
+                        *contact_terms(cfg, motion),
+                        learned_steps=cfg.horizon,
+                        mover_velocity=velocity,
+                    )
+                assert decision.fear == pytest.approx(float(fear_of(folded, ro, cfg).fear[0]), abs=1e-5)
+            gate.observe(obs[t], actions[t], obs[t + 1])
+    assert counts[True] > 0 and counts[False] > 0, counts  # steps with movers and steps without both compared
 
 
 def test_the_calibration_reads_the_movers_the_gate_would_have_read(tmp_path: object) -> None:
