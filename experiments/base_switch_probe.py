@@ -7,7 +7,8 @@ not fire, the adapted version wherever it does (the gate's hold included): the a
 expert had while it was being taught. Seeds from the cycles study's ``alone_seed`` (its first ``alone_episodes``
 are the study's own alone episodes).
 
-    python -m experiments.base_switch_probe --runs runs/probe-cycles-mover --episodes 20 --out docs/notes/base_switch_probe.md
+    python -m experiments.base_switch_probe --runs runs/probe-cycles-mover --episodes 20 \
+        --out docs/notes/base_switch_probe_20.md
 """
 
 from __future__ import annotations
@@ -79,7 +80,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--scenarios", default="1,2,3,4")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    seed = CyclesConfig().alone_seed
+    seed = int(CyclesConfig.__dataclass_fields__["alone_seed"].default)
     scenarios = args.scenarios.split(",")
     rows = []
     totals: dict[tuple[str, str], list[int]] = {}
@@ -99,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print(rows[-1], flush=True)
     lines = [
         f"Made by `python -m experiments.base_switch_probe --runs {args.runs} --episodes {args.episodes} "
-        f"--scenarios {args.scenarios}`; seeds from {seed}. \"handed\": the switch's steps driven by the adapted "
+        f'--scenarios {args.scenarios}`; seeds from {seed}. "handed": the switch\'s steps driven by the adapted '
         "version (its base's gate fired or held).",
         "",
         "| policy | " + " | ".join(f"UGV {s} success (collisions)" for s in scenarios) + " |",
