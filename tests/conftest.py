@@ -9,8 +9,11 @@ import pytest
 
 @pytest.fixture(scope="module")
 def ray_local() -> Iterator[None]:
-    """A local two-core Ray for the tests of one module (sweeps, studies), shut down after them."""
+    """A local two-core Ray for the tests of one module (sweeps, studies), started as the studies start it, shut down
+    after them."""
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    from studies.sweep import ensure_ray
+
+    ensure_ray(cpus=2)
     yield
     ray.shutdown()

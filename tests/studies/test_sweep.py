@@ -18,7 +18,11 @@ def toy_trial(config: dict[str, Any]) -> dict[str, float]:
     offset = {"a": 0.0, "b": 100.0}[config["method"]]
     if config.get("fail_seed") == config["seed"] and config["method"] == "b":
         raise RuntimeError("deliberate failure")
-    return {"score": offset + config["seed"] * config["scale"], "worker_pid": float(os.getpid())}
+    return {
+        "score": offset + config["seed"] * config["scale"],
+        "worker_pid": float(os.getpid()),
+        "niceness": float(os.nice(0)),  # the calling thread's, which is the one running the trial
+    }
 
 
 def toy_task(value: int, folder: str) -> tuple[int, int]:
@@ -34,6 +38,8 @@ def test_sweep_runs_every_method_and_seed_in_worker_processes(ray_local: None, t
     assert [(r["method"], r["seed"]) for r in rows] == [("a", 1), ("a", 3), ("b", 1), ("b", 3)]
     assert [r["score"] for r in rows] == [2.0, 6.0, 102.0, 106.0]
     assert all(int(r["worker_pid"]) != os.getpid() for r in rows)  # trials ran outside the driver
+    # at the driver's priority: Ray's default would lower them by 15, starving a study beside any other job
+    assert all(r["niceness"] == os.nice(0) for r in rows)
     # a second call with the same folder resumes the finished experiment instead of rerunning it
     again = run_sweep(toy_trial, ["a", "b"], [1, 3], tmp_path, "toy", settings={"scale": 2.0})
     assert [r["worker_pid"] for r in again] == [r["worker_pid"] for r in rows]
