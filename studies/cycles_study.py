@@ -20,14 +20,20 @@ seeds) and the fine-tuning's randomness.
 The table reports, per method, mean ± 95% interval over seeds: the policy ALONE (no gate, no expert) in the first
 and the last cycle, on the cycle's scenario and on the unseen one; takeover rate and collisions under supervision in
 the first and the last cycle; the change in takeover rate; the number of cycles with more supervised collisions
-than the first. The paper shows this study as curves, so no numbers
-stand beside; the figure ``cycles_improvement.png`` draws alone success and takeover over the cycles.
+than the first; and forgetting: the first and the last cycle's version (the frozen control's is the starting policy
+in both) alone on the static scenarios (``static_scenarios``; UGV 1 and 2, no movers, which the starting policy
+solves; none for a simulator without them), the same ``eval_episodes`` and seeds as the other alone evaluations,
+success averaged over the static scenarios (per scenario in the run folder's ``static.json``). The paper shows this
+study as curves, so no numbers stand beside; the figure ``cycles_improvement.png`` draws alone success and takeover
+over the cycles.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import shutil
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +54,25 @@ METRICS = (
     "collision_first",
     "collision_last",
     "collision_cycles_above_first",
+    "static_success_first",
+    "static_success_last",
+    "static_success_change",
 )
+#: The static scenarios of each simulator (no movers; the starting policy solves them): the policy alone there after
+#: the cycles says whether fine-tuning on the crossing forgot them. A simulator not named here has none.
+STATIC_SCENARIOS: dict[str, tuple[str, ...]] = {"ugv": ("1", "2")}
+STATIC_FILE = "static.json"
+
+
+def static_scenarios_of(settings: Mapping[str, Any]) -> tuple[str, ...]:
+    """The static scenarios a trial measures: ``static_scenarios`` (comma-separated names), "" for the simulator's
+    own (:data:`STATIC_SCENARIOS`: UGV 1 and 2), "none" for none."""
+    given = settings.get("static_scenarios", "") or ""
+    names = [str(n) for n in given] if isinstance(given, list | tuple) else str(given).split(",")
+    names = [n.strip() for n in names if n.strip()]
+    if [n.lower() for n in names] == ["none"]:
+        return ()
+    return tuple(names) if names else STATIC_SCENARIOS.get(str(settings.get("sim", "ugv")), ())
 
 
 def cycles_for(train_steps: int) -> int:
@@ -77,10 +101,17 @@ def budget_text(budget: Budget, settings: Mapping[str, Any]) -> str:
     cycles = cycles_for(budget.train_steps)
     sim, scenario = str(settings.get("sim", "ugv")), str(settings.get("scenario", "3"))
     unseen = str(settings.get("unseen_scenario", "")) or unseen_of(sim, scenario) or "none"
+    static = static_scenarios_of(settings)
+    statics = (
+        f"; the first and the last cycle's version alone on {budget.eval_episodes} episodes of each static scenario "
+        f"({', '.join(static)})"
+        if static
+        else ""
+    )
     return (
         f"{cycles} cycles of {steps_per_cycle(budget.train_steps)} deployment steps per method and seed "
         f"({budget.train_steps} environment steps) on {sim} scenario {scenario}; each cycle's version alone on "
-        f"{budget.eval_episodes} evaluation episodes of the scenario and of an unseen one ({unseen})"
+        f"{budget.eval_episodes} evaluation episodes of the scenario and of an unseen one ({unseen}){statics}"
     )
 
 
@@ -115,8 +146,18 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             promotion=promotion_of(config),
         )
         run_cycles(cfg, out, env_factory(sim))
-    rows = read_cycles(out)["cycles"]
+    run = read_cycles(out)
+    rows = run["cycles"]
     first, last = rows[0], rows[-1]
+    static = static_alone(
+        out,
+        [int(first["version"]), int(last["version"])],
+        static_scenarios_of(config),
+        env_factory(sim),
+        episodes=int(config["eval_episodes"]),
+        seed=int(run["config"].get("alone_seed", 9_000_000)),
+        max_steps=config.get("max_episode_steps"),
+    )
 
     def value(row: dict[str, Any], key: str) -> float:
         return float(row.get(key) or 0.0)
@@ -132,9 +173,54 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
         "collision_first": value(first, "collision"),
         "collision_last": value(last, "collision"),
         "collision_cycles_above_first": float(cycles_above_first(rows, "collision")),
+        "static_success_first": static_success(static, int(first["version"])),
+        "static_success_last": static_success(static, int(last["version"])),
+        "static_success_change": static_success(static, int(last["version"]))
+        - static_success(static, int(first["version"])),
         "cycles": float(len(rows)),
         "steps": float(sum(int(row["steps"]) for row in rows)),
     }
+
+
+def static_alone(
+    out: Path,
+    versions: list[int],
+    scenarios: tuple[str, ...],
+    make_env: Callable[[str], Any],
+    episodes: int,
+    seed: int,
+    max_steps: int | None,
+) -> list[dict[str, Any]]:
+    """The run folder's ``versions`` alone (deterministic, no gate, no expert) on each static scenario, ``episodes``
+    seeds from ``seed`` (the alone evaluations' seeds, apart from deployment): one row per version and scenario,
+    each pair measured once and kept in ``out/static.json`` (a finished trial reads it back)."""
+    from core.versions import VersionStore
+    from studies.cycles import drive_alone_rates
+
+    path = Path(out) / STATIC_FILE
+    kept: list[dict[str, Any]] = []
+    if path.is_file():
+        loaded = json.loads(path.read_text())
+        if loaded.get("episodes") == episodes and loaded.get("seed") == seed and loaded.get("max_steps") == max_steps:
+            kept = list(loaded.get("rows", []))
+    done = {(int(r["version"]), str(r["scenario"])) for r in kept}
+    store = VersionStore(Path(out) / "versions")
+    for version in dict.fromkeys(versions):
+        for scenario in scenarios:
+            if (version, scenario) in done:
+                continue
+            rates = drive_alone_rates(store.get(version).path, make_env, scenario, episodes, seed, max_steps)
+            kept.append({"version": version, "scenario": scenario, **rates})
+            done.add((version, scenario))
+    payload = {"episodes": episodes, "seed": seed, "max_steps": max_steps, "rows": kept}
+    path.write_text(json.dumps(payload, indent=2) + "\n")
+    return [r for r in kept if int(r["version"]) in versions and str(r["scenario"]) in scenarios]
+
+
+def static_success(rows: list[dict[str, Any]], version: int) -> float:
+    """A version's alone success averaged over the static scenarios (NaN without any: not measured)."""
+    values = [float(r["success"]) for r in rows if int(r["version"]) == version]
+    return sum(values) / len(values) if values else math.nan
 
 
 def promotion_of(settings: Mapping[str, Any]) -> Any:
@@ -163,7 +249,8 @@ def check_settings(settings: Mapping[str, Any]) -> None:
     scenario = str(settings.get("scenario", "3"))
     unseen = str(settings.get("unseen_scenario", "")) or unseen_of(sim, scenario)
     regression = [("regression_scenarios", str(name)) for name in settings.get("regression_scenarios", ()) or ()]
-    for key, name in (("scenario", scenario), ("unseen_scenario", unseen), *regression):
+    static = [("static_scenarios", name) for name in static_scenarios_of(settings)]
+    for key, name in (("scenario", scenario), ("unseen_scenario", unseen), *regression, *static):
         if not name:
             continue
         try:
@@ -220,6 +307,11 @@ STUDY = StudyDef(
         "and the last cycle (the first is the same policy for both methods). collision_cycles_above_first: the cycles "
         "after the first whose supervised collision rate is above the first's. Collisions end the episode. The paper "
         "shows this study as curves (Fig. field_test_1), so no paper numbers stand beside.",
+        "static: forgetting, the first and the last cycle's version alone (no gate, no expert, deterministic) on the "
+        "static scenarios (UGV 1 and 2 by default, no movers; study setting static_scenarios), the budget's "
+        "evaluation episodes of each on the alone evaluations' seeds; success averaged over the static scenarios "
+        "(each in the run folder's static.json); static_success_change = last - first (the first is the starting "
+        "policy; frozen's last is too).",
     ),
     settings={
         "sim": "ugv",
@@ -229,6 +321,7 @@ STUDY = StudyDef(
         "finetune": (),
         "promotion": False,
         "regression_scenarios": (),
+        "static_scenarios": "",
     },
     check_settings=check_settings,
     prepare=prepare,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -132,3 +133,43 @@ def test_the_cycles_study_can_judge_its_versions_by_the_regression_test_alone(tm
     assert "regression" in verdict["reason"] or "no worse alone" in verdict["reason"]
     # a rejected version is not deployed: the last cycle drives the version in control
     assert tuned["cycles"][-1]["version"] == (1 if verdict["promoted"] else 0)
+
+
+def test_the_cycles_study_measures_forgetting_on_the_static_scenarios_first_and_last(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 62's "scenarios 1-2 alone no worse than the default's": the first and the last cycle's version alone on
+    UGV 1 and 2, on the alone evaluations' seeds, kept per scenario in the run folder and read back."""
+    import studies.cycles as cycles_module
+    from studies.cycles_study import STATIC_FILE, static_scenarios_of
+
+    assert static_scenarios_of({"sim": "ugv"}) == ("1", "2")  # the UGV default
+    assert static_scenarios_of({"sim": "ugv", "static_scenarios": "none"}) == ()
+    assert static_scenarios_of({"sim": "ugv", "static_scenarios": ["2"]}) == ("2",)
+    assert static_scenarios_of({"sim": "highway"}) == ()  # a simulator without static scenarios measures none
+    # full-length episodes: the starting policy solves the static scenarios alone, so a forgetting version would show
+    config = {"seed": 1, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path)}
+    frozen = trial({**config, "method": "frozen"})
+    assert frozen["static_success_first"] == 1.0 and frozen["static_success_last"] == 1.0
+    assert frozen["static_success_change"] == 0.0
+    short = {**config, "max_episode_steps": 50, "runs_dir": str(tmp_path / "short")}
+    tuned = trial({**short, "method": "sage"})
+    run = json.loads((tmp_path / "short" / "sage-s1" / "cycles.json").read_text())
+    last = run["cycles"][-1]["version"]
+    static = json.loads((tmp_path / "short" / "sage-s1" / STATIC_FILE).read_text())
+    assert static["seed"] == run["config"]["alone_seed"] and static["max_steps"] == 50
+    assert {(r["version"], r["scenario"]) for r in static["rows"]} == {(0, "1"), (0, "2"), (last, "1"), (last, "2")}
+    assert last > 0 and all(r["episodes"] == 1 and r["steps"] <= 50 for r in static["rows"])
+    assert tuned["static_success_change"] == pytest.approx(tuned["static_success_last"] - tuned["static_success_first"])
+
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a finished trial's static evaluations are read back, not driven again")
+
+    monkeypatch.setattr(cycles_module, "drive_alone_rates", never)
+    assert trial({**short, "method": "sage"}) == tuned
+    skipped = trial({**short, "method": "sage", "static_scenarios": "none"})
+    assert all(math.isnan(skipped[k]) for k in ("static_success_first", "static_success_last"))
+    check = get_study("cycles").check_settings
+    assert check is not None
+    with pytest.raises(ValueError, match=r"study\.static_scenarios=9"):
+        check({"sim": "ugv", "scenario": "3", "static_scenarios": "1,9"})
