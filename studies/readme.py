@@ -85,6 +85,8 @@ class Headline:
     """The table row's keys besides the method (a scenario, a split), as ``summary.json`` writes them."""
     scale: float = 1.0
     """Shown as mean × scale (100: a fraction shown in percent)."""
+    since: bool = False
+    """A metric the study gained later: sections whose folders predate it show no row (rather than an error)."""
 
 
 HEADLINES: dict[str, tuple[Headline, ...]] = {
@@ -108,6 +110,14 @@ HEADLINES: dict[str, tuple[Headline, ...]] = {
     "cycles": (
         Headline("success alone after the last cycle (%)", "alone_success_last", "sage", "frozen", scale=100),
         Headline("takeover rate, last cycle − first (points)", "takeover_change", "sage", "frozen", scale=100),
+        Headline(
+            "success alone on the static scenarios after the last cycle (%; forgetting)",
+            "static_success_last",
+            "sage",
+            "frozen",
+            scale=100,
+            since=True,
+        ),
     ),
 }
 """The headline of each study (by the ``study`` its ``summary.json`` names): what a newcomer asks of it first."""
@@ -131,6 +141,8 @@ def summary_table(doc: Path, readme: Path) -> str:
         summary = json.loads(summary_file.read_text())
         anchor = f"{doc_link}#{block['name']}"
         for headline in HEADLINES.get(summary["study"], ()):
+            if headline.since and not _measured(summary, headline):
+                continue
             sage = _metric(summary, headline, headline.sage)
             # an arm run without its baseline (compared with another section's control) says so, not a number
             baseline = _metric(summary, headline, headline.baseline) if _has(summary, headline.baseline) else None
@@ -163,6 +175,13 @@ def summary_table(doc: Path, readme: Path) -> str:
 
 def _has(summary: dict, method: str) -> bool:
     return any(row["method"] == method for row in summary["rows"])
+
+
+def _measured(summary: dict, headline: Headline) -> bool:
+    """Whether the folder's SAGE rows carry the headline's metric at all (a number, not NaN)."""
+    rows = [row for row in summary["rows"] if row["method"] == headline.sage]
+    values = [row["metrics"].get(headline.metric, {}).get("mean") for row in rows]
+    return any(isinstance(v, int | float) and v == v for v in values)
 
 
 def _metric(summary: dict, headline: Headline, method: str) -> dict:

@@ -86,6 +86,33 @@ def test_an_arm_run_without_its_baseline_is_shown_as_such_not_compared(tmp_path:
     assert "sac: not run in this folder | — |" in rows[0] and "apart" not in rows[0] and "overlap" not in rows[0]
 
 
+def test_a_headline_a_study_gained_later_shows_only_where_its_folder_measured_it(tmp_path: Path) -> None:
+    doc = tmp_path / "docs" / "results.md"
+    doc.parent.mkdir()
+
+    def cycles_folder(name: str, static: bool) -> Path:
+        folder = tmp_path / "results" / name
+        folder.mkdir(parents=True)
+        (folder / "table.md").write_text(f"# {name}, budget small, commit abc\n\n| method | x |\n|---|---|\n")
+        metrics = {"alone_success_last": 0.7, "takeover_change": -0.2} | (
+            {"static_success_last": 0.31} if static else {}
+        )
+        rows = [
+            {"method": m, "seeds": 5, "metrics": {k: {"mean": v, "ci95_half_width": 0.1} for k, v in metrics.items()}}
+            for m in ("frozen", "sage")
+        ]
+        summary = {"study": "cycles", "budget": "small", "commit": "abc", "wall_s": 1.0, "rows": rows}
+        (folder / "summary.json").write_text(json.dumps(summary))
+        return folder
+
+    update_results(doc, "cycles-old", cycles_folder("cycles-old", static=False))
+    update_results(doc, "cycles", cycles_folder("cycles", static=True))
+    rows = [line for line in summary_table(doc, tmp_path / "README.md").splitlines() if line.startswith("| [")]
+    static = [row for row in rows if "static scenarios" in row]
+    assert len(rows) == 5 and len(static) == 1  # two headlines for the old folder, three for the new one
+    assert static[0].startswith("| [cycles](docs/results.md#cycles) |") and "sage: 31.0 ± 10.0" in static[0]
+
+
 def test_the_summary_refuses_a_section_without_its_results(tmp_path: Path) -> None:
     doc = tmp_path / "results.md"
     folder = _results(tmp_path, "highway-small", "aaa1111", sage=1.0, baseline=2.0)
