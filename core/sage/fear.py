@@ -734,6 +734,14 @@ class GateKernel:
         what the dashboard's imagined-horizon chart draws)."""
         return self.probability[..., 0].numpy().copy()
 
+    def first_step_spread(self, precision: np.ndarray) -> float:
+        """The members' spread about the next state (:meth:`EnsembleWorldModel.disagreement`) of the last call's state
+        and action, from its first rollout step's Δs: no second prediction. ``precision``: 1 / std(Δ)² per state
+        channel. In float64 on the host: a handful of torch calls on a (N, D) array cost more than the sums."""
+        deltas = self.deltas[0][:, 0].numpy().astype(np.float64)
+        variance = np.square(deltas - deltas.mean(0)).mean(0)
+        return math.sqrt(float((variance * precision).mean()))
+
     def curiosity(
         self,
         obs: Tensor,

@@ -126,6 +126,7 @@ class SageGate:
         self._kernel: tuple[int, GateKernel] | None = None
         self._fitted_version, self._fitted = -1, False
         self._last: tuple[object, object, int] = (None, None, -1)
+        self._precision: tuple[int, np.ndarray] | None = None
         self.takeover_hold = TakeoverHold()
         self.detail = GateDetail(threshold=self.threshold.threshold)
         self._history: collections.deque[np.ndarray] = collections.deque(maxlen=world_model.motion_lag)
@@ -146,6 +147,14 @@ class SageGate:
         if self.encode is not None:
             return np.asarray(self.encode(action), dtype=np.float32)
         return np.asarray(action, dtype=np.float32)
+
+    def _delta_precision(self) -> np.ndarray:
+        """1 / std(Δ)² per state channel of the model's present fit (the disagreement's units), kept per fit."""
+        version = self.world_model.version
+        if self._precision is None or self._precision[0] != version:
+            std = self.world_model.out_std[: self.world_model.obs_dim].detach().double().cpu().numpy()
+            self._precision = (version, 1.0 / np.square(std))
+        return self._precision[1]
 
     def kernel(self) -> GateKernel | None:
         if self.actor is None:
@@ -353,11 +362,15 @@ class SageGate:
             s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
             curiosity = math.nan  # "novelty" reads the state arrived at, once this one is in the history (below)
-            if self.cfg.curiosity_signal == "disagreement":
+            last_obs, last_action, version = self._last
+            # the executed action is the decided one (the policy drove): the decision's first rollout step already
+            # predicted every member's next state for it
+            reuse = version == self.world_model.version and last_obs is obs and np.array_equal(last_action, action)
+            if self.cfg.curiosity_signal == "disagreement" and kernel is not None and reuse:
+                curiosity = kernel.first_step_spread(self._delta_precision())
+            elif self.cfg.curiosity_signal == "disagreement":
                 curiosity = float(self.world_model.disagreement(o, a, self._motion(obs))[0])
             elif self.cfg.curiosity_signal == "error" and kernel is not None:
-                last_obs, last_action, version = self._last
-                reuse = version == self.world_model.version and last_obs is obs and np.array_equal(last_action, action)
                 # reusing the decision's first step reads its motion there: none to compute again
                 motion = None if reuse else self._motion(obs)
                 curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)

@@ -93,3 +93,31 @@ def test_a_saved_average_is_read_back_only_by_a_gate_of_the_same_signal() -> Non
     same = SageGate(model, policy, GateConfig())
     same.load_state(paper.state())
     assert same.threshold.ema == 7.0
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_disagreement_after_a_decision_is_read_from_its_first_step_not_predicted_again(
+    compiled: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    model, s, a = fitted_model()
+    policy = actor()
+    calibrate(model, policy.deterministic, torch.from_numpy(s), 3, cfg=GateConfig())
+    cfg = GateConfig(curiosity_signal="disagreement", curiosity_reference="fitted")
+    reused, predicted = (SageGate(model, policy, cfg, compiled=compiled) for _ in range(2))
+    values = []
+    for i in range(6):
+        obs = s[i] + 2.0 * i  # from familiar to novel ground, with the motion history a gate keeps
+        decided = policy.deterministic(torch.from_numpy(obs).view(1, -1))[0].detach().numpy()
+        reused.decide(obs, decided)
+        predicted.decide(obs, decided)
+        with monkeypatch.context() as patched:  # the policy's own action: no second prediction
+            patched.setattr(model, "disagreement", lambda *_: pytest.fail("predicted again"))
+            value = reused.observe(obs, decided, obs)
+        # another state object than the decided one: the disagreement predicted for what was executed
+        assert value == pytest.approx(predicted.observe(obs.copy(), decided, obs), rel=1e-4, abs=1e-7)
+        values.append(value)
+    assert values[-1] > 3 * values[0] > 0  # it still rises off the training data
+    other = SageGate(model, policy, cfg, compiled=compiled)
+    other.decide(s[0], decided)  # an expert's action after the decision: predicted for it, not the decided one's
+    expected = float(model.disagreement(torch.from_numpy(s[:1]), torch.from_numpy(a[:1]))[0])
+    assert other.observe(s[0], a[0], s[0]) == pytest.approx(expected, rel=1e-4, abs=1e-7)
