@@ -2,7 +2,8 @@
 
 They deploy the committed default UGV policy (``policies/ugv-default``; ``SAGE_UGV_POLICY`` names another one to
 try). The fast test runs the whole path (loop + gate + scripted expert + session store + the worker's fine-tuning
-round + the swap + the figures) on short episodes; the other checks that fine-tuning learns from the takeovers.
+round + the swap + the figures) on short episodes; the other (``-m slow``) checks that fine-tuning learns from the
+takeovers.
 """
 
 from __future__ import annotations
@@ -93,6 +94,7 @@ def test_cycle_rows_weigh_takeovers_by_steps() -> None:
     assert second["version"] == 1 and second["takeover_rate"] == pytest.approx(0.1)
 
 
+@pytest.mark.slow  # four UGV cycles of learning (~4 min of the parallel suite); the fast test above runs the same path
 def test_deployment_and_fine_tuning_cycles_learn_from_the_takeovers(policy: Path, tmp_path: Path) -> None:
     """The paper's field test 3 in small: the same two crossings deployed four times, fine-tuned in between as
     fear-regularised SAGE (the default policy was trained as plain SAC). The deployed policy never met a moving
