@@ -226,12 +226,7 @@ class EnsembleWorldModel(nn.Module):
         epistemic part of :meth:`predictive_std` alone (a mover's unpredictability, which every member learned
         alike, does not raise it; a state unlike the training data does)."""
         mean, _ = self.predict(obs, action, motion)
-        return self.spread_of(mean)
-
-    def spread_of(self, deltas: Tensor) -> Tensor:
-        """:meth:`disagreement` from the members' predicted Δs already at hand ((N, B, D...) as :meth:`predict`'s
-        mean, or a gate kernel's first rollout step for the same state and action)."""
-        return self._members_variance(deltas).mean(-1).sqrt()
+        return self._members_variance(mean).mean(-1).sqrt()
 
     def novelty_reference(self) -> NoveltyReference | None:
         """The reference set ready to score states (:mod:`core.sage.novelty`); None until a calibration measured it."""
