@@ -423,7 +423,8 @@ def warm_gate_kernels(policies: list[str]) -> list[str]:
     """Build (or load from numba's cache) each policy's compiled gate kernel by one decision and one observation of
     its gate on zero states, so that a fresh install pays the one-off compile (seconds) here and not in the first
     step of a live loop; with the mover model, also its compiled velocities (a track of ``gate.mover_history`` steps)
-    and the movers' contact test (a kernel call with a moving sector). Returns the policies whose gate runs compiled
+    and the movers' contact test (a kernel call with a moving sector); and the compiled reused curiosity whatever the
+    gate's curiosity signal. Returns the policies whose gate runs compiled
     (those with a world model and a continuous actor the compiled kernel covers)."""
     import torch
 
@@ -452,5 +453,11 @@ def warm_gate_kernels(policies: list[str]) -> list[str]:
                     kernel(o, a, None, None, moving)
             gate.reset()
         if isinstance(kernel, CompiledGateKernel):
+            # numba's cache is shared by every policy: compile the reused curiosity too, whichever curiosity this
+            # gate reads, or the next gate that reads it compiles it inside a live loop's first step
+            with torch.inference_mode():
+                o, a = torch.from_numpy(obs).view(1, -1), torch.from_numpy(action).view(1, -1)
+                kernel(o, a)
+                kernel.curiosity(o, a, o, reuse_first_step=True)
             compiled.append(path)
     return compiled

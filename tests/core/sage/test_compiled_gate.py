@@ -3,6 +3,7 @@ built on it takes the same decisions over a recorded sequence."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -188,3 +189,25 @@ def test_warm_up_builds_the_compiled_kernel_of_a_committed_policy_before_any_liv
     root = Path(__file__).resolve().parents[3] / "policies"
     assert warm_gate_kernels([str(root / "ugv-default")]) == [str(root / "ugv-default")]
     assert set(calls) == {"compiled_mover_velocities", "movers_touching"}
+
+
+def test_warm_up_compiles_the_reused_curiosity_whichever_curiosity_the_policy_reads(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """numba's cache is shared by every policy: a policy whose gate reads the ensemble's disagreement still warms the
+    compiled curiosity that a gate reading the prediction error calls (the dashboard may open such a policy next;
+    otherwise its first live step compiles it, tens of seconds on a loaded machine)."""
+    from core import agents
+    from core.sage import compiled_gate
+
+    policy = str(Path(__file__).resolve().parents[3] / "policies" / "ugv-default")
+    agent = agents.load_agent(policy)
+    agent.config.gate.curiosity_signal = "disagreement"
+    agent.config.gate.curiosity_reference = "recent"
+    assert agent.make_gate().cfg.curiosity_signal == "disagreement"
+    monkeypatch.setattr(agents, "load_agent", lambda path: agent)
+    calls: list[str] = []
+    original = compiled_gate.reused_curiosity
+    monkeypatch.setattr(compiled_gate, "reused_curiosity", lambda *a, **k: calls.append("reused") or original(*a, **k))
+    assert agents.warm_gate_kernels([policy]) == [policy]
+    assert calls
