@@ -33,7 +33,6 @@ from core.motion import motion_between
 from core.protocol import GateDecision
 from core.sage.config import GateConfig
 from core.sage.fear import (
-    CuriosityThreshold,
     GateKernel,
     PolicyFn,
     closing_rate,
@@ -46,6 +45,7 @@ from core.sage.fear import (
 from core.sage.movers import mover_velocities
 from core.sage.networks import Actor
 from core.sage.novelty import NoveltyReference, novelty_features
+from core.sage.threshold import CuriosityThreshold
 from core.sage.world_model import EnsembleWorldModel
 
 

@@ -13,8 +13,9 @@ import torch
 
 from core.sage.calibration import calibrate
 from core.sage.config import GateConfig, WorldModelConfig, set_field
-from core.sage.fear import CuriosityThreshold, GateKernel, fear, rollout
+from core.sage.fear import GateKernel, fear, rollout
 from core.sage.networks import Actor
+from core.sage.threshold import CuriosityThreshold
 from core.sage.world_model import EnsembleWorldModel
 
 torch.set_num_threads(1)
