@@ -112,6 +112,8 @@ class ServerSettings:
     finetune_runs: Path | None = None
     """Where fine-tuning versions go (``<runs>/<session id>/versions``); None: ``<sessions>/finetune``."""
     finetune_config: FinetuneConfig = field(default_factory=FinetuneConfig)
+    finetune_nice: int = 10
+    """Added to the fine-tuning worker's niceness, so that the live loop wins a contended core."""
     allow_hosts: list[str] = field(default_factory=list)
     """Host names besides the loopback ones (and ``host``) that may reach the dashboard (serving on a LAN)."""
     promotion: PromotionConfig = field(default_factory=PromotionConfig)
@@ -135,7 +137,7 @@ class ServerSettings:
         if not self.finetune or self.sessions is None:
             return None
         runs = self.finetune_runs or Path(self.sessions) / "finetune"
-        return FinetuneSettings(runs, self.finetune_config, promotion=self.promotion)
+        return FinetuneSettings(runs, self.finetune_config, promotion=self.promotion, nice=self.finetune_nice)
 
 
 class Dashboard:

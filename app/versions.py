@@ -38,6 +38,9 @@ class FinetuneSettings:
     """First and longest wait (s) before restarting a worker that died."""
     promotion: PromotionConfig = field(default_factory=PromotionConfig)
     """How a new version is evaluated before it may drive, and watched live once it does."""
+    nice: int = 10
+    """Added to the worker's scheduling niceness (:attr:`core.worker.WorkerSpec.nice`): the loop wins a contended
+    core; 0 where the worker should keep its share beside other busy processes."""
 
 
 class VersionFollower:
@@ -73,6 +76,7 @@ class VersionFollower:
             # the regression test (promotion.regression_scenarios) drives each of its scenarios: scenario_env
             evaluator=functools.partial(evaluate_version, make_env=make_env, scenario_env=scenario_env),
             promotion=settings.promotion,
+            nice=settings.nice,
             # the base policy's own drives beside the session's takeovers in every round (core.finetune.drive_alone)
             prior=None if scenario_env is None else functools.partial(drive_alone, make_env=scenario_env),
         )

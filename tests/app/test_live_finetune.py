@@ -187,6 +187,9 @@ def test_a_trained_policy_is_fine_tuned_live_and_the_operator_pins_and_rolls_bac
         ),
         # judged on collisions only, so that a version takes over within the test (promotion has its own tests)
         promotion=PromotionConfig(episodes=2, max_steps=40, takeover_margin=1.0),
+        # the worker keeps its share of the cores beside the suite's other processes (niced, it waited minutes
+        # for a round at load 18; its niceness is tested in tests/core/test_worker.py)
+        finetune_nice=0,
     )
     live, thread = start_server(settings)
     try:
@@ -270,6 +273,9 @@ def test_the_page_shows_versions_progress_and_takeovers_and_pins_a_version(brows
         ),
         # judged on collisions only, so that a version takes over within the test (promotion has its own tests)
         promotion=PromotionConfig(episodes=2, max_steps=40, takeover_margin=1.0),
+        # the worker keeps its share of the cores beside the suite's other processes (niced, it waited minutes
+        # for a round at load 18; its niceness is tested in tests/core/test_worker.py)
+        finetune_nice=0,
     )
     live, thread = start_server(settings)
     try:

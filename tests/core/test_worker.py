@@ -161,6 +161,24 @@ def test_a_worker_that_fails_says_why_and_is_retried_with_backoff(tmp_path: Path
         service.stop()
 
 
+@pytest.mark.parametrize("nice", [0, 3])
+def test_the_worker_runs_at_the_niceness_it_is_given(versions: VersionStore, tmp_path: Path, nice: int) -> None:
+    """The worker adds ``spec.nice`` to its niceness (the live loop wins a contended core)."""
+    store = SessionStore(tmp_path / "sessions")
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    spec = WorkerSpec(versions.root, store.root, "no-session-yet", CONFIG, poll_seconds=0.2, nice=nice)
+    service = FinetuneService(spec).start()
+    try:
+        wait_for(lambda: service.status().get("pid") is not None, 60, "the worker to start")
+        pid = service.status()["pid"]
+        expected = min(base + nice, 19)
+        wait_for(lambda: os.getpriority(os.PRIO_PROCESS, pid) == expected, 30, "the worker's niceness")
+        time.sleep(0.5)  # not changed again once it works
+        assert os.getpriority(os.PRIO_PROCESS, pid) == expected
+    finally:
+        service.stop()
+
+
 def _server_stand_in(spec: WorkerSpec, pid_file: str) -> None:
     """A parent process that starts the worker as the server does, then waits to be killed."""
     import multiprocessing
