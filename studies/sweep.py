@@ -22,6 +22,8 @@ import hashlib
 import json
 import os
 import socket
+import sys
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -406,6 +408,19 @@ def run_sweep(
     return sorted(found.values(), key=lambda r: (list(methods).index(r["method"]), r["seed"]))
 
 
+def _stored_pairs(tuner: Any) -> set[tuple[Any, Any]]:
+    """The (method, seed) pairs a restored Tune experiment holds, run or not (none if it cannot say)."""
+    try:
+        grid = tuner.get_results()
+    except Exception:  # an experiment state Ray cannot read back: treated as holding nothing
+        return set()
+    pairs = set()
+    for result in grid:
+        config = _trial_config(result.config or {})
+        pairs.add((config.get("method"), config.get("seed")))
+    return pairs
+
+
 def _run_pending(
     trial: TrialFn,
     pairs: Sequence[tuple[str, int]],
@@ -430,9 +445,17 @@ def _run_pending(
     path = storage / name
     callbacks = [_progress_callback(len(pending)), *([_ledger_callback(ledger)] if ledger is not None else [])]
     run_config = tune.RunConfig(storage_path=str(storage), name=name, callbacks=callbacks, verbose=0)
+    tuner = None
     if tune.Tuner.can_restore(str(path)):
         tuner = tune.Tuner.restore(str(path), trainable, resume_errored=False, restart_errored=True, param_space=None)
-    else:
+        if not set(pending) <= _stored_pairs(tuner):
+            # laid out for other pairs (another --methods or --seeds): resumed, it would never run the ones asked
+            # for now. Kept aside; the trials it finished are in the ledger (without one, they run again)
+            aside = path.with_name(f"{name}.before-{time.strftime('%Y%m%dT%H%M%S')}")
+            path.rename(aside)
+            print(f"sweep: the stored experiment {path} lacks trials asked for now; moved to {aside}", file=sys.stderr)
+            tuner = None
+    if tuner is None:
         methods = list(dict.fromkeys(m for m, _ in pending))
         seeds = list(dict.fromkeys(s for _, s in pending))
         if len(methods) * len(seeds) == len(pending):  # a whole grid: laid out as every earlier sweep was

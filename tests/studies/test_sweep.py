@@ -75,9 +75,15 @@ def test_a_ledger_keeps_finished_trials_so_another_machine_runs_only_the_missing
     assert sorted(p.name for p in ledger.folder.glob("*.json")) == ["a-s1.json", "a-s3.json"]
     # a fresh machine (no Tune state) asked for more: the ledger's trials are read, only b's run
     rows = run_sweep(toy_trial, ["a", "b"], [1, 3], tmp_path / "machine2", "toy", {"scale": 2.0}, ledger=ledger)
-    assert [(r["method"], r["seed"], r["score"]) for r in rows] == [
-        ("a", 1, 2.0), ("a", 3, 6.0), ("b", 1, 102.0), ("b", 3, 106.0)
-    ]  # fmt: skip
+    expected = [("a", 1, 2.0), ("a", 3, 6.0), ("b", 1, 102.0), ("b", 3, 106.0)]
+    assert [(r["method"], r["seed"], r["score"]) for r in rows] == expected
+    # the first machine, whose Tune state holds a's trials only, asked for b too: b runs there as well (its stored
+    # experiment, resumed, would never run b) and that state is kept aside
+    (ledger.folder / "b-s1.json").unlink()
+    (ledger.folder / "b-s3.json").unlink()
+    rows = run_sweep(toy_trial, ["a", "b"], [1, 3], tmp_path / "machine1", "toy", {"scale": 2.0}, ledger=ledger)
+    assert [(r["method"], r["seed"], r["score"]) for r in rows] == expected
+    assert [p.name.split(".")[0] for p in (tmp_path / "machine1").glob("toy.before-*")] == ["toy"]
     assert [r["worker_pid"] for r in rows[:2]] == [r["worker_pid"] for r in first]  # not run again
     assert all(r["trial_seconds"] > 0 for r in rows)
     assert len(list(ledger.folder.glob("*.json"))) == 4
