@@ -19,7 +19,8 @@ On each, with the machinery of ``sage gate evaluate`` (:mod:`studies.calibrate`)
 measured part is kept in a JSON cache beside it (``--cache``), so a run that stops resumes where it stopped. Grounds
 measured by a command of their own into a committed file (:data:`EXTRA_GROUNDS`, e.g. the UGV test fields with two or
 more movers) are subsections of their simulator's section, made from those files (``--extras-only`` puts them in
-again, measuring nothing).
+again, measuring nothing). Writing the project's document also refreshes the README's summary of it
+(:mod:`studies.generalisation_summary`).
 """
 
 from __future__ import annotations
@@ -679,6 +680,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (ValueError, FileNotFoundError) as exc:
             print(f"error: the extra grounds: {exc}", file=sys.stderr)
             return 2
+        from studies.generalisation_summary import update_readme
+
+        update_readme(doc=args.out)  # the README's summary row of this simulator, from the section just written
     return 0
 
 

@@ -1,0 +1,58 @@
+"""The README's summary of the generalisation document: made from the document's own sections."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from studies.generalisation import GroundRow, render, write_section
+from studies.generalisation_summary import anchor, parse, update_readme
+
+
+def row(ground: str, fear: float, tau: float, violation_rate: float | None, takeover: float = 0.25) -> GroundRow:
+    gate = {"episodes": 300, "violation_rate": violation_rate, "takeover_rate": takeover} if violation_rate else {}
+    return GroundRow(
+        ground=ground,
+        scenarios=["ugv-fields:test"] if ground.startswith("unseen") else ["1", "2"],
+        episodes=300,
+        steps=40000,
+        violations=120,
+        positives=900,
+        fear_auroc=fear,
+        cost_auroc=fear,
+        sigma_auroc=0.8,
+        curiosity_auroc=0.6,
+        fire_before_violation=0.95,
+        fire_elsewhere=0.3,
+        curiosity_mean=0.05,
+        tau_mean=tau,
+        gate=gate,
+    )
+
+
+def section(sim: str, rows: list[GroundRow], commit: str) -> str:
+    return render(rows, sim=sim, run=f"policies/{sim}-default", horizon_s=1.0, command="python -m x", commit=commit)
+
+
+def test_the_summary_repeats_each_simulators_unseen_and_seen_rows_and_replaces_itself(tmp_path: Path) -> None:
+    doc, readme = tmp_path / "docs" / "generalisation.md", tmp_path / "README.md"
+    unseen = row("unseen (ugv-fields:test)", 0.916, 0.279, 9 / 300, 0.48)
+    seen = row("seen (training scenarios)", 0.963, 0.349, 1 / 300, 0.27)
+    write_section(doc, "ugv", section("ugv", [unseen, seen], "abc1234"))
+    write_section(doc, "sumo", section("sumo", [row("unseen (sumo-shift:test)", 0.5, 0.2, None)], "def5678"))
+    summaries = parse(doc.read_text())
+    assert [s.sim for s in summaries] == ["ugv", "sumo"]
+    ugv, sumo = summaries
+    assert (ugv.unseen.fear_auroc, ugv.seen.fear_auroc if ugv.seen else None) == ("0.916", "0.963")
+    assert (ugv.unseen.gate, ugv.unseen.takeover, ugv.unseen.tau) == ("9 of 300 [2%, 6%]", "48%", "0.2790")
+    assert ugv.commit == "abc1234"
+    assert sumo.seen is None and sumo.unseen.gate == "–"
+    readme.write_text("# A project\n\n## Results\n\nprose\n")
+    update_readme(readme, doc)
+    update_readme(readme, doc)  # refreshed in place, not appended twice
+    text = readme.read_text()
+    assert text.count("<!-- generalisation -->") == 1 and text.startswith("# A project")
+    ugv_line = next(line for line in text.splitlines() if line.startswith("| [ugv]"))
+    assert f"(docs/generalisation.md#{anchor('ugv: policies/ugv-default')})" in ugv_line
+    assert "0.916 (0.963)" in ugv_line and "9 of 300 [2%, 6%] at 48% (1 of 300 [0%, 2%] at 27%)" in ugv_line
+    assert "0.2790 / 0.3490" in ugv_line and "`abc1234`" in ugv_line
+    assert anchor("ugv: policies/ugv-default") == "ugv-policiesugv-default"
