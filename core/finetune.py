@@ -52,7 +52,7 @@ from core.prior import PriorSource as PriorSource
 from core.prior import SharedReplayBuffer as SharedReplayBuffer
 from core.prior import drive_alone as drive_alone
 from core.protocol import StepRecord
-from core.replay import Batch
+from core.replay import Batch, ReplayBuffer
 from core.sage.config import AgentConfig, apply_overrides, from_dict
 from core.sage.learner import BaseLearner
 from core.sessions import SessionStore
@@ -124,6 +124,15 @@ class FinetuneConfig:
     The prior rows otherwise train only the critic; this holds the actor to what the base did there (forgetting of
     the static scenarios). Actor-critic SAC learners only (a learner without it warns and runs without). 0: none
     (the behaviour before this field)."""
+    anchor_relabel: bool = False
+    """With ``prior_distill`` > 0: before every round the version in control drives the prior drives' situations
+    alone (the same episodes: scenarios and seeds, deterministic, no gate), and the anchor holds the actor, on the
+    situations the base drove to success, to the base's deterministic action at the base's states *and* at the states
+    the versions reached there (DAgger's relabelling with the base as teacher; the rows accumulate over the rounds).
+    The situations the base failed (e.g. its own collisions among movers) are left out of the anchor. Measured before
+    it (docs/notes/forgetting_anatomy.md): the base's static skill breaks under a turn bias of 0.05, the versions'
+    failures lie off the prior rows, and the prior rows alone do not hold the actor. False: the anchor draws the
+    buffer's prior rows (the behaviour before this field)."""
     round_keep: float = 0.5
     """Share of a round's change of the actor's and the critics' weights that its version keeps: published weights
     ``start + round_keep · (end - start)``, start the version in control, end the round's kept weights (a Polyak
@@ -276,6 +285,25 @@ def keep_share_of_change(learner: BaseLearner, start: dict[str, Any], keep: floa
             module.load_state_dict(mixed)
     learner.refresh_acting()
     return moved
+
+
+def split_episodes(steps: list[StepRecord]) -> list[list[StepRecord]]:
+    """Consecutive steps cut into episodes after each step that ends one (a trailing unfinished one kept)."""
+    episodes: list[list[StepRecord]] = [[]]
+    for record in steps:
+        episodes[-1].append(record)
+        if record.done:
+            episodes.append([])
+    return [episode for episode in episodes if episode]
+
+
+def succeeded(episode: list[StepRecord]) -> bool:
+    """Whether an episode ended in success: its last step's ``info["success"]`` where the simulator reports it,
+    else terminated without a violation."""
+    last = episode[-1]
+    if "success" in last.info:
+        return bool(last.info["success"])
+    return last.terminated and not last.violation
 
 
 # -- the session as training data -----------------------------------------------------------------------------
@@ -488,9 +516,13 @@ class Finetuner:
             )
         self.prior = prior
         self.prior_steps: int | None = None
+        self.prior_success: list[bool] = []
+        """Per prior episode, whether the base's drive ended in success (``anchor_relabel``'s situations)."""
         """Steps of the base policy's own drives in the buffer (None until collected)."""
         self.prior_error: str | None = None
         """Why the base policy's drives could not be collected (the rounds then learn from the session alone)."""
+        self._base_actor: BaseLearner | None = None
+        """v0000's learner, built for acting (``anchor_relabel``'s teacher; loaded at the first relabelling)."""
         self.base_first_state: dict[str, Any] | None = None
         """What every version carries with ``base_first``: v0000's acting weights (read once, :meth:`base_weights`)."""
         self.done: list[int] = []
@@ -564,7 +596,50 @@ class Finetuner:
         finally:
             self.buffer.adding_prior = False
         self.prior_steps = len(steps)
+        episodes = split_episodes(steps)
+        self.prior_success = [succeeded(episode) for episode in episodes]
+        if self._relabelling():
+            # the base's own rows of the situations it solved: its recorded (deterministic) actions are the labels
+            self._add_anchor_rows([r for ok, ep in zip(self.prior_success, episodes, strict=True) if ok for r in ep])
         return self.prior_steps
+
+    def _relabelling(self) -> bool:
+        return self.cfg.anchor_relabel and self.cfg.prior_distill > 0 and hasattr(self.learner, "anchor_rows")
+
+    def _add_anchor_rows(self, records: list[StepRecord], labels: np.ndarray | None = None) -> None:
+        """Add ``records``' states to the learner's anchor rows, labelled ``labels`` (default: their ``a_rl``)."""
+        learner: Any = self.learner
+        if learner.anchor_rows is None:
+            old = self.buffer
+            learner.anchor_rows = ReplayBuffer(old.obs_dim, old.act_dim, min(old.capacity, 50_000), old.device)
+        for i, record in enumerate(records):
+            label = record.a_rl if labels is None else labels[i]
+            learner.anchor_rows.add(record.obs, label, 0.0, record.obs, False, a_rl=label)
+
+    def relabel(self) -> int:
+        """With ``anchor_relabel``: the version in control drives the prior episodes' situations alone; its states on
+        the situations the base solved join the anchor rows, labelled with the base's deterministic action. Returns
+        the rows added (0 when off, or when the drives fail: the round then anchors on what it has)."""
+        if not self._relabelling() or self.prior is None or not self.prior_steps or self.base.number == 0:
+            return 0  # v0000 drives deterministic: its states there are the base's own rows, already anchored
+        from core.agents import load_agent
+
+        try:
+            steps = self.prior(self.base.path, self.cfg.prior_episodes, self.cfg.seed + 5_000_000)
+        except Exception as exc:  # as collect_prior: a scenario that no longer builds must not stop adaptation
+            _log.warning("the version's drives for the anchor are missing: %s: %s", type(exc).__name__, exc)
+            return 0
+        episodes = split_episodes(steps)
+        kept = [r for ok, ep in zip(self.prior_success, episodes, strict=False) if ok for r in ep]
+        if not kept:
+            return 0
+        if self._base_actor is None:
+            self._base_actor = load_agent(self.versions.get(0).path).learner
+        with torch.no_grad():
+            obs = torch.from_numpy(np.stack([r.obs for r in kept]).astype(np.float32))
+            labels = self._base_actor.rollout_policy(obs).cpu().numpy()
+        self._add_anchor_rows(kept, labels)
+        return len(kept)
 
     def base_weights(self) -> dict[str, Any] | None:
         """With ``base_first``: v0000's acting weights, the part of every published version that drives first."""
@@ -648,6 +723,9 @@ class Finetuner:
         ingested = self._ingest(self.pending_episodes())
         self.done.extend(ingested.episodes)
         result = RoundResult(None, ingested=ingested)
+        if self._relabelling():
+            report({"phase": "driving the version alone for the anchor"})
+            self.relabel()
         if self.session_steps() < cfg.min_steps:
             result.reason = f"only {self.session_steps()} usable steps recorded, {cfg.min_steps} needed"
             return result
@@ -738,6 +816,7 @@ class Finetuner:
             "steps": self.session_steps(),
             "prior_steps": self.prior_steps or 0,
             "prior_error": self.prior_error,
+            "anchor_rows": len(getattr(learner, "anchor_rows", None) or ()),
             "base_first": self.cfg.base_first,
             "takeover_samples": self.session_meta["takeover_samples"],
             "heldout_takeover_samples": len(self.heldout_obs),

@@ -44,7 +44,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from core.replay import Batch
+from core.replay import Batch, ReplayBuffer
 from core.sage.captured import CapturedUpdate, fill_batch, static_batch
 from core.sage.config import AgentConfig
 from core.sage.fear import fear, one_step_fear
@@ -125,6 +125,9 @@ class SAC(ActorLearner):
         self.prior_distill = 0.0
         """Weight of the distillation anchor on the buffer's prior rows (set by fine-tuning:
         ``FinetuneConfig.prior_distill``); 0: no anchor batch is drawn."""
+        self.anchor_rows: ReplayBuffer | None = None
+        """Rows the anchor draws from instead of the buffer's prior rows when set and not empty, each ``a_rl`` the
+        base's deterministic action at its state (``FinetuneConfig.anchor_relabel``); None: the prior rows."""
 
     # -- pieces ------------------------------------------------------------------------------------
     @property
@@ -243,9 +246,12 @@ class SAC(ActorLearner):
         return self.buffer.sample_takeovers(self.cfg.bc_batch_size, self.rng)
 
     def anchor_batch(self) -> Batch | None:
-        """Prior rows for the distillation anchor (None while ``prior_distill`` is 0: nothing drawn)."""
+        """Rows for the distillation anchor: ``anchor_rows`` where set, else the buffer's prior rows (None while
+        ``prior_distill`` is 0: nothing drawn)."""
         if self.prior_distill <= 0:
             return None
+        if self.anchor_rows is not None and len(self.anchor_rows) > 0:
+            return self.anchor_rows.sample(self.cfg.bc_batch_size, self.rng)
         return self.buffer.sample_prior(self.cfg.bc_batch_size, self.rng)
 
     def actor_step(self, batch: Batch) -> dict[str, float]:

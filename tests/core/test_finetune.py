@@ -595,3 +595,53 @@ def test_a_version_keeps_the_bases_gate_and_its_refit_measures_bounds_with_it(de
     gate = load_checkpoint(version.path)["agent_config"]["gate"]
     assert {key: gate[key] for key in own} == own
     assert load_agent(version.path).make_gate().cfg.tau_scale == pytest.approx(0.7)
+
+
+def test_anchor_relabel_holds_the_actor_to_the_base_on_the_versions_own_states_where_the_base_succeeded(setup) -> None:
+    import dataclasses
+    import functools
+
+    from core.finetune import drive_alone, split_episodes
+
+    assert FinetuneConfig().with_settings(["anchor_relabel=true"]).anchor_relabel is True
+    versions, store, session = setup
+    driven = functools.partial(drive_alone, make_env=point_env, scenarios=["static"])
+
+    def prior(path: Path, episodes: int, seed: int) -> list:
+        """The drives with the first situation marked solved and the others failed (the test decides which)."""
+        steps = split_episodes(driven(path, episodes, seed))
+        marked = [
+            [*ep[:-1], dataclasses.replace(ep[-1], info={**ep[-1].info, "success": k == 0})]
+            for k, ep in enumerate(steps)
+        ]
+        return [r for ep in marked for r in ep]
+
+    off = Finetuner(versions, store, session, fast(prior_episodes=2, prior_distill=1.0), prior=prior)
+    assert off.round().version is not None and off.learner.anchor_rows is None  # off: the prior rows, as before
+
+    finetuner = Finetuner(
+        versions, store, session, fast(prior_episodes=2, prior_distill=1.0, anchor_relabel=True), prior=prior, base=0
+    )
+    result = finetuner.round()
+    assert result.version is not None and finetuner.prior_success == [True, False]
+    solved = split_episodes(driven(versions.get(0).path, 2, finetuner.cfg.seed + 5_000_000))[0]
+    rows = finetuner.learner.anchor_rows
+    # the first round starts from v0000: the anchor holds the base's own rows of the solved situation only
+    assert rows is not None and len(rows) == len(solved) == result.version.metrics["anchor_rows"]
+    np.testing.assert_allclose(rows.obs[: len(rows)], np.stack([r.obs for r in solved]))
+    batch = finetuner.learner.anchor_batch()
+    assert batch is not None and np.isin(batch.obs[:, 0].numpy(), rows.obs[: len(rows), 0]).all()
+
+    # after the round the version in control is v0001: its drive of the solved situation is labelled by the base
+    added = finetuner.relabel()
+    version_steps = split_episodes(driven(result.version.path, 2, finetuner.cfg.seed + 5_000_000))[0]
+    assert added == len(version_steps) and len(rows) == len(solved) + added
+    new_obs = torch.from_numpy(rows.obs[len(solved) : len(rows)])
+    base = load_agent(versions.get(0).path)
+    version = load_agent(result.version.path)
+    with torch.no_grad():
+        base_action = base.actor.deterministic(new_obs)
+        version_action = version.actor.deterministic(new_obs)
+    labels = torch.from_numpy(rows.a_rl[len(solved) : len(rows)])
+    torch.testing.assert_close(labels, base_action, rtol=1e-4, atol=1e-5)
+    assert float((version_action - base_action).abs().max()) > 1e-3  # the round moved the actor: labels are not its own
