@@ -115,16 +115,18 @@ class FinetuneConfig:
     planned updates (the round's cost is unchanged; the actor gets the rest); early stopping measures only after it.
     A learner without a separate critic step (D3QN: its whole update is the value network) runs its usual update.
     0: none (the behaviour before this field)."""
-    prior_distill: float = 0.0
+    prior_distill: float = 0.5
     """Weight of a distillation anchor on the base policy's own drives: the actor's loss gains
     ``prior_distill · max(1, mean|Q|) · mean ||μ_θ(s) - a_base||²`` over a batch of ``bc_batch_size`` prior rows, a_base
     the action the base (``v0000``) took there (its deterministic action: the drives run deterministic, no gate). The
     weight is dimensionless, on the imitation term's scale (``bc_weight · max(1, mean|Q|) · mean ω||μ_θ(s) - a_E||²``):
     1.0 pulls toward the base's actions on its own states as hard as imitation pulls toward the expert's at ω = 1.
     The prior rows otherwise train only the critic; this holds the actor to what the base did there (forgetting of
-    the static scenarios). Actor-critic SAC learners only (a learner without it warns and runs without). 0: none
-    (the behaviour before this field)."""
-    anchor_relabel: bool = False
+    the static scenarios). Actor-critic SAC learners only (a learner without it runs without, and says so once). 0:
+    none (the behaviour before this field). 0.5 with ``anchor_relabel`` is the default since 2026-11-29, adopted by
+    the rule of docs/notes/forgetting_anatomy.md (arm C, confirmed on UGV 4: static scenarios alone after nine cycles
+    0.31 -> 0.76 on UGV 3, 0.32 -> 0.68 on UGV 4, the crossing kept)."""
+    anchor_relabel: bool = True
     """With ``prior_distill`` > 0: before every round the version in control drives the prior drives' situations
     alone (the same episodes: scenarios and seeds, deterministic, no gate), and the anchor holds the actor, on the
     situations the base drove to success, to the base's deterministic action at the base's states *and* at the states
@@ -132,7 +134,8 @@ class FinetuneConfig:
     The situations the base failed (e.g. its own collisions among movers) are left out of the anchor. Measured before
     it (docs/notes/forgetting_anatomy.md): the base's static skill breaks under a turn bias of 0.05, the versions'
     failures lie off the prior rows, and the prior rows alone do not hold the actor. False: the anchor draws the
-    buffer's prior rows (the behaviour before this field)."""
+    buffer's prior rows (the behaviour before this field). Without the base's drives (``prior_episodes`` 0, or no
+    prior source) there is nothing to relabel and the anchor draws no rows."""
     round_keep: float = 0.5
     """Share of a round's change of the actor's and the critics' weights that its version keeps: published weights
     ``start + round_keep · (end - start)``, start the version in control, end the round's kept weights (a Polyak
@@ -220,6 +223,8 @@ class FinetuneConfig:
             "holdout_share": 0.0,
             "tau_bounds": "refit",
             "round_keep": 1.0,
+            "prior_distill": 0.0,
+            "anchor_relabel": False,
         }
         return cls(**{**values, **overrides})
 
@@ -511,7 +516,7 @@ class Finetuner:
         if hasattr(self.learner, "prior_distill"):
             self.learner.prior_distill = self.cfg.prior_distill
         elif self.cfg.prior_distill > 0:
-            _log.warning(
+            _log.info(
                 "prior_distill has no effect on %s (no actor to anchor): the rounds run without it", agent_cfg.method
             )
         self.prior = prior

@@ -531,7 +531,7 @@ def test_a_prior_distillation_anchor_holds_the_rounds_to_the_base_policys_own_ac
     assert result.version.metrics["losses"]["prior_distill_loss"] >= 0.0
     assert result.version.metrics["config"]["prior_distill"] == 1.0
 
-    plain = Finetuner(versions, store, session, fast(prior_episodes=2), prior=prior, base=0).round()
+    plain = Finetuner(versions, store, session, fast(prior_episodes=2, prior_distill=0.0), prior=prior, base=0).round()
     assert plain.version is not None and "prior_distill_loss" not in plain.losses  # 0: the rounds as before
 
 
@@ -616,7 +616,7 @@ def test_anchor_relabel_holds_the_actor_to_the_base_on_the_versions_own_states_w
         ]
         return [r for ep in marked for r in ep]
 
-    off = Finetuner(versions, store, session, fast(prior_episodes=2, prior_distill=1.0), prior=prior)
+    off = Finetuner(versions, store, session, fast(prior_episodes=2, prior_distill=1.0, anchor_relabel=False), prior=prior)
     assert off.round().version is not None and off.learner.anchor_rows is None  # off: the prior rows, as before
 
     finetuner = Finetuner(
