@@ -616,7 +616,9 @@ def test_anchor_relabel_holds_the_actor_to_the_base_on_the_versions_own_states_w
         ]
         return [r for ep in marked for r in ep]
 
-    off = Finetuner(versions, store, session, fast(prior_episodes=2, prior_distill=1.0, anchor_relabel=False), prior=prior)
+    off = Finetuner(
+        versions, store, session, fast(prior_episodes=2, prior_distill=1.0, anchor_relabel=False), prior=prior
+    )
     assert off.round().version is not None and off.learner.anchor_rows is None  # off: the prior rows, as before
 
     finetuner = Finetuner(
