@@ -56,3 +56,15 @@ def test_the_summary_repeats_each_simulators_unseen_and_seen_rows_and_replaces_i
     assert "0.916 (0.963)" in ugv_line and "9 of 300 [2%, 6%] at 48% (1 of 300 [0%, 2%] at 27%)" in ugv_line
     assert "0.2790 / 0.3490" in ugv_line and "`abc1234`" in ugv_line
     assert anchor("ugv: policies/ugv-default") == "ugv-policiesugv-default"
+
+
+def test_the_committed_readme_holds_the_summary_of_the_committed_document() -> None:
+    """The README's block is what the command makes from docs/generalisation.md as committed (no hand edits, no
+    stale rows after the study wrote the document)."""
+    from studies.generalisation_summary import DOC, KEY, summary_table
+    from studies.readme import relative_link
+
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "README.md").read_text()
+    block = text.split(f"<!-- {KEY} -->\n", 1)[1].split(f"\n<!-- /{KEY} -->", 1)[0]
+    assert block == summary_table((root / DOC).read_text(), relative_link(root / DOC, root / "README.md"))
