@@ -660,9 +660,6 @@ class Finetuner:
         ingested = self._ingest(self.pending_episodes())
         self.done.extend(ingested.episodes)
         result = RoundResult(None, ingested=ingested)
-        if self._relabelling():
-            report({"phase": "driving the version alone for the anchor"})
-            self.relabel()
         if self.session_steps() < cfg.min_steps:
             result.reason = f"only {self.session_steps()} usable steps recorded, {cfg.min_steps} needed"
             return result
@@ -671,6 +668,9 @@ class Finetuner:
                 f"only {learner.buffer.takeover_count()} takeover samples recorded, {cfg.min_takeover_samples} needed"
             )
             return result
+        if self._relabelling():  # after the data checks: a round that waits for data drives nothing
+            report({"phase": "driving the version alone for the anchor"})
+            self.relabel()
         wm_stats: dict[str, float] = {}
         if cfg.refit_world_model and learner.world_model is not None and len(learner.buffer) >= cfg.wm_min_steps:
             report({"phase": "fitting world model"})
