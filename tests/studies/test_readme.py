@@ -228,3 +228,21 @@ def test_a_device_named_in_a_note_under_an_older_table_moves_into_its_header(tmp
     text = doc.read_text()
     assert "wall time 11.0 min on the CPU (AMD EPYC)." in text
     assert note not in text and "- A note." in text and "device not recorded" not in text
+
+
+def test_the_summary_shows_the_sections_the_document_names_for_it_and_counts_the_others(tmp_path: Path) -> None:
+    doc = tmp_path / "docs" / "results.md"
+    doc.parent.mkdir()
+    update_results(doc, "highway", _results(tmp_path, "highway-small", "aaa1111", sage=12.0, baseline=40.0))
+    update_results(doc, "highway-long", _results(tmp_path, "highway-long", "bbb2222", sage=30.0, baseline=32.0))
+    readme = tmp_path / "README.md"
+    assert len([line for line in summary_table(doc, readme).splitlines() if line.startswith("| [")]) == 2
+    doc.write_text("# Results\n\n<!-- readme-sections: highway-long -->\n" + doc.read_text().split("\n", 1)[1])
+    table = summary_table(doc, readme)
+    rows = [line for line in table.splitlines() if line.startswith("| [")]
+    assert len(rows) == 1 and "`bbb2222`" in rows[0]  # the named section only
+    # the one left out is named, not lost
+    assert "other sections (1, arms and earlier budgets or defaults: highway)" in table
+    doc.write_text(doc.read_text().replace("readme-sections: highway-long", "readme-sections: highway-long gone"))
+    with pytest.raises(ValueError, match="names gone"):
+        summary_table(doc, readme)
