@@ -151,6 +151,14 @@ class FinetuneConfig:
     help; where it would (where v0000 is out of its depth, where the takeovers were recorded) the version's own actor
     acts, and the loop's gate judges that as always. What the rounds learn then acts only there, so the base's skills
     elsewhere are not forgotten (issue 62). False: the version acts alone (the behaviour before this field)."""
+    practice_episodes: int = 0
+    """Before every round that trains, the version in control drives this many episodes of the session's scenario
+    alone in simulation (deterministic, no gate, no expert; new seeds each round, apart from every evaluation's), and
+    their steps, collisions included, join the round's buffer as the agent's own: under supervision the expert
+    replaces the agent's action where fear is high, so the critic and the world model never see what that action led
+    to (docs/notes/route_shift_budget.md); here they do, without a robot crashing (issue 62, item 3). Needs a practice
+    source (``Finetuner(practice=...)``: the cycles study and the live worker give one); these steps are not
+    deployment steps and are reported apart (``practice_steps``). 0: none (the behaviour before this field)."""
     tau_bounds: TauBoundsRule = "hold"
     """What a world-model refit does to the gate's threshold bounds (τ_min, τ_max, measured on the fear of
     familiar states): ``hold`` keeps the base's within the run of rounds, so that a change in takeover rate is the
@@ -407,8 +415,14 @@ class Finetuner:
         cfg: FinetuneConfig | None = None,
         base: int | None = None,
         prior: PriorSource | None = None,
+        practice: PriorSource | None = None,
     ) -> None:
         self.versions, self.store, self.session_id = versions, store, session_id
+        self.practice = practice
+        """``practice(version_folder, episodes, seed) -> steps``: the version alone on the session's scenario
+        (``FinetuneConfig.practice_episodes``)."""
+        self.practice_steps = 0
+        """Steps of practice drives in the buffer, over all rounds."""
         self.cfg = cfg or FinetuneConfig()
         versions.clean()
         start = line_head(versions) if base is None else versions.get(base)
@@ -578,6 +592,24 @@ class Finetuner:
         self._add_anchor_rows(kept, labels)
         return len(kept)
 
+    def practise(self) -> dict[str, float]:
+        """``practice_episodes`` drives of the version in control alone on the session's scenario, stored as the
+        agent's own steps (no takeover, no expert label), seeds new each round. Returns their steps and collisions
+        (empty when the drives fail: the round then learns from what it has, as without practice)."""
+        n = self.cfg.practice_episodes
+        assert self.practice is not None
+        try:
+            steps = self.practice(self.base.path, n, self.cfg.seed + 7_000_000 + self.rounds * n)
+        except Exception as exc:  # as collect_prior: a scenario that no longer builds must not stop adaptation
+            _log.warning("the version's practice drives are missing: %s: %s", type(exc).__name__, exc)
+            return {}
+        for record in steps:
+            self.learner.store(dataclasses.replace(record, takeover=False, a_expert=None))
+        self.practice_steps += len(steps)
+        episodes = split_episodes(steps)
+        violated = sum(any(r.violation for r in episode) for episode in episodes)
+        return {"practice_steps": float(len(steps)), "practice_violations": float(violated)}
+
     def base_weights(self) -> dict[str, Any] | None:
         """With ``base_first``: v0000's acting weights, the part of every published version that drives first."""
         if self.cfg.base_first and self.base_first_state is None:
@@ -671,6 +703,10 @@ class Finetuner:
         if self._relabelling():  # after the data checks: a round that waits for data drives nothing
             report({"phase": "driving the version alone for the anchor"})
             self.relabel()
+        practice: dict[str, float] = {}
+        if cfg.practice_episodes > 0 and self.practice is not None:
+            report({"phase": "the version practising alone"})
+            practice = self.practise()
         wm_stats: dict[str, float] = {}
         if cfg.refit_world_model and learner.world_model is not None and len(learner.buffer) >= cfg.wm_min_steps:
             report({"phase": "fitting world model"})
@@ -726,7 +762,7 @@ class Finetuner:
                         break
         if best_snapshot is not None and best_at != result.updates + result.skipped:
             learner._restore(best_snapshot)  # the weights of the lowest held-out imitation error
-        result.losses = {key: sums[key] / counts[key] for key in sums} | wm_stats
+        result.losses = {key: sums[key] / counts[key] for key in sums} | wm_stats | practice
         if round_start is not None:
             # the published version keeps round_keep of the round's change (a Polyak average with the start)
             result.losses["round_actor_change"] = keep_share_of_change(learner, round_start, cfg.round_keep)

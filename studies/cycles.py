@@ -320,7 +320,11 @@ def run_cycles(
         )
         writer.attach(runner)
         prior = functools.partial(drive_alone, make_env=make_env, max_steps=cfg.max_episode_steps)
-        finetuner = Finetuner(versions, store, writer.session_id, cfg.finetune, prior=prior)
+        # the version alone on the cycle's own scenario: FinetuneConfig.practice_episodes (off by default)
+        practice = functools.partial(
+            drive_alone, make_env=make_env, scenarios=[cfg.scenario], max_steps=cfg.max_episode_steps
+        )
+        finetuner = Finetuner(versions, store, writer.session_id, cfg.finetune, prior=prior, practice=practice)
         episodes: list[dict[str, Any]] = []
         rounds: list[dict[str, Any]] = []
         alone: list[dict[str, Any]] = []

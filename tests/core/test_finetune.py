@@ -647,3 +647,49 @@ def test_anchor_relabel_holds_the_actor_to_the_base_on_the_versions_own_states_w
     labels = torch.from_numpy(rows.a_rl[len(solved) : len(rows)])
     torch.testing.assert_close(labels, base_action, rtol=1e-4, atol=1e-5)
     assert float((version_action - base_action).abs().max()) > 1e-3  # the round moved the actor: labels are not its own
+
+
+def test_practice_drives_join_the_round_as_the_versions_own_steps_new_each_round(setup) -> None:
+    """``practice_episodes``: before a round that trains, the version in control drives the session's scenario alone;
+    its steps (violations included) enter the buffer as the agent's own, not as takeovers or prior rows, on new seeds
+    each round, and the round reports them apart from the deployment steps."""
+    import functools
+
+    from core.finetune import drive_alone
+
+    versions, store, session = setup
+    seeds: list[int] = []
+    driven = functools.partial(drive_alone, make_env=point_env, scenarios=["dynamic"])
+
+    def practice(path: Path, episodes: int, seed: int) -> list:
+        seeds.append(seed)
+        return driven(path, episodes, seed)
+
+    plain = Finetuner(versions, store, session, fast(), practice=practice)  # 0 episodes: nothing driven
+    assert plain.round().version is not None and seeds == [] and plain.practice_steps == 0
+
+    finetuner = Finetuner(versions, store, session, fast(practice_episodes=2), practice=practice, base=0)
+    before = len(finetuner.buffer)
+    takeovers = finetuner.buffer.takeover_count()
+    result = finetuner.round()
+    assert result.version is not None, result.reason
+    steps = int(result.version.metrics["losses"]["practice_steps"])
+    assert steps == finetuner.practice_steps > 0 and len(seeds) == 1
+    expected = driven(result.version.path.parent / "v0000", 2, seeds[0])  # the same drives: deterministic
+    assert steps == len(expected)
+    assert "practice_violations" in result.version.metrics["losses"]
+    assert result.ingested.steps + steps == len(finetuner.buffer) - before  # deployment and practice rows, apart
+    assert finetuner.buffer.takeover_count() == takeovers + result.ingested.takeovers  # practice adds no takeover
+    assert finetuner.buffer.prior_count() == 0  # nor prior rows
+
+    assert finetuner.round().version is not None and len(seeds) == 2 and seeds[1] != seeds[0]  # new situations
+
+
+def test_a_practice_source_that_fails_leaves_the_round_to_its_data(setup) -> None:
+    versions, store, session = setup
+
+    def broken(path: Path, episodes: int, seed: int) -> list:
+        raise RuntimeError("the scenario no longer builds")
+
+    result = Finetuner(versions, store, session, fast(practice_episodes=2), practice=broken).round()
+    assert result.version is not None and "practice_steps" not in result.version.metrics["losses"]
