@@ -565,6 +565,7 @@ class LiveLoop:
             load,
             changed,
             scenario_env=functools.partial(self.env_factory, world.config.sim),
+            scenario=world.config.scenario,
         )
 
     def _finetune_state(self, world: World) -> dict[str, Any] | None:

@@ -62,6 +62,7 @@ class VersionFollower:
         load: Callable[[Path], LoadedPolicy],
         on_change: Callable[[], None],
         scenario_env: Callable[[str], gym.Env[Any, Any]] | None = None,
+        scenario: str | None = None,
     ) -> VersionFollower:
         """Start the session's fine-tuning worker, with ``policy`` as version 0."""
         versions = VersionStore(settings.runs / session_id / "versions")
@@ -79,6 +80,10 @@ class VersionFollower:
             nice=settings.nice,
             # the base policy's own drives beside the session's takeovers in every round (core.finetune.drive_alone)
             prior=None if scenario_env is None else functools.partial(drive_alone, make_env=scenario_env),
+            # the version alone on the session's own scenario (FinetuneConfig.practice_episodes; off by default)
+            practice=None
+            if scenario_env is None or scenario is None
+            else functools.partial(drive_alone, make_env=scenario_env, scenarios=[scenario]),
         )
         return cls(FinetuneService(spec, load, backoff=settings.backoff, on_change=on_change).start())
 

@@ -70,6 +70,9 @@ class WorkerSpec:
     """A :data:`core.finetune.PriorSource` (picklable, e.g. a partial of :func:`core.finetune.drive_alone` with the
     simulator's ``make_env``): the base policy's own drives, kept beside the session's data in every round. None:
     the session's data only."""
+    practice: Any = None
+    """A :data:`core.finetune.PriorSource` driving the version in control alone on the session's scenario
+    (``FinetuneConfig.practice_episodes``; a partial of :func:`core.finetune.drive_alone`). None: no practice."""
     parent_pid: int | None = None
     """The process that started the worker (set by :class:`FinetuneService`): the worker ends when it is gone,
     even if that happened while the worker was still starting."""
@@ -144,7 +147,7 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
     versions = VersionStore(spec.versions)
     store = SessionStore(spec.sessions)
     config = spec.config or FinetuneConfig()
-    finetuner = Finetuner(versions, store, spec.session_id, config, spec.base, prior=spec.prior)
+    finetuner = Finetuner(versions, store, spec.session_id, config, spec.base, prior=spec.prior, practice=spec.practice)
     emit({"kind": "ready", "base": finetuner.base.number})
     waiting_said = False
     while True:
@@ -155,7 +158,9 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
                 emit({"kind": "stopped"})
                 return
             if op == "rebase":
-                finetuner = Finetuner(versions, store, spec.session_id, config, int(arg), prior=spec.prior)
+                finetuner = Finetuner(
+                    versions, store, spec.session_id, config, int(arg), prior=spec.prior, practice=spec.practice
+                )
                 emit({"kind": "ready", "base": finetuner.base.number})
                 waiting_said = False
             continue
