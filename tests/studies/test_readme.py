@@ -54,11 +54,18 @@ def test_a_study_section_is_added_once_and_replaced_in_place(tmp_path: Path) -> 
         update_results(doc, "other", tmp_path / "nothing")
 
 
-def test_the_summary_has_a_headline_row_per_section_from_its_results_folder(tmp_path: Path) -> None:
+def two_highway_sections(tmp_path: Path) -> Path:
+    """A results document with two highway sections: ``highway`` (sage 12 against sac 40, commit aaa1111) and
+    ``highway-long`` (30 against 32, bbb2222)."""
     doc = tmp_path / "docs" / "results.md"
     doc.parent.mkdir()
     update_results(doc, "highway", _results(tmp_path, "highway-small", "aaa1111", sage=12.0, baseline=40.0))
     update_results(doc, "highway-long", _results(tmp_path, "highway-long", "bbb2222", sage=30.0, baseline=32.0))
+    return doc
+
+
+def test_the_summary_has_a_headline_row_per_section_from_its_results_folder(tmp_path: Path) -> None:
+    doc = two_highway_sections(tmp_path)
     readme = tmp_path / "README.md"
     readme.write_text("# Project\n\n## Results\n\n<!-- summary -->\nstale table\n<!-- /summary -->\n\n## After\n")
     update_summary(readme, doc)
@@ -231,10 +238,7 @@ def test_a_device_named_in_a_note_under_an_older_table_moves_into_its_header(tmp
 
 
 def test_the_summary_shows_the_sections_the_document_names_for_it_and_counts_the_others(tmp_path: Path) -> None:
-    doc = tmp_path / "docs" / "results.md"
-    doc.parent.mkdir()
-    update_results(doc, "highway", _results(tmp_path, "highway-small", "aaa1111", sage=12.0, baseline=40.0))
-    update_results(doc, "highway-long", _results(tmp_path, "highway-long", "bbb2222", sage=30.0, baseline=32.0))
+    doc = two_highway_sections(tmp_path)
     readme = tmp_path / "README.md"
     assert len([line for line in summary_table(doc, readme).splitlines() if line.startswith("| [")]) == 2
     doc.write_text("# Results\n\n<!-- readme-sections: highway-long -->\n" + doc.read_text().split("\n", 1)[1])
