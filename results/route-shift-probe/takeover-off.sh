@@ -16,6 +16,5 @@ one() {
   nice -n 5 .venv/bin/python -m app.cli eval results/route-shift-probe/runs/sage-notakeover-s$seed \
     --scenario c1,c2 --episodes 10 --seed $seed --quiet
 }
-one 0 > results/route-shift-probe/takeover-off-s0.log 2>&1 &
-one 1 > results/route-shift-probe/takeover-off-s1.log 2>&1 &
+for seed in ${SEEDS:-0 1}; do one $seed > results/route-shift-probe/takeover-off-s$seed.log 2>&1 & done
 wait
