@@ -385,6 +385,8 @@ class Finetuner:
         (``FinetuneConfig.practice_episodes``)."""
         self.practice_steps = 0
         """Steps of practice drives in the buffer, over all rounds."""
+        self.practice_drives = 0
+        """Practice drives made so far: each takes the next seeds, also after a round that published nothing."""
         self.cfg = cfg or FinetuneConfig()
         versions.clean()
         start = line_head(versions) if base is None else versions.get(base)
@@ -556,12 +558,13 @@ class Finetuner:
 
     def practise(self) -> dict[str, float]:
         """``practice_episodes`` drives of the version in control alone on the session's scenario, stored as the
-        agent's own steps (no takeover, no expert label), seeds new each round. Returns their steps and collisions
-        (empty when the drives fail: the round then learns from what it has, as without practice)."""
+        agent's own steps (no takeover, no expert label), seeds new each time. Returns their steps and the episodes
+        with a violation (empty when the drives fail: the round then learns from what it has, as without practice)."""
         n = self.cfg.practice_episodes
         assert self.practice is not None
         try:
-            steps = self.practice(self.base.path, n, self.cfg.seed + 7_000_000 + self.rounds * n)
+            steps = self.practice(self.base.path, n, self.cfg.seed + 7_000_000 + self.practice_drives * n)
+            self.practice_drives += 1
         except Exception as exc:  # as collect_prior: a scenario that no longer builds must not stop adaptation
             _log.warning("the version's practice drives are missing: %s: %s", type(exc).__name__, exc)
             return {}
