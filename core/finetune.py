@@ -143,6 +143,13 @@ class FinetuneConfig:
     failures lie off the prior rows, and the prior rows alone do not hold the actor. False: the anchor draws the
     buffer's prior rows (the behaviour before this field). Without the base's drives (``prior_episodes`` 0, or no
     prior source) there is nothing to relabel and the anchor draws no rows."""
+    anchor_drives_learn: bool = False
+    """With ``anchor_relabel``: the version's drives of the prior situations (driven before every round for the
+    anchor) also join the buffer's prior part as the agent's own steps, collisions included, so that the critic and
+    the world model see what the version's drift does where the base's skill is narrow (a turn bias of 0.05 breaks
+    the static scenarios: docs/notes/forgetting_anatomy.md) instead of only the base's successful drives there. No
+    extra simulation: the drives are the anchor's. False: the drives only label the anchor (the behaviour before
+    this field)."""
     round_keep: float = 0.5
     """Share of a round's change of the actor's and the critics' weights that its version keeps: published weights
     ``start + round_keep · (end - start)``, start the version in control, end the round's kept weights (a Polyak
@@ -436,6 +443,10 @@ class Finetuner:
         """Steps of the base policy's own drives in the buffer (None until collected)."""
         self.prior_error: str | None = None
         """Why the base policy's drives could not be collected (the rounds then learn from the session alone)."""
+        self.anchor_drive_steps = 0
+        """With ``anchor_drives_learn``: the version's anchor drives stored in the buffer, steps over all rounds."""
+        self.anchor_drive_violations = 0
+        """With ``anchor_drives_learn``: those drives that ended in a violation, over all rounds."""
         self._base_actor: BaseLearner | None = None
         """v0000's learner, built for acting (``anchor_relabel``'s teacher; loaded at the first relabelling)."""
         self.base_first_state: dict[str, Any] | None = None
@@ -545,6 +556,15 @@ class Finetuner:
             _log.warning("the version's drives for the anchor are missing: %s: %s", type(exc).__name__, exc)
             return 0
         episodes = split_episodes(steps)
+        if self.cfg.anchor_drives_learn:
+            self.buffer.adding_prior = True
+            try:
+                for record in steps:  # the version's own steps there, as the base's drives are stored
+                    self.learner.store(dataclasses.replace(record, takeover=False, a_expert=None))
+            finally:
+                self.buffer.adding_prior = False
+            self.anchor_drive_steps += len(steps)
+            self.anchor_drive_violations += sum(any(r.violation for r in episode) for episode in episodes)
         kept = [r for ok, ep in zip(self.prior_success, episodes, strict=False) if ok for r in ep]
         if not kept:
             return 0
@@ -755,6 +775,8 @@ class Finetuner:
             "prior_steps": self.prior_steps or 0,
             "prior_error": self.prior_error,
             "anchor_rows": len(getattr(learner, "anchor_rows", None) or ()),
+            "anchor_drive_steps": self.anchor_drive_steps,
+            "anchor_drive_violations": self.anchor_drive_violations,
             "base_first": self.cfg.base_first,
             "takeover_samples": self.session_meta["takeover_samples"],
             "heldout_takeover_samples": len(self.heldout_obs),

@@ -649,6 +649,41 @@ def test_anchor_relabel_holds_the_actor_to_the_base_on_the_versions_own_states_w
     assert float((version_action - base_action).abs().max()) > 1e-3  # the round moved the actor: labels are not its own
 
 
+def test_anchor_drives_learn_stores_the_versions_drives_of_the_prior_situations_as_prior_rows(setup) -> None:
+    """``anchor_drives_learn``: the version's anchor drives (every situation, failures included) join the buffer's
+    prior part as its own steps, no takeover; off, the same relabelling leaves the buffer as it was."""
+    import functools
+
+    from core.finetune import drive_alone, split_episodes
+
+    versions, store, session = setup
+    driven = functools.partial(drive_alone, make_env=point_env, scenarios=["static"])
+    finetuners = {}
+    for learn in (False, True):
+        cfg = fast(prior_episodes=2, prior_distill=1.0, anchor_relabel=True, anchor_drives_learn=learn)
+        finetuner = Finetuner(versions, store, session, cfg, prior=driven, base=0)
+        first = finetuner.round()
+        assert first.version is not None
+        assert first.version.metrics["anchor_drive_steps"] == 0  # the first round's drives are the base's own
+        prior_rows, rows, takeovers = (
+            finetuner.buffer.prior_count(),
+            len(finetuner.buffer),
+            finetuner.buffer.takeover_count(),
+        )
+        finetuner.relabel()
+        finetuners[learn] = (finetuner, prior_rows, rows, takeovers, first.version)
+    off, prior_rows, rows, takeovers, _ = finetuners[False]
+    assert (off.buffer.prior_count(), len(off.buffer), off.anchor_drive_steps) == (prior_rows, rows, 0)
+    on, prior_rows, rows, takeovers, version = finetuners[True]
+    expected = driven(version.path, 2, on.cfg.seed + 5_000_000)
+    assert len(split_episodes(expected)) == 2 and on.anchor_drive_steps == len(expected)
+    assert on.buffer.prior_count() == prior_rows + len(expected) and len(on.buffer) == rows + len(expected)
+    assert on.buffer.takeover_count() == takeovers  # the version's drives carry no expert label
+    stored = on.buffer.obs[rows : rows + len(expected)]
+    np.testing.assert_allclose(stored, np.stack([r.obs for r in expected]), rtol=1e-6, atol=1e-6)
+    assert on.buffer.prior[rows : rows + len(expected)].all()
+
+
 def test_practice_drives_join_the_round_as_the_versions_own_steps_new_each_round(setup) -> None:
     """``practice_episodes``: before a round that trains, the version in control drives the session's scenario alone;
     its steps (violations included) enter the buffer as the agent's own, not as takeovers or prior rows, on new seeds
