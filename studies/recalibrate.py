@@ -29,6 +29,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch
 
 from core.agents import (
     FEAR_SHAPE,
@@ -92,6 +93,8 @@ class Recalibration:
     beta_auroc: dict[str, dict[str, float]] = field(default_factory=dict)
     """With ``choose_beta``: per scenario with a violation, fear's AUROC at each candidate β (keys as text)."""
     label_s: float = 1.0
+    novelty_scenarios: list[str] = field(default_factory=list)
+    """Scenarios driven only for the state novelty's reference set (beside ``scenarios``), not for the τ bounds."""
     curiosity_reference: float | None = None
     """The fixed reference curiosity is read against (``gate.curiosity_reference=fitted``) as measured on these drives:
     the disagreement's or the state novelty's mean on the calibration states; None for the paper's moving average."""
@@ -120,6 +123,8 @@ class Recalibration:
         if self.curiosity_reference is not None:
             signal = self.settings.get("curiosity_signal", "its")
             lines.append(f"curiosity ({signal}) read against its mean on these states: {self.curiosity_reference:.4f}")
+        if self.novelty_scenarios:
+            lines.append(f"the novelty's reference set also holds the drives of {', '.join(self.novelty_scenarios)}")
         return "\n".join(lines)
 
 
@@ -152,11 +157,15 @@ def recalibrate_run(
     max_steps: int | None = None,
     seed: int = RECALIBRATION_SEED,
     dtype: str = "float32",
+    novelty_scenarios: Sequence[str] = (),
 ) -> Recalibration:
     """Write ``out``: ``run`` with its world model's κ and τ bounds measured again on ``episodes`` drives of the
     policy alone per scenario, for the gate with ``gate_settings`` over the run's own (and β chosen, with
-    ``choose``). Raises ValueError for a run without a world model, an ``out`` that holds a checkpoint, β both given
-    and chosen, or drives with too few familiar states."""
+    ``choose``). ``novelty_scenarios``: for a gate whose curiosity is state novelty, more scenarios driven the same
+    way whose states join the novelty's reference set (familiar ground) but not the τ bounds (the drives of
+    ``scenarios`` are in the set too). Raises ValueError for a run without a world model, an ``out`` that holds a
+    checkpoint, β both given and chosen, novelty scenarios for another curiosity, or drives with too few familiar
+    states."""
     settings = dict(gate_settings or {})
     if choose and "beta" in settings:
         raise ValueError("give β (--set gate.beta=...) or choose it (--choose-beta), not both")
@@ -185,7 +194,13 @@ def recalibrate_run(
     label_steps = max(1, round(label_s / dt))
     scores: dict[str, dict[str, float]] = {}
     violation_episodes: dict[str, int] = {}
-    for scenario in scenarios:
+    extra = [s for s in novelty_scenarios if s not in scenarios]
+    if extra and agent.gate_config(**settings).curiosity_signal != "novelty":
+        raise ValueError("novelty scenarios set the state novelty's reference: give gate.curiosity_signal=novelty")
+    bounds_records = 0
+    for scenario in [*scenarios, *extra]:
+        if extra and scenario == extra[0]:
+            bounds_records = len(records)  # the drives from here on set only the novelty's reference
         env = make_env(scenario)
         # the run's own gate watches only to record ĉ and σ̂ (no expert: it changes no action)
         gate = agent.make_gate() if choose else NoGate()
@@ -208,7 +223,7 @@ def recalibrate_run(
         episode = np.array([p[0] for p in parts])
         violation = np.array([p[3] for p in parts])
         label = labels_within(violation, episode, label_steps)
-        if choose and label.any() and not label.all():
+        if choose and scenario not in extra and label.any() and not label.all():
             cost, sigma = np.array([p[1] for p in parts]), np.array([p[2] for p in parts])
             scores[scenario] = {str(b): auroc(b * cost + (1 - b) * sigma, label) for b in BETA_CANDIDATES}
     if choose:
@@ -219,6 +234,8 @@ def recalibrate_run(
             )
         settings["beta"] = choose_beta(scores, before.beta)
     gate_cfg = agent.gate_config(**settings)
+    reference_records = records
+    records = records[:bounds_records] if extra else records
     buffer = ReplayBuffer(agent.meta.obs_dim, learner.model_action_dim, max(1, len(records)))
     for r in records:
         buffer.add_record(r)
@@ -229,6 +246,13 @@ def recalibrate_run(
     bounds = (float(world_model.tau_bounds[0]), float(world_model.tau_bounds[1]))
     if not all(math.isfinite(b) for b in bounds):
         raise ValueError("the τ bounds came out undefined: too few familiar states")
+    if extra:
+        wide = ReplayBuffer(agent.meta.obs_dim, learner.model_action_dim, len(reference_records))
+        for r in reference_records:
+            wide.add_record(r)
+        reference = calibration_sample(wide, world_model, gate_cfg, np.random.default_rng(0))
+        motion = None if reference.motion is None else torch.from_numpy(reference.motion)
+        world_model.set_novelty_reference(torch.from_numpy(reference.obs), motion)
     payload = load_checkpoint(file)
     agent_config = json.loads(json.dumps(payload["agent_config"]))
     agent_config["gate"] = json.loads(json.dumps(dataclasses.asdict(gate_cfg)))
@@ -237,6 +261,7 @@ def recalibrate_run(
         run=str(run),
         out=str(out),
         scenarios=list(scenarios),
+        novelty_scenarios=extra,
         episodes=episodes,
         steps=len(buffer),
         violation_episodes=violation_episodes,
@@ -250,7 +275,10 @@ def recalibrate_run(
         beta_auroc=scores,
         label_s=label_s,
     )
-    provenance = {"recalibrated_from": str(run), "recalibration": {"scenarios": list(scenarios), **settings}}
+    provenance = {
+        "recalibrated_from": str(run),
+        "recalibration": {"scenarios": list(scenarios), **settings} | ({"novelty_scenarios": extra} if extra else {}),
+    }
     save_with_world_model(payload, out, world_model, agent_config, provenance, dtype)
     sample.save(out / CALIBRATION_FILE)
     (out / RECALIBRATION_FILE).write_text(json.dumps(result.as_dict(), indent=2) + "\n")

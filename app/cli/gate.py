@@ -361,6 +361,13 @@ def register(app: typer.Typer) -> None:
             ),
         ] = False,
         horizon: Annotated[float, typer.Option(help="--choose-beta's label: a violation within this many s.")] = 1.0,
+        novelty_scenario: Annotated[
+            list[str] | None,
+            typer.Option(
+                help="With gate.curiosity_signal=novelty: more scenarios (repeatable or a comma list) driven the "
+                "same way whose states join the novelty's reference set, familiar ground, but not the τ bounds."
+            ),
+        ] = None,
         max_steps: MaxStepsOption = None,
         checkpoint_dtype: Annotated[str, typer.Option(help="float32, or float16 (half the file).")] = "float32",
         out: Annotated[Path | None, typer.Option(help="The new run folder.")] = None,
@@ -393,6 +400,7 @@ def register(app: typer.Typer) -> None:
                 label_s=horizon,
                 max_steps=max_steps,
                 dtype=checkpoint_dtype,
+                novelty_scenarios=scenario_list(novelty_scenario),
             ),
         )
         typer.echo(result.summary())

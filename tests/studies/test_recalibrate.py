@@ -88,6 +88,36 @@ def test_refit_bounds_for_state_novelty_keeps_its_reference_set_in_the_run(polic
     assert gate.cfg.curiosity_signal == "novelty" and gate.threshold.ema == pytest.approx(float(model.novelty_ref))
 
 
+def test_novelty_scenarios_join_the_reference_set_and_leave_the_bounds_alone(policy: Path, tmp_path: Path) -> None:
+    """``--novelty-scenario``: another scenario's drives become familiar ground for the state novelty (its states
+    score lower than without them) while κ and the τ bounds are those of the bounds' scenarios alone."""
+    from core.prior import drive_alone
+    from core.sage.novelty import novelty_features
+
+    settings = {"curiosity_signal": "novelty", "curiosity_reference": "fitted"}
+    only = recalibrate_run(policy, point_env, ["static"], 3, tmp_path / "only", DT, gate_settings=settings)
+    wide = recalibrate_run(
+        policy, point_env, ["static"], 3, tmp_path / "wide", DT, gate_settings=settings, novelty_scenarios=["dynamic"]
+    )
+    assert wide.novelty_scenarios == ["dynamic"] and only.novelty_scenarios == []
+    assert wide.bounds == pytest.approx(only.bounds, abs=1e-6) and wide.steps == only.steps
+    narrow_model, wide_model = (load_agent(tmp_path / name).world_model for name in ("only", "wide"))
+    assert len(wide_model.novelty_states) >= len(narrow_model.novelty_states)
+    # states of the added scenario: nearer the wide reference set than the narrow one
+    sample = CalibrationSample.load(tmp_path / "wide" / CALIBRATION_FILE)
+    steps = drive_alone(policy, 2, 7, make_env=point_env, scenarios=["dynamic"])
+    dynamic = torch.from_numpy(np.stack([r.obs for r in steps]).astype(np.float32))
+    assert len(sample) == only.calibration_states  # the saved sample is the bounds' own
+
+    def novelty(model, obs: torch.Tensor) -> float:
+        reference = model.novelty_reference()
+        return float(reference(novelty_features(obs, None, model.motion)).mean())
+
+    assert novelty(wide_model, dynamic) < novelty(narrow_model, dynamic)
+    with pytest.raises(ValueError, match="curiosity_signal=novelty"):
+        recalibrate_run(policy, point_env, ["static"], 1, tmp_path / "bad", DT, novelty_scenarios=["dynamic"])
+
+
 def test_a_gate_that_changes_fear_over_bounds_measured_on_another_is_refused(policy: Path) -> None:
     agent = load_agent(policy)
     for setting in ({"beta": 0.8}, {"horizon": 3}, {"aggregate": "discounted_mean"}, {"tau_max_quantile": 0.95}):
