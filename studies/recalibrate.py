@@ -94,6 +94,8 @@ class Recalibration:
     """With ``choose_beta``: per scenario with a violation, fear's AUROC at each candidate β (keys as text)."""
     label_s: float = 1.0
     novelty_scenarios: list[str] = field(default_factory=list)
+    kept_bounds: bool = False
+    """κ and the τ bounds are the run's own (``keep_bounds``); only the curiosity's references were measured."""
     """Scenarios driven only for the state novelty's reference set (beside ``scenarios``), not for the τ bounds."""
     curiosity_reference: float | None = None
     """The fixed reference curiosity is read against (``gate.curiosity_reference=fitted``) as measured on these drives:
@@ -123,6 +125,10 @@ class Recalibration:
         if self.curiosity_reference is not None:
             signal = self.settings.get("curiosity_signal", "its")
             lines.append(f"curiosity ({signal}) read against its mean on these states: {self.curiosity_reference:.4f}")
+        if self.kept_bounds:
+            lines.append(
+                "κ and the τ bounds kept as the run's own (fear unchanged): only curiosity's references measured"
+            )
         if self.novelty_scenarios:
             lines.append(f"the novelty's reference set also holds the drives of {', '.join(self.novelty_scenarios)}")
         return "\n".join(lines)
@@ -158,18 +164,22 @@ def recalibrate_run(
     seed: int = RECALIBRATION_SEED,
     dtype: str = "float32",
     novelty_scenarios: Sequence[str] = (),
+    keep_bounds: bool = False,
 ) -> Recalibration:
     """Write ``out``: ``run`` with its world model's κ and τ bounds measured again on ``episodes`` drives of the
     policy alone per scenario, for the gate with ``gate_settings`` over the run's own (and β chosen, with
     ``choose``). ``novelty_scenarios``: for a gate whose curiosity is state novelty, more scenarios driven the same
     way whose states join the novelty's reference set (familiar ground) but not the τ bounds (the drives of
-    ``scenarios`` are in the set too). Raises ValueError for a run without a world model, an ``out`` that holds a
-    checkpoint, β both given and chosen, novelty scenarios for another curiosity, or drives with too few familiar
-    states."""
+    ``scenarios`` are in the set too). ``keep_bounds``: κ and the τ bounds stay the run's own (for settings that do
+    not change fear, such as the curiosity signal: only its references are measured). Raises ValueError for a run
+    without a world model, an ``out`` that holds a checkpoint, β both given and chosen, novelty scenarios for
+    another curiosity, bounds kept for a setting that changes fear, or drives with too few familiar states."""
     settings = dict(gate_settings or {})
     if choose and "beta" in settings:
         raise ValueError("give β (--set gate.beta=...) or choose it (--choose-beta), not both")
     reshaped = sorted(set(settings) & set(FEAR_SHAPE))
+    if keep_bounds and reshaped:
+        raise ValueError(f"{', '.join(reshaped)} change fear itself: its κ and τ bounds must be measured again")
     if choose and reshaped:
         # β is scored on the parts of the run's own fear, which these settings change
         raise ValueError(
@@ -242,7 +252,12 @@ def recalibrate_run(
     sample = calibration_sample(buffer, world_model, gate_cfg, np.random.default_rng(0))
     if int(sample.familiar.sum()) < 20:
         raise ValueError(f"the drives gave {int(sample.familiar.sum())} familiar states, too few to set the τ bounds")
+    kept = (world_model.sigma_scale.clone(), world_model.tau_bounds.clone())
     sample.calibrate(world_model, learner.rollout_policy, gate_cfg)
+    if keep_bounds:  # fear is unchanged: only the curiosity's references were wanted from these drives
+        world_model.sigma_scale.copy_(kept[0])
+        world_model.tau_bounds.copy_(kept[1])
+        world_model.touch()
     bounds = (float(world_model.tau_bounds[0]), float(world_model.tau_bounds[1]))
     if not all(math.isfinite(b) for b in bounds):
         raise ValueError("the τ bounds came out undefined: too few familiar states")
@@ -262,6 +277,7 @@ def recalibrate_run(
         out=str(out),
         scenarios=list(scenarios),
         novelty_scenarios=extra,
+        kept_bounds=keep_bounds,
         episodes=episodes,
         steps=len(buffer),
         violation_episodes=violation_episodes,

@@ -368,6 +368,14 @@ def register(app: typer.Typer) -> None:
                 "same way whose states join the novelty's reference set, familiar ground, but not the τ bounds."
             ),
         ] = None,
+        keep_bounds: Annotated[
+            bool,
+            typer.Option(
+                "--keep-bounds",
+                help="Keep the run's κ and τ bounds (for settings that leave fear as it is, such as "
+                "gate.curiosity_signal): only the curiosity's references are measured on the drives.",
+            ),
+        ] = False,
         max_steps: MaxStepsOption = None,
         checkpoint_dtype: Annotated[str, typer.Option(help="float32, or float16 (half the file).")] = "float32",
         out: Annotated[Path | None, typer.Option(help="The new run folder.")] = None,
@@ -401,6 +409,7 @@ def register(app: typer.Typer) -> None:
                 max_steps=max_steps,
                 dtype=checkpoint_dtype,
                 novelty_scenarios=scenario_list(novelty_scenario),
+                keep_bounds=keep_bounds,
             ),
         )
         typer.echo(result.summary())

@@ -118,6 +118,28 @@ def test_novelty_scenarios_join_the_reference_set_and_leave_the_bounds_alone(pol
         recalibrate_run(policy, point_env, ["static"], 1, tmp_path / "bad", DT, novelty_scenarios=["dynamic"])
 
 
+def test_keep_bounds_measures_only_the_curiositys_reference(policy: Path, tmp_path: Path) -> None:
+    """``--keep-bounds``: κ and the τ bounds are the run's own, the novelty's reference is measured; a setting that
+    changes fear cannot keep them."""
+    source = load_agent(policy).world_model
+    settings = {"curiosity_signal": "novelty", "curiosity_reference": "fitted"}
+    result = recalibrate_run(
+        policy, point_env, ["static"], 3, tmp_path / "kept", DT, gate_settings=settings, keep_bounds=True
+    )
+    model = load_agent(tmp_path / "kept").world_model
+    assert torch.equal(model.tau_bounds, source.tau_bounds) and torch.equal(model.sigma_scale, source.sigma_scale)
+    assert result.bounds == pytest.approx(result.bounds_before) and result.kept_bounds
+    assert model.novelty_reference() is not None and "kept" in result.summary()
+    refit = load_agent(
+        recalibrate_run(policy, point_env, ["static"], 3, tmp_path / "refit", DT, gate_settings=settings).out
+    ).world_model
+    assert not torch.equal(refit.tau_bounds, source.tau_bounds)  # without it the same drives move the bounds
+    with pytest.raises(ValueError, match="change fear itself"):
+        recalibrate_run(
+            policy, point_env, ["static"], 1, tmp_path / "beta", DT, gate_settings={"beta": 0.8}, keep_bounds=True
+        )
+
+
 def test_a_gate_that_changes_fear_over_bounds_measured_on_another_is_refused(policy: Path) -> None:
     agent = load_agent(policy)
     for setting in ({"beta": 0.8}, {"horizon": 3}, {"aggregate": "discounted_mean"}, {"tau_max_quantile": 0.95}):
