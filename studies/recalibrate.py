@@ -94,9 +94,9 @@ class Recalibration:
     """With ``choose_beta``: per scenario with a violation, fear's AUROC at each candidate β (keys as text)."""
     label_s: float = 1.0
     novelty_scenarios: list[str] = field(default_factory=list)
+    """Scenarios driven only for the state novelty's reference set (beside ``scenarios``), not for the τ bounds."""
     kept_bounds: bool = False
     """κ and the τ bounds are the run's own (``keep_bounds``); only the curiosity's references were measured."""
-    """Scenarios driven only for the state novelty's reference set (beside ``scenarios``), not for the τ bounds."""
     curiosity_reference: float | None = None
     """The fixed reference curiosity is read against (``gate.curiosity_reference=fitted``) as measured on these drives:
     the disagreement's or the state novelty's mean on the calibration states; None for the paper's moving average."""
