@@ -321,13 +321,7 @@ class Finetuner:
             self.prior_error = f"{type(exc).__name__}: {exc}"
             _log.warning("the base policy's own drives are missing from fine-tuning: %s", self.prior_error)
             return 0
-        self.buffer.adding_prior = True
-        try:
-            for record in steps:
-                # a step of the base alone: no takeover, no expert label (its encoding is the learner's own)
-                self.learner.store(dataclasses.replace(record, takeover=False, a_expert=None))
-        finally:
-            self.buffer.adding_prior = False
+        self._store_alone(steps, prior=True)
         self.prior_steps = len(steps)
         episodes = split_episodes(steps)
         self.prior_success = [succeeded(episode) for episode in episodes]
@@ -335,6 +329,16 @@ class Finetuner:
             # the base's own rows of the situations it solved: its recorded (deterministic) actions are the labels
             self._add_anchor_rows([r for ok, ep in zip(self.prior_success, episodes, strict=True) if ok for r in ep])
         return self.prior_steps
+
+    def _store_alone(self, steps: list[StepRecord], *, prior: bool) -> None:
+        """Store drives made alone (no gate, no expert) as the agent's own steps: no takeover, no expert label (their
+        encoding is the learner's own); ``prior``: in the buffer's prior part, beside the base's drives."""
+        self.buffer.adding_prior = prior
+        try:
+            for record in steps:
+                self.learner.store(dataclasses.replace(record, takeover=False, a_expert=None))
+        finally:
+            self.buffer.adding_prior = False
 
     def _relabelling(self) -> bool:
         return self.cfg.anchor_relabel and self.cfg.prior_distill > 0 and hasattr(self.learner, "anchor_rows")
@@ -364,12 +368,7 @@ class Finetuner:
             return 0
         episodes = split_episodes(steps)
         if self.cfg.anchor_drives_learn:
-            self.buffer.adding_prior = True
-            try:
-                for record in steps:  # the version's own steps there, as the base's drives are stored
-                    self.learner.store(dataclasses.replace(record, takeover=False, a_expert=None))
-            finally:
-                self.buffer.adding_prior = False
+            self._store_alone(steps, prior=True)  # the version's own steps there, as the base's drives are stored
             self.anchor_drive_steps += len(steps)
             self.anchor_drive_violations += sum(any(r.violation for r in episode) for episode in episodes)
         kept = [r for ok, ep in zip(self.prior_success, episodes, strict=False) if ok for r in ep]
@@ -395,8 +394,7 @@ class Finetuner:
         except Exception as exc:  # as collect_prior: a scenario that no longer builds must not stop adaptation
             _log.warning("the version's practice drives are missing: %s: %s", type(exc).__name__, exc)
             return {}
-        for record in steps:
-            self.learner.store(dataclasses.replace(record, takeover=False, a_expert=None))
+        self._store_alone(steps, prior=False)
         self.practice_steps += len(steps)
         episodes = split_episodes(steps)
         violated = sum(any(r.violation for r in episode) for episode in episodes)
