@@ -30,6 +30,7 @@ over the cycles.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -120,6 +121,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
     from core.finetune import FinetuneConfig
     from studies.cycles import CyclesConfig, read_cycles, run_cycles
     from studies.envs import env_factory
+    from studies.training import LEARNER_OVERRIDES
 
     method, seed = str(config["method"]), int(config["seed"])
     sim = str(config.get("sim", "ugv"))
@@ -139,8 +141,13 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             fine_tune=method != "frozen",
             # the training seed seeds the rounds' sampling too (it was 0 for every seed: on a field whose episodes do
             # not vary with the episode seed, five seeds were one run five times); finetune.seed still wins
-            finetune=FinetuneConfig(min_steps=1, min_takeover_samples=0, seed=seed).with_settings(
-                config.get("finetune", ())
+            # sage study cycles --set learner.KEY=VALUE: edits of every round's learner configuration, after SAGE's
+            # switches (FinetuneConfig.overrides), the same for every seed
+            finetune=dataclasses.replace(
+                FinetuneConfig(min_steps=1, min_takeover_samples=0, seed=seed).with_settings(
+                    config.get("finetune", ())
+                ),
+                overrides=tuple(str(pair) for pair in config.get(LEARNER_OVERRIDES, ())),
             ),
             max_episode_steps=config.get("max_episode_steps"),
             promotion=promotion_of(config),
@@ -325,7 +332,7 @@ STUDY = StudyDef(
     },
     check_settings=check_settings,
     prepare=prepare,
-    learner_overrides=False,
+    learner_overrides=True,
     budget_text=budget_text,
     figures=figures,
 )

@@ -58,9 +58,9 @@ class StudyDef:
     its cache, ``<results folder>/experts``) the expert the trials use (:mod:`studies.experts`). Its
     ``PREPARED_NOTES`` entry, a list of sentences (how good that expert is alone), goes under the table."""
     learner_overrides: bool = True
-    """Whether its trials train through :func:`studies.training.train_once` with their settings, and so take
-    ``sage study --set learner.KEY=VALUE`` (the cycles study fine-tunes the committed policy on its own
-    configuration: no)."""
+    """Whether its trials take ``sage study --set learner.KEY=VALUE``: those that train through
+    :func:`studies.training.train_once` after their own settings; the cycles study as edits of its fine-tuning rounds'
+    learner configuration (``FinetuneConfig.overrides``, applied after SAGE's switches)."""
     budget_text: Callable[[Budget, Mapping[str, Any]], str] | None = None
     """``budget_text(budget, settings) -> what it ran``, for the table's header, when the study spends the budget
     otherwise than as training steps and evaluation episodes (the cycles study: cycles of episodes)."""

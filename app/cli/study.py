@@ -6,14 +6,15 @@
     sage study ugv --methods sage --set learner.fear_budget_from_data=false             # an ablation
     sage study pedestrian --set study.expert=hg-dagger                                    # a study setting
     sage study cycles --set finetune.critic_warmup=200                                    # its rounds' setting
+    sage study cycles --set learner.lambda_lr=0.1                                         # its rounds' learner
 
 The budget (``smoke|small|full``) is counted in environment steps, the same for every method. Rerunning the
 same command resumes the sweep in ``OUT/sweep``. Writes ``seeds.csv``, ``table.md`` (mean ± 95% CI with the
 paper's numbers beside), ``summary.json`` and figures, and prints the wall time. ``--set`` takes the study's
 settings (``study.KEY=VALUE``), the fine-tuning rounds' of a study that runs them (``finetune.KEY=VALUE``,
 :class:`core.finetune.FinetuneConfig`) and learner settings every method trains with (``learner.KEY=VALUE``, or the
-field's path in :class:`core.sage.config.AgentConfig`), read by the one parser of every command
-(:mod:`app.cli.options`).
+field's path in :class:`core.sage.config.AgentConfig`; the cycles study's rounds take them after SAGE's switches),
+read by the one parser of every command (:mod:`app.cli.options`).
 """
 
 from __future__ import annotations

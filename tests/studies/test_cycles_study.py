@@ -59,6 +59,20 @@ def test_the_cycles_study_passes_fine_tuning_settings_to_its_rounds(tmp_path: Pa
     assert tuned["rounds"][0]["losses"]["critic_warmup_updates"] == 5
 
 
+def test_the_cycles_study_passes_learner_settings_to_its_rounds(tmp_path: Path) -> None:
+    """``sage study cycles --set learner.KEY=VALUE`` edits every round's learner: with the dual's rate at 0, λ stays
+    where the checkpoint left it, where the default rate raises it (the round's fear is above its budget)."""
+    from studies.training import LEARNER_OVERRIDES
+
+    config = {"seed": 2, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
+    trial({**config, "method": "sage", LEARNER_OVERRIDES: ["lambda_lr=0"]})
+    tuned = json.loads((tmp_path / "sage-s2" / "cycles.json").read_text())
+    assert tuned["config"]["finetune"]["overrides"] == ["lambda_lr=0"]
+    losses = tuned["rounds"][0]["losses"]
+    assert losses["fear_real"] > losses["fear_budget"]  # so the default rate would have moved λ
+    assert losses["lam_end"] == losses["lam_start"]
+
+
 def test_the_cycles_study_runs_on_a_procedural_field_with_another_field_unseen(tmp_path: Path) -> None:
     config = {
         "seed": 0,

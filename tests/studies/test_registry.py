@@ -137,7 +137,14 @@ def test_learner_overrides_reach_every_trial_and_are_stated_under_the_table(ray_
 def test_a_study_that_trains_no_learner_of_its_own_refuses_learner_overrides(tmp_path: Path) -> None:
     from app.cli import app
 
-    result = CliRunner().invoke(app, ["study", "cycles", "--budget", "smoke", "--set", "learner.hidden=16"])
-    assert result.exit_code == 2 and "cycles trains no learner from a spec of its own" in result.output
-    with pytest.raises(ValueError, match="takes no learner settings"):
-        run_study("cycles", "smoke", tmp_path, log=lambda _: None, learner_overrides=["hidden=16"])
+    study = StudyDef("toy-planner", ("teb",), overrides_trial, metrics=("collision_rate",), learner_overrides=False)
+    register_study(study)
+    try:
+        result = CliRunner().invoke(app, ["study", "toy-planner", "--budget", "smoke", "--set", "learner.hidden=16"])
+        assert result.exit_code == 2 and "toy-planner trains no learner from a spec of its own" in result.output
+        with pytest.raises(ValueError, match="takes no learner settings"):
+            run_study("toy-planner", "smoke", tmp_path, log=lambda _: None, learner_overrides=["hidden=16"])
+    finally:
+        unregister_study(study.name)
+    # the cycles study takes them: its rounds' learner edits (tests/studies/test_cycles_study.py)
+    assert get_study("cycles").learner_overrides
