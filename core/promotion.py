@@ -27,8 +27,11 @@ A regression test (off by default: ``regression_scenarios``) guards what fine-tu
 ALONE (deterministic, no gate, no expert) on ``regression_episodes`` fixed seeds of each of those scenarios (the base
 policy's own, e.g. UGV 1-2 for the UGV default) and fails if it succeeds in fewer of them, on any scenario, than
 ``v0000`` (the policy the operator deployed) on the same seeds. A version that drives worse alone on the base's own
-scenarios than the base does is a regression, whatever it gained under supervision. ``supervised=False`` skips the
-supervised tests above, so that the regression test can be measured alone.
+scenarios than the base does is a regression, whatever it gained under supervision. With
+``regression_against="control"`` the reference is the version in control instead: on the session's own scenario, a
+version that drives worse alone than the line already does is not deployed, so the line's alone driving on those seeds
+never steps back (each version is driven alone once; its record is kept in its verdict). ``supervised=False`` skips
+the supervised tests above, so that the regression test can be measured alone.
 
 Otherwise the version is kept on disk, marked with the reason, and never offered to the loop by the follower, and
 the next round continues from the version in control (:func:`core.finetune.line_head`), not from the rejected
@@ -51,7 +54,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium as gym
 
@@ -87,6 +90,11 @@ class PromotionConfig:
     """Episodes alone per regression scenario (seeds ``regression_seed + i``, the same for every version)."""
     regression_seed: int = 8_000_000
     """Seed of the first regression episode; apart from the evaluation, training and policy-alone seeds."""
+    regression_against: Literal["base", "control"] = "base"
+    """Whom the regression test compares the candidate with, alone on the same seeds: ``base``, ``v0000`` (the policy
+    the operator deployed: nothing it drove alone is lost); ``control``, the version in control (the latest promoted
+    before the candidate): a version that drives worse alone than the line already does, on the session's own
+    scenario say, is not deployed, so that what the line drives alone on those seeds never steps back."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1 or self.live_window < 1:
@@ -98,6 +106,8 @@ class PromotionConfig:
         object.__setattr__(self, "regression_scenarios", tuple(str(s) for s in self.regression_scenarios))
         if self.takeover_margin < 0 or self.live_takeover_margin < 0:
             raise ValueError("takeover margins must be >= 0")
+        if self.regression_against not in ("base", "control"):
+            raise ValueError(f"regression_against must be base or control, got {self.regression_against!r}")
 
 
 @dataclass
@@ -156,9 +166,15 @@ def paired_takeover(candidate: Evaluation, incumbent: Evaluation, margin: float)
     return wins, losses
 
 
-def regression_failure(candidate: Evaluation, base: Evaluation, cfg: PromotionConfig) -> str | None:
-    """Why the candidate fails the regression test against the base (``v0000``): the first scenario of
-    ``cfg.regression_scenarios`` on which it succeeds alone in fewer episodes than the base; None when it passes."""
+BASE_NAME = "the base policy (v0000)"
+
+
+def regression_failure(
+    candidate: Evaluation, base: Evaluation, cfg: PromotionConfig, reference: str = BASE_NAME
+) -> str | None:
+    """Why the candidate fails the regression test against ``base``, the alone record of ``reference`` (``v0000``,
+    or the version in control with ``regression_against="control"``): the first scenario of
+    ``cfg.regression_scenarios`` on which it succeeds alone in fewer episodes; None when it passes."""
     for scenario in cfg.regression_scenarios:
         mine, theirs = candidate.regression.get(scenario), base.regression.get(scenario)
         same_seeds = candidate.regression_seed == base.regression_seed
@@ -167,24 +183,29 @@ def regression_failure(candidate: Evaluation, base: Evaluation, cfg: PromotionCo
         if sum(mine) < sum(theirs):
             return (
                 f"regression: alone on scenario {scenario} it succeeded in {sum(mine)}/{len(mine)} episodes, "
-                f"the base policy (v0000) in {sum(theirs)}/{len(theirs)}"
+                f"{reference} in {sum(theirs)}/{len(theirs)}"
             )
     return None
 
 
 def decide(
-    candidate: Evaluation, incumbent: Evaluation | None, cfg: PromotionConfig, base: Evaluation | None = None
+    candidate: Evaluation,
+    incumbent: Evaluation | None,
+    cfg: PromotionConfig,
+    base: Evaluation | None = None,
+    reference: str = BASE_NAME,
 ) -> Decision:
-    """Promote only a candidate that passes the regression test against ``base`` (with ``regression_scenarios``)
-    and, with ``supervised``, the collision and takeover tests against ``incumbent`` (the module docstring)."""
+    """Promote only a candidate that passes the regression test against ``base``, the alone record of ``reference``
+    (with ``regression_scenarios``), and, with ``supervised``, the collision and takeover tests against
+    ``incumbent`` (the module docstring)."""
     regression = ""
     if cfg.regression_scenarios:
         if base is None:
-            raise ValueError("the regression test needs the base policy's evaluation")
-        failure = regression_failure(candidate, base, cfg)
+            raise ValueError("the regression test needs the alone record it compares with")
+        failure = regression_failure(candidate, base, cfg, reference)
         if failure is not None:
             return Decision(False, failure)
-        regression = f"no worse alone than the base policy on scenarios {', '.join(cfg.regression_scenarios)}"
+        regression = f"no worse alone than {reference} on scenarios {', '.join(cfg.regression_scenarios)}"
         if not cfg.supervised:
             return Decision(True, regression + " (supervised tests off)")
         regression = "; " + regression

@@ -197,11 +197,12 @@ def _work(spec: WorkerSpec, events: Any, commands: Any) -> None:
 def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> dict[str, Any]:
     """Evaluate version ``number`` beside the latest promoted version before it and write its verdict.
 
-    The incumbent's evaluation is cached in its own ``promotion.json``, so each version is evaluated once; so is
-    ``v0000``'s regression record (the regression test, with ``promotion.regression_scenarios``)."""
+    The incumbent's evaluation is cached in its own ``promotion.json``, so each version is evaluated once; so is the
+    alone record the regression test compares with (``promotion.regression_scenarios``: ``v0000``'s, or with
+    ``regression_against="control"`` the version in control's)."""
     import dataclasses
 
-    from core.promotion import Evaluation, PromotionConfig, decide, read_verdict, write_verdict
+    from core.promotion import BASE_NAME, Evaluation, PromotionConfig, decide, read_verdict, write_verdict
 
     cfg = promotion or PromotionConfig()
     candidate = versions.get(number)
@@ -209,13 +210,20 @@ def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> 
         verdict: dict[str, Any] = {"promoted": True, "evaluated": False, "reason": "not evaluated (no evaluator)"}
         write_verdict(candidate.path, verdict)
         return verdict
-    base = _base_regression(versions, evaluator, cfg) if cfg.regression_scenarios else None
-    before: Evaluation | None = None
     incumbent = None
-    if cfg.supervised:
+    if cfg.supervised or (cfg.regression_scenarios and cfg.regression_against == "control"):
         incumbent = next((v for v in reversed(versions.versions()) if v.number < number and v.promoted), None)
         if incumbent is None:
             incumbent = versions.get(0)
+    base, reference = None, BASE_NAME
+    if cfg.regression_scenarios:
+        against = incumbent if cfg.regression_against == "control" and incumbent is not None else versions.get(0)
+        base = _alone_record(versions, against.number, evaluator, cfg)
+        if against.number != 0:
+            reference = f"the version in control ({against.name})"
+    before: Evaluation | None = None
+    if cfg.supervised:
+        assert incumbent is not None
         cached = read_verdict(incumbent.path) or {}
         record = cached.get("evaluation")
         if (
@@ -226,12 +234,12 @@ def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> 
         ):
             before = Evaluation.from_dict(cached["evaluation"])
         else:
-            # the incumbent needs the supervised record only (the regression test compares with v0000)
+            # the incumbent needs the supervised record only (the regression test's is apart)
             before = evaluator(incumbent.path, dataclasses.replace(cfg, regression_scenarios=()))
             base_verdict = cached or {"promoted": True, "reason": "the policy deployed by the operator"}
             write_verdict(incumbent.path, {**base_verdict, "evaluation": before.as_dict(), "evaluation_seed": cfg.seed})
     after = evaluator(candidate.path, cfg)
-    decision = decide(after, before, cfg, base)
+    decision = decide(after, before, cfg, base, reference)
     verdict = {
         "promoted": decision.promoted,
         "evaluated": True,
@@ -243,19 +251,28 @@ def judge(versions: Any, number: int, evaluator: Any, promotion: Any = None) -> 
     }
     if base is not None:
         verdict["base_regression"] = base.regression
+        # the candidate's own alone record, for when it is in control and the next one is compared with it
+        verdict["regression"] = after.as_dict()
+        verdict["regression_for"] = _regression_key(cfg)
     write_verdict(candidate.path, verdict)
     return verdict
 
 
-def _base_regression(versions: Any, evaluator: Any, cfg: Any) -> Any:
-    """``v0000`` alone on the regression scenarios' seeds, evaluated once and cached in its ``promotion.json``."""
+def _regression_key(cfg: Any) -> dict[str, Any]:
+    """What makes two alone records comparable: the same seeds, episodes and cut."""
+    return {"seed": cfg.regression_seed, "episodes": cfg.regression_episodes, "max_steps": cfg.max_steps}
+
+
+def _alone_record(versions: Any, number: int, evaluator: Any, cfg: Any) -> Any:
+    """Version ``number`` alone on the regression scenarios' seeds, evaluated once and cached in its
+    ``promotion.json`` (``v0000``'s, or the version in control's: a candidate's verdict keeps its own)."""
     import dataclasses
 
     from core.promotion import Evaluation, read_verdict, write_verdict
 
-    base = versions.get(0)
-    cached = read_verdict(base.path) or {}
-    key = {"seed": cfg.regression_seed, "episodes": cfg.regression_episodes, "max_steps": cfg.max_steps}
+    version = versions.get(number)
+    cached = read_verdict(version.path) or {}
+    key = _regression_key(cfg)
     record = cached.get("regression")
     if (
         isinstance(record, dict)
@@ -263,11 +280,11 @@ def _base_regression(versions: Any, evaluator: Any, cfg: Any) -> Any:
         and all(scenario in record.get("regression", {}) for scenario in cfg.regression_scenarios)
     ):
         return Evaluation.from_dict(record)
-    evaluation = evaluator(base.path, dataclasses.replace(cfg, supervised=False))
+    evaluation = evaluator(version.path, dataclasses.replace(cfg, supervised=False))
     if isinstance(record, dict) and cached.get("regression_for") == key:  # keep the scenarios measured before
         evaluation.regression = {**record.get("regression", {}), **evaluation.regression}
-    base_verdict = cached or {"promoted": True, "reason": "the policy deployed by the operator"}
-    write_verdict(base.path, {**base_verdict, "regression": evaluation.as_dict(), "regression_for": key})
+    verdict = cached or {"promoted": True, "reason": "the policy deployed by the operator"}
+    write_verdict(version.path, {**verdict, "regression": evaluation.as_dict(), "regression_for": key})
     return evaluation
 
 

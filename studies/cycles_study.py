@@ -234,7 +234,8 @@ def promotion_of(settings: Mapping[str, Any]) -> Any:
     """The promotion a trial's versions must pass before they drive (:class:`core.promotion.PromotionConfig`), or
     None (the default: every version drives). ``promotion``: the live worker's supervised tests beside the version
     in control; ``regression_scenarios``: the regression test, each version alone on those scenarios no worse than
-    ``v0000``; either one switches promotion on, and a rejected version is not deployed."""
+    ``v0000`` (``regression_against="control"``: than the version in control); either one switches promotion on,
+    and a rejected version is not deployed."""
     from core.promotion import PromotionConfig
 
     supervised = bool(settings.get("promotion", False))
@@ -242,7 +243,12 @@ def promotion_of(settings: Mapping[str, Any]) -> Any:
     if not supervised and not regression:
         return None
     max_steps = settings.get("max_episode_steps") or PromotionConfig().max_steps
-    return PromotionConfig(supervised=supervised, regression_scenarios=regression, max_steps=max_steps)
+    return PromotionConfig(
+        supervised=supervised,
+        regression_scenarios=regression,
+        max_steps=max_steps,
+        regression_against=str(settings.get("regression_against", "base")),  # type: ignore[arg-type]
+    )
 
 
 def check_settings(settings: Mapping[str, Any]) -> None:
@@ -266,6 +272,9 @@ def check_settings(settings: Mapping[str, Any]) -> None:
             raise ValueError(f"--set study.{key}={name}: {str(error).splitlines()[0]}") from None
     if unseen == scenario:
         raise ValueError(f"--set study.unseen_scenario={unseen}: the unseen scenario must differ from the scenario")
+    against = str(settings.get("regression_against", "base"))
+    if against not in ("base", "control"):
+        raise ValueError(f"--set study.regression_against={against}: base (v0000) or control (the version in control)")
     from core.agents import resolve_checkpoint
 
     policy = str(settings.get("policy", DEFAULT_POLICY))
@@ -328,6 +337,7 @@ STUDY = StudyDef(
         "finetune": (),
         "promotion": False,
         "regression_scenarios": (),
+        "regression_against": "base",
         "static_scenarios": "",
     },
     check_settings=check_settings,

@@ -72,6 +72,14 @@ def register(app: typer.Typer) -> None:
                 "policy the session started from (core.promotion)."
             ),
         ] = None,
+        regression_against: Annotated[
+            str,
+            typer.Option(
+                help="Whom a version's regression test compares it with, alone on the same seeds: base (the policy "
+                "the session started from) or control (the version in control: a version that drives a regression "
+                "scenario worse alone than the line already does is not deployed)."
+            ),
+        ] = "base",
         gate_set: GateSetRetired = None,
     ) -> None:
         """Serve the live dashboard: the SAGE loop at wall-clock rate, its fear / curiosity / threshold
@@ -89,6 +97,8 @@ def register(app: typer.Typer) -> None:
         scenario_name, sim = one_scenario(scenario, "sage serve"), policy_sim(policy, sim)
         gate_settings = _check_startup(sim, scenario_name, policy, gate_pairs(set_))
         regression = checked_scenarios(sim, regression_scenario or [], "--regression-scenario")
+        if regression_against not in ("base", "control"):
+            _fail(f"--regression-against {regression_against}: base or control")
         # bound here, before the banner, the loop, the worker or a session exist: a busy or forbidden port is one
         # line now, not uvicorn's error after a session was recorded; uvicorn then serves on this very socket
         listener = bind_listener(host, port)
@@ -107,7 +117,10 @@ def register(app: typer.Typer) -> None:
             finetune=finetune,
             allow_hosts=list(allow_host or []),
             gate_settings=gate_settings,
-            promotion=PromotionConfig(regression_scenarios=regression),
+            promotion=PromotionConfig(
+                regression_scenarios=regression,
+                regression_against=regression_against,  # type: ignore[arg-type]
+            ),
             worker_stop_wait=0.5,
         )
         typer.echo(f"SAGE dashboard on http://{host}:{port}/  (Ctrl+C to stop)")

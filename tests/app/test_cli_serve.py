@@ -142,3 +142,11 @@ def test_regression_scenarios_reach_the_promotion_and_a_bad_one_is_one_line(
     code, out = run("--regression-scenario", "1,2", "--port", "0", "--sessions", str(tmp_path / "s"))
     assert code == 0, out
     assert seen and seen[0].promotion.regression_scenarios == ("1", "2") and seen[0].promotion.supervised
+    assert seen[0].promotion.regression_against == "base"
+    args = ("--regression-scenario", "3", "--regression-against", "control", "--port", "0")
+    code, out = run(*args, "--sessions", str(tmp_path / "s"))
+    assert code == 0, out
+    assert seen[-1].promotion.regression_against == "control"  # the version in control, not v0000
+    code, out = run("--regression-scenario", "3", "--regression-against", "best", "--sessions", str(tmp_path / "b"))
+    _one_line_before_anything(code, out, tmp_path / "b")
+    assert "--regression-against best" in out

@@ -235,3 +235,6 @@ def test_regression_scenarios_switch_the_promotion_on_and_a_bad_one_is_one_line(
     CliRunner().invoke(app, [*args, "--out", str(tmp_path / "r")])
     assert seen and seen[0].promotion is not None
     assert seen[0].promotion.regression_scenarios == ("1", "2") and not seen[0].promotion.supervised
+    assert seen[0].promotion.regression_against == "base"
+    CliRunner().invoke(app, [*args, "--regression-against", "control", "--out", str(tmp_path / "c")])
+    assert seen[-1].promotion is not None and seen[-1].promotion.regression_against == "control"

@@ -255,6 +255,37 @@ def test_judge_runs_the_regression_test_against_v0000_cached_and_rejects_a_forge
     assert read_verdict(versions.get(0).path)["regression"]["regression"]["1"] == [True] * 10
 
 
+def test_judge_against_the_version_in_control_keeps_the_lines_alone_driving_from_stepping_back(
+    deployed: Path,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    """``regression_against="control"``: a candidate is compared alone with the latest promoted version, not v0000,
+    so one that drives the session's scenario better than v0000 but worse than the line already does is refused."""
+    versions = VersionStore(tmp_path / "versions")
+    versions.ensure_initial(deployed)
+    better, slipping, best = (broken_copy(versions, versions.get(0).path) for _ in range(3))
+    alone_successes = {0: 1, better: 7, slipping: 5, best: 8}
+    calls: list[str] = []
+
+    def fake(path: Path, cfg: PromotionConfig) -> Evaluation:
+        calls.append(Path(path).name)
+        number = int(Path(path).name[1:])
+        return alone({s: alone_successes[number] for s in cfg.regression_scenarios}, cfg.regression_episodes)
+
+    cfg = PromotionConfig(supervised=False, regression_scenarios=("3",), regression_against="control")
+    assert judge(versions, better, fake, cfg)["promoted"]  # 7/10 against v0000's 1/10
+    refused = judge(versions, slipping, fake, cfg)
+    # 5/10 is better than v0000 (the base test would pass it) but worse than the version in control
+    assert not refused["promoted"] and refused["against"] == better
+    assert "5/10" in refused["reason"] and f"the version in control (v{better:04d}) in 7/10" in refused["reason"]
+    promoted = judge(versions, best, fake, cfg)
+    assert promoted["promoted"] and promoted["against"] == better  # the refused one is not the reference
+    # each version was driven alone once: the one in control's record is its own verdict's, not driven again
+    assert calls == ["v0000", f"v{better:04d}", f"v{slipping:04d}", f"v{best:04d}"]
+    with pytest.raises(ValueError, match="regression_against"):
+        PromotionConfig(regression_scenarios=("3",), regression_against="best")  # type: ignore[arg-type]
+
+
 def test_evaluate_version_drives_the_regression_scenarios_alone_on_fixed_seeds(deployed: Path) -> None:  # noqa: F811
     cfg = PromotionConfig(episodes=2, max_steps=40, supervised=False, regression_scenarios=("static",))
     scenario_env = functools.partial(envs.make)

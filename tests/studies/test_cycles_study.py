@@ -73,6 +73,17 @@ def test_the_cycles_study_passes_learner_settings_to_its_rounds(tmp_path: Path) 
     assert losses["lam_end"] == losses["lam_start"]
 
 
+def test_the_cycles_study_can_compare_its_versions_alone_with_the_version_in_control() -> None:
+    from studies.cycles_study import check_settings, promotion_of
+
+    settings = {"regression_scenarios": ("3",), "regression_against": "control"}
+    promotion = promotion_of(settings)
+    assert promotion is not None and promotion.regression_against == "control" and not promotion.supervised
+    assert promotion_of({"regression_scenarios": ("1", "2")}).regression_against == "base"  # the default: v0000
+    with pytest.raises(ValueError, match="regression_against=best: base"):
+        check_settings({"regression_against": "best"})
+
+
 def test_the_cycles_study_runs_on_a_procedural_field_with_another_field_unseen(tmp_path: Path) -> None:
     config = {
         "seed": 0,
