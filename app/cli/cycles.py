@@ -23,6 +23,8 @@ from app.cli.options import (
     LEARNER_SECTIONS,
     LEARNER_SET_HELP,
     NamedChoicesCommand,
+    RegressionAgainstOption,
+    checked_regression_against,
     checked_scenarios,
     fail,
     one_scenario,
@@ -87,14 +89,7 @@ def register(app: typer.Typer) -> None:
                 "ALONE on this scenario's fixed seeds, it succeeds in as many episodes as the starting policy."
             ),
         ] = None,
-        regression_against: Annotated[
-            str,
-            typer.Option(
-                help="Whom a version's regression test compares it with, alone on the same seeds: base (the policy "
-                "the session started from) or control (the version in control: a version that drives a regression "
-                "scenario worse alone than the line already does is not deployed)."
-            ),
-        ] = "base",
+        regression_against: RegressionAgainstOption = "base",
         frozen: Annotated[
             bool, typer.Option(help="The control: deploy the first version in every cycle, never fine-tuned.")
         ] = False,
@@ -129,8 +124,7 @@ def register(app: typer.Typer) -> None:
             fail(f"no policy at {policy_path!r} (give --policy a run folder or a checkpoint)")
         sim = runs_sim([policy_path], sim)
         regression = checked_scenarios(sim, regression_scenario or [], "--regression-scenario")
-        if regression_against not in ("base", "control"):
-            fail(f"--regression-against {regression_against}: base or control")
+        against = checked_regression_against(regression_against)
         folder = out or Path("runs") / f"cycles-{sim}-{name}-s{seed}"
         try:
             make_env = env_factory(sim)
@@ -152,7 +146,7 @@ def register(app: typer.Typer) -> None:
                         supervised=promote,
                         regression_scenarios=regression,
                         max_steps=max_episode_steps or PromotionConfig().max_steps,
-                        regression_against=regression_against,  # type: ignore[arg-type]
+                        regression_against=against,
                     )
                     if promote or regression
                     else None

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import Annotated, Any, Literal, NoReturn
 
 import click
 import typer
@@ -97,6 +97,25 @@ def scenario_list(values: Sequence[str] | None) -> list[str]:
     if values and not names:
         fail("--scenario: give at least one scenario, e.g. 3 or 1,2")
     return names
+
+
+RegressionAgainstOption = Annotated[
+    str,
+    typer.Option(
+        help="Whom a version's regression test compares it with, alone on the same seeds: base (the policy started "
+        "from) or control (the version in control: a version that drives a regression scenario worse alone than the "
+        "line already does is not deployed)."
+    ),
+]
+"""``--regression-against`` of ``sage serve`` and ``sage cycles``
+(:attr:`core.promotion.PromotionConfig.regression_against`)."""
+
+
+def checked_regression_against(value: str) -> Literal["base", "control"]:
+    """``--regression-against`` as :class:`core.promotion.PromotionConfig` takes it, or one line and exit 2."""
+    if value == "base" or value == "control":
+        return value
+    fail(f"--regression-against {value}: base or control")
 
 
 def checked_scenarios(sim: str, values: Sequence[str], flag: str) -> tuple[str, ...]:

@@ -13,6 +13,8 @@ import typer
 from app.cli.options import (
     GATE_SET_HELP,
     GateSetRetired,
+    RegressionAgainstOption,
+    checked_regression_against,
     checked_scenarios,
     gate_pairs,
     one_scenario,
@@ -72,14 +74,7 @@ def register(app: typer.Typer) -> None:
                 "policy the session started from (core.promotion)."
             ),
         ] = None,
-        regression_against: Annotated[
-            str,
-            typer.Option(
-                help="Whom a version's regression test compares it with, alone on the same seeds: base (the policy "
-                "the session started from) or control (the version in control: a version that drives a regression "
-                "scenario worse alone than the line already does is not deployed)."
-            ),
-        ] = "base",
+        regression_against: RegressionAgainstOption = "base",
         gate_set: GateSetRetired = None,
     ) -> None:
         """Serve the live dashboard: the SAGE loop at wall-clock rate, its fear / curiosity / threshold
@@ -97,8 +92,7 @@ def register(app: typer.Typer) -> None:
         scenario_name, sim = one_scenario(scenario, "sage serve"), policy_sim(policy, sim)
         gate_settings = _check_startup(sim, scenario_name, policy, gate_pairs(set_))
         regression = checked_scenarios(sim, regression_scenario or [], "--regression-scenario")
-        if regression_against not in ("base", "control"):
-            _fail(f"--regression-against {regression_against}: base or control")
+        against = checked_regression_against(regression_against)
         # bound here, before the banner, the loop, the worker or a session exist: a busy or forbidden port is one
         # line now, not uvicorn's error after a session was recorded; uvicorn then serves on this very socket
         listener = bind_listener(host, port)
@@ -119,7 +113,7 @@ def register(app: typer.Typer) -> None:
             gate_settings=gate_settings,
             promotion=PromotionConfig(
                 regression_scenarios=regression,
-                regression_against=regression_against,  # type: ignore[arg-type]
+                regression_against=against,
             ),
             worker_stop_wait=0.5,
         )
