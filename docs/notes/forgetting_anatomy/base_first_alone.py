@@ -5,7 +5,9 @@
 
 Prints the version (the composite: the base, its watch, the version's actor) and ``v0000`` beside it, each alone
 (no gate, no expert, deterministic) on the alone seed 9,000,000: steps, outcome, the base's share of the steps, the
-first step the version acted, how often the actor switched, and who acted over the last 15 steps.
+first step the version acted, how often the actor switched, and who acted over the last 15 steps. A third argument,
+comma-separated scales of the watch's threshold bounds (e.g. ``1,0.7,0.5,0.35,0``; 0: the version from the first
+step), drives the composite once per scale instead: does a watch that fires earlier get the version through?
 """
 
 from __future__ import annotations
@@ -21,10 +23,20 @@ from core.loop import NoGate, Runner
 from studies.envs import env_factory
 
 
-def drive(path: str, scenario: str) -> str:
+def drive(path: str, scenario: str, watch_scale: float = 1.0) -> str:
     agent = load_agent(path)
     env = env_factory("ugv")(scenario)
     policy = agent.policy
+    if watch_scale != 1.0:
+        threshold = policy.watch.threshold
+        set_bounds = threshold.set_bounds
+
+        def scaled(bounds: Any) -> None:  # the gate sets its bounds again from its model: scale them every time
+            set_bounds(bounds)
+            threshold.tau_min, threshold.tau_max = threshold.tau_min * watch_scale, threshold.tau_max * watch_scale
+
+        threshold.set_bounds = scaled
+        threshold.tau_min, threshold.tau_max = threshold.tau_min * watch_scale, threshold.tau_max * watch_scale
     who: list[bool] = []
 
     def listen(record: Any) -> None:
@@ -53,5 +65,9 @@ def drive(path: str, scenario: str) -> str:
 
 if __name__ == "__main__":
     version, scenario = sys.argv[1], sys.argv[2]
-    print("version", drive(version, scenario))
-    print("v0000  ", drive(str(version).rsplit("/", 1)[0] + "/v0000", scenario))
+    if len(sys.argv) > 3:
+        for scale in (float(x) for x in sys.argv[3].split(",")):
+            print(f"watch x{scale}", drive(version, scenario, scale))
+    else:
+        print("version", drive(version, scenario))
+        print("v0000  ", drive(str(version).rsplit("/", 1)[0] + "/v0000", scenario))
