@@ -60,6 +60,9 @@ import gymnasium as gym
 
 PROMOTION_FILE = "promotion.json"
 
+REGRESSION_REFERENCES = ("base", "control")
+"""The values of :attr:`PromotionConfig.regression_against`."""
+
 
 @dataclass(frozen=True)
 class PromotionConfig:
@@ -106,7 +109,7 @@ class PromotionConfig:
         object.__setattr__(self, "regression_scenarios", tuple(str(s) for s in self.regression_scenarios))
         if self.takeover_margin < 0 or self.live_takeover_margin < 0:
             raise ValueError("takeover margins must be >= 0")
-        if self.regression_against not in ("base", "control"):
+        if self.regression_against not in REGRESSION_REFERENCES:
             raise ValueError(f"regression_against must be base or control, got {self.regression_against!r}")
 
 

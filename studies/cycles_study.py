@@ -272,8 +272,10 @@ def check_settings(settings: Mapping[str, Any]) -> None:
             raise ValueError(f"--set study.{key}={name}: {str(error).splitlines()[0]}") from None
     if unseen == scenario:
         raise ValueError(f"--set study.unseen_scenario={unseen}: the unseen scenario must differ from the scenario")
+    from core.promotion import REGRESSION_REFERENCES
+
     against = str(settings.get("regression_against", "base"))
-    if against not in ("base", "control"):
+    if against not in REGRESSION_REFERENCES:
         raise ValueError(f"--set study.regression_against={against}: base (v0000) or control (the version in control)")
     from core.agents import resolve_checkpoint
 

@@ -113,9 +113,11 @@ RegressionAgainstOption = Annotated[
 
 def checked_regression_against(value: str) -> Literal["base", "control"]:
     """``--regression-against`` as :class:`core.promotion.PromotionConfig` takes it, or one line and exit 2."""
-    if value == "base" or value == "control":
-        return value
-    fail(f"--regression-against {value}: base or control")
+    from core.promotion import REGRESSION_REFERENCES
+
+    if value not in REGRESSION_REFERENCES:
+        fail(f"--regression-against {value}: base or control")
+    return value  # type: ignore[return-value]
 
 
 def checked_scenarios(sim: str, values: Sequence[str], flag: str) -> tuple[str, ...]:
