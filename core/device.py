@@ -42,7 +42,7 @@ def resolve_device(name: str | torch.device | None) -> torch.device:
             build = "a CPU-only torch" if torch.version.cuda is None else f"torch built for CUDA {torch.version.cuda}"
             raise DeviceError(
                 f"--device {choice}: no CUDA device is available ({build}); use --device cpu, or install a CUDA torch "
-                "(README, Speed)"
+                "(docs/setup.md)"
             )
         try:
             device = torch.device(choice)

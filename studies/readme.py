@@ -178,8 +178,9 @@ def summary_table(doc: Path, readme: Path) -> str:
         f"each results folder that [{RESULTS_DOC.as_posix()}]({doc_link}) shows"
         if not others
         else f"the results folders of the sections that [{RESULTS_DOC.as_posix()}]({doc_link}) names for the README "
-        f"(its `readme-sections` line); the document's other sections ({len(others)}, arms and earlier budgets or "
-        f"defaults: {', '.join(others)}) are there"
+        f"(its `readme-sections` line); its {len(others)} other "
+        f"{'sections' if len(others) != 1 else 'section'} (arms, earlier budgets or defaults) "
+        f"{'are' if len(others) != 1 else 'is'} there"
     )
     return "\n".join(
         [

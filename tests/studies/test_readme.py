@@ -245,8 +245,9 @@ def test_the_summary_shows_the_sections_the_document_names_for_it_and_counts_the
     table = summary_table(doc, readme)
     rows = [line for line in table.splitlines() if line.startswith("| [")]
     assert len(rows) == 1 and "`bbb2222`" in rows[0]  # the named section only
-    # the one left out is named, not lost
-    assert "other sections (1, arms and earlier budgets or defaults: highway)" in table
+    # the one left out is counted, and stays in the document
+    assert "its 1 other section (arms, earlier budgets or defaults) is there" in table
+    assert "<!-- results:highway -->" in doc.read_text()
     doc.write_text(doc.read_text().replace("readme-sections: highway-long", "readme-sections: highway-long gone"))
     with pytest.raises(ValueError, match="names gone"):
         summary_table(doc, readme)
