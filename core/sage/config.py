@@ -713,5 +713,21 @@ def _convert(value: Any, hint: Any, name: str) -> Any:
                 raise ValueError(value)
             return value
     except ValueError:
-        raise ValueError(f"{name}: cannot read {value!r} as {hint}") from None
+        raise ValueError(f"{name}: cannot read {value!r} as {_described(hint)}") from None
     return value
+
+
+def _described(hint: Any) -> str:
+    """A type hint as a reader names it: ``int``, ``true or false``, ``one of 'none', 'q'``, ``two numbers``."""
+    if hint is bool:
+        return "true or false"
+    if isinstance(hint, type):
+        return hint.__name__
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin is tuple:
+        return "two numbers (low,high)"
+    if origin is list:
+        return "a comma-separated list of numbers"
+    return str(hint)

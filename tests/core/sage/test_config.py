@@ -60,6 +60,19 @@ def test_overrides_convert_types_and_name_what_is_wrong() -> None:
             apply_overrides(for_method("sage"), [bad])
 
 
+def test_a_value_of_the_wrong_type_says_what_would_be_read() -> None:
+    for bad, expected in (
+        ("gate.hold_steps=abc", "gate.hold_steps: cannot read 'abc' as int"),
+        ("gamma=x", "gamma: cannot read 'x' as float"),
+        ("takeover=perhaps", "takeover: cannot read 'perhaps' as true or false"),
+        ("gate.aggregate=mean", "as one of 'max', "),
+        ("reward_bounds=1", "as two numbers (low,high)"),
+    ):
+        with pytest.raises(ValueError) as error:
+            apply_overrides(for_method("sage"), [bad])
+        assert expected in str(error.value) and "<class" not in str(error.value)
+
+
 def test_contact_that_needs_the_scan_closing_needs_the_motion_input() -> None:
     with pytest.raises(ValueError, match="motion_input"):
         apply_overrides(
