@@ -12,6 +12,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# One intra-op thread per test process (and the processes its tests start): pytest-xdist runs a worker per core, and
+# torch's default of a thread per core in each of them oversubscribes the cores; under load a learning test then ran
+# ten times as long (a highway study trial: 24 s with one thread, over 600 s with two beside a running study).
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+if "torch" in sys.modules:  # imported before this file (a plugin): the variable came too late for it
+    sys.modules["torch"].set_num_threads(1)
+
 NUMBA_KERNELS = {
     # numba's on-disk cache (cache=True) beside each source, in its __pycache__: a fresh clone has none
     "gate": (
