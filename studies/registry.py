@@ -246,7 +246,12 @@ def run_study(
     table_rows = [r for row in rows for r in _unpack(row, study.row_keys, study.metrics)]
     trial_s = sum(float(row.get("trial_seconds", 0.0)) for row in rows)
     changed = [f"{k}={v}" for k, v in (overrides or {}).items()]
-    elsewhere = [r for r in rows if not (Path(settings["runs_dir"]) / f"{r['method']}-s{r['seed']}").is_dir()]
+    elsewhere = [  # a planner's trial writes no run folder wherever it runs
+        r
+        for r in rows
+        if r["method"] not in study.untrained
+        and not (Path(settings["runs_dir"]) / f"{r['method']}-s{r['seed']}").is_dir()
+    ]
     if elsewhere and study.figures is not None:
         prepared_notes.append(
             f"{len(elsewhere)} of {len(rows)} trials ran on another machine (their rows are from `{LEDGER}/`, their "

@@ -148,3 +148,28 @@ def test_a_study_that_trains_no_learner_of_its_own_refuses_learner_overrides(tmp
         unregister_study(study.name)
     # the cycles study takes them: its rounds' learner edits (tests/studies/test_cycles_study.py)
     assert get_study("cycles").learner_overrides
+
+
+def folder_trial(config: dict[str, Any]) -> dict[str, float]:
+    """A learner writes its run folder, as a real trial does; a planner (``teb``) writes none."""
+    if config["method"] != "teb":
+        (Path(config["runs_dir"]) / f"{config['method']}-s{config['seed']}").mkdir(parents=True, exist_ok=True)
+    return {"collision_rate": float(config["seed"])}
+
+
+def test_only_learners_without_their_run_folder_are_said_to_have_run_elsewhere(ray_local: None, tmp_path: Path) -> None:
+    study = StudyDef(
+        "toy-planned", ("sage", "teb"), folder_trial, metrics=("collision_rate",), untrained=("teb",),
+        figures=lambda out, settings: [],
+    )  # fmt: skip
+    register_study(study)
+    try:
+        here = run_study("toy-planned", "smoke", tmp_path, log=lambda _: None).read_text()
+        assert "ran on another machine" not in here  # the planner's trials have no folder anywhere
+        import shutil
+
+        shutil.rmtree(tmp_path / "runs" / "sage-s1")  # as if that trial had run on another machine
+        again = run_study("toy-planned", "smoke", tmp_path, log=lambda _: None).read_text()
+    finally:
+        unregister_study(study.name)
+    assert "1 of 4 trials ran on another machine" in again
