@@ -6,6 +6,11 @@ it would replace (the incumbent: the latest promoted version, evaluated on the v
 paired episode by episode). :func:`decide` promotes it only if it passes both tests:
 
 - collisions: the candidate collides in no more evaluation episodes than the incumbent (ties pass);
+- progress, a paired sign test: the candidate "loses" an episode in which the incumbent reached the goal on the same
+  seed and it did not, "wins" the reverse; it fails with more losses than wins + ``success_slack``. Without it a
+  version that stands still, never handed over and never colliding, passes the two tests around it (measured: a
+  cycles line whose versions stalled from the fifth cycle, supervised success 0 and takeover 0-4%; evaluations
+  recorded before the per-episode outcomes were kept skip it);
 - takeover, a paired sign test: over the episodes, the candidate "wins" one where its takeover share is lower than
   the incumbent's on the same seed by more than ``takeover_margin``, "loses" one where it is higher by more than
   that; it passes with at least as many wins as losses (an evaluation recorded before the per-episode shares were
@@ -18,6 +23,9 @@ and :func:`takeover_pass_probability` compute these, ``tests/core/test_promotion
 - takeover: a candidate that asks for less help than the incumbent in 70% of paired episodes (and more in 30%)
   passes in 95% of rounds; one that asks for more in 70% of them passes in 5%. With 5 episodes (the default
   before) these were 84% and 16%: a version worse by that margin slipped through one round in six;
+- progress: a candidate that reaches the goal as often as the incumbent (90% of episodes each, independently)
+  passes in 94% of rounds (80% each: 88%); one that reaches it in 60% against 90% passes in 18%; one that never
+  does, in none. ``success_slack`` 0 would refuse more than a third of equal versions (38% at 90%);
 - collisions: with the incumbent colliding in 30% of episodes, a candidate at 10% passes in 95% of rounds, one at
   50% in 17%. Ties pass, so a version no worse is never held back on collisions alone; the price is that a worse
   one gets past this test alone about one round in six at this rate. Where collisions under supervision are rare
@@ -79,6 +87,9 @@ class PromotionConfig:
     takeover_margin: float = 0.0
     """A paired episode counts as a win or a loss only when the two takeover shares differ by more than this (a
     share of steps; 0: any difference counts)."""
+    success_slack: int = 2
+    """The progress test's allowance: the candidate fails with more paired episodes lost (the version in control
+    reached the goal, it did not) than won + this (the module docstring states what 2 risks at 15 episodes)."""
     live_window: int = 5
     """Episodes a newly deployed version drives live before :class:`LiveWatch` judges it."""
     live_takeover_margin: float = 0.10
@@ -109,6 +120,8 @@ class PromotionConfig:
         object.__setattr__(self, "regression_scenarios", tuple(str(s) for s in self.regression_scenarios))
         if self.takeover_margin < 0 or self.live_takeover_margin < 0:
             raise ValueError("takeover margins must be >= 0")
+        if self.success_slack < 0:
+            raise ValueError(f"success_slack must be >= 0, got {self.success_slack}")
         if self.regression_against not in REGRESSION_REFERENCES:
             raise ValueError(f"regression_against must be base or control, got {self.regression_against!r}")
 
@@ -130,6 +143,8 @@ class Evaluation:
     """Each episode's share of steps under expert control, in seed order (the paired test reads these)."""
     episode_collided: list[bool] = field(default_factory=list)
     """Whether each episode had a safety violation, in seed order."""
+    episode_succeeded: list[bool] = field(default_factory=list)
+    """Whether each episode reached the goal, in seed order (the progress test reads these)."""
     regression: dict[str, list[bool]] = field(default_factory=dict)
     """Per regression scenario, whether each episode ALONE succeeded, in seed order (empty: no regression test)."""
     regression_seed: int | None = None
@@ -166,6 +181,18 @@ def paired_takeover(candidate: Evaluation, incumbent: Evaluation, margin: float)
         return None
     wins = sum(1 for a, b in zip(mine, theirs, strict=True) if a < b - margin - 1e-12)
     losses = sum(1 for a, b in zip(mine, theirs, strict=True) if a > b + margin + 1e-12)
+    return wins, losses
+
+
+def paired_success(candidate: Evaluation, incumbent: Evaluation) -> tuple[int, int] | None:
+    """(wins, losses) of the candidate in reaching the goal over the paired episodes: a loss where only the
+    incumbent reached it, a win where only the candidate did; None when the two evaluations do not hold per-episode
+    outcomes on the same seeds."""
+    mine, theirs = candidate.episode_succeeded, incumbent.episode_succeeded
+    if not mine or len(mine) != len(theirs) or candidate.seeds != incumbent.seeds:
+        return None
+    wins = sum(1 for a, b in zip(mine, theirs, strict=True) if a and not b)
+    losses = sum(1 for a, b in zip(mine, theirs, strict=True) if b and not a)
     return wins, losses
 
 
@@ -225,7 +252,17 @@ def _decide_supervised(candidate: Evaluation, incumbent: Evaluation, cfg: Promot
             f"collided in {candidate.violation_episodes}/{candidate.episodes} evaluation episodes, "
             f"the version in control in {incumbent.violation_episodes}/{incumbent.episodes}",
         )
+    progress = paired_success(candidate, incumbent)
+    if progress is not None and progress[1] > progress[0] + cfg.success_slack:
+        return Decision(
+            False,
+            f"reached the goal in {sum(candidate.episode_succeeded)}/{candidate.episodes} evaluation episodes, the "
+            f"version in control in {sum(incumbent.episode_succeeded)}/{incumbent.episodes}: it missed it in "
+            f"{progress[1]} paired episodes the version in control finished, finished {progress[0]} it missed",
+        )
     rates = f"takeover {candidate.takeover_rate:.0%} vs {incumbent.takeover_rate:.0%}"
+    if progress is not None:
+        rates += f"; goal reached {sum(candidate.episode_succeeded)} vs {sum(incumbent.episode_succeeded)}"
     paired = paired_takeover(candidate, incumbent, cfg.takeover_margin)
     if paired is not None:
         wins, losses = paired
@@ -267,13 +304,26 @@ def collision_pass_probability(p_incumbent: float, p_candidate: float, episodes:
 def takeover_pass_probability(p_win: float, p_loss: float, episodes: int) -> float:
     """P(the candidate passes the takeover sign test): each paired episode is a win with ``p_win``, a loss with
     ``p_loss``, else a tie; it passes with at least as many wins as losses."""
+    return sign_test_pass_probability(p_win, p_loss, episodes)
+
+
+def success_pass_probability(p_incumbent: float, p_candidate: float, episodes: int, slack: int) -> float:
+    """P(the candidate passes the progress test): each reaches the goal in an episode independently with its
+    probability; it passes with no more losses than wins + ``slack``."""
+    p_win, p_loss = p_candidate * (1 - p_incumbent), p_incumbent * (1 - p_candidate)
+    return sign_test_pass_probability(p_win, p_loss, episodes, slack)
+
+
+def sign_test_pass_probability(p_win: float, p_loss: float, episodes: int, slack: int = 0) -> float:
+    """P(losses <= wins + ``slack``) over ``episodes`` paired episodes, each a win with ``p_win``, a loss with
+    ``p_loss``, else a tie."""
     if p_win < 0 or p_loss < 0 or p_win + p_loss > 1 + 1e-12:
         raise ValueError(f"need p_win, p_loss >= 0 with p_win + p_loss <= 1, got {p_win}, {p_loss}")
     p_tie = max(0.0, 1.0 - p_win - p_loss)
     total = 0.0
     for wins in range(episodes + 1):
         for losses in range(episodes - wins + 1):
-            if wins >= losses:
+            if losses <= wins + slack:
                 ties = episodes - wins - losses
                 ways = math.comb(episodes, wins) * math.comb(episodes - wins, losses)
                 total += ways * p_win**wins * p_loss**losses * p_tie**ties
@@ -310,6 +360,7 @@ def evaluate_version(
     violations = takeovers = steps = successes = 0
     per_takeover: list[float] = []
     per_collided: list[bool] = []
+    per_succeeded: list[bool] = []
     env = make_env() if episodes else None
     try:
         if env is not None:
@@ -325,7 +376,9 @@ def evaluate_version(
                 summary = runner.run_episode(max_steps=cfg.max_steps)
                 collided = violated[0] or _flag(summary.metrics.get("collision"))
                 violations += int(collided)
-                successes += int(_flag(summary.metrics.get("success")))
+                succeeded = _flag(summary.metrics.get("success"))
+                successes += int(succeeded)
+                per_succeeded.append(succeeded)
                 takeovers += summary.takeovers
                 steps += summary.steps
                 per_takeover.append(summary.takeovers / max(summary.steps, 1))
@@ -343,6 +396,7 @@ def evaluate_version(
         seeds=[cfg.seed + i for i in range(episodes)],
         episode_takeover=per_takeover,
         episode_collided=per_collided,
+        episode_succeeded=per_succeeded,
         regression=regression,
         regression_seed=cfg.regression_seed if regression else None,
     )

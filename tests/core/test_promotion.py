@@ -178,8 +178,39 @@ def test_the_takeover_test_is_a_paired_sign_test_over_the_episodes() -> None:
     assert not decide(paired([0.1] * 5, collided=1), incumbent, cfg).promoted  # collisions first
 
 
+def test_a_version_that_stands_still_is_refused_though_it_asks_for_no_help_and_never_collides() -> None:
+    """The stall the cycles study showed (arm K, docs/notes/forgetting_anatomy.md): supervised success 0, takeover
+    near 0. Collisions and takeover alone would promote it; the progress test does not."""
+    cfg = PromotionConfig()
+    incumbent = paired([0.2] * 15)
+    incumbent.episode_succeeded = [i != 3 for i in range(15)]  # reaches the goal in 14 of 15
+    stalled = paired([0.0] * 15)
+    stalled.episode_succeeded, stalled.success_rate = [False] * 15, 0.0
+    refused = decide(stalled, incumbent, cfg)
+    assert not refused.promoted and "reached the goal in 0/15" in refused.reason and "14/15" in refused.reason
+    # the same record without per-episode outcomes (a verdict kept from before them) is judged as it was
+    legacy = paired([0.0] * 15)
+    assert decide(legacy, incumbent, cfg).promoted
+    # a version that misses the goal on two seeds the incumbent finished is within the slack; on three it is not
+    for missed, promoted in ((2, True), (3, False)):
+        close = paired([0.1] * 15)
+        close.episode_succeeded = [i >= missed and i != 3 for i in range(15)]
+        decision = decide(close, incumbent, cfg)
+        assert decision.promoted is promoted, decision.reason
+        assert ("goal reached" in decision.reason) if promoted else ("finished 0 it missed" in decision.reason)
+    assert decide(close, incumbent, PromotionConfig(success_slack=3)).promoted
+    with pytest.raises(ValueError, match="success_slack"):
+        PromotionConfig(success_slack=-1)
+
+
+def test_evaluate_version_records_each_episodes_outcome_for_the_progress_test(deployed: Path) -> None:  # noqa: F811
+    record = EVALUATOR(deployed, CFG)
+    assert len(record.episode_succeeded) == CFG.episodes
+    assert sum(record.episode_succeeded) == round(record.success_rate * CFG.episodes)
+
+
 def test_the_promotion_rule_passes_a_better_version_in_most_rounds_and_a_worse_one_almost_never() -> None:
-    from core.promotion import collision_pass_probability, takeover_pass_probability
+    from core.promotion import collision_pass_probability, success_pass_probability, takeover_pass_probability
 
     episodes = PromotionConfig().episodes
     # the numbers the module docstring states, from the rule itself (exact binomial)
@@ -189,6 +220,12 @@ def test_the_promotion_rule_passes_a_better_version_in_most_rounds_and_a_worse_o
     assert takeover_pass_probability(0.3, 0.7, 5) == pytest.approx(0.16, abs=0.005)
     assert collision_pass_probability(0.3, 0.1, episodes) == pytest.approx(0.95, abs=0.005)
     assert collision_pass_probability(0.3, 0.5, episodes) == pytest.approx(0.17, abs=0.005)
+    slack = PromotionConfig().success_slack
+    assert success_pass_probability(0.9, 0.9, episodes, slack) == pytest.approx(0.94, abs=0.005)
+    assert success_pass_probability(0.8, 0.8, episodes, slack) == pytest.approx(0.88, abs=0.005)
+    assert success_pass_probability(0.9, 0.6, episodes, slack) == pytest.approx(0.18, abs=0.005)
+    assert success_pass_probability(0.9, 0.0, episodes, slack) < 1e-9
+    assert success_pass_probability(0.9, 0.9, episodes, 0) == pytest.approx(0.62, abs=0.01)
     # an equal version passes the sign test half the time (15 episodes: wins and losses cannot tie)
     assert takeover_pass_probability(0.5, 0.5, episodes) == pytest.approx(0.5)
     assert takeover_pass_probability(0.5, 0.5, 4) > 0.5  # an even count: a tie of wins and losses passes
