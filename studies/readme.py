@@ -174,13 +174,12 @@ def summary_table(doc: Path, readme: Path) -> str:
     if not rows:
         raise ValueError(f"{doc}: no section of a study with a headline ({', '.join(HEADLINES)})")
     others = [name for name in blocks if name not in names]
+    kept = f"{len(others)} other section is" if len(others) == 1 else f"{len(others)} other sections are"
     source = (
         f"each results folder that [{RESULTS_DOC.as_posix()}]({doc_link}) shows"
         if not others
         else f"the results folders of the sections that [{RESULTS_DOC.as_posix()}]({doc_link}) names for the README "
-        f"(its `readme-sections` line); its {len(others)} other "
-        f"{'sections' if len(others) != 1 else 'section'} (arms, earlier budgets or defaults) "
-        f"{'are' if len(others) != 1 else 'is'} there"
+        f"(its `readme-sections` line); its {kept} there (arms, earlier budgets or defaults)"
     )
     return "\n".join(
         [

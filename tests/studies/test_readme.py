@@ -246,7 +246,7 @@ def test_the_summary_shows_the_sections_the_document_names_for_it_and_counts_the
     rows = [line for line in table.splitlines() if line.startswith("| [")]
     assert len(rows) == 1 and "`bbb2222`" in rows[0]  # the named section only
     # the one left out is counted, and stays in the document
-    assert "its 1 other section (arms, earlier budgets or defaults) is there" in table
+    assert "its 1 other section is there (arms, earlier budgets or defaults)" in table
     assert "<!-- results:highway -->" in doc.read_text()
     doc.write_text(doc.read_text().replace("readme-sections: highway-long", "readme-sections: highway-long gone"))
     with pytest.raises(ValueError, match="names gone"):
