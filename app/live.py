@@ -396,7 +396,10 @@ class LiveLoop:
         world = self.world
         collided = world.counters.on_episode(summary, world.runner.progress())
         if world.versions is not None:
-            reason = world.versions.episode_ended(collided, summary.takeover_rate)
+            # whether it reached the goal counts only where the simulator ended the episode, not a reset
+            ended = summary.reason in ("terminated", "truncated")
+            reached = bool(float(summary.metrics.get("success", 0.0) or 0.0) > 0.5) if ended else None
+            reason = world.versions.episode_ended(collided, summary.takeover_rate, reached)
             if reason is not None:
                 self.last_error = f"rolled back automatically: {reason}"
         world.episode_log.append(

@@ -108,11 +108,12 @@ class VersionFollower:
         self.service.mark_deployed(number)
         return loaded
 
-    def episode_ended(self, collided: bool, takeover_rate: float) -> str | None:
-        """Report a finished episode; returns the reason when the version in control was rolled back."""
+    def episode_ended(self, collided: bool, takeover_rate: float, reached: bool | None = None) -> str | None:
+        """Report a finished episode (``reached``: the goal; None where the simulator did not end it); returns the
+        reason when the version in control was rolled back."""
         if self.version is None:
             return None
-        return self.service.record_episode(self.version, collided, takeover_rate)
+        return self.service.record_episode(self.version, collided, takeover_rate, reached)
 
     def choose(self, action: str, number: int | None) -> dict[str, Any]:
         service = self.service

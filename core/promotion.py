@@ -459,6 +459,8 @@ def is_promoted(version_dir: Path, number: int) -> bool:
 class _Live:
     collisions: list[bool] = field(default_factory=list)
     takeover_rates: list[float] = field(default_factory=list)
+    reached: list[bool | None] = field(default_factory=list)
+    """Per episode, whether it reached the goal; None where the episode did not end by the simulator (a reset)."""
 
 
 class LiveWatch:
@@ -467,8 +469,10 @@ class LiveWatch:
     ``record`` is fed every finished live episode with the version that drove it; ``deployed`` says which
     version replaced which. After the window, :meth:`record` returns a rollback reason when the new version
     collided in more of its episodes than its predecessor did in its last ``live_window`` live episodes (or, with
-    no live record of the predecessor, than its evaluation's violation rate allows), or when its mean takeover
-    rate is higher by more than ``live_takeover_margin``. Each version is judged once, and a version returned to by
+    no live record of the predecessor, than its evaluation's violation rate allows), when its mean takeover
+    rate is higher by more than ``live_takeover_margin``, or when it stands still: it reached the goal in none of
+    its window's episodes (each ended by the simulator, not by a reset) where its predecessor reached it in at least
+    half of its own (live, or in its evaluation). Each version is judged once, and a version returned to by
     a rollback is not judged (:meth:`returning_to`)."""
 
     def __init__(self, cfg: PromotionConfig | None = None) -> None:
@@ -491,10 +495,13 @@ class LiveWatch:
     def note_evaluation(self, number: int, evaluation: Evaluation) -> None:
         self._evaluations[number] = evaluation
 
-    def record(self, number: int, collided: bool, takeover_rate: float) -> str | None:
+    def record(self, number: int, collided: bool, takeover_rate: float, reached: bool | None = None) -> str | None:
+        """A live episode of version ``number`` ended; ``reached``: whether it reached the goal (None where the
+        simulator did not end it). Returns the rollback reason once the window is full and the version did worse."""
         live = self._live.setdefault(number, _Live())
         live.collisions.append(bool(collided))
         live.takeover_rates.append(float(takeover_rate) if math.isfinite(takeover_rate) else 0.0)
+        live.reached.append(reached)
         previous = self._predecessor.get(number)
         window = self.cfg.live_window
         if previous is None or number in self._judged or len(live.collisions) < window:
@@ -504,10 +511,12 @@ class LiveWatch:
         before = self._live.get(previous)
         if before is not None and len(before.collisions) >= window:
             theirs = _rates(before.collisions[-window:], before.takeover_rates[-window:])
+            their_reach = _reach_rate(before.reached[-window:])
             source = "live"
         elif previous in self._evaluations:
             ev = self._evaluations[previous]
             theirs = (ev.violation_rate, ev.takeover_rate)
+            their_reach = ev.success_rate if ev.episodes else None
             source = "evaluation"
         else:
             return None
@@ -521,6 +530,12 @@ class LiveWatch:
                 f"v{number:04d} asked for help on {mine[1]:.0%} of steps over its first {window} live episodes, "
                 f"v{previous:04d} on {theirs[1]:.0%} ({source})"
             )
+        my_reach = _reach_rate(live.reached[:window])
+        if my_reach == 0.0 and their_reach is not None and their_reach >= 0.5:
+            return (
+                f"v{number:04d} reached the goal in none of its first {window} live episodes, "
+                f"v{previous:04d} in {their_reach:.0%} ({source})"
+            )
         return None
 
     def predecessor(self, number: int) -> int | None:
@@ -531,6 +546,13 @@ class LiveWatch:
         that version (whose live record is what got it rolled back), so a rollback never bounces back to the
         version it undid, and ``number`` is never marked rolled back for having been returned to."""
         self._judged.add(number)
+
+
+def _reach_rate(reached: Sequence[bool | None]) -> float | None:
+    """The share of episodes that reached the goal, when the simulator ended every one of them; else None."""
+    if not reached or any(r is None for r in reached):
+        return None
+    return sum(bool(r) for r in reached) / len(reached)
 
 
 def _rates(collisions: Sequence[bool], takeover_rates: Sequence[float]) -> tuple[float, float]:

@@ -593,12 +593,15 @@ class FinetuneService:
                 evaluation = Evaluation.from_dict(data) if isinstance(data, dict) else None
         self.watch.deployed(number, replaced, evaluation)
 
-    def record_episode(self, number: int, collided: bool, takeover_rate: float) -> str | None:
-        """A live episode driven by version ``number`` ended. Returns the reason when it was rolled back: a
-        promoted version that does worse live than the one it replaced goes back to that one (and is marked)."""
+    def record_episode(
+        self, number: int, collided: bool, takeover_rate: float, reached: bool | None = None
+    ) -> str | None:
+        """A live episode driven by version ``number`` ended (``reached``: the goal, None where the simulator did
+        not end it). Returns the reason when it was rolled back: a promoted version that does worse live than the
+        one it replaced goes back to that one (and is marked)."""
         from core.promotion import read_verdict, write_verdict
 
-        reason = self.watch.record(number, collided, takeover_rate)
+        reason = self.watch.record(number, collided, takeover_rate, reached)
         previous = self.watch.predecessor(number)
         if reason is None or previous is None:
             return None

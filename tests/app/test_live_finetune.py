@@ -81,6 +81,7 @@ class OneVersion:
 
     def __init__(self, loaded: LoadedPolicy) -> None:
         self.loaded, self.published, self.deployed = loaded, False, [0]
+        self.reached: list[bool | None] = []
 
     def take_pending(self) -> tuple[int, LoadedPolicy] | None:
         if not self.published:
@@ -91,7 +92,10 @@ class OneVersion:
     def mark_deployed(self, number: int) -> None:
         self.deployed.append(number)
 
-    def record_episode(self, number: int, collided: bool, takeover_rate: float) -> str | None:
+    def record_episode(
+        self, number: int, collided: bool, takeover_rate: float, reached: bool | None = None
+    ) -> str | None:
+        self.reached.append(reached)
         return None
 
     def status(self) -> dict[str, Any]:
@@ -136,6 +140,7 @@ def test_the_live_loop_takes_a_new_version_only_at_an_episode_boundary() -> None
         assert record["episode"] == 1 and record["t"] == 0 and record["version"] == 1
         assert record["a_rl"][0] == pytest.approx(0.9) and record["fear"] == pytest.approx(0.123)
         assert gate.resets == 1 and service.deployed == [0, 1] and loop.world.runner.gate is gate
+        assert service.reached == [None]  # the operator ended it: whether it would have arrived is not known
         episode = next(s for s in sent if s["type"] == "episode")
         assert episode["episode"] == 0 and episode["version"] == 0
         assert loop.state()["finetune"]["episodes"][0] == {

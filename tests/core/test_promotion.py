@@ -113,6 +113,32 @@ def test_a_promoted_version_that_does_worse_live_is_rolled_back() -> None:
     assert "asked for help" in (worse.record(1, False, 0.5) or "")
 
 
+def test_a_promoted_version_that_stands_still_live_is_rolled_back() -> None:
+    """Never handed over, never colliding, never arriving: the collision and takeover tests pass it, the goal does
+    not. Episodes a person ended (no outcome) decide nothing."""
+    watch = LiveWatch(PromotionConfig(live_window=3))
+    for _ in range(3):
+        watch.record(0, collided=False, takeover_rate=0.2, reached=True)
+    watch.deployed(1, replaced=0)
+    for _ in range(2):
+        assert watch.record(1, collided=False, takeover_rate=0.0, reached=False) is None
+    reason = watch.record(1, collided=False, takeover_rate=0.0, reached=False)
+    assert reason is not None and "reached the goal in none of its first 3" in reason and "100% (live)" in reason
+
+    reset_by_hand = LiveWatch(PromotionConfig(live_window=2))
+    reset_by_hand.deployed(1, replaced=0, evaluation=evaluation(0, 0.2))  # its evaluation reached the goal: 100%
+    assert reset_by_hand.record(1, False, 0.0, reached=None) is None
+    assert reset_by_hand.record(1, False, 0.0, reached=False) is None  # one outcome unknown: not judged on it
+    slow_start = LiveWatch(PromotionConfig(live_window=2))
+    slow_start.deployed(1, replaced=0, evaluation=evaluation(0, 0.2))
+    slow_start.record(1, False, 0.0, reached=False)
+    assert slow_start.record(1, False, 0.0, reached=True) is None  # it arrived once: not standing still
+    stalled = LiveWatch(PromotionConfig(live_window=2))
+    stalled.deployed(1, replaced=0, evaluation=evaluation(0, 0.2))
+    stalled.record(1, False, 0.0, reached=False)
+    assert "100% (evaluation)" in (stalled.record(1, False, 0.0, reached=False) or "")
+
+
 def test_a_rollback_does_not_bounce_back_to_the_version_it_undid(deployed: Path, tmp_path: Path) -> None:  # noqa: F811
     """Measured live (experiments/live_session.py, seed 1): v0002 replaced v0000, collided more live and was rolled
     back; v0000, deployed again, was then judged against v0002's live record, "rolled back" in turn (its lower
