@@ -47,7 +47,8 @@ one. The verdict is ``promotion.json`` in the version's folder (written atomical
 operator chose to deploy, is promoted by definition.
 
 Live, a promoted version is watched (:class:`LiveWatch`): if over its first ``window`` episodes it collides in
-more episodes, or asks for help clearly more often, than the version it replaced did live, it is rolled back.
+more episodes, or asks for help clearly more often, than the version it replaced did live, or reaches the goal in none
+of them where that version reached it in at least half, it is rolled back.
 
 Nothing here imports a simulator: the evaluator receives a picklable ``make_env`` (the app passes
 ``functools.partial(sims.make, name, ...)``), so it runs in the worker's process.
