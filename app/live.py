@@ -44,6 +44,7 @@ from app.operator import OperatorConsole, PersonExpert
 from app.policies import LoadedPolicy
 from app.versions import FinetuneSettings, VersionFollower, labelled_loader
 from core.loop import EpisodeSummary, NoGate, Runner, StepRecord, takeover_cause
+from core.promotion import reached_goal
 from core.protocol import simulator
 from core.sessions import SessionStore, SessionWriter
 
@@ -396,9 +397,7 @@ class LiveLoop:
         world = self.world
         collided = world.counters.on_episode(summary, world.runner.progress())
         if world.versions is not None:
-            # whether it reached the goal counts only where the simulator ended the episode, not a reset
-            ended = summary.reason in ("terminated", "truncated")
-            reached = bool(float(summary.metrics.get("success", 0.0) or 0.0) > 0.5) if ended else None
+            reached = reached_goal(summary)
             reason = world.versions.episode_ended(collided, summary.takeover_rate, reached)
             if reason is not None:
                 self.last_error = f"rolled back automatically: {reason}"

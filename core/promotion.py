@@ -3,7 +3,7 @@
 A fine-tuning round publishes a *candidate* version. Before it may drive, the worker evaluates it headless on
 the session's scenario, with its SAGE gate and the scripted expert, on ``episodes`` fixed seeds, beside the version
 it would replace (the incumbent: the latest promoted version, evaluated on the very same seeds, so the comparison is
-paired episode by episode). :func:`decide` promotes it only if it passes both tests:
+paired episode by episode). :func:`decide` promotes it only if it passes these tests:
 
 - collisions: the candidate collides in no more evaluation episodes than the incumbent (ties pass);
 - progress, a paired sign test: the candidate "loses" an episode in which the incumbent reached the goal on the same
@@ -66,6 +66,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 import gymnasium as gym
+
+from core.protocol import EpisodeSummary
 
 PROMOTION_FILE = "promotion.json"
 
@@ -547,6 +549,14 @@ class LiveWatch:
         that version (whose live record is what got it rolled back), so a rollback never bounces back to the
         version it undid, and ``number`` is never marked rolled back for having been returned to."""
         self._judged.add(number)
+
+
+def reached_goal(summary: EpisodeSummary) -> bool | None:
+    """Whether a live episode reached the goal, for :meth:`LiveWatch.record`:
+    None where the simulator did not end it (an operator's reset, a switch), whose outcome is not known."""
+    if summary.reason not in ("terminated", "truncated"):
+        return None
+    return _flag(summary.metrics.get("success"))
 
 
 def _reach_rate(reached: Sequence[bool | None]) -> float | None:

@@ -359,3 +359,15 @@ def test_evaluate_version_drives_the_regression_scenarios_alone_on_fixed_seeds(d
     assert first.regression == again.regression  # deterministic, the same seeds
     with pytest.raises(ValueError, match="scenario_env"):
         evaluate_version(deployed, cfg, make_env=functools.partial(envs.make, "static"))
+
+
+def test_a_live_episodes_goal_counts_only_where_the_simulator_ended_it() -> None:
+    from core.promotion import reached_goal
+    from core.protocol import EpisodeSummary
+
+    def ended(reason: str, success: object) -> EpisodeSummary:
+        return EpisodeSummary(0, 10, 1.0, 0.0, 0, 0, 0.1, 0.1, {"success": success}, reason=reason)  # type: ignore[dict-item]
+
+    assert reached_goal(ended("terminated", 1.0)) is True and reached_goal(ended("truncated", 0.0)) is False
+    assert reached_goal(ended("terminated", float("nan"))) is False  # an unreadable metric is no arrival
+    assert reached_goal(ended("new episode (operator)", 1.0)) is None
