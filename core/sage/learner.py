@@ -321,9 +321,27 @@ class BaseLearner:
         return self.uses_random_warmup and not self.warm and self.buffer.total < self.cfg.learning_starts
 
     # -- the loop's listener -----------------------------------------------------------------------
+    _last_row: int | None = None
+    _last_key: tuple[int, int] | None = None
+    shaped = 0
+    """Transitions whose reward was shaped by an intervention so far (``AgentConfig.intervention_penalty``)."""
+
     def store(self, record: StepRecord) -> None:
-        """Add one step of the loop to the real buffer, its actions encoded (:meth:`encode_action`)."""
-        self.buffer.add_record(self.encoded(record))
+        """Add one step of the loop to the real buffer, its actions encoded (:meth:`encode_action`). With
+        ``intervention_penalty`` > 0, the agent's own transition just before a takeover starts (the same episode, the
+        step before) loses that much reward: the action that brought the expert in is marked bad (Multi-Hug's
+        intervention-based shaping; RLIF's intervention as a cost), whoever called for the takeover."""
+        buffer = self.buffer
+        previous_row, previous_key = self._last_row, self._last_key
+        penalty = self.cfg.intervention_penalty
+        if penalty > 0 and record.takeover and previous_row is not None:
+            agent_before = not bool(buffer.takeover[previous_row])
+            if agent_before and previous_key == (record.episode, record.t - 1):
+                buffer.reward[previous_row] -= penalty
+                self.shaped += 1
+        self._last_row = buffer.pos
+        buffer.add_record(self.encoded(record))
+        self._last_key = (record.episode, record.t)
 
     def encoded(self, record: StepRecord) -> StepRecord:
         """The step with its actions as the buffers and the world model hold them (:meth:`encode_action`)."""

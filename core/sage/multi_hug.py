@@ -21,30 +21,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from core.protocol import StepRecord
 from core.sage.sac import SAC
 
 
 class MultiHug(SAC):
-    """SAC with supervisor-initiated interventions, value-weighted imitation and intervention reward shaping."""
-
-    _last_row: int | None = None
-    _last_key: tuple[int, int] | None = None
-    shaped = 0
-    """Transitions whose reward was shaped by an intervention so far."""
-
-    def store(self, record: StepRecord) -> None:
-        buffer = self.buffer
-        previous_row, previous_key = self._last_row, self._last_key
-        previous_was_agent = previous_row is not None and not bool(buffer.takeover[previous_row])
-        same_episode = previous_key == (record.episode, record.t - 1)
-        if record.takeover and previous_was_agent and same_episode and self.cfg.intervention_penalty > 0:
-            assert previous_row is not None
-            buffer.reward[previous_row] -= self.cfg.intervention_penalty
-            self.shaped += 1
-        self._last_row = buffer.pos
-        super().store(record)
-        self._last_key = (record.episode, record.t)
+    """SAC with supervisor-initiated interventions, value-weighted imitation and intervention reward shaping (the
+    shaping itself is every learner's :meth:`~core.sage.learner.BaseLearner.store`, on with
+    ``intervention_penalty`` > 0, as Multi-Hug's preset sets it)."""
 
 
 PRESET: dict[str, Any] = {

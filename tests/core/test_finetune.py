@@ -27,6 +27,7 @@ from core.loop import Runner
 from core.sessions import SessionStore
 from core.train import RunConfig, train
 from tests.core.sage import envs
+from tests.core.test_export import EveryThird
 from tests.core.test_train import small
 
 torch.set_num_threads(1)
@@ -313,6 +314,35 @@ def test_fine_tuning_says_what_it_runs(setup, caplog: pytest.LogCaptureFixture) 
     published = plain.round().version
     assert published is not None
     assert published.metrics["method"] == plain.method
+
+
+def test_a_rounds_intervention_cost_shapes_the_sessions_takeover_onsets(setup) -> None:
+    """``--set learner.intervention_penalty=...`` reaches the round's learner (after SAGE's switches, which set it
+    to 0): the agent's step before each recorded takeover onset loses the penalty; without it none does."""
+    versions, store, _ = setup
+    agent = load_agent(versions.get(0).path)
+    writer = store.create("point", scenario="dynamic")
+    # the gate stand-in hands over every third step: the agent drives between, so there are takeover onsets
+    runner = Runner(point_env("dynamic"), agent.policy, EveryThird(), ScriptedExpert(), seed=0, deterministic=True)
+    writer.attach(runner)
+    for _ in range(4):
+        runner.run_episode()
+    writer.close()
+    session = writer.session_id
+    steps = store.steps(session)
+    onsets = sum(
+        1
+        for i in range(1, len(steps["t"]))
+        if steps["takeover"][i] and not steps["takeover"][i - 1] and steps["episode"][i] == steps["episode"][i - 1]
+    )
+    assert onsets > 0
+    shaped = {}
+    for pairs in ((), ("intervention_penalty=5",)):
+        tuner = Finetuner(versions, store, session, fast(overrides=pairs))
+        tuner.round()
+        shaped[pairs] = tuner.learner.shaped
+    assert shaped[()] == 0
+    assert shaped[("intervention_penalty=5",)] == onsets
 
 
 # -- adaptation that sticks (issue 62) ---------------------------------------------------------------------------

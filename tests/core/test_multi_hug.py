@@ -71,6 +71,21 @@ def test_the_agents_last_action_before_an_intervention_is_penalised() -> None:
     assert learner.shaped == 2
 
 
+def test_a_sage_learner_shapes_the_action_before_a_gate_takeover_only_when_asked() -> None:
+    """The shaping is every learner's store: SAGE's rows (the gate called the expert) lose the penalty at each
+    takeover onset when ``intervention_penalty`` is set, and keep their rewards when it is not (the paper's SAGE)."""
+    steps = [record(0), record(1, takeover=True), record(2, takeover=True), record(3), record(4, takeover=True)]
+    rewards = {}
+    for penalty in (0.0, 4.0):
+        learner = make_learner("sage", preset("sage", intervention_penalty=penalty), 3, 2, seed=0)
+        for step in steps:
+            learner.store(step)
+        rewards[penalty] = learner.buffer.reward[:5].tolist()
+        assert learner.shaped == (2 if penalty else 0)
+    assert rewards[0.0] == [1.0] * 5
+    assert rewards[4.0] == [-3.0, 1.0, 1.0, -3.0, 1.0]
+
+
 def test_supervised_training_on_the_ugv_collides_less_than_unsupervised(tmp_path: Path) -> None:
     """The same warm start, the same seeds, no gradient updates (what differs is only who drives when): the
     stand-in supervisor's interventions save crossings that the policy alone runs into."""
