@@ -14,7 +14,7 @@ from core.datasets import DatasetError, records
 from core.export import export_minari
 from core.learners import make_learner, preset
 from core.loop import StepRecord
-from core.sage.diffusion import DiffusionPolicy
+from core.sage.diffusion import DiffusionPolicy, Mish
 from core.sessions import SessionStore
 from tests.core.test_export import recorded  # noqa: F401 (a fixture)
 
@@ -122,3 +122,30 @@ def test_recorded_sessions_and_minari_exports_are_datasets(
         list(records(str(tmp_path / "nothing.csv")))
     with pytest.raises(DatasetError, match="minari:nope"):
         list(records("minari:nope/none-v0"))
+
+
+def test_the_denoisers_mish_is_torchs_to_float32_rounding_with_its_gradient() -> None:
+    """Values and gradients equal nn.Mish's over the range an activation meets, the far tails included (no inf or
+    NaN where torch's is finite), under no_grad too (sampling) and through a layer's backward."""
+    x = torch.cat([torch.linspace(-60.0, 60.0, 2 * Mish.FUSED_FROM), torch.tensor([-1e4, -88.0, 19.99, 20.0, 1e4])])
+    x64 = x.double().requires_grad_(True)
+    expected = torch.nn.functional.mish(x64)
+    (expected_grad,) = torch.autograd.grad(expected.sum(), x64)
+    ours = x.clone().requires_grad_(True)
+    y = Mish()(ours)
+    (grad,) = torch.autograd.grad(y.sum(), ours)
+    assert torch.isfinite(y).all() and torch.isfinite(grad).all()
+    # float32 against the float64 reference: a few ulps of each value (|x| up to 1e4)
+    assert torch.allclose(y.double(), expected, rtol=1e-6, atol=1e-6)
+    assert torch.allclose(grad.double(), expected_grad, rtol=1e-5, atol=1e-6)
+    with torch.no_grad():
+        assert torch.equal(Mish()(x), y.detach())
+    layer = torch.nn.Linear(4, 8)
+    inputs = torch.randn(64, 4)
+    for activation in (Mish(), torch.nn.Mish()):
+        layer.zero_grad()
+        activation(layer(inputs)).square().sum().backward()
+        assert layer.weight.grad is not None
+        if isinstance(activation, Mish):
+            ours_weight_grad = layer.weight.grad.clone()
+    assert torch.allclose(ours_weight_grad, layer.weight.grad, rtol=1e-5, atol=1e-6)
