@@ -283,10 +283,8 @@ class AgentConfig:
     """The headless stand-in supervisor intervenes when a step's safety cost reaches this (or on a violation) and
     keeps control for the gate's hold (``GateConfig.hold``)."""
     intervention_penalty: float = 0.0
-    """Intervention-based reward shaping (Multi-Hug RL; RLIF's intervention as a cost): subtracted from the reward
-    of the agent's last transition before each takeover starts, the action that brought the expert in, whoever
-    called for it (the supervisor, or SAGE's gate). Any learner (:meth:`BaseLearner.store`); 0: none. SAGE's
-    fine-tuning rounds take it as ``--set learner.intervention_penalty=...``."""
+    """Reward taken from the agent's last step before each takeover onset, whoever called the expert (Multi-Hug's
+    intervention shaping, RLIF's cost; every learner's ``store``). 0: none (the paper's SAGE)."""
     imitation: bool = True
     """Value-weighted imitation of the expert on intervention samples (eq:bc_loss with ω of eq:qa_weight)."""
     virtual_rollouts: bool = True
