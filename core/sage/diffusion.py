@@ -42,8 +42,8 @@ def cosine_alpha_bars(steps: int, offset: float = 0.008) -> Tensor:
 class _MishFunction(torch.autograd.Function):
     """mish(x) = x · tanh(softplus(x)) from one exponential: with n = eˣ, tanh(softplus(x)) = m / (m + 2), m = n(n + 2),
     and its derivative t + x(1 - t²)σ(x) = t + 4xn(n + 1) / (m + 2)², made in the forward pass where a gradient is
-    wanted. torch's own CPU kernel (``nn.Mish``) does not vectorise: 0.50 ms forward and some 1.3 ms with its backward
-    for a 256 x 256 batch on one core of this project's machine, against 0.17 and 0.67 ms here (torch's exp is
+    wanted. torch's own CPU kernel (``nn.Mish``) does not vectorise: 0.50 ms forward and 1.15 ms with its backward
+    for a 256 x 256 batch on one core of this project's machine, against 0.19-0.22 and 0.40 ms here (torch's exp is
     vectorised); the denoiser runs it some 100 times an update. The two agree to float32 rounding
     (``tests/core/test_diffusion.py``)."""
 
