@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from studies.budgets import Budget, budget
+from studies.host_speed import HostSpeed, measure_host_speed
 from studies.results import write_results
 from studies.sweep import SweepError, TrialFn, TrialLedger, run_sweep, trial_gpu_share
 
@@ -213,6 +214,7 @@ def run_study(
     from studies.training import STUDY_DEVICE
 
     settings[STUDY_DEVICE] = device
+    host = _host_speed(budget_name, log)
     start = time.perf_counter()
     prepared_notes: list[str] = []
     if study.prepare is not None:
@@ -238,10 +240,10 @@ def run_study(
             ledger=TrialLedger.for_results(out / LEDGER, settings, out),
         )
     except SweepError:  # a stopped or partly failed invocation spent its wall time too: the log keeps it
-        _log_wall_time(wall_log, time.perf_counter() - start, max_concurrent, finished=False)
+        _log_wall_time(wall_log, time.perf_counter() - start, max_concurrent, finished=False, host=host)
         raise
     wall_s = time.perf_counter() - start
-    runs = _log_wall_time(wall_log, wall_s, max_concurrent)
+    runs = _log_wall_time(wall_log, wall_s, max_concurrent, host=host)
     total_s = sum(float(r["wall_s"]) for r in runs)
     table_rows = [r for row in rows for r in _unpack(row, study.row_keys, study.metrics)]
     trial_s = sum(float(row.get("trial_seconds", 0.0)) for row in rows)
@@ -261,7 +263,13 @@ def run_study(
         f"The trials ran {trial_s / 60:.1f} min in total ({len(rows)} trials, at most "
         f"{max_concurrent or 'one per core'} at once). The wall time above is the sum over the {len(runs)} "
         f"invocation(s) of this command on this results folder, stopped ones included (this one: {wall_s / 60:.1f} "
-        f"min); a rerun resumes: finished trials are read from `{LEDGER}/`, not run again."
+        f"min); a rerun resumes: finished trials are read from `{LEDGER}/`, not run again. "
+        + (
+            f"Before its trials, {host.words()}: a wall time reads against it on another host (hosts of one name "
+            "differ)."
+            if host is not None
+            else "The host's reference speed is not measured at the smoke budget."
+        )
     )
     table = write_results(
         out,
@@ -275,6 +283,7 @@ def run_study(
         budget_text=study.budget_text(spent, settings) if study.budget_text is not None else None,
         untrained=study.untrained,
         device=_device_words(device),
+        host_speed=None if host is None else host.as_dict(),
         notes=(
             *study.notes,
             *([f"Settings changed from the study's defaults: {', '.join(changed)}."] if changed else []),
@@ -303,8 +312,22 @@ def run_study(
     return table
 
 
+def _host_speed(budget_name: str, log: Callable[[str], None]) -> HostSpeed | None:
+    """The host's reference speed before the trials (:mod:`studies.host_speed`, a few seconds), or None at the smoke
+    budget, whose whole run lasts about as long."""
+    if budget_name == "smoke":
+        return None
+    host = measure_host_speed()
+    log(f"{host.words()} ({host.seconds:.1f} s)")
+    return host
+
+
 def _log_wall_time(
-    path: Path, wall_s: float, max_concurrent: int | None, finished: bool = True
+    path: Path,
+    wall_s: float,
+    max_concurrent: int | None,
+    finished: bool = True,
+    host: HostSpeed | None = None,
 ) -> list[dict[str, Any]]:
     """Append this invocation's wall time to the results folder's log (committed with the ledger) and return every
     entry: a study that was interrupted and resumed, here or elsewhere, reports the wall time it really took."""
@@ -316,7 +339,10 @@ def _log_wall_time(
         except (OSError, ValueError):
             runs = []  # an unreadable log loses only earlier timings, never the results
     ended = time.strftime("%Y-%m-%dT%H:%M:%S")
-    runs.append({"wall_s": wall_s, "max_concurrent": max_concurrent, "ended": ended, "finished": finished})
+    entry: dict[str, Any] = {"wall_s": wall_s, "max_concurrent": max_concurrent, "ended": ended, "finished": finished}
+    if host is not None:
+        entry["host_speed"] = host.as_dict()
+    runs.append(entry)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(runs, indent=1))
     return runs

@@ -92,6 +92,7 @@ def write_results(
     budget_text: str | None = None,
     untrained: Sequence[str] = (),
     device: str | None = None,
+    host_speed: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write the results folder ``out`` for ``study`` and return the table's path.
 
@@ -102,6 +103,8 @@ def write_results(
     ``untrained``: methods that are not trained (planners): each of their seeds is a set of evaluation episodes, so
     their ± is a spread over evaluation episodes, and their rows say so. ``device``: what ran the learners' updates, in
     words (``the CPU (AMD EPYC)``, ``CUDA:0 (NVIDIA H200)``); the header says where it was not recorded.
+    ``host_speed``: the host's reference speed before the trials (:class:`studies.host_speed.HostSpeed`), kept in
+    ``summary.json`` beside the wall time.
     """
     if not rows:
         raise ValueError(f"study {study!r} produced no result rows")
@@ -155,7 +158,10 @@ def write_results(
     lines += ["", *[f"- {note}" for note in notes]]
     table = out / "table.md"
     table.write_text("\n".join(lines).rstrip() + "\n")
-    meta = {"study": study, "budget": budget.name, "commit": commit, "wall_s": wall_s, "device": device, "rows": data}
+    meta: dict[str, Any] = {"study": study, "budget": budget.name, "commit": commit, "wall_s": wall_s, "device": device}
+    if host_speed is not None:
+        meta["host_speed"] = dict(host_speed)
+    meta["rows"] = data
     (out / "summary.json").write_text(json.dumps(meta, indent=2, default=float))
     for metric in plot:
         _plot(out / f"{metric}.png", study, summary, metric)

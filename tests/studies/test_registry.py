@@ -83,6 +83,7 @@ def test_study_runs_every_seed_and_writes_rows_per_split(ray_local: None, toy_st
     text = table.read_text()
     # the table's wall time is the sum over both invocations, and says so
     assert "over the 1 invocation(s)" in first and "over the 2 invocation(s)" in text
+    assert "The host's reference speed is not measured at the smoke budget." in text
     import json
 
     runs = json.loads((tmp_path / "trials" / "wall_times.json").read_text())
@@ -101,6 +102,38 @@ def test_study_runs_every_seed_and_writes_rows_per_split(ray_local: None, toy_st
     table = run_study("toy-split", "smoke", tmp_path, log=lambda _: None)
     assert "| b | sage | 2 | 1.500 ± 6.353 | — |" in table.read_text()
     assert not (tmp_path / "sweep").exists()  # no Ray experiment was started
+
+
+def test_a_study_beyond_the_smoke_budget_states_the_hosts_reference_speed(
+    ray_local: None, toy_study: StudyDef, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import json
+
+    import studies.registry
+    from studies.host_speed import HostSpeed
+
+    asked: list[str] = []
+
+    def fake_speed() -> HostSpeed:  # the reference itself is measured in tests/studies/test_host_speed.py
+        asked.append("measured")
+        return HostSpeed(1234.0, 56.7, 2.5, "Test CPU")
+
+    monkeypatch.setattr(studies.registry, "measure_host_speed", fake_speed)
+    assert studies.registry._host_speed("smoke", print) is None and asked == []  # the smoke budget is not timed
+    said: list[str] = []
+    speed = studies.registry._host_speed("small", said.append)
+    assert asked == ["measured"] and speed is not None and "1,234 UGV steps/s" in said[0]
+    # what a study does with it (run here at the smoke budget, two seeds, with the speed handed in)
+    monkeypatch.setattr(studies.registry, "_host_speed", lambda budget_name, log: speed)
+    text = run_study("toy-split", "smoke", tmp_path, log=lambda _: None).read_text()
+    assert (
+        "Before its trials, this host's reference speed (`python -m studies.host_speed`, Test CPU): 1,234 UGV" in text
+    )
+    assert "56.7 SAC updates/s" in text and "not measured at the smoke budget" not in text
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["host_speed"]["sim_steps_per_s"] == 1234.0 and summary["host_speed"]["processor"] == "Test CPU"
+    runs = json.loads((tmp_path / "trials" / "wall_times.json").read_text())
+    assert runs[-1]["host_speed"]["sac_updates_per_s"] == 56.7
 
 
 def overrides_trial(config: dict[str, Any]) -> dict[str, float]:
