@@ -19,7 +19,7 @@ def test_the_route_shift_study_is_registered_with_the_papers_methods() -> None:
 
 
 def test_the_switch_comes_after_the_c1_share_of_the_step_budget(tmp_path: Path) -> None:
-    budget = 1200  # five route-1 demonstrations alone would take more than the whole budget
+    budget = 600  # five route-1 demonstrations alone would take more than the whole budget
     result = trial({"method": "sac", "seed": 0, "train_steps": budget, "eval_episodes": 1, "demo_episodes": 5,
                     "runs_dir": str(tmp_path)})  # fmt: skip
     assert set(METRICS) <= set(result)
