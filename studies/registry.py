@@ -214,7 +214,7 @@ def run_study(
     from studies.training import STUDY_DEVICE
 
     settings[STUDY_DEVICE] = device
-    host = _host_speed(budget_name, log)
+    host, host_unmeasured = _host_speed(budget_name, log)
     start = time.perf_counter()
     prepared_notes: list[str] = []
     if study.prepare is not None:
@@ -268,7 +268,7 @@ def run_study(
             f"Before its trials, {host.words()}: a wall time reads against it on another host (hosts of one name "
             "differ)."
             if host is not None
-            else "The host's reference speed is not measured at the smoke budget."
+            else host_unmeasured
         )
     )
     table = write_results(
@@ -312,14 +312,20 @@ def run_study(
     return table
 
 
-def _host_speed(budget_name: str, log: Callable[[str], None]) -> HostSpeed | None:
-    """The host's reference speed before the trials (:mod:`studies.host_speed`, a few seconds), or None at the smoke
-    budget, whose whole run lasts about as long."""
+def _host_speed(budget_name: str, log: Callable[[str], None]) -> tuple[HostSpeed | None, str]:
+    """The host's reference speed before the trials (:mod:`studies.host_speed`, a few seconds), or None and the
+    sentence the table says instead: at the smoke budget (whose whole run lasts about as long) it is not measured,
+    and a reference that fails (a simulator that cannot start here) costs the study only that sentence."""
     if budget_name == "smoke":
-        return None
-    host = measure_host_speed()
+        return None, "The host's reference speed is not measured at the smoke budget."
+    try:
+        host = measure_host_speed()
+    except Exception as exc:  # the reference is a note beside the results, never a reason to lose them
+        reason = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": ")
+        log(f"the host's reference speed could not be measured ({reason}); the study runs without it")
+        return None, f"The host's reference speed could not be measured ({reason})."
     log(f"{host.words()} ({host.seconds:.1f} s)")
-    return host
+    return host, ""
 
 
 def _log_wall_time(

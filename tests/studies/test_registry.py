@@ -119,12 +119,23 @@ def test_a_study_beyond_the_smoke_budget_states_the_hosts_reference_speed(
         return HostSpeed(1234.0, 56.7, 2.5, "Test CPU")
 
     monkeypatch.setattr(studies.registry, "measure_host_speed", fake_speed)
-    assert studies.registry._host_speed("smoke", print) is None and asked == []  # the smoke budget is not timed
+    assert studies.registry._host_speed("smoke", print)[0] is None and asked == []  # the smoke budget is not timed
     said: list[str] = []
-    speed = studies.registry._host_speed("small", said.append)
+    speed, _ = studies.registry._host_speed("small", said.append)
     assert asked == ["measured"] and speed is not None and "1,234 UGV steps/s" in said[0]
+
+    def failing() -> HostSpeed:
+        raise RuntimeError("no simulator here\nand a second line")
+
+    monkeypatch.setattr(studies.registry, "measure_host_speed", failing)
+    missing, sentence = studies.registry._host_speed("small", said.append)
+    assert (
+        missing is None
+        and sentence == "The host's reference speed could not be measured (RuntimeError: no simulator here)."
+    )
+    assert "the study runs without it" in said[-1]
     # what a study does with it (run here at the smoke budget, two seeds, with the speed handed in)
-    monkeypatch.setattr(studies.registry, "_host_speed", lambda budget_name, log: speed)
+    monkeypatch.setattr(studies.registry, "_host_speed", lambda budget_name, log: (speed, ""))
     text = run_study("toy-split", "smoke", tmp_path, log=lambda _: None).read_text()
     assert (
         "Before its trials, this host's reference speed (`python -m studies.host_speed`, Test CPU): 1,234 UGV" in text
