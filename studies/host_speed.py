@@ -27,9 +27,9 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 SIM_STEPS = 600
-"""Simulation steps of the reference (about half a second of CPU time on the hosts measured so far)."""
+"""Simulation steps of the reference (some 0.7 s of CPU time on the 2026-11-30 host, 811-833 steps/s)."""
 UPDATES = 60
-"""SAC updates of the reference (about as long)."""
+"""SAC updates of the reference (some 0.6 s there, 86-102 updates/s)."""
 WARMUP_STEPS = 50
 """Untimed simulation steps first (the first episode's steps load caches and cost more)."""
 WARMUP_UPDATES = 3
@@ -53,8 +53,8 @@ class HostSpeed:
         return asdict(self)
 
     def words(self) -> str:
-        """``this host's reference speed: 1,234 UGV steps/s with the scripted expert, 56.7 SAC updates/s (batch
-        256, one thread) of CPU time``: the sentence a table's timing note carries."""
+        """``this host's reference speed (`python -m studies.host_speed`, AMD EPYC): 1,234 UGV steps/s with the
+        scripted expert and 56.7 SAC updates/s (batch 256, one thread), CPU time``: what a table's timing note says."""
         return (
             f"this host's reference speed (`python -m studies.host_speed`, {self.processor}): "
             f"{self.sim_steps_per_s:,.0f} UGV steps/s with the scripted expert and {self.sac_updates_per_s:.1f} SAC "
