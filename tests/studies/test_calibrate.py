@@ -501,7 +501,7 @@ def test_the_curves_points_run_apart_on_ray_give_the_curve_run_in_turn(
     from studies.calibrate import EXPERT_ALONE, CurvePlan, curve_point, operating_curve
 
     make_env = functools.partial(envs.make, "dynamic")
-    scales = (0.5, 2.0)
+    scales = (2.0,)  # one fear point: five Ray tasks in two stages (two scales took eight, the suite's slowest test)
     in_turn = operating_curve(deployed, make_env, 2, scales)
     on_ray = operating_curve(deployed, make_env, 2, scales, cpus=2)
     plan = CurvePlan(scales)
@@ -515,7 +515,7 @@ def test_the_curves_points_run_apart_on_ray_give_the_curve_run_in_turn(
     # the first stage's points in another order: each stands alone
     second = [curve_point(**common, call=call) for call in plan.second(first)]
     assert shown(plan.curve(first, second)) == shown(in_turn)
-    assert [len(points) for points in in_turn.values()] == [2, 2, 2, 1]
+    assert [len(points) for points in in_turn.values()] == [1, 1, 1, 1]
     alone = in_turn[EXPERT_ALONE][0]
     assert alone["takeover_rate"] == 1.0 and alone["violations_handed_back"] == alone["violations_unforeseen"] == 0
     with pytest.raises(ValueError, match="first stage"):
