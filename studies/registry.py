@@ -321,7 +321,8 @@ def _host_speed(budget_name: str, log: Callable[[str], None]) -> tuple[HostSpeed
     try:
         host = measure_host_speed()
     except Exception as exc:  # the reference is a note beside the results, never a reason to lose them
-        reason = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": ")
+        first_line = str(exc).splitlines()[0] if str(exc) else ""
+        reason = f"{type(exc).__name__}: {first_line}" if first_line else type(exc).__name__
         log(f"the host's reference speed could not be measured ({reason}); the study runs without it")
         return None, f"The host's reference speed could not be measured ({reason})."
     log(f"{host.words()} ({host.seconds:.1f} s)")
