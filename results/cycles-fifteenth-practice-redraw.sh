@@ -4,7 +4,7 @@
 # session's Intel host the defaults' cycles were a second draw of the AMD ones (docs/notes/forgetting_anatomy.md,
 # fifteenth session), and five-seed means moved by up to 0.08 (static) and 0.16 (unseen) between the two draws. Q was
 # the one arm that met every UGV 4 target on its draw (alone 0.98, takeover last 0.026, no cycle above the first) and
-# failed UGV 3 by a difference (alone 0.76 against 0.82) inside what a redraw moves. Written at 03:55 UTC, after the
+# failed UGV 3 by a difference (alone 0.76 against 0.82) inside what a redraw moves. Written at 03:52 UTC, after the
 # Intel controls of UGV 3 (cycles-defaults-intel) were seen and while UGV 4's runs, before any Q run here.
 #   Q3i: UGV 3, against results/cycles-small-defaults-intel.   Q4i: UGV 4, against results/cycles-small-ugv4-defaults-intel.
 # Rule, written before the run (committed with this script). Each arm's two draws are pooled (ten seed-runs: the AMD
