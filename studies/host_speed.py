@@ -48,15 +48,21 @@ class HostSpeed:
     """Wall seconds the whole reference took, building included."""
     processor: str
     """``/proc/cpuinfo``'s model name (hosts of one name differ: that is why the rates are measured)."""
+    kernels: str = ""
+    """Torch's CPU kernels on this host (``torch.backends.cpu.get_cpu_capability()``: AVX2, AVX512, ...; empty: not
+    read). A learner's rows are reproduced only where the float kernels are the same: the UGV study's online learners
+    ended 20-32 points apart seed for seed on an AVX-512 host against the AMD ones (docs/notes/study_time.md)."""
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     def words(self) -> str:
-        """``this host's reference speed (`python -m studies.host_speed`, AMD EPYC): 1,234 UGV steps/s with the
-        scripted expert and 56.7 SAC updates/s (batch 256, one thread), CPU time``: what a table's timing note says."""
+        """``this host's reference speed (`python -m studies.host_speed`, AMD EPYC, torch's CPU kernels AVX2): 1,234
+        UGV steps/s with the scripted expert and 56.7 SAC updates/s (batch 256, one thread), CPU time``: what a table's
+        timing note says."""
+        kernels = f", torch's CPU kernels {self.kernels}" if self.kernels else ""
         return (
-            f"this host's reference speed (`python -m studies.host_speed`, {self.processor}): "
+            f"this host's reference speed (`python -m studies.host_speed`, {self.processor}{kernels}): "
             f"{self.sim_steps_per_s:,.0f} UGV steps/s with the scripted expert and {self.sac_updates_per_s:.1f} SAC "
             "updates/s (batch 256, one thread), CPU time"
         )
@@ -78,7 +84,8 @@ def measure_host_speed(sim_steps: int = SIM_STEPS, updates: int = UPDATES, seed:
         update_rate = updates / _learn(updates, seed)
     finally:
         torch.set_num_threads(threads)
-    return HostSpeed(sim_rate, update_rate, time.perf_counter() - started, processor_name())
+    kernels = torch.backends.cpu.get_cpu_capability()
+    return HostSpeed(sim_rate, update_rate, time.perf_counter() - started, processor_name(), kernels)
 
 
 def _simulate(steps: int, seed: int) -> float:

@@ -20,6 +20,9 @@ def test_the_reference_times_both_workloads_on_one_thread_and_restores_torchs_th
     assert speed.sim_steps_per_s > speed.sac_updates_per_s
     assert speed.seconds > 0 and speed.processor
     assert f"{speed.sac_updates_per_s:.1f} SAC updates/s" in speed.words()
+    # the float kernels decide whether a learner's rows reproduce on another host: said beside the processor
+    assert speed.kernels == torch.backends.cpu.get_cpu_capability() and speed.kernels
+    assert f"{speed.processor}, torch's CPU kernels {speed.kernels}): " in speed.words()
 
 
 def test_the_command_refuses_an_empty_reference(capsys: pytest.CaptureFixture[str]) -> None:
