@@ -5,7 +5,7 @@
 # finetune.prior_distill=5: alone 1.00 on every seed, takeover last 0.255, static 0.73). Why: a redraw of the UGV
 # defaults moved five-seed means by up to 0.16 (docs/notes/forgetting_anatomy.md, fifteenth session); whether ΩA's
 # field reading is more than one draw decides whether "how hard a round imitates depends on the ground" is worth a rule.
-# Written at 04:17 UTC, before either run. ugv-fields:test:1 (unseen test:4), sage only, five seeds, side by side.
+# Written at 04:15 UTC, before either run. ugv-fields:test:1 (unseen test:4), sage only, five seeds, side by side.
 # Rule, written before the run (committed with this script): ΩA's field reading replicates if in this draw ΩA's
 #   alone_success_last mean >= 0.90 and >= the Intel control's + 0.20, its static_success_last mean >= the control's
 #   - 0.05, and its takeover_last mean <= the control's. Otherwise it does not (which clause said). Nothing is adopted
