@@ -173,7 +173,9 @@ def scan(
     joined = np.zeros(s - 1, dtype=np.bool_)
     landed, after, bearing = np.empty(s), np.empty(s), np.empty(s)
     turned_low, turned_high = np.empty(s), np.empty(s)
-    spacing, slack = width / k, BEARING_ERROR / width
+    # rays per radian: a product where two divisions were (a few ulps apart: a ray it adds or drops lies RAY_MARGIN
+    # of a spacing outside the segment's bearings, and misses it)
+    per_ray, slack = k / width, BEARING_ERROR / width
     for b in range(rows):
         out[b, s:] = states[b, s:]
         _move_returns(
@@ -203,8 +205,8 @@ def scan(
             lo, hi = min(turned_low[j], turned_low[j + 1]), max(turned_high[j], turned_high[j + 1])
             if hi - lo <= math.pi:
                 # the rays within the bearings of its ends (a ray further out misses it by far more than rounding)
-                first = max(0, math.ceil((lo - RAY_MARGIN * spacing) / spacing))
-                last = min(s * k - 1, math.floor((hi + RAY_MARGIN * spacing) / spacing))
+                first = max(0, math.ceil(lo * per_ray - RAY_MARGIN))
+                last = min(s * k - 1, math.floor(hi * per_ray + RAY_MARGIN))
             else:
                 first, last = 0, s * k - 1
             i, q = first // k, first % k  # the ray i * k + q, stepped without a division
@@ -270,7 +272,9 @@ def scan_with_choices(
     joined = np.zeros(s - 1, dtype=np.bool_)
     landed, after, bearing = np.empty(s), np.empty(s), np.empty(s)
     turned_low, turned_high = np.empty(s), np.empty(s)
-    spacing, slack = width / k, BEARING_ERROR / width
+    # rays per radian: a product where two divisions were (a few ulps apart: a ray it adds or drops lies RAY_MARGIN
+    # of a spacing outside the segment's bearings, and misses it)
+    per_ray, slack = k / width, BEARING_ERROR / width
     for b in range(rows):
         out[b, s:] = states[b, s:]
         choices[:, b, :] = -1
@@ -296,8 +300,8 @@ def scan_with_choices(
             lo, hi = min(turned_low[j], turned_low[j + 1]), max(turned_high[j], turned_high[j + 1])
             if hi - lo <= math.pi:
                 # the rays within the bearings of its ends (a ray further out misses it by far more than rounding)
-                first = max(0, math.ceil((lo - RAY_MARGIN * spacing) / spacing))
-                last = min(s * k - 1, math.floor((hi + RAY_MARGIN * spacing) / spacing))
+                first = max(0, math.ceil(lo * per_ray - RAY_MARGIN))
+                last = min(s * k - 1, math.floor(hi * per_ray + RAY_MARGIN))
             else:
                 first, last = 0, s * k - 1
             i, q = first // k, first % k

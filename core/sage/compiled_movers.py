@@ -20,7 +20,8 @@ from core._ego_kernel import scan as ego_scan
 from core.motion import EgoScanStep, _kernel_geometry
 
 # numba's on-disk cache (cache=True) checks the timestamp of this file alone: a change to core/_ego_kernel.py or to
-# core/sage/movers.py's rules must come with a change to this file (see core/sage/compiled_gate.py).
+# core/sage/movers.py's rules must come with a change to this file (see core/sage/compiled_gate.py). Last: the scan's
+# rays per radian as a product.
 
 
 @numba.njit(cache=True, nogil=True)

@@ -357,38 +357,53 @@ class SageGate:
             return math.nan
         self._refresh_reference()
         with torch.inference_mode():
-            o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
-            a = torch.from_numpy(self._encoded(action)).view(1, -1)
-            s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
             kernel = self.kernel()
             curiosity = math.nan  # "novelty" reads the state arrived at, once this one is in the history (below)
             last_obs, last_action, version = self._last
             # the executed action is the decided one (the policy drove): the decision's first rollout step already
             # predicted every member's next state for it
-            reuse = version == self.world_model.version and last_obs is obs and np.array_equal(last_action, action)
-            if self.cfg.curiosity_signal == "disagreement" and kernel is not None and reuse:
+            reuse = (
+                version == self.world_model.version
+                and last_obs is obs
+                and (last_action is action or np.array_equal(last_action, action))
+            )
+            signal = self.cfg.curiosity_signal
+            extrapolate = self.cfg.contact_extrapolation and bool(self.cfg.contact_floors)
+            if signal == "disagreement" and kernel is not None and reuse and not extrapolate:
+                # the common case: the decision's own Δs, no tensor needed (a few microseconds a step)
                 curiosity = kernel.first_step_spread(self._delta_precision())
-            elif self.cfg.curiosity_signal == "disagreement":
+                return self._observed(obs, action, next_obs, curiosity)
+            o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
+            a = torch.from_numpy(self._encoded(action)).view(1, -1)
+            s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
+            if signal == "disagreement" and kernel is not None and reuse:
+                curiosity = kernel.first_step_spread(self._delta_precision())
+            elif signal == "disagreement":
                 curiosity = float(self.world_model.disagreement(o, a, self._motion(obs))[0])
-            elif self.cfg.curiosity_signal == "error" and kernel is not None:
+            elif signal == "error" and kernel is not None:
                 # reusing the decision's first step reads its motion there: none to compute again
                 motion = None if reuse else self._motion(obs)
                 curiosity = kernel.curiosity(o, a, s1, reuse_first_step=reuse, motion=motion)
-            elif self.cfg.curiosity_signal == "error":
+            elif signal == "error":
                 curiosity = float(curiosity_folded(self.world_model, o, a, s1, self._motion(obs))[0])
-            if self.cfg.contact_extrapolation and self.cfg.contact_floors:
+            if extrapolate:
                 # the movers' own change per sector: the next scan against this one moved by the robot's action
                 channels = len(self.cfg.contact_floors)
                 self._changes.append(unexplained_change(self.world_model.base(o, a), s1, channels).clone())
+        return self._observed(obs, action, next_obs, curiosity)
+
+    def _observed(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray, curiosity: float) -> float:
+        """:meth:`observe`'s bookkeeping once the transition's curiosity is known: the mover model's and the motion
+        input's histories, the threshold."""
         if self.cfg.mover_model != "none":
             self._transitions.append(
                 (
-                    np.asarray(obs, dtype=np.float64).reshape(-1).copy(),
+                    np.array(obs, dtype=np.float64).reshape(-1),
                     self._encoded(action).astype(np.float64).reshape(-1),
-                    np.asarray(next_obs, dtype=np.float64).reshape(-1).copy(),
+                    np.array(next_obs, dtype=np.float64).reshape(-1),
                 )
             )
-        self._history.append(np.asarray(obs, dtype=np.float32).reshape(-1).copy())
+        self._history.append(np.array(obs, dtype=np.float32).reshape(-1))
         if self.cfg.curiosity_signal == "novelty":
             curiosity = self._novelty_of(next_obs)
         self.detail.rho = self.threshold.rho(curiosity)

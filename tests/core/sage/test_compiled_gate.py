@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from core.sage.calibration import calibrate
-from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports
+from core.sage.compiled_gate import CompiledGateKernel, compiled_kernel_supports, first_step_spread, padded_columns
 from core.sage.config import GateConfig, WorldModelConfig
 from core.sage.fear import GateKernel
 from core.sage.gate import SageGate
@@ -211,3 +211,26 @@ def test_warm_up_compiles_the_reused_curiosity_whichever_curiosity_the_policy_re
     monkeypatch.setattr(compiled_gate, "reused_curiosity", lambda *a, **k: calls.append("reused") or original(*a, **k))
     assert agents.warm_gate_kernels([policy]) == [policy]
     assert calls
+
+
+@pytest.mark.parametrize("members", [1, 5, 7])
+@pytest.mark.parametrize("channels", [3, 9, 58, 64, 200])
+def test_the_compiled_spread_is_the_numpy_spread(members: int, channels: int) -> None:
+    """The disagreement read from a decision's first step: the compiled sums in numpy's order (the members' in turn,
+    the channels' pairwise, split past numpy's block of 128) give its number, from (N, D) rows of a wider buffer."""
+    rng = np.random.default_rng(channels * 10 + members)
+    for scale in (1e-3, 1.0, 40.0):
+        rows = (scale * rng.normal(size=(members, channels + 1))).astype(np.float32)
+        deltas = rows[:, :channels]  # the Δs of the (N, D + 1) outputs: strided rows, as the kernel holds them
+        precision = 1.0 / np.square(rng.uniform(0.05, 2.0, channels))
+        wide = deltas.astype(np.float64)
+        expected = np.sqrt((np.square(wide - wide.mean(0)).mean(0) * precision).mean())
+        assert first_step_spread(deltas, precision) == pytest.approx(expected, rel=1e-12, abs=0.0)
+
+
+def test_the_output_layer_is_padded_to_whole_vectors_and_keeps_its_columns() -> None:
+    weights = np.arange(2 * 3 * 59, dtype=np.float32).reshape(2, 3, 59)
+    padded = padded_columns(weights)
+    assert padded.shape == (2, 3, 64) and padded.flags.c_contiguous
+    assert np.array_equal(padded[..., :59], weights) and not padded[..., 59:].any()
+    assert padded_columns(padded) is padded  # already whole vectors: the same array
