@@ -57,3 +57,15 @@ def test_the_report_is_written_into_its_block(recording: list[bench_gate.Transit
     write_block(doc, report, bench_gate.POLICY_START, bench_gate.POLICY_END)
     text = doc.read_text()
     assert "old" not in text and text.startswith("before\n") and text.endswith("after\n") and report in text
+
+
+def test_the_side_by_side_workers_replay_the_saved_recording_bit_for_bit(tmp_path: Path) -> None:
+    """``bench/gate_side_by_side.py``: the recording the code now makes, saved and read back by a replay worker (what
+    each tree's process runs), gives the worker's gate the recorded fears exactly, and a time per step."""
+    from bench import gate_side_by_side
+
+    path = tmp_path / "recording.npz"
+    scenario = gate_side_by_side.save_recording(path, str(UGV), None, 10)
+    assert scenario == bench_gate.default_scenario("ugv")
+    result = gate_side_by_side.replay_worker(path, str(UGV), rounds=1, core=None)
+    assert result["fear_difference"] == 0.0 and result["median_ms"] > 0.0

@@ -20,6 +20,7 @@ SPEED_BENCHES = {
     "bench_ego_kernel.py",  # the compiled contact test at a commit against now
     "bench_finetune.py",
     "bench_gate.py",
+    "gate_side_by_side.py",  # the deployed gate with the code at a commit against now, one process per core
     "gpu_check.py",  # the CPU-vs-GPU update ratios, for a session with a GPU
     "bench_highway.py",
     "bench_pedestrian.py",
