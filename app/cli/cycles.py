@@ -20,6 +20,7 @@ from typing import Annotated
 import typer
 
 from app.cli.options import (
+    FINETUNE_SECTIONS,
     LEARNER_SECTIONS,
     LEARNER_SET_HELP,
     NamedChoicesCommand,
@@ -31,7 +32,6 @@ from app.cli.options import (
     routed_settings,
     runs_sim,
 )
-from core.dotted import Section
 
 
 def register(app: typer.Typer) -> None:
@@ -116,7 +116,7 @@ def register(app: typer.Typer) -> None:
         for k in shown:
             if not 1 <= k <= cycles:
                 fail(f"--show-cycle {k} is not one of the cycles (1-{cycles})")
-        routed = routed_settings(set_, {**LEARNER_SECTIONS, "finetune": Section("finetune")}, other="learner")
+        routed = routed_settings(set_, {**LEARNER_SECTIONS, **FINETUNE_SECTIONS}, other="learner")
         round_settings, learner_settings = routed.get("finetune", []), tuple(routed.get("learner", []))
         name = one_scenario(scenario, "sage cycles") or "3"
         policy_path = policy or f"policies/{sim or 'ugv'}-default"

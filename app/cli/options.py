@@ -29,6 +29,9 @@ LEARNER_SECTIONS: dict[str, Section] = {
     "world_model": Section("learner", "world_model_config."),
 }
 """Spellings of the learner's settings besides its own field paths (which need no section)."""
+FINETUNE_SECTIONS: dict[str, Section] = {"finetune": Section("finetune")}
+"""``--set finetune.KEY=VALUE``: a setting of the fine-tuning rounds (core.finetune.FinetuneConfig), for the commands
+that run them (``sage serve``'s worker, ``sage cycles``, ``sage study cycles``)."""
 ENV_SECTIONS: dict[str, Section] = {"env": Section("env")}
 STUDY_SECTIONS: dict[str, Section] = {"study": Section("study")}
 

@@ -6,22 +6,38 @@ import errno
 import gc
 import socket
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 
 from app.cli.options import (
+    FINETUNE_SECTIONS,
+    GATE_SECTIONS,
     GATE_SET_HELP,
+    LEARNER_SECTIONS,
     GateSetRetired,
     RegressionAgainstOption,
     checked_regression_against,
     checked_scenarios,
-    gate_pairs,
     one_scenario,
     policy_sim,
     refuse_retired,
+    routed_settings,
 )
 from app.messages import EXPERT_MODES
+from core.dotted import Section
+
+if TYPE_CHECKING:
+    from core.finetune import FinetuneConfig
+
+SERVE_SECTIONS: dict[str, Section] = {**GATE_SECTIONS, **FINETUNE_SECTIONS, **LEARNER_SECTIONS}
+"""``sage serve --set``: the gate's settings, and the fine-tuning worker's (its rounds', and its learner's over SAGE's
+adaptation switches, as ``sage cycles`` takes them; the learner's need their section's name here)."""
+SERVE_SET_HELP = (
+    f"For each policy: {GATE_SET_HELP} For the fine-tuning worker: finetune.KEY=VALUE, a setting of its rounds "
+    "(core.finetune.FinetuneConfig, e.g. finetune.prior_distill=5), and learner.KEY=VALUE or world_model.KEY=VALUE, "
+    "the learner its rounds train (over SAGE's switches, e.g. learner.bc_weight=10)."
+)
 
 
 def register(app: typer.Typer) -> None:
@@ -65,7 +81,7 @@ def register(app: typer.Typer) -> None:
         finetune: Annotated[
             bool, typer.Option(help="Fine-tune a trained policy on the session in a worker process.")
         ] = True,
-        set_: Annotated[list[str] | None, typer.Option("--set", help=f"For each policy: {GATE_SET_HELP}")] = None,
+        set_: Annotated[list[str] | None, typer.Option("--set", help=SERVE_SET_HELP)] = None,
         regression_scenario: Annotated[
             list[str] | None,
             typer.Option(
@@ -90,7 +106,9 @@ def register(app: typer.Typer) -> None:
             _fail(f"--expert must be one of {', '.join(EXPERT_MODES)}, not {expert!r}")
         refuse_retired(gate_set=gate_set)
         scenario_name, sim = one_scenario(scenario, "sage serve"), policy_sim(policy, sim)
-        gate_settings = _check_startup(sim, scenario_name, policy, gate_pairs(set_))
+        routed = routed_settings(set_, SERVE_SECTIONS)
+        gate_settings = _check_startup(sim, scenario_name, policy, routed.get("gate", []))
+        rounds = _check_finetune(sim, policy, finetune, routed.get("finetune", []), routed.get("learner", []))
         regression = checked_scenarios(sim, regression_scenario or [], "--regression-scenario")
         against = checked_regression_against(regression_against)
         # bound here, before the banner, the loop, the worker or a session exist: a busy or forbidden port is one
@@ -109,6 +127,7 @@ def register(app: typer.Typer) -> None:
             sessions=sessions,
             start_paused=paused,
             finetune=finetune,
+            finetune_config=rounds,
             allow_hosts=list(allow_host or []),
             gate_settings=gate_settings,
             promotion=PromotionConfig(
@@ -209,6 +228,41 @@ def _check_startup(sim: str, scenario: str | None, policy: str | None, gate_set:
     if opening != SCRIPTED and Path(opening).exists():
         _warm_gate(opening)
     return settings
+
+
+def _check_finetune(
+    sim: str, policy: str | None, finetune: bool, round_pairs: list[str], learner_pairs: list[str]
+) -> FinetuneConfig:
+    """The fine-tuning worker's settings from ``--set finetune.KEY=VALUE`` and the learner's ``--set learner.…``: one
+    line, before the server starts, for an unknown or unreadable one, or for settings no round would take (no
+    fine-tuning, or the scripted expert); the learner's are checked on the configuration the rounds of the policy the
+    dashboard opens on would train (its own, with SAGE's adaptation switches)."""
+    import dataclasses
+
+    from app.policies import SCRIPTED, default_policy
+    from app.server import ServerSettings
+    from core.agents import load_checkpoint
+    from core.finetune import FinetuneConfig, adaptation_config
+    from core.sage.config import apply_overrides, from_dict
+
+    if not round_pairs and not learner_pairs:
+        return FinetuneConfig()
+    given = ("finetune." if round_pairs else "learner.") + (round_pairs or learner_pairs)[0]
+    if not finetune:
+        _fail(f"--set {given}: --no-finetune runs no fine-tuning rounds to take it")
+    opening = policy or default_policy(ServerSettings().policy_roots, sim)
+    if opening == SCRIPTED or not Path(opening).exists():
+        _fail(f"--set {given}: the scripted expert is not fine-tuned; give a trained --policy")
+    try:
+        config = dataclasses.replace(FinetuneConfig().with_settings(round_pairs), overrides=tuple(learner_pairs))
+    except ValueError as exc:
+        _fail(f"--set finetune.…: {_first_line(exc)}")
+    try:
+        trained = from_dict(load_checkpoint(opening)["agent_config"])
+        apply_overrides(adaptation_config(trained) if config.adapt_as_sage else trained, list(learner_pairs))
+    except (ValueError, TypeError) as exc:
+        _fail(f"--set learner.…: {_first_line(exc)}")
+    return config
 
 
 def _warm_gate(policy: str) -> None:

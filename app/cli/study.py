@@ -25,6 +25,7 @@ from typing import Annotated, Any
 import typer
 
 from app.cli.options import (
+    FINETUNE_SECTIONS,
     LEARNER_SECTIONS,
     LEARNER_SET_HELP,
     STUDY_SECTIONS,
@@ -36,10 +37,6 @@ from app.cli.options import (
     refuse_retired,
     routed_settings,
 )
-from core.dotted import Section
-
-FINETUNE_SECTIONS: dict[str, Section] = {"finetune": Section("finetune")}
-"""``--set finetune.KEY=VALUE``: a setting of the fine-tuning rounds (studies that run them: cycles)."""
 
 
 def register(app: typer.Typer) -> None:

@@ -504,6 +504,8 @@ def validate(cfg: AgentConfig) -> None:
         )
     if not 0.0 <= cfg.gate.release <= 1.0:
         raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
+    if not (math.isfinite(cfg.bc_weight) and cfg.bc_weight >= 0.0):  # a negative weight would push off the expert
+        raise ValueError(f"bc_weight must be a finite number >= 0, got {cfg.bc_weight}")
     if cfg.world_model_config.motion_lag < 1:
         raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
     wm = cfg.world_model_config

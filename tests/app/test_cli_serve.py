@@ -150,3 +150,43 @@ def test_regression_scenarios_reach_the_promotion_and_a_bad_one_is_one_line(
     code, out = run("--regression-scenario", "3", "--regression-against", "best", "--sessions", str(tmp_path / "b"))
     _one_line_before_anything(code, out, tmp_path / "b")
     assert "--regression-against best" in out
+
+
+def test_the_workers_rounds_take_finetune_and_learner_settings_and_a_bad_one_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--set finetune.KEY=VALUE`` and ``--set learner.KEY=VALUE`` reach the fine-tuning worker's rounds (as ``sage
+    cycles`` takes them), beside the gate's; what no round would take is refused in one line before anything starts."""
+    import uvicorn
+
+    import app.server
+
+    seen: list[Any] = []
+    monkeypatch.setattr(app.server, "create_app", lambda settings: seen.append(settings) or object())
+    monkeypatch.setattr(uvicorn.Server, "run", lambda self, sockets=None: None)
+    sessions = tmp_path / "s"
+    given = ("--set", "finetune.prior_distill=5", "--set", "learner.bc_weight=10", "--set", "gate.release=0")
+    code, out = run(*given, "--port", "0", "--sessions", str(sessions))
+    assert code == 0, out
+    rounds = seen[0].finetune_config
+    assert rounds.prior_distill == 5.0 and rounds.overrides == ("bc_weight=10",)
+    assert seen[0].gate_settings == {"release": 0.0}
+    assert seen[0].finetune_settings().config is rounds  # what the worker is started with
+    code, out = run("--port", "0", "--sessions", str(sessions))
+    assert code == 0 and seen[-1].finetune_config == type(rounds)()  # none given: the defaults
+    for pair, said in [
+        ("finetune.nope=1", "nope"),
+        ("finetune.prior_distill=much", "prior_distill"),
+        ("learner.nope=1", "nope"),
+        ("learner.bc_weight=-1", "bc_weight"),
+        ("optimizer.lr=1", "optimizer"),  # no such section
+    ]:
+        code, out = run("--set", pair, "--sessions", str(tmp_path / "bad"))
+        _one_line_before_anything(code, out, tmp_path / "bad")
+        assert said in out, (pair, out)
+    code, out = run("--set", "finetune.prior_distill=5", "--no-finetune", "--sessions", str(tmp_path / "bad"))
+    _one_line_before_anything(code, out, tmp_path / "bad")
+    assert "--no-finetune" in out
+    code, out = run("--set", "learner.bc_weight=10", "--policy", "scripted", "--sessions", str(tmp_path / "bad"))
+    _one_line_before_anything(code, out, tmp_path / "bad")
+    assert "scripted" in out

@@ -55,6 +55,8 @@ def test_overrides_convert_types_and_name_what_is_wrong() -> None:
         ("gate.step_seconds=0", "step_seconds"),
         ("gate.imagined_contact=true", "contact_floors"),
         ("gate.contact_floors=[0.1, -0.2]", "contact_floors"),
+        ("bc_weight=-1", "bc_weight"),
+        ("bc_weight=nan", "bc_weight"),
     ):
         with pytest.raises(ValueError, match=message):
             apply_overrides(for_method("sage"), [bad])
