@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from typing import Any
+from xml.etree import ElementTree
 
 from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
 from sims.sumo.config import SumoConfig
@@ -17,6 +18,26 @@ SCENARIOS = (
     ScenarioSpec("2", "route 2", {"route": 2, "special_vehicles": False}),
     ScenarioSpec("1-special", "route 1 · special vehicles", {"route": 1, "special_vehicles": True}),
 )
+
+
+def vehicle_length(type_id: str) -> float:
+    """The length (m) of a vehicle type of the routes' common file (``data/common.rou.xml``)."""
+    from sims.sumo.network import DATA_DIR
+
+    for vtype in ElementTree.parse(DATA_DIR / "common.rou.xml").getroot().iter("vType"):
+        if vtype.get("id") == type_id:
+            return float(vtype.get("length", "5.0"))  # SUMO's default length
+    raise ValueError(f"no vehicle type {type_id!r} in {DATA_DIR / 'common.rou.xml'}")
+
+
+def contact_floors(config: SumoConfig | None = None) -> tuple[float, ...]:
+    """The observation's first channel is the leader's centre distance over the perception range
+    (:func:`sims.sumo.sensing.observe`): at or under half the ego's length plus half a car's, a car ahead touches the
+    ego. One floor, for that channel only: the others (the leader's heading, speed and bearing, the other sectors) say
+    nothing of contact by themselves. A longer leader touches further out (a bus or truck at (4.5 + 12) / 2 m); the
+    common car's floor keeps a queue at standstill (the ego's minGap behind its leader) above it."""
+    config = config or SumoConfig()
+    return ((vehicle_length("ego") + vehicle_length("car")) / 2.0 / config.perception_range,)
 
 
 def _family_scenario(name: str) -> dict[str, Any]:
@@ -39,6 +60,7 @@ DESCRIPTOR = SimDescriptor(
     input_mapping=InputMapping(throttle_index=0, steer_index=None),
     metric_columns=METRIC_COLUMNS,
     safe_action=(-1.0,),  # full braking
+    contact_floors=contact_floors(),
     # libsumo holds the GIL while it steps, which would stall the server's event loop and the page's input
     live_options={"process": True},
     parse_scenario=_family_scenario,  # sumo-shift:train / :test (sims/sumo/families.py)
