@@ -369,16 +369,15 @@ class SageGate:
             )
             signal = self.cfg.curiosity_signal
             extrapolate = self.cfg.contact_extrapolation and bool(self.cfg.contact_floors)
-            if signal == "disagreement" and kernel is not None and reuse and not extrapolate:
-                # the common case: the decision's own Δs, no tensor needed (a few microseconds a step)
+            from_decision = signal == "disagreement" and kernel is not None and reuse
+            if from_decision:  # the common case: the decision's own Δs
                 curiosity = kernel.first_step_spread(self._delta_precision())
-                return self._observed(obs, action, next_obs, curiosity)
+                if not extrapolate:  # and no tensor needed (a few microseconds a step)
+                    return self._observed(obs, action, next_obs, curiosity)
             o = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, -1)
             a = torch.from_numpy(self._encoded(action)).view(1, -1)
             s1 = torch.from_numpy(np.asarray(next_obs, dtype=np.float32)).view(1, -1)
-            if signal == "disagreement" and kernel is not None and reuse:
-                curiosity = kernel.first_step_spread(self._delta_precision())
-            elif signal == "disagreement":
+            if signal == "disagreement" and not from_decision:
                 curiosity = float(self.world_model.disagreement(o, a, self._motion(obs))[0])
             elif signal == "error" and kernel is not None:
                 # reusing the decision's first step reads its motion there: none to compute again
