@@ -18,6 +18,11 @@ from core.motion import ScanAlignment, motion_between
 from core.protocol import StepRecord
 
 
+def refused_by_gate(fear: float, threshold: float) -> bool:
+    """Whether a step's fear was over its τ (both finite): the gate judged the agent's proposal dangerous there."""
+    return bool(np.isfinite(fear) and np.isfinite(threshold) and fear > threshold)
+
+
 @dataclass
 class Batch:
     """A minibatch of real transitions as float32 tensors (flags as 0/1 floats)."""
@@ -59,6 +64,9 @@ class ReplayBuffer:
         """The simulator's traffic conflict flag (``info["conflict"]``: a near miss, e.g. highway's time to contact
         under 3 s; 0 where the simulator reports none): a label the world model may learn besides violations."""
         self.takeover = np.zeros(capacity, bool)
+        self.refused = np.zeros(capacity, bool)
+        """The expert drove and the gate had judged the agent's own proposal a_RL dangerous there (fear over τ): a
+        counterfactual failure of a_RL at that state, never executed (``AgentConfig.refused_weight``)."""
         self.device = torch.device(device)
         """Where sampled batches go (the learner's update device; the rows themselves stay in numpy)."""
         self.size = 0
@@ -83,6 +91,7 @@ class ReplayBuffer:
         takeover: bool = False,
         a_rl: np.ndarray | None = None,
         a_expert: np.ndarray | None = None,
+        refused: bool = False,
     ) -> None:
         obs = np.asarray(obs, np.float32).reshape(-1)
         if obs.shape[0] != self.obs_dim:
@@ -99,12 +108,15 @@ class ReplayBuffer:
         self.violation[i] = float(violation)
         self.conflict[i] = float(conflict)
         self.takeover[i] = bool(takeover) and a_expert is not None
+        self.refused[i] = bool(refused) and self.takeover[i]
         self.pos = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
         self.total += 1
 
     def add_record(self, record: StepRecord) -> None:
-        """Store one step of the loop (violations are terminal for learning even if the sim goes on)."""
+        """Store one step of the loop (violations are terminal for learning even if the sim goes on). The step is
+        :attr:`refused` where the expert drove and the step's fear was over its τ: the gate judged the agent's
+        proposal there, not a hold counting down or the expert's own manoeuvre."""
         self.add(
             record.obs,
             record.action,
@@ -117,6 +129,7 @@ class ReplayBuffer:
             takeover=record.takeover,
             a_rl=record.a_rl,
             a_expert=record.a_expert,
+            refused=record.takeover and refused_by_gate(record.fear, record.threshold),
         )
 
     # -- sampling --------------------------------------------------------------------------------
@@ -149,6 +162,16 @@ class ReplayBuffer:
     def sample_takeovers(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
         """Intervention samples (Ξ = 1) only; None when there are none yet."""
         idx = np.flatnonzero(self.takeover[: self.size])
+        if len(idx) == 0:
+            return None
+        return self._batch(idx[rng.integers(0, len(idx), size=batch_size)])
+
+    def refused_count(self) -> int:
+        return int(self.refused[: self.size].sum())
+
+    def sample_refused(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
+        """Rows whose a_RL the gate refused (:attr:`refused`) only; None when there are none."""
+        idx = np.flatnonzero(self.refused[: self.size])
         if len(idx) == 0:
             return None
         return self._batch(idx[rng.integers(0, len(idx), size=batch_size)])

@@ -285,6 +285,9 @@ class AgentConfig:
     intervention_penalty: float = 0.0
     """Reward taken from the agent's last step before each takeover onset, whoever called the expert (Multi-Hug's
     intervention shaping, RLIF's cost; every learner's ``store``). 0: none (the paper's SAGE)."""
+    refused_weight: float = 0.0
+    """Weight of a critic term holding Q(s, a_RL) to -c* where the gate refused a_RL and the expert drove (a failure
+    the robot never had to make; SAC learners). 0: none (the paper's SAGE)."""
     imitation: bool = True
     """Value-weighted imitation of the expert on intervention samples (eq:bc_loss with ω of eq:qa_weight)."""
     virtual_rollouts: bool = True
@@ -506,6 +509,10 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
     if not (math.isfinite(cfg.bc_weight) and cfg.bc_weight >= 0.0):  # a negative weight would push off the expert
         raise ValueError(f"bc_weight must be a finite number >= 0, got {cfg.bc_weight}")
+    if not (math.isfinite(cfg.refused_weight) and cfg.refused_weight >= 0.0):
+        raise ValueError(f"refused_weight must be a finite number >= 0, got {cfg.refused_weight}")
+    if cfg.refused_weight > 0 and cfg.cuda_graph:
+        raise ValueError("refused_weight > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
     if cfg.world_model_config.motion_lag < 1:
         raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
     wm = cfg.world_model_config

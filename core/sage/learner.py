@@ -157,6 +157,9 @@ class BaseLearner:
     device_capable = True
     """Whether the method's update can run on a CUDA device (:mod:`core.device`); one that cannot trains on the CPU
     under ``auto`` and refuses an explicit ``cuda``."""
+    reads_refused = False
+    """Whether the update reads the gate's refused proposals (``AgentConfig.refused_weight``); one that does not
+    refuses a weight over 0 rather than ignore it."""
 
     def __init__(
         self,
@@ -170,6 +173,11 @@ class BaseLearner:
         device: str | torch.device = "cpu",
     ) -> None:
         self.cfg, self.obs_dim, self.act_dim, self.seed = cfg, obs_dim, act_dim, seed
+        if cfg.refused_weight > 0 and not self.reads_refused:
+            raise ValueError(
+                f"refused_weight is read by the SAC learners only (sage, sac, fni-rl); {cfg.method} has no critic "
+                "of continuous actions to hold to it: set refused_weight=0"
+            )
         self.device = self._resolve_device(device)
         """Where the update runs: the trained networks, their optimisers and the sampled batches
         (:func:`core.device.resolve_device`). What acts in the loop and the world model's fit stay on the CPU."""

@@ -103,6 +103,8 @@ def actor_fear_weight(lam: Tensor | float, q_scale: Tensor, fear_scale: str) -> 
 class SAC(ActorLearner):
     """Soft actor-critic with SAGE's switches (see :func:`core.sage.config.for_method`)."""
 
+    reads_refused = True
+
     def __init__(
         self,
         cfg: AgentConfig,
@@ -183,17 +185,35 @@ class SAC(ActorLearner):
                 y = torch.where(batch.violation > 0.5, torch.full_like(y, -self.c_star()), y)
         return y
 
+    def refused_loss(self) -> Tensor | None:
+        """The critics' squared error from -c* on proposals the gate refused (``refused_weight``): each such row's
+        a_RL was judged dangerous where it was proposed, and the expert drove instead, so no real transition says
+        what it would have led to; the term says it would have been a violation. None: off or no such row."""
+        if self.cfg.refused_weight <= 0:
+            return None
+        refused = self.buffer.sample_refused(self.cfg.bc_batch_size, self.rng)
+        if refused is None:
+            return None
+        q = self.critic(refused.obs, refused.a_rl)
+        return (q + self.c_star()).pow(2).mean(1).sum()
+
     def critic_step(self, batch: Batch) -> dict[str, float]:
         y = self.critic_target_values(batch)
         q = self.critic(batch.obs, batch.action)
         loss = F.mse_loss(q, y.unsqueeze(0).expand_as(q), reduction="none").mean(1).sum()
+        refused = self.refused_loss()
+        if refused is not None:
+            loss = loss + self.cfg.refused_weight * refused
         self.critic_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if self.cfg.max_grad_norm is not None:
             torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
         self.critic_optimizer.step()
         soft_update(self.critic_target, self.critic, self.cfg.polyak)
-        return {"critic_loss": loss.item(), "q_mean": q.mean().item()}
+        stats = {"critic_loss": loss.item(), "q_mean": q.mean().item()}
+        if refused is not None:
+            stats["refused_loss"] = refused.item()
+        return stats
 
     def actor_states(self, batch: Batch) -> tuple[Tensor, int]:
         """States of the actor batch: real ones first, then virtual ones; returns (states, number real)."""

@@ -341,6 +341,30 @@ def test_a_rounds_intervention_cost_shapes_the_sessions_takeover_onsets(setup) -
     assert tuner.learner.shaped == onsets
 
 
+def test_a_rounds_refused_proposals_come_from_the_session_and_reach_the_critic(setup) -> None:
+    """``--set learner.refused_weight=...`` reaches the round's learner; the rows it reads are exactly the session's
+    takeover steps whose fear was over τ (the gate judged the agent's proposal there), not the hold's others."""
+    versions, store, _ = setup
+    agent = load_agent(versions.get(0).path)
+    writer = store.create("point", scenario="dynamic")
+    # the stand-in gate's fear rises 0.1 a step against τ 0.5 and it hands over every third step: takeovers under
+    # τ (t = 3) and over it (t = 6, 9, ...)
+    runner = Runner(point_env("dynamic"), agent.policy, EveryThird(), ScriptedExpert(), seed=0, deterministic=True)
+    writer.attach(runner)
+    for _ in range(2):
+        runner.run_episode()
+    writer.close()
+    steps = store.steps(writer.session_id)
+    takeovers = np.asarray(steps["takeover"], bool)
+    judged = takeovers & (np.asarray(steps["fear"]) > np.asarray(steps["threshold"]))
+    assert 0 < judged.sum() < takeovers.sum()
+    tuner = Finetuner(versions, store, writer.session_id, fast(overrides=("refused_weight=1",), updates=10))
+    assert tuner.learner.cfg.refused_weight == 1
+    result = tuner.round()
+    assert result.updates > 0 and tuner.learner.buffer.refused_count() == judged.sum()
+    assert np.isfinite(result.losses["refused_loss"])  # the term was in the round's critic updates
+
+
 # -- adaptation that sticks (issue 62) ---------------------------------------------------------------------------
 def as_trained_by(method: str, source: Path, folder: Path) -> Path:
     """A copy of ``source`` whose configuration says it was trained as ``method`` (same weights: same learner)."""

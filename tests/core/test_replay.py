@@ -151,3 +151,29 @@ def test_conflicts_ahead_are_marked_back_to_their_episodes_start_through_the_rin
     assert buffer.conflict_soon(1).tolist() == buffer.conflict[: buffer.size].tolist()
     with pytest.raises(ValueError, match="flag_soon"):
         buffer.flag_soon(np.zeros(2, bool), 3)
+
+
+@pytest.mark.parametrize(
+    ("takeover", "fear", "threshold", "refused"),
+    [
+        (True, 0.6, 0.5, True),  # the gate judged a_RL dangerous and the expert drove
+        (True, 0.4, 0.5, False),  # the hold counting down: a_RL was not judged dangerous here
+        (False, 0.6, 0.5, False),  # the agent drove: nothing was refused
+        (True, float("nan"), 0.5, False),  # no judgement recorded
+        (True, 0.6, float("inf"), False),
+    ],
+)
+def test_a_row_is_refused_only_where_the_gate_judged_the_agents_proposal_and_the_expert_drove(
+    takeover: bool, fear: float, threshold: float, refused: bool
+) -> None:
+    import dataclasses
+
+    buf = ReplayBuffer(3, 2, 8)
+    buf.add_record(dataclasses.replace(record(1, takeover), fear=fear, threshold=threshold))
+    assert bool(buf.refused[0]) is refused
+    assert buf.refused_count() == int(refused)
+    sampled = buf.sample_refused(4, np.random.default_rng(0))
+    assert (sampled is not None) is refused
+    if sampled is not None:  # the refused row's own proposal, not the executed (expert's) action
+        np.testing.assert_allclose(sampled.a_rl.numpy(), np.tile([0.1, 0.0], (4, 1)), rtol=1e-6)
+        np.testing.assert_allclose(sampled.action.numpy(), np.tile([-1.0, 1.0], (4, 1)))
