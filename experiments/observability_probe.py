@@ -135,7 +135,7 @@ def train(student: Student, x: np.ndarray, y: np.ndarray, updates: int, rng: np.
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
         optimiser.step()
-    return float(loss)
+    return float(loss.detach())
 
 
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
