@@ -1,0 +1,99 @@
+"""SAGE's rounds given DAgger's coverage (issue 62, seventeenth session; a diagnosis, not a method).
+
+The observability probe (docs/notes/observability_probe.md) found that a student of the default actor's shape drives
+UGV 3 alone without failures once the scripted expert has labelled the states the student reaches itself, while the
+cycles' versions, which have the expert's labels only where the gate handed over, plateau near 0.8. This script runs
+the cycles study's own trial (`studies.cycles_study.trial`, the small budget, sage, the present defaults) with one
+change: on every deployment step the agent drives, the scripted expert's action at that state is recorded as if the
+expert had taken over (the agent's action is still the one executed), so the rounds imitate (ω-weighted, beside the
+SAC terms and the anchor) on every state the versions reach. The takeover columns of such a run count those labels
+and mean nothing; its alone and static columns are read.
+
+    OMP_NUM_THREADS=1 python docs/notes/forgetting_anatomy/shadow_labels.py OUT SEED [SEED ...] [--plain]
+
+Run from the repository root; OUT gets `runs/sage-sSEED` and `rows.json` (the trial's row per seed)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import studies.cycles as cycles
+from core.loop import NoGate, Runner
+from core.protocol import StepRecord
+
+
+class LabellingPolicy:
+    """The deployed policy, asking the scripted expert for its action at the same state each time it acts."""
+
+    def __init__(self, policy: Any, env: Any) -> None:
+        self.policy, self.env, self.label = policy, env, None
+
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        self.label = np.asarray(self.env.unwrapped.expert_action(), np.float32)
+        return self.policy.act(obs, deterministic=deterministic)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.policy, name)
+
+
+class ShadowRunner(Runner):
+    """A deployment runner whose agent-driven steps are recorded with the expert's label as takeovers."""
+
+    def __init__(self, env: Any, policy: Any, gate: Any, expert: Any, **kwargs: Any) -> None:
+        super().__init__(env, LabellingPolicy(policy, env), gate, expert, **kwargs)
+        self.step_listeners.insert(0, self._label)
+
+    def set_policy_at_boundary(self, policy: Any, gate: Any = None) -> None:
+        super().set_policy_at_boundary(LabellingPolicy(policy, self.env), gate)
+
+    def _label(self, record: StepRecord) -> None:
+        if not record.takeover and isinstance(self.policy, LabellingPolicy) and self.policy.label is not None:
+            record.a_expert = self.policy.label
+            record.takeover = True
+
+
+def runner(env: Any, policy: Any, gate: Any, expert: Any, **kwargs: Any) -> Runner:
+    """Deployment (a gate) gets the shadow labels; the alone evaluations (no gate) run as the study runs them."""
+    if isinstance(gate, NoGate):
+        return Runner(env, policy, gate, expert, **kwargs)
+    return ShadowRunner(env, policy, gate, expert, **kwargs)
+
+
+def main(out: Path, seeds: list[int], shadow: bool = True) -> None:
+    """``shadow=False`` runs the trial as the study does (the check that this in-process call reproduces it)."""
+    from studies.cycles_study import trial
+
+    if shadow:
+        cycles.Runner = runner  # type: ignore[assignment,misc]
+    rows_file = out / "rows.json"
+    rows = json.loads(rows_file.read_text()) if rows_file.is_file() else {}
+    for seed in seeds:
+        config = {
+            "method": "sage",
+            "seed": seed,
+            "sim": "ugv",
+            "scenario": "3",
+            "unseen_scenario": "",
+            "policy": str(Path("policies/ugv-default").resolve()),
+            "train_steps": 6000,
+            "eval_episodes": 10,
+            "runs_dir": str(out / "runs"),
+            "finetune": [],
+            "promotion": False,
+            "static_scenarios": "",
+        }
+        rows[str(seed)] = trial(config)
+        print(seed, rows[str(seed)], flush=True)
+        out.mkdir(parents=True, exist_ok=True)
+        rows_file.write_text(json.dumps(rows, indent=1, sort_keys=True))
+
+
+if __name__ == "__main__":
+    plain = "--plain" in sys.argv
+    args = [a for a in sys.argv[1:] if a != "--plain"]
+    main(Path(args[0]), [int(s) for s in args[1:]], shadow=not plain)
