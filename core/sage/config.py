@@ -288,6 +288,9 @@ class AgentConfig:
     refused_weight: float = 0.0
     """Weight of a critic term holding Q(s, a_RL) to -c* where the gate refused a_RL and the expert drove (a failure
     the robot never had to make; SAC learners). 0: none (the paper's SAGE)."""
+    lookback_labels: int = 0
+    """At each takeover onset, this many of the agent's steps before it (same episode) also become imitation rows,
+    labelled with the expert's onset action: the gate fired after them. 0: none (the paper's SAGE)."""
     imitation: bool = True
     """Value-weighted imitation of the expert on intervention samples (eq:bc_loss with ω of eq:qa_weight)."""
     virtual_rollouts: bool = True
@@ -511,6 +514,8 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"bc_weight must be a finite number >= 0, got {cfg.bc_weight}")
     if not (math.isfinite(cfg.refused_weight) and cfg.refused_weight >= 0.0):
         raise ValueError(f"refused_weight must be a finite number >= 0, got {cfg.refused_weight}")
+    if not (isinstance(cfg.lookback_labels, int) and cfg.lookback_labels >= 0):
+        raise ValueError(f"lookback_labels must be a whole number >= 0, got {cfg.lookback_labels!r}")
     if cfg.refused_weight > 0 and cfg.cuda_graph:
         raise ValueError("refused_weight > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
     if cfg.world_model_config.motion_lag < 1:

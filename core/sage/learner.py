@@ -24,6 +24,7 @@ and hand the gate a one-hot greedy policy function (see :data:`core.sage.fear.Po
 
 from __future__ import annotations
 
+import collections
 import copy
 import dataclasses
 import math
@@ -333,6 +334,9 @@ class BaseLearner:
     _last_key: tuple[int, int] | None = None
     shaped = 0
     """Transitions whose reward was shaped by an intervention so far (``AgentConfig.intervention_penalty``)."""
+    looked_back = 0
+    """Agent steps labelled with the expert's onset action so far (``AgentConfig.lookback_labels``)."""
+    _recent: collections.deque[tuple[int, tuple[int, int], bool]] | None = None
 
     def store(self, record: StepRecord) -> None:
         """Add one step of the loop to the real buffer, its actions encoded (:meth:`encode_action`). With
@@ -348,8 +352,29 @@ class BaseLearner:
                 buffer.reward[previous_row] -= penalty
                 self.shaped += 1
         self._last_row = buffer.pos
-        buffer.add_record(self.encoded(record))
+        encoded = self.encoded(record)
+        if self.cfg.lookback_labels > 0:
+            self._look_back(encoded)
+        buffer.add_record(encoded)
         self._last_key = (record.episode, record.t)
+
+    def _look_back(self, record: StepRecord) -> None:
+        """``lookback_labels``: at a takeover onset (the agent drove the step before, same episode), the agent's
+        last steps before it, back to the first gap or expert step, become imitation rows labelled with the
+        expert's onset action: the state the expert took over in came from them, and the gate fired too late to
+        label them. Rows are remembered as (row, (episode, t), the agent drove)."""
+        buffer, steps = self.buffer, self.cfg.lookback_labels
+        if self._recent is None or self._recent.maxlen != steps:
+            self._recent = collections.deque(maxlen=steps)
+        recent = self._recent
+        if record.takeover and record.a_expert is not None and recent:
+            label = np.asarray(record.a_expert, np.float32).reshape(-1)
+            for back, (row, key, agent) in enumerate(reversed(recent), start=1):
+                if not agent or key != (record.episode, record.t - back) or buffer.takeover[row]:
+                    break
+                buffer.a_expert[row], buffer.takeover[row] = label, True
+                self.looked_back += 1
+        recent.append((buffer.pos, (record.episode, record.t), not record.takeover))
 
     def encoded(self, record: StepRecord) -> StepRecord:
         """The step with its actions as the buffers and the world model hold them (:meth:`encode_action`)."""

@@ -177,3 +177,33 @@ def test_a_row_is_refused_only_where_the_gate_judged_the_agents_proposal_and_the
     if sampled is not None:  # the refused row's own proposal, not the executed (expert's) action
         np.testing.assert_allclose(sampled.a_rl.numpy(), np.tile([0.1, 0.0], (4, 1)), rtol=1e-6)
         np.testing.assert_allclose(sampled.action.numpy(), np.tile([-1.0, 1.0], (4, 1)))
+
+
+def test_lookback_labels_the_agents_steps_before_an_onset_with_the_experts_onset_action() -> None:
+    """``learner.lookback_labels=3``: at a takeover onset the agent's last three steps of the same episode become
+    imitation rows with the expert's onset action; steps further back, of another episode, or driven by the expert
+    keep what they were; with 0 nothing changes."""
+    import dataclasses
+
+    from core.learners import make_learner
+    from core.sage.config import for_method
+
+    def run(lookback: int) -> ReplayBuffer:
+        cfg = for_method("sac", hidden=8, batch_size=4, lookback_labels=lookback)
+        learner = make_learner("sac", cfg, 3, 2, seed=0)
+        steps = [record(i, takeover=i in (6, 7)) for i in range(10)]  # the agent drives t 0-5 and 8-9
+        steps[6] = dataclasses.replace(steps[6], a_expert=np.array([-0.5, 0.25], np.float32))
+        other = dataclasses.replace(record(5, takeover=False), episode=1)  # t 5, but of another episode
+        for step in [other, *steps]:
+            learner.store(step)
+        return learner.buffer
+
+    plain, looked = run(0), run(3)
+    np.testing.assert_array_equal(plain.takeover[:11], [False] * 7 + [True, True, False, False])
+    # rows: 0 is the other episode's, 1 + t the steps t = 0..9; the onset is t = 6 (row 7)
+    np.testing.assert_array_equal(looked.takeover[:11], [False] * 4 + [True] * 5 + [False, False])
+    np.testing.assert_allclose(looked.a_expert[4:7], np.tile([-0.5, 0.25], (3, 1)))
+    np.testing.assert_allclose(looked.action[4:7], plain.action[4:7])  # what was executed stays
+    np.testing.assert_array_equal(looked.a_expert[:4], plain.a_expert[:4])
+    with pytest.raises(ValueError, match="lookback_labels"):
+        for_method("sage", lookback_labels=-1)
