@@ -316,26 +316,32 @@ def test_fine_tuning_says_what_it_runs(setup, caplog: pytest.LogCaptureFixture) 
     assert published.metrics["method"] == plain.method
 
 
-def test_a_rounds_intervention_cost_shapes_the_sessions_takeover_onsets(setup) -> None:
-    """``--set learner.intervention_penalty=...`` reaches the round's learner (after SAGE's switches, which set it
-    to 0): the agent's step before each recorded takeover onset loses the penalty (without it none does:
-    tests/core/test_multi_hug.py)."""
-    versions, store, _ = setup
+def record_every_third(versions: VersionStore, store: SessionStore) -> str:
+    """Two episodes of v0000 on the moving obstacle under a stand-in gate that hands over every third step (so there
+    are takeover onsets, the agent driving between) with fear rising 0.1 a step against τ 0.5; the session's id."""
     agent = load_agent(versions.get(0).path)
     writer = store.create("point", scenario="dynamic")
-    # the gate stand-in hands over every third step: the agent drives between, so there are takeover onsets
     runner = Runner(point_env("dynamic"), agent.policy, EveryThird(), ScriptedExpert(), seed=0, deterministic=True)
     writer.attach(runner)
     for _ in range(2):
         runner.run_episode()
     writer.close()
-    steps = store.steps(writer.session_id)
+    return writer.session_id
+
+
+def test_a_rounds_intervention_cost_shapes_the_sessions_takeover_onsets(setup) -> None:
+    """``--set learner.intervention_penalty=...`` reaches the round's learner (after SAGE's switches, which set it
+    to 0): the agent's step before each recorded takeover onset loses the penalty (without it none does:
+    tests/core/test_multi_hug.py)."""
+    versions, store, _ = setup
+    session = record_every_third(versions, store)
+    steps = store.steps(session)
     onsets = sum(
         1
         for i in range(1, len(steps["t"]))
         if steps["takeover"][i] and not steps["takeover"][i - 1] and steps["episode"][i] == steps["episode"][i - 1]
     )
-    tuner = Finetuner(versions, store, writer.session_id, fast(overrides=("intervention_penalty=5",), updates=10))
+    tuner = Finetuner(versions, store, session, fast(overrides=("intervention_penalty=5",), updates=10))
     assert tuner.learner.cfg.intervention_penalty == 5 and onsets > 0
     tuner.round()
     assert tuner.learner.shaped == onsets
@@ -345,20 +351,12 @@ def test_a_rounds_refused_proposals_come_from_the_session_and_reach_the_critic(s
     """``--set learner.refused_weight=...`` reaches the round's learner; the rows it reads are exactly the session's
     takeover steps whose fear was over τ (the gate judged the agent's proposal there), not the hold's others."""
     versions, store, _ = setup
-    agent = load_agent(versions.get(0).path)
-    writer = store.create("point", scenario="dynamic")
-    # the stand-in gate's fear rises 0.1 a step against τ 0.5 and it hands over every third step: takeovers under
-    # τ (t = 3) and over it (t = 6, 9, ...)
-    runner = Runner(point_env("dynamic"), agent.policy, EveryThird(), ScriptedExpert(), seed=0, deterministic=True)
-    writer.attach(runner)
-    for _ in range(2):
-        runner.run_episode()
-    writer.close()
-    steps = store.steps(writer.session_id)
+    session = record_every_third(versions, store)  # takeovers under τ (t = 3) and over it (t = 6, 9, ...)
+    steps = store.steps(session)
     takeovers = np.asarray(steps["takeover"], bool)
     judged = takeovers & (np.asarray(steps["fear"]) > np.asarray(steps["threshold"]))
     assert 0 < judged.sum() < takeovers.sum()
-    tuner = Finetuner(versions, store, writer.session_id, fast(overrides=("refused_weight=1",), updates=10))
+    tuner = Finetuner(versions, store, session, fast(overrides=("refused_weight=1",), updates=10))
     assert tuner.learner.cfg.refused_weight == 1
     result = tuner.round()
     assert result.updates > 0 and tuner.learner.buffer.refused_count() == judged.sum()
