@@ -10,12 +10,18 @@ SAC terms and the anchor) on every state the versions reach. The takeover column
 and mean nothing; its alone and static columns are read.
 
     OMP_NUM_THREADS=1 python docs/notes/forgetting_anatomy/shadow_labels.py OUT SEED [SEED ...] [--plain]
+        [--mode all | --mode fraction:P | --mode before:K]
 
-Run from the repository root; OUT gets `runs/sage-sSEED` and `rows.json` (the trial's row per seed)."""
+Run from the repository root; OUT gets `runs/sage-sSEED` and `rows.json` (the trial's row per seed). ``--mode``
+says which agent steps get the expert's label: ``all`` (the default), ``fraction:P`` (each with probability P, as a
+person coaching part of the time might), ``before:K`` (the K agent steps before each takeover onset, each with the
+expert's own choice at it, as a person reviewing the approach after a takeover might)."""
 
 from __future__ import annotations
 
+import collections
 import json
+import random
 import sys
 from pathlib import Path
 from typing import Any
@@ -25,6 +31,7 @@ import numpy as np
 import studies.cycles as cycles
 from core.loop import NoGate, Runner
 from core.protocol import StepRecord
+from core.sessions import SessionWriter
 
 
 class LabellingPolicy:
@@ -42,19 +49,77 @@ class LabellingPolicy:
 
 
 class ShadowRunner(Runner):
-    """A deployment runner whose agent-driven steps are recorded with the expert's label as takeovers."""
+    """A deployment runner whose agent-driven steps (those ``MODE`` picks) are recorded with the expert's label as
+    takeovers."""
+
+    mode = "all"
+    """Which agent steps get the label (the module's ``--mode``); set by :func:`main`."""
 
     def __init__(self, env: Any, policy: Any, gate: Any, expert: Any, **kwargs: Any) -> None:
         super().__init__(env, LabellingPolicy(policy, env), gate, expert, **kwargs)
+        self.labels: dict[int, np.ndarray] = {}
+        self.rng = random.Random(int(kwargs.get("seed", 0)))
         self.step_listeners.insert(0, self._label)
 
     def set_policy_at_boundary(self, policy: Any, gate: Any = None) -> None:
         super().set_policy_at_boundary(LabellingPolicy(policy, self.env), gate)
 
     def _label(self, record: StepRecord) -> None:
-        if not record.takeover and isinstance(self.policy, LabellingPolicy) and self.policy.label is not None:
-            record.a_expert = self.policy.label
-            record.takeover = True
+        if record.takeover or not isinstance(self.policy, LabellingPolicy) or self.policy.label is None:
+            return
+        kind, _, value = self.mode.partition(":")
+        if kind == "all" or (kind == "fraction" and self.rng.random() < float(value)):
+            record.a_expert, record.takeover = self.policy.label, True
+        elif kind == "before":
+            self.labels[id(record)] = self.policy.label  # given by Delayed at the next onset, if within K steps
+
+
+class Delayed:
+    """The session writer's listeners, holding the last K steps back: at a takeover onset the agent steps among them
+    (same episode, back to the first expert step) are labelled with the expert's own choice there before written."""
+
+    def __init__(self, writer: Any, runner: ShadowRunner, steps: int) -> None:
+        self.writer, self.runner = writer, runner
+        self.pending: collections.deque[StepRecord] = collections.deque()
+        self.steps = steps
+
+    def on_step(self, record: StepRecord) -> None:
+        onset = record.takeover and self.pending and not self.pending[-1].takeover
+        if onset:
+            for earlier in reversed(self.pending):
+                label = self.runner.labels.get(id(earlier))
+                if earlier.takeover or earlier.episode != record.episode or label is None:
+                    break
+                earlier.a_expert, earlier.takeover = label, True
+            self.flush()
+        self.pending.append(record)
+        while len(self.pending) > self.steps:
+            self.write(self.pending.popleft())
+
+    def write(self, record: StepRecord) -> None:
+        self.runner.labels.pop(id(record), None)
+        self.writer.on_step(record)
+
+    def flush(self) -> None:
+        while self.pending:
+            self.write(self.pending.popleft())
+
+    def on_episode(self, summary: Any) -> None:
+        self.flush()
+        self.writer.on_episode(summary)
+
+
+def attach(writer: Any, runner: Any) -> Any:
+    """``SessionWriter.attach``, through :class:`Delayed` for a ``before:K`` shadow runner."""
+    if isinstance(runner, ShadowRunner) and runner.mode.startswith("before:"):
+        delayed = Delayed(writer, runner, int(runner.mode.partition(":")[2]))
+        runner.step_listeners.append(delayed.on_step)
+        runner.episode_listeners.append(delayed.on_episode)
+        return writer
+    return ORIGINAL_ATTACH(writer, runner)
+
+
+ORIGINAL_ATTACH = SessionWriter.attach
 
 
 def runner(env: Any, policy: Any, gate: Any, expert: Any, **kwargs: Any) -> Runner:
@@ -64,12 +129,14 @@ def runner(env: Any, policy: Any, gate: Any, expert: Any, **kwargs: Any) -> Runn
     return ShadowRunner(env, policy, gate, expert, **kwargs)
 
 
-def main(out: Path, seeds: list[int], shadow: bool = True) -> None:
+def main(out: Path, seeds: list[int], shadow: bool = True, mode: str = "all") -> None:
     """``shadow=False`` runs the trial as the study does (the check that this in-process call reproduces it)."""
     from studies.cycles_study import trial
 
     if shadow:
+        ShadowRunner.mode = mode
         cycles.Runner = runner  # type: ignore[assignment,misc]
+        SessionWriter.attach = attach  # type: ignore[method-assign]
     rows_file = out / "rows.json"
     rows = json.loads(rows_file.read_text()) if rows_file.is_file() else {}
     for seed in seeds:
@@ -96,4 +163,9 @@ def main(out: Path, seeds: list[int], shadow: bool = True) -> None:
 if __name__ == "__main__":
     plain = "--plain" in sys.argv
     args = [a for a in sys.argv[1:] if a != "--plain"]
-    main(Path(args[0]), [int(s) for s in args[1:]], shadow=not plain)
+    mode = "all"
+    if "--mode" in args:
+        at = args.index("--mode")
+        mode = args[at + 1]
+        del args[at : at + 2]
+    main(Path(args[0]), [int(s) for s in args[1:]], shadow=not plain, mode=mode)
