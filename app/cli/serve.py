@@ -243,6 +243,7 @@ def _check_finetune(
     from app.server import ServerSettings
     from core.agents import load_checkpoint
     from core.finetune import FinetuneConfig, adaptation_config
+    from core.learners import learner_entry
     from core.sage.config import apply_overrides, from_dict
 
     if not round_pairs and not learner_pairs:
@@ -259,8 +260,9 @@ def _check_finetune(
         _fail(f"--set finetune.…: {_first_line(exc)}")
     try:
         trained = from_dict(load_checkpoint(opening)["agent_config"])
-        apply_overrides(adaptation_config(trained) if config.adapt_as_sage else trained, list(learner_pairs))
-    except (ValueError, TypeError) as exc:
+        rounds = apply_overrides(adaptation_config(trained) if config.adapt_as_sage else trained, list(learner_pairs))
+        learner_entry(rounds.method).cls.check_config(rounds)
+    except (ValueError, TypeError, KeyError) as exc:
         _fail(f"--set learner.…: {_first_line(exc)}")
     return config
 

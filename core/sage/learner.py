@@ -162,6 +162,16 @@ class BaseLearner:
     """Whether the update reads the gate's refused proposals (``AgentConfig.refused_weight``); one that does not
     refuses a weight over 0 rather than ignore it."""
 
+    @classmethod
+    def check_config(cls, cfg: AgentConfig) -> None:
+        """Refuse settings this learner would not read (a ValueError naming them), before any network is built: the
+        dashboard checks a round's learner settings this way before the server starts."""
+        if cfg.refused_weight > 0 and not cls.reads_refused:
+            raise ValueError(
+                f"refused_weight is read by the SAC learners only (sage, sac, fni-rl); {cfg.method} has no critic "
+                "of continuous actions to hold to it: set refused_weight=0"
+            )
+
     def __init__(
         self,
         cfg: AgentConfig,
@@ -174,11 +184,7 @@ class BaseLearner:
         device: str | torch.device = "cpu",
     ) -> None:
         self.cfg, self.obs_dim, self.act_dim, self.seed = cfg, obs_dim, act_dim, seed
-        if cfg.refused_weight > 0 and not self.reads_refused:
-            raise ValueError(
-                f"refused_weight is read by the SAC learners only (sage, sac, fni-rl); {cfg.method} has no critic "
-                "of continuous actions to hold to it: set refused_weight=0"
-            )
+        self.check_config(cfg)
         self.device = self._resolve_device(device)
         """Where the update runs: the trained networks, their optimisers and the sampled batches
         (:func:`core.device.resolve_device`). What acts in the loop and the world model's fit stay on the CPU."""

@@ -190,3 +190,11 @@ def test_the_workers_rounds_take_finetune_and_learner_settings_and_a_bad_one_is_
     code, out = run("--set", "learner.bc_weight=10", "--policy", "scripted", "--sessions", str(tmp_path / "bad"))
     _one_line_before_anything(code, out, tmp_path / "bad")
     assert "scripted" in out
+    # a setting the rounds' learner would not read: the pedestrian default adapts as SAGE-D3QN, which has no
+    # continuous critic for refused_weight; the UGV default's SAC rounds take it
+    given = ("--set", "learner.refused_weight=1", "--sessions", str(tmp_path / "bad"))
+    code, out = run("--sim", "pedestrian", *given)
+    _one_line_before_anything(code, out, tmp_path / "bad")
+    assert "refused_weight" in out and "SAC learners only" in out
+    code, out = run(*given[:2], "--port", "0", "--sessions", str(sessions))
+    assert code == 0 and seen[-1].finetune_config.overrides == ("refused_weight=1",)
