@@ -10,7 +10,7 @@ SAC terms and the anchor) on every state the versions reach. The takeover column
 and mean nothing; its alone and static columns are read.
 
     OMP_NUM_THREADS=1 python docs/notes/forgetting_anatomy/shadow_labels.py OUT SEED [SEED ...] [--plain]
-        [--mode all | --mode fraction:P | --mode before:K]
+        [--mode all | --mode fraction:P | --mode before:K] [--scenario NAME --unseen NAME]
 
 Run from the repository root; OUT gets `runs/sage-sSEED` and `rows.json` (the trial's row per seed). ``--mode``
 says which agent steps get the expert's label: ``all`` (the default), ``fraction:P`` (each with probability P, as a
@@ -129,7 +129,9 @@ def runner(env: Any, policy: Any, gate: Any, expert: Any, **kwargs: Any) -> Runn
     return ShadowRunner(env, policy, gate, expert, **kwargs)
 
 
-def main(out: Path, seeds: list[int], shadow: bool = True, mode: str = "all") -> None:
+def main(
+    out: Path, seeds: list[int], shadow: bool = True, mode: str = "all", scenario: str = "3", unseen: str = ""
+) -> None:
     """``shadow=False`` runs the trial as the study does (the check that this in-process call reproduces it)."""
     from studies.cycles_study import trial
 
@@ -144,8 +146,8 @@ def main(out: Path, seeds: list[int], shadow: bool = True, mode: str = "all") ->
             "method": "sage",
             "seed": seed,
             "sim": "ugv",
-            "scenario": "3",
-            "unseen_scenario": "",
+            "scenario": scenario,
+            "unseen_scenario": unseen,
             "policy": str(Path("policies/ugv-default").resolve()),
             "train_steps": 6000,
             "eval_episodes": 10,
@@ -163,9 +165,17 @@ def main(out: Path, seeds: list[int], shadow: bool = True, mode: str = "all") ->
 if __name__ == "__main__":
     plain = "--plain" in sys.argv
     args = [a for a in sys.argv[1:] if a != "--plain"]
-    mode = "all"
-    if "--mode" in args:
-        at = args.index("--mode")
-        mode = args[at + 1]
-        del args[at : at + 2]
-    main(Path(args[0]), [int(s) for s in args[1:]], shadow=not plain, mode=mode)
+    options = {"--mode": "all", "--scenario": "3", "--unseen": ""}
+    for flag in options:
+        if flag in args:
+            at = args.index(flag)
+            options[flag] = args[at + 1]
+            del args[at : at + 2]
+    main(
+        Path(args[0]),
+        [int(s) for s in args[1:]],
+        shadow=not plain,
+        mode=options["--mode"],
+        scenario=options["--scenario"],
+        unseen=options["--unseen"],
+    )
