@@ -129,7 +129,7 @@ class ReplayBuffer:
             takeover=record.takeover,
             a_rl=record.a_rl,
             a_expert=record.a_expert,
-            refused=record.takeover and refused_by_gate(record.fear, record.threshold),
+            refused=refused_by_gate(record.fear, record.threshold),  # add() keeps it to takeover rows
         )
 
     # -- sampling --------------------------------------------------------------------------------
