@@ -38,6 +38,38 @@ class ScriptedExpert:
         return action, "expert"
 
 
+class CoachingExpert:
+    """An expert that also coaches (:class:`core.protocol.Coach`): on each step the agent drives, with probability
+    ``share``, the simulator's scripted expert gives its action at that state as a label, recorded and imitated by
+    the fine-tuning rounds, never executed: the headless stand-in for a person steering along at the dashboard
+    part of the time. Takeovers are the wrapped expert's, unchanged.
+
+    Why: the rounds' versions plateau where the expert's labels cover only the states after the gate fired; labels
+    on a share of the states the agent reaches itself (DAgger's coverage) are what carried UGV 3 past it
+    (docs/notes/forgetting_anatomy.md, seventeenth session). Its own random stream (``seed``): the rest of the loop
+    draws what it drew without a coach."""
+
+    def __init__(self, expert: Expert, share: float, seed: int = 0) -> None:
+        if not 0.0 <= share <= 1.0:
+            raise ValueError(f"coaching share must be in [0, 1], got {share}")
+        self.expert, self.share = expert, float(share)
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self) -> None:
+        self.expert.reset()
+
+    def wants_control(self) -> bool:
+        return self.expert.wants_control()
+
+    def act(self, env: gym.Env[Any, Any], obs: np.ndarray) -> tuple[np.ndarray, Actor]:
+        return self.expert.act(env, obs)
+
+    def coach(self, env: gym.Env[Any, Any], obs: np.ndarray) -> np.ndarray | None:
+        if self.share <= 0.0 or self.rng.random() >= self.share:
+            return None
+        return np.asarray(simulator(env).expert_action())
+
+
 class PolicyExpert:
     """A separately trained policy serving as the expert, as in the paper's driving studies."""
 

@@ -120,6 +120,7 @@ class RoundResult:
             "episodes": self.ingested.episodes,
             "steps": self.ingested.steps,
             "takeovers": self.ingested.takeovers,
+            "coached": self.ingested.coached,
             "dropped": self.ingested.dropped,
             "seconds": round(self.seconds, 3),
         }
@@ -408,8 +409,9 @@ class Finetuner:
         return self.base_first_state
 
     def _ingest(self, episodes: list[int]) -> Ingested:
-        """Ingest the episodes one by one, holding the takeover rows of every ``round(1 / holdout_share)``-th
-        episode with takeovers out of imitation (kept for the critic and the world model)."""
+        """Ingest the episodes one by one, holding the labelled rows (takeovers, coached steps) of every
+        ``round(1 / holdout_share)``-th episode with labels out of imitation (kept for the critic and the world
+        model)."""
         total = Ingested()
         every = round(1 / self.cfg.holdout_share) if self.cfg.holdout_share > 0 else 0
         for episode in episodes:
@@ -417,8 +419,9 @@ class Finetuner:
             total.episodes += got.episodes
             total.steps += got.steps
             total.takeovers += got.takeovers
+            total.coached += got.coached
             total.dropped += got.dropped
-            if got.takeovers == 0 or every == 0:
+            if got.takeovers + got.coached == 0 or every == 0:
                 continue
             self._takeover_episodes += 1
             if self._takeover_episodes % every:

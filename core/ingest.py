@@ -1,5 +1,6 @@
 """The session as training data: a recorded session's finished episodes read from the session store into a
-learner's replay buffer (:func:`ingest`), the takeover rows with the expert's action. Both faces of fine-tuning read
+learner's replay buffer (:func:`ingest`), the takeover rows with the expert's action and the coached rows with the
+coach's label. Both faces of fine-tuning read
 it through :mod:`core.finetune`."""
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ class Ingested:
     episodes: list[int] = field(default_factory=list)
     steps: int = 0
     takeovers: int = 0
+    coached: int = 0
+    """Rows the agent drove with a coach's label (imitated like takeovers; :class:`core.protocol.Coach`)."""
     dropped: int = 0
     """Rows left out because an observation or action held NaN/inf (a sensor glitch must not poison training)."""
 
@@ -50,7 +53,10 @@ def ingest(learner: BaseLearner, store: SessionStore, session_id: str, episodes:
                 out.dropped += 1
                 continue
             a_expert = arrays["a_expert"][i]
-            takeover = bool(arrays["takeover"][i]) and bool(np.isfinite(a_expert).all())
+            labelled = bool(np.isfinite(a_expert).all())
+            takeover = bool(arrays["takeover"][i]) and labelled
+            # a label on a step nobody took over is a coach's (core.protocol.Coach): imitated, not executed
+            coached = labelled and not bool(arrays["takeover"][i])
             # through the learner's own store: it encodes actions (a discrete learner's one-hot) and may shape
             # rewards (Multi-Hug's intervention penalty), as in headless training
             learner.store(
@@ -59,7 +65,7 @@ def ingest(learner: BaseLearner, store: SessionStore, session_id: str, episodes:
                     t=int(arrays["t"][i]),
                     obs=arrays["obs"][i],
                     a_rl=arrays["a_rl"][i],
-                    a_expert=a_expert if takeover else None,
+                    a_expert=a_expert if labelled else None,
                     action=arrays["action"][i],
                     takeover=takeover,
                     gate_fired=bool(arrays["gate_fired"][i]),
@@ -77,8 +83,10 @@ def ingest(learner: BaseLearner, store: SessionStore, session_id: str, episodes:
                     info={
                         "conflict": bool(arrays["conflict"][i])
                     },  # the world model's near-miss label, if it learns it
+                    coached=coached,
                 )
             )
             out.steps += 1
             out.takeovers += int(takeover)
+            out.coached += int(coached)
     return out

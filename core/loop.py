@@ -1,7 +1,7 @@
 """The one step loop behind every face of the product.
 
     s_t -> policy -> a_rl -> gate (fear F_t vs threshold tau_t, held k steps) -> takeover?
-        yes: a = expert(s_t)      no: a = a_rl
+        yes: a = expert(s_t)      no: a = a_rl (and a coaching expert's label for s_t, recorded, not executed)
     env.step(a) -> s_{t+1}, r_t, c_t -> gate.observe -> curiosity C_{t+1} -> StepRecord -> listeners
 
 Headless training and evaluation run :meth:`Runner.step` as fast as they can with a scripted expert;
@@ -155,6 +155,7 @@ class Runner:
             "ret": 0.0,
             "cost": 0.0,
             "takeovers": 0,
+            "coached": 0,
             "events": 0,
             "violations": 0,
             "fear": [],
@@ -193,13 +194,20 @@ class Runner:
             decision = self.gate.decide(obs, a_rl)
             takeover = expert is not None and (decision.fired or expert.wants_control())
             action = a_rl
+            coached = False
             if takeover:
                 assert expert is not None
                 a_expert, actor = expert.act(self.env, obs)
                 a_expert = np.asarray(a_expert)
                 action = a_expert
-            elif self.agent_action_filter is not None:
-                action = np.asarray(self.agent_action_filter(a_rl))
+            else:
+                coach = getattr(expert, "coach", None)
+                if coach is not None:  # asked before the step: the label is for the state the agent acts in
+                    label = coach(self.env, obs)
+                    if label is not None:
+                        a_expert, coached = np.asarray(label), True
+                if self.agent_action_filter is not None:
+                    action = np.asarray(self.agent_action_filter(a_rl))
             next_obs, reward, terminated, truncated, info = self.env.step(action)
             executed = info.get("executed_action") if takeover else None
             if executed is not None:
@@ -236,11 +244,13 @@ class Runner:
             next_obs=next_obs,
             wall_time=time.time(),
             info=info,
+            coached=coached,
         )
         acc = self._acc
         acc["ret"] += record.reward
         acc["cost"] += record.cost
         acc["takeovers"] += int(takeover)
+        acc["coached"] += int(coached)
         acc["events"] += int(takeover and not acc["prev"])
         acc["prev"] = takeover
         acc["violations"] += int(record.violation and not acc["prev_violation"])
@@ -297,6 +307,7 @@ class Runner:
             metrics=metrics,
             error=error,
             reason=reason or ("error" if error else "ended"),
+            coached=acc.get("coached", 0),
         )
         self.obs = None  # the next step() starts a new episode
         for listener in self.episode_listeners:

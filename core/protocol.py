@@ -69,6 +69,17 @@ class Expert(Protocol):
         ...
 
 
+class Coach(Protocol):
+    """An expert that can also *coach*: give its action as a label on a step the agent drives, without taking the
+    wheel (a person steering along at the dashboard; headless, :class:`core.experts.CoachingExpert`). The loop asks
+    on every step nobody takes over; the label is recorded (``StepRecord.a_expert`` with ``coached``) and imitated
+    by the fine-tuning rounds like a takeover's, never executed."""
+
+    def coach(self, env: gym.Env[Any, Any], obs: np.ndarray) -> np.ndarray | None:
+        """The label for this agent-driven step, or None (no coaching on this step)."""
+        ...
+
+
 @dataclass
 class StepRecord:
     """Everything one step produced; the unit that is streamed, stored and learned from."""
@@ -93,6 +104,8 @@ class StepRecord:
     next_obs: np.ndarray
     wall_time: float
     info: dict[str, Any] = field(default_factory=dict)
+    coached: bool = False
+    """The agent drove and the expert coached: ``a_expert`` is its label for this state, not what was executed."""
 
     @property
     def done(self) -> bool:
@@ -113,6 +126,7 @@ class StepRecord:
             "takeover": self.takeover,
             "gate_fired": self.gate_fired,
             "actor": self.actor,
+            "coached": self.coached,
             "a_rl": np.asarray(self.a_rl, dtype=float).reshape(-1).tolist(),
             "a_expert": None if self.a_expert is None else np.asarray(self.a_expert, dtype=float).reshape(-1).tolist(),
             "action": np.asarray(self.action, dtype=float).reshape(-1).tolist(),
@@ -157,6 +171,8 @@ class EpisodeSummary:
     reason: str = "ended"
     """Why it ended: ``terminated`` / ``truncated`` by the simulator, ``error``, or what the caller said
     (``step limit``, ``new episode``, ``simulator switched``, ``server stopped``...)."""
+    coached: int = 0
+    """Steps the agent drove with a coach's label (:class:`Coach`)."""
 
     @property
     def takeover_rate(self) -> float:
@@ -175,6 +191,8 @@ class EpisodeSummary:
             "mean_curiosity": self.mean_curiosity,
         }
         row.update(self.metrics)
+        if self.coached:  # only where a coach was on: the rows of every study without one stay as they were
+            row["coached"] = self.coached
         if self.error:
             row["error"] = self.error
         return row

@@ -64,6 +64,10 @@ class ReplayBuffer:
         """The simulator's traffic conflict flag (``info["conflict"]``: a near miss, e.g. highway's time to contact
         under 3 s; 0 where the simulator reports none): a label the world model may learn besides violations."""
         self.takeover = np.zeros(capacity, bool)
+        """Rows with an expert label to imitate: the expert drove (Ξ = 1), or it coached the agent's step
+        (:attr:`coached`)."""
+        self.coached = np.zeros(capacity, bool)
+        """The agent drove the row and a coach labelled it (``StepRecord.coached``): imitated, executed by the agent."""
         self.refused = np.zeros(capacity, bool)
         """The expert drove and the gate had judged the agent's own proposal a_RL dangerous there (fear over τ): a
         counterfactual failure of a_RL at that state, never executed (``AgentConfig.refused_weight``)."""
@@ -92,6 +96,7 @@ class ReplayBuffer:
         a_rl: np.ndarray | None = None,
         a_expert: np.ndarray | None = None,
         refused: bool = False,
+        coached: bool = False,
     ) -> None:
         obs = np.asarray(obs, np.float32).reshape(-1)
         if obs.shape[0] != self.obs_dim:
@@ -107,8 +112,9 @@ class ReplayBuffer:
         self.terminated[i] = float(terminated)
         self.violation[i] = float(violation)
         self.conflict[i] = float(conflict)
-        self.takeover[i] = bool(takeover) and a_expert is not None
-        self.refused[i] = bool(refused) and self.takeover[i]
+        self.coached[i] = bool(coached) and not takeover and a_expert is not None
+        self.takeover[i] = (bool(takeover) and a_expert is not None) or self.coached[i]
+        self.refused[i] = bool(refused) and self.takeover[i] and not self.coached[i]
         self.pos = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
         self.total += 1
@@ -130,6 +136,7 @@ class ReplayBuffer:
             a_rl=record.a_rl,
             a_expert=record.a_expert,
             refused=refused_by_gate(record.fear, record.threshold),  # add() keeps it to takeover rows
+            coached=record.coached,
         )
 
     # -- sampling --------------------------------------------------------------------------------

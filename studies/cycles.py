@@ -35,11 +35,11 @@ import gymnasium as gym
 import numpy as np
 
 from core.agents import LoadedAgent, load_agent
-from core.experts import ScriptedExpert
+from core.experts import CoachingExpert, ScriptedExpert
 from core.finetune import FinetuneConfig, Finetuner, VersionStore, drive_alone
 from core.loop import Gate, NoGate, Runner
 from core.promotion import PromotionConfig, evaluate_version
-from core.protocol import simulator
+from core.protocol import Expert, simulator
 from core.sessions import SessionStore
 from core.worker import judge
 
@@ -77,6 +77,9 @@ class CyclesConfig:
     """Deploy the deterministic policy (its mean action), as a fielded policy runs; False samples it."""
     max_episode_steps: int | None = None
     """Cut episodes at this many steps (None: the scenario's time limit)."""
+    coach_share: float = 0.0
+    """Coaching (:class:`core.experts.CoachingExpert`): on this share of the steps the agent drives, the scripted
+    expert's action is recorded as a label and imitated, not executed. 0 (default): takeovers only, the paper's."""
     fine_tune: bool = True
     """Fine-tune between cycles; False deploys the first version throughout (the control: the same situations,
     gate and expert, no learning)."""
@@ -97,6 +100,8 @@ class CyclesConfig:
             raise ValueError("--steps-per-cycle must be at least 1")
         if self.alone_episodes < 0:
             raise ValueError("--alone-episodes must be at least 0")
+        if not 0.0 <= self.coach_share <= 1.0:
+            raise ValueError(f"--coach-share must be in [0, 1], got {self.coach_share}")
         if self.unseen_scenario is None:
             self.unseen_scenario = unseen_of(self.sim, self.scenario)
 
@@ -175,6 +180,7 @@ def cycle_rows(episodes: list[dict[str, Any]], alone: list[dict[str, Any]] | Non
                 "episodes": len(group),
                 "steps": steps,
                 "takeover_rate": sum(int(e["takeovers"]) for e in group) / max(steps, 1),
+                "coached_rate": sum(int(e.get("coached", 0)) for e in group) / max(steps, 1),
                 "takeover_events": mean("takeover_events"),
                 "success": mean("success"),
                 "collision": mean("collision"),
@@ -254,6 +260,8 @@ def format_cycle_table(rows: list[dict[str, Any]], rounds: list[dict[str, Any]] 
             then = f"no version ({tuned.get('reason')})"
         else:
             then = f"v{tuned['version']:04d}: {tuned['updates']} updates, {tuned['takeovers']} takeover samples"
+            if tuned.get("coached"):
+                then += f", {tuned['coached']} coached"
         lines.append(
             "| "
             + " | ".join(
@@ -315,9 +323,10 @@ def run_cycles(
             meta={"study": "cycles", "dt": dt, "seed": cfg.seed, "episodes_per_cycle": cfg.episodes_per_cycle},
             scene_source=_scene_without_rays(env),
         )
-        runner = Runner(
-            env, agent.policy, gate_for(agent), ScriptedExpert(), seed=cfg.seed, deterministic=cfg.deterministic
-        )
+        expert: Expert = ScriptedExpert()
+        if cfg.coach_share > 0:
+            expert = CoachingExpert(expert, cfg.coach_share, seed=cfg.seed)
+        runner = Runner(env, agent.policy, gate_for(agent), expert, seed=cfg.seed, deterministic=cfg.deterministic)
         writer.attach(runner)
         prior = functools.partial(drive_alone, make_env=make_env, max_steps=cfg.max_episode_steps)
         # the version alone on the cycle's own scenario: FinetuneConfig.practice_episodes (off by default)
@@ -357,7 +366,9 @@ def run_cycles(
                     continue
                 say(
                     f"  fine-tuned {result.version.name}: {result.updates} updates ({result.skipped} skipped), "
-                    f"{result.ingested.takeovers} takeover samples, {result.seconds:.1f} s"
+                    f"{result.ingested.takeovers} takeover samples"
+                    + (f", {result.ingested.coached} coached" if result.ingested.coached else "")
+                    + f", {result.seconds:.1f} s"
                 )
                 if cfg.promotion is not None:
                     evaluator = functools.partial(
@@ -411,6 +422,8 @@ def _alone(
 def _cycle_line(row: dict[str, Any]) -> str:
     success, collision = row["success"] or 0.0, row["collision"] or 0.0
     line = f"takeover {100 * row['takeover_rate']:.1f}%, success {100 * success:.0f}%, collision {100 * collision:.0f}%"
+    if row.get("coached_rate"):
+        line += f", coached {100 * row['coached_rate']:.1f}%"
     if row.get("alone_success") is not None:
         line += f"; alone: success {100 * row['alone_success']:.0f}%"
     if row.get("unseen_success") is not None:

@@ -151,6 +151,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             ),
             max_episode_steps=config.get("max_episode_steps"),
             promotion=promotion_of(config),
+            coach_share=float(config.get("coach_share", 0.0)),
         )
         run_cycles(cfg, out, env_factory(sim))
     run = read_cycles(out)
@@ -272,6 +273,9 @@ def check_settings(settings: Mapping[str, Any]) -> None:
             raise ValueError(f"--set study.{key}={name}: {str(error).splitlines()[0]}") from None
     if unseen == scenario:
         raise ValueError(f"--set study.unseen_scenario={unseen}: the unseen scenario must differ from the scenario")
+    share = float(settings.get("coach_share", 0.0))
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"--set study.coach_share={share}: a share of the agent's steps, from 0 to 1")
     from core.promotion import REGRESSION_REFERENCES
 
     against = str(settings.get("regression_against", "base"))
@@ -330,6 +334,10 @@ STUDY = StudyDef(
         "evaluation episodes of each on the alone evaluations' seeds; success averaged over the static scenarios "
         "(each in the run folder's static.json); static_success_change = last - first (the first is the starting "
         "policy; frozen's last is too).",
+        "coach_share (study setting, default 0: takeovers only, the paper's protocol): on that share of the steps "
+        "the agent drives, the scripted expert's action is recorded as a coaching label and imitated by the rounds, "
+        "never executed (core.experts.CoachingExpert; a person steering along at the dashboard); the frozen control "
+        "gets the same coach, which it never learns from. takeover counts the expert's driving only.",
     ),
     settings={
         "sim": "ugv",
@@ -341,6 +349,7 @@ STUDY = StudyDef(
         "regression_scenarios": (),
         "regression_against": "base",
         "static_scenarios": "",
+        "coach_share": 0.0,
     },
     check_settings=check_settings,
     prepare=prepare,

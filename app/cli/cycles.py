@@ -97,6 +97,15 @@ def register(app: typer.Typer) -> None:
             bool,
             typer.Option(help="Fine-tune as before issue 62 (the base's own method, 400 updates, session data only)."),
         ] = False,
+        coach_share: Annotated[
+            float,
+            typer.Option(
+                min=0.0,
+                max=1.0,
+                help="Coaching: on this share of the agent's own steps the scripted expert's action is recorded as a "
+                "label and imitated, not executed (as a person steering along at the dashboard; 0: takeovers only).",
+            ),
+        ] = 0.0,
         stochastic: Annotated[bool, typer.Option(help="Deploy the sampled policy instead of its mean action.")] = False,
         max_episode_steps: Annotated[int | None, typer.Option(min=1, help="Cut episodes at this many steps.")] = None,
         figures: Annotated[Path | None, typer.Option(help="Folder for the figures (default: the run folder).")] = None,
@@ -156,6 +165,7 @@ def register(app: typer.Typer) -> None:
                 seed=seed,
                 deterministic=not stochastic,
                 max_episode_steps=max_episode_steps,
+                coach_share=coach_share,
                 finetune=rounds.with_settings(round_settings),
             )
             result = run_cycles(config, folder, make_env, progress=None if quiet else typer.echo)

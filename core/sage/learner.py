@@ -353,7 +353,7 @@ class BaseLearner:
         previous_row, previous_key = self._last_row, self._last_key
         penalty = self.cfg.intervention_penalty
         if penalty > 0 and record.takeover and previous_row is not None:
-            agent_before = not bool(buffer.takeover[previous_row])
+            agent_before = not bool(buffer.takeover[previous_row]) or bool(buffer.coached[previous_row])
             if agent_before and previous_key == (record.episode, record.t - 1):
                 buffer.reward[previous_row] -= penalty
                 self.shaped += 1
