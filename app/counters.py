@@ -24,6 +24,8 @@ class SessionCounters:
     """Finished episodes whose metrics report a collision."""
     person_steps: int = 0
     fallback_steps: int = 0
+    coached_steps: int = 0
+    """Steps the agent drove with the person's coaching label (key C): labels for the rounds, not takeovers."""
     expert_steps_by_cause: dict[str, int] = field(default_factory=lambda: dict.fromkeys(TAKEOVER_CAUSES, 0))
     """The scripted expert's steps by why it drove (:func:`core.loop.takeover_cause`), as the expert or as the
     fallback for a person who did not take hold."""
@@ -38,6 +40,7 @@ class SessionCounters:
         self._seen_steps += 1
         self.person_steps += int(record.actor == "person")
         self.fallback_steps += int(record.actor == "fallback")
+        self.coached_steps += int(record.coached)
         if cause is not None and record.actor in ("expert", "fallback"):  # the scripted expert, either way
             self.expert_steps_by_cause[cause] += 1
 
@@ -66,6 +69,7 @@ class SessionCounters:
             "takeover_steps": takeovers,
             "person_steps": self.person_steps,
             "fallback_steps": self.fallback_steps,
+            "coached_steps": self.coached_steps,
             "takeover_events": self._done_events + (live.takeover_events if live else 0),
             "collisions": self.collisions,
             "violations": self._done_violations + (live.violations if live else 0),

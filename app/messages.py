@@ -70,6 +70,10 @@ class Input(_Operator):
     throttle: Axis = 0.0
     steer: Axis = 0.0
     source: Literal["keyboard", "gamepad"] = "keyboard"
+    coach: bool = Field(
+        default=False,
+        description="coaching (key C): the person steers along while the agent drives; a label, not executed",
+    )
 
 
 class Presence(_Operator):

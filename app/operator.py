@@ -13,6 +13,10 @@ take hold: never a neutral action, and the loop never waits. A person who vanish
 latched out for at least ``rejoin_after`` (so late heartbeats under load do not flip control step to step)
 and the scripted expert stays in charge rather than handing control back to the agent they were stopping.
 
+Coaching: while the person has coaching on (key C) and answers, their controls on a step the agent drives are
+recorded as a label for it (:meth:`PersonExpert.coach`), never executed: the rounds imitate them as they imitate a
+takeover, on states the agent reached itself. Holding the takeover still takes the wheel.
+
 Handover is bumpless: for a ``Box`` action the person's (or fallback's) first actions after a handover, and the
 policy's first ones when control returns to it (:meth:`PersonExpert.hand_back`), move from the executed action
 towards the target by at most ``max_jump`` of the action range per step, and every handover's action jump and the
@@ -59,6 +63,8 @@ class OperatorSnapshot:
     ts: float
     """The page's timestamp (ms since the epoch) of the input in effect."""
     source: str
+    coach: bool = False
+    """Coaching on (key C): while the agent drives, the person's controls are a label, not an action."""
 
 
 class OperatorConsole:
@@ -78,6 +84,7 @@ class OperatorConsole:
         self._last_ts = -float("inf")
         self._seq = -1
         self._source = "keyboard"
+        self._coach = False
         self.on_takeover_onset: Callable[[], None] | None = None
         """Called (outside the lock) when the operator starts holding the takeover: the loop steps at once."""
 
@@ -85,7 +92,7 @@ class OperatorConsole:
         """A new operator took the token: start from a clean slate (nothing held, no input yet)."""
         with self._lock:
             self._connected, self._focused, self._visible = True, True, True
-            self._held, self._throttle, self._steer = False, 0.0, 0.0
+            self._held, self._throttle, self._steer, self._coach = False, 0.0, 0.0, False
             self._last_input_at, self._last_ts, self._seq = -float("inf"), -float("inf"), -1
 
     def disconnect(self) -> None:
@@ -96,7 +103,9 @@ class OperatorConsole:
         with self._lock:
             self._focused, self._visible = focused, visible
 
-    def accept_input(self, *, seq: int, ts: float, held: bool, throttle: float, steer: float, source: str) -> bool:
+    def accept_input(
+        self, *, seq: int, ts: float, held: bool, throttle: float, steer: float, source: str, coach: bool = False
+    ) -> bool:
         """Store an input unless an input read later on the page already arrived (latest input wins)."""
         onset = False
         with self._lock:
@@ -104,7 +113,7 @@ class OperatorConsole:
                 return False
             onset = held and not self._held
             self._held, self._throttle, self._steer = held, throttle, steer
-            self._last_ts, self._seq, self._source = ts, seq, source
+            self._last_ts, self._seq, self._source, self._coach = ts, seq, source, coach
             self._last_input_at = self.clock()
         if onset and self.on_takeover_onset is not None:
             self.on_takeover_onset()
@@ -126,6 +135,7 @@ class OperatorConsole:
                 seq=self._seq,
                 ts=self._last_ts,
                 source=self._source,
+                coach=self._coach,
             )
 
     @property
@@ -232,6 +242,17 @@ class PersonExpert:
         self._scripted_drove = True
         actor: Actor = "expert" if self.mode == "person_fallback" and not self.latched else "fallback"
         return self._bumpless(np.asarray(action), actor), actor
+
+    def coach(self, env: gym.Env[Any, Any], obs: np.ndarray) -> np.ndarray | None:
+        """:class:`core.protocol.Coach`: the person's controls as a label for the step the agent drives, while they
+        coach (key C) and answer; never executed. Not while they hold the takeover (then they drive) or are latched
+        out, and never from the scripted expert: a label is a person's judgement or nothing."""
+        if self.mode == "scripted":
+            return None
+        snap = self._look()
+        if not (snap.coach and snap.answering) or snap.held or self.latched:
+            return None
+        return to_action(self.mapping, self.action_space, snap.throttle, snap.steer, self.safe)
 
     def hand_back(self, a_rl: np.ndarray) -> np.ndarray:
         """The policy's action as executed when nobody takes over (:attr:`core.loop.Runner.agent_action_filter`):

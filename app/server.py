@@ -291,7 +291,13 @@ async def _release(dash: Dashboard, client: Client, msg: m.Release) -> str:
 @handles(m.Input)
 async def _input(dash: Dashboard, client: Client, msg: m.Input) -> None:
     dash.console.accept_input(
-        seq=msg.seq, ts=msg.ts, held=msg.held, throttle=msg.throttle, steer=msg.steer, source=msg.source
+        seq=msg.seq,
+        ts=msg.ts,
+        held=msg.held,
+        throttle=msg.throttle,
+        steer=msg.steer,
+        source=msg.source,
+        coach=msg.coach,
     )
 
 

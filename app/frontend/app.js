@@ -290,7 +290,8 @@ function renderCounters(c) {
   $("st-episodes").textContent = c.episodes;
   $("st-steps").textContent = `${c.steps} steps`;
   $("st-events").textContent = c.takeover_events;
-  $("st-person").textContent = `person ${c.person_steps} · fallback ${c.fallback_steps}`;
+  $("st-person").textContent = `person ${c.person_steps} · fallback ${c.fallback_steps}` +
+    (c.coached_steps ? ` · coached ${c.coached_steps}` : "");
   const why = c.expert_share_by_cause || {};
   $("st-why").textContent = "scripted expert drove: " + (Object.values(why).some((v) => v > 0)
     ? `fear ${pct(why.fear)} · hold ${pct(why.hold)} · hysteresis ${pct(why.hysteresis)} · manoeuvre ${pct(why.manoeuvre)}`
@@ -628,11 +629,12 @@ $("sel-version").onchange = (e) => { S.versionPicked = e.target.value; e.target.
 // ---------------------------------------------------------------- operator input
 const keys = new Set();
 let sticky = false;
+let coaching = false; // key C: your controls label the agent's own steps (recorded for fine-tuning, not executed)
 const DRIVE = {
   KeyW: ["throttle", 1], ArrowUp: ["throttle", 1], KeyS: ["throttle", -1], ArrowDown: ["throttle", -1],
   KeyA: ["steer", 1], ArrowLeft: ["steer", 1], KeyD: ["steer", -1], ArrowRight: ["steer", -1],
 };
-const OURS = new Set(["Space", "KeyT", "KeyV", "Escape", ...Object.keys(DRIVE)]);
+const OURS = new Set(["Space", "KeyT", "KeyV", "KeyC", "Escape", ...Object.keys(DRIVE)]);
 
 // Taking over must work wherever the focus is: these keys are always the operator's (the page has no
 // text fields); pickers and sliders give the focus back as soon as they change.
@@ -646,7 +648,8 @@ function onKey(event, down) {
   if (S.role !== "operator") { if (down && event.code === "Space") toast("This page is watching: take control first."); return; }
   if (event.code === "KeyV") { if (down) toggleView(); return; }
   if (event.code === "KeyT") { if (down) sticky = !sticky; }
-  else if (event.code === "Escape") { if (down) sticky = false; }
+  else if (event.code === "KeyC") { if (down) { coaching = !coaching; toast(coaching ? "Coaching: steer along; the agent keeps driving, your controls are recorded as labels." : "Coaching off."); } }
+  else if (event.code === "Escape") { if (down) { sticky = false; coaching = false; } }
   else if (down) keys.add(event.code);
   else keys.delete(event.code);
   tick(true);
@@ -742,7 +745,8 @@ function tick(immediate) {
   if (S.role === "operator" && S.presence.focused && S.presence.visible) {
     inp.seq += 1;
     if (send({ type: "input", token: S.token, seq: inp.seq, ts: performance.timeOrigin + performance.now(),
-               held: inp.held, throttle: round(inp.throttle), steer: round(inp.steer), source: inp.source })) S.inputsSent += 1;
+               held: inp.held, throttle: round(inp.throttle), steer: round(inp.steer), source: inp.source,
+               coach: coaching })) S.inputsSent += 1;
   }
 }
 const round = (v) => Math.round(v * 1000) / 1000;
@@ -753,8 +757,8 @@ function renderInput() {
   setBar($("m-steer").querySelector("i"), S.input.steer);
   $("op-source").textContent = S.input.source + (sticky ? " · sticky" : "");
   const held = $("op-held");
-  held.textContent = S.input.held ? "TAKING OVER" : "released";
-  held.className = S.input.held ? "held-on" : "held-off";
+  held.textContent = S.input.held ? "TAKING OVER" : coaching ? "COACHING" : "released";
+  held.className = S.input.held ? "held-on" : coaching ? "coach-on" : "held-off";
 }
 
 function sendPresence(force) {

@@ -142,6 +142,31 @@ def test_holding_space_takes_over_steering_keys_drive_and_releasing_returns_cont
     page.context.close()
 
 
+def test_key_c_coaches_the_agent_keeps_driving_and_the_persons_steering_is_its_label(
+    browser: Any, calm_server: LiveServer
+) -> None:
+    page = open_page(browser, calm_server)
+    become_operator(page)
+    recorder = Recorder(calm_server)
+    page.keyboard.press("KeyC")
+    page.wait_for_function("document.getElementById('op-held').textContent === 'COACHING'", timeout=WAIT_MS)
+    t0 = time.time()
+    page.keyboard.down("KeyA")  # steer left along with the agent, without taking over
+    labelled = recorder.wait_for(lambda r: r.coached and r.a_expert is not None and r.a_expert[1] > 0.9, since=t0)
+    assert labelled.actor == "agent" and not labelled.takeover
+    assert labelled.action[1] == pytest.approx(labelled.a_rl[1], abs=1e-6), "the agent's own action is what ran"
+    page.wait_for_function("document.getElementById('st-person').textContent.includes('coached')", timeout=WAIT_MS)
+    page.keyboard.up("KeyA")
+    page.keyboard.press("Escape")  # stops coaching: no more labels
+    page.wait_for_function("document.getElementById('op-held').textContent === 'released'", timeout=WAIT_MS)
+    time.sleep(0.3)  # the last coached input's steps, already on their way, pass
+    t1 = time.time()
+    recorder.wait_for(lambda r: r.actor == "agent", since=t1)
+    time.sleep(0.5)
+    assert not any(r.coached for r in recorder.since(t1))
+    page.context.close()
+
+
 GAMEPAD_STUB = """
 window.__pad = {trigger: 0, x: 0, y: 0};
 Object.defineProperty(navigator, "getGamepads", {value: () => [{

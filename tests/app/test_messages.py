@@ -18,6 +18,11 @@ def test_valid_messages_parse_into_their_models() -> None:
         )
     )
     assert isinstance(msg, m.Input) and msg.held and msg.throttle == -1.0 and msg.source == "keyboard"
+    assert not msg.coach  # a page that knows nothing of coaching sends none
+    coached = m.parse_message(
+        json.dumps({"type": "input", "token": TOKEN, "seq": 4, "ts": 2, "held": False, "coach": True})
+    )
+    assert isinstance(coached, m.Input) and coached.coach
     assert isinstance(m.parse_message(b'{"type": "claim"}'), m.Claim)
     configure = m.parse_message(json.dumps({"type": "configure", "token": TOKEN, "expert_mode": "scripted"}))
     assert isinstance(configure, m.Configure) and configure.sim is None and configure.expert_mode == "scripted"
@@ -36,6 +41,7 @@ def test_valid_messages_parse_into_their_models() -> None:
         (json.dumps({"type": "speed", "token": TOKEN, "value": 1000}), "value"),
         (json.dumps({"type": "control", "token": TOKEN, "op": "explode"}), "op"),
         (json.dumps({"type": "input", "seq": 1, "ts": 1, "held": True}), "token"),
+        (json.dumps({"type": "input", "token": TOKEN, "seq": 1, "ts": 1, "held": False, "coach": "yes"}), "coach"),
         (json.dumps({"type": "configure", "token": TOKEN, "expert_mode": "robot"}), "expert_mode"),
         ("x" * (m.MAX_MESSAGE_BYTES + 1), "too long"),
         (b"\xff\xfe", "not JSON"),

@@ -295,3 +295,31 @@ def test_handover_person_to_policy_and_back_moves_at_most_a_quarter_of_the_range
     assert all(np.allclose(r.a_rl, [1.0, 1.0]) for r in records)  # its proposal is recorded unramped
     stats = loop.world.expert.handover_stats()
     assert stats["handovers"] >= 3 and stats["handover_jump_max"] <= 0.25 + 1e-6
+
+
+def test_coaching_labels_the_agents_steps_with_the_persons_controls_only_while_they_coach_and_answer(setup) -> None:
+    clock, console, expert, env = setup
+    console.connect()
+    obs = env._obs()
+
+    def coach(ts: float, seq: int, held: bool = False, on: bool = True) -> None:
+        console.accept_input(seq=seq, ts=ts, held=held, throttle=0.5, steer=-0.25, source="keyboard", coach=on)
+
+    send(console, 1.0, held=False, throttle=0.5, steer=-0.25)
+    assert expert.coach(env, obs) is None  # steering without coaching on is not a label
+    coach(2.0, 1)
+    label = expert.coach(env, obs)
+    assert label is not None and np.allclose(label, [0.5, -0.25])
+    assert not expert.wants_control(), "coaching never takes the wheel"
+    coach(3.0, 2, held=True)  # holding the takeover: the person drives, nothing is a label
+    assert expert.coach(env, obs) is None and expert.wants_control()
+    coach(4.0, 3)
+    clock.now += 0.201  # silent: no longer answering, so no label
+    assert expert.coach(env, obs) is None
+    coach(5.0, 4)
+    expert.mode = "scripted"  # the person's input is ignored in scripted mode, labels too
+    assert expert.coach(env, obs) is None
+    expert.mode = "person_fallback"
+    assert expert.coach(env, obs) is not None
+    coach(6.0, 5, on=False)
+    assert expert.coach(env, obs) is None

@@ -302,3 +302,25 @@ def test_rest_gives_an_episodes_timeline_and_refuses_a_missing_one(fast_server) 
     events = json.loads(body)
     assert status == 200 and events == fast_server.dash.store.events(sid, 0) and events[-1]["kind"] == "end"
     assert get(fast_server, f"/api/sessions/{sid}/events?episode=999")[0] == 404
+
+
+def test_a_coaching_operators_controls_label_the_agents_steps_and_are_counted(fast_server) -> None:
+    with ws(fast_server) as operator:
+        token = claim(operator)
+        operator.send(json.dumps({"type": "presence", "token": token, "focused": True, "visible": True}))
+        seq, coached = 0, None
+        deadline = time.monotonic() + 15
+        while coached is None and time.monotonic() < deadline:
+            seq += 1  # an input every few steps keeps the person answering (the fail-safe's 200 ms)
+            ts = time.time() * 1000
+            operator.send(
+                json.dumps(
+                    {"type": "input", "token": token, "seq": seq, "ts": ts, "held": False, "steer": 0.5, "coach": True}
+                )
+            )
+            msg = until(operator, lambda m: m["type"] == "step")
+            if msg["coached"]:
+                coached = msg
+        assert coached is not None, "no coached step while the operator coached"
+        assert coached["actor"] == "agent" and not coached["takeover"]  # the agent drove: coaching never takes over
+        assert coached["a_expert"] is not None and coached["counters"]["coached_steps"] >= 1

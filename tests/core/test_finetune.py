@@ -279,6 +279,35 @@ def test_ingest_keeps_takeover_labels_and_drops_rows_that_are_not_finite(deploye
     assert learner.buffer.arrays()["conflict"].tolist() == [0.0, 0.0, 1.0]
 
 
+def test_a_sessions_coached_steps_reach_the_round_as_labels_on_the_agents_own_transitions(
+    deployed: Path, tmp_path: Path
+) -> None:
+    from core.experts import CoachingExpert
+    from core.learners import make_learner
+    from core.sage.config import from_dict
+
+    store = SessionStore(tmp_path / "sessions")
+    agent = load_agent(deployed)
+    writer = store.create("point", scenario="static", session_id="coached")
+    runner = Runner(
+        point_env("static"), agent.policy, agent.make_gate(), CoachingExpert(ScriptedExpert(), 0.5, seed=1), seed=0
+    )
+    writer.attach(runner)
+    summaries = [runner.run_episode() for _ in range(2)]
+    writer.close()
+    coached, takeovers = sum(s.coached for s in summaries), sum(s.takeovers for s in summaries)
+    assert coached > 0 and takeovers > 0
+    agent_cfg = from_dict(load_checkpoint(deployed)["agent_config"])
+    learner = make_learner(agent_cfg.method, agent_cfg, agent.meta.obs_dim, agent.meta.act_dim)
+    got = ingest(learner, store, "coached", [0, 1])
+    assert (got.coached, got.takeovers) == (coached, takeovers)
+    rows = np.flatnonzero(learner.buffer.coached[: learner.buffer.size])
+    assert len(rows) == coached and learner.buffer.takeover_count() == coached + takeovers
+    # a coached row ran the agent's own action; its label is the expert's, which differs from it
+    np.testing.assert_allclose(learner.buffer.action[rows], learner.buffer.a_rl[rows])
+    assert not np.allclose(learner.buffer.a_expert[rows], learner.buffer.a_rl[rows])
+
+
 def test_bad_setups_are_refused_by_name(deployed: Path, tmp_path: Path) -> None:
     versions = VersionStore(tmp_path / "versions")
     store = SessionStore(tmp_path / "sessions")

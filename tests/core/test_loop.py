@@ -179,3 +179,39 @@ def test_policy_and_gate_swap_together_at_the_boundary_and_reset_options_reach_t
     runner.end_episode()
     runner.step()
     assert seen[-1] is None  # options are for one reset only
+
+
+def test_a_coaching_expert_labels_the_agents_steps_without_taking_the_wheel() -> None:
+    from core.experts import CoachingExpert
+
+    runner = Runner(LineEnv(), Still(), FiresAtStep({2}), CoachingExpert(ScriptedExpert(), share=1.0))
+    records: list[StepRecord] = []
+    runner.step_listeners.append(records.append)
+    summary = runner.run_episode()
+    agent = [r for r in records if not r.takeover]
+    assert len(agent) == 9 and records[2].takeover and not records[2].coached
+    for r in agent:  # the label is the expert's (+1), what ran is the agent's own (0), and the agent is the actor
+        assert r.coached and r.actor == "agent" and r.a_expert is not None and r.a_expert[0] == 1.0
+        assert r.action[0] == 0.0 and r.to_message()["coached"] is True
+    assert summary.takeovers == 1 and summary.coached == 9 and summary.as_row()["coached"] == 9
+
+
+def test_coaching_draws_its_share_from_its_own_stream_and_a_share_of_zero_is_no_coach() -> None:
+    from core.experts import CoachingExpert
+
+    def coached_steps(expert: object, episodes: int = 30) -> list[tuple[int, int]]:
+        runner = Runner(LineEnv(), Still(), FiresAtStep(set()), expert)  # type: ignore[arg-type]
+        records: list[StepRecord] = []
+        runner.step_listeners.append(records.append)
+        for _ in range(episodes):
+            runner.run_episode()
+        return [(r.episode, r.t) for r in records if r.coached]
+
+    first = coached_steps(CoachingExpert(ScriptedExpert(), share=0.3, seed=5))
+    assert 0.2 < len(first) / 300 < 0.4
+    assert coached_steps(CoachingExpert(ScriptedExpert(), share=0.3, seed=5)) == first
+    assert coached_steps(CoachingExpert(ScriptedExpert(), share=0.3, seed=6)) != first
+    runner = Runner(LineEnv(), Still(), FiresAtStep(set()), CoachingExpert(ScriptedExpert(), share=0.0))
+    assert "coached" not in runner.run_episode().as_row()  # the rows of a run without a coach stay as they were
+    with pytest.raises(ValueError, match="share"):
+        CoachingExpert(ScriptedExpert(), share=1.5)

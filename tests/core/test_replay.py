@@ -51,6 +51,23 @@ def test_records_keep_takeover_flag_and_both_actions() -> None:
     assert np.allclose(batch.next_obs.numpy(), batch.obs.numpy() + 1)
 
 
+def test_a_coached_row_is_imitated_with_its_label_and_keeps_the_agents_executed_action() -> None:
+    import dataclasses
+
+    buffer = ReplayBuffer(3, 2, 10)
+    label = np.array([0.5, -0.5], np.float32)
+    buffer.add_record(record(0, takeover=False))
+    # the gate judged this step dangerous (fear over τ) but nobody took over: a coached row is never "refused"
+    buffer.add_record(dataclasses.replace(record(1, takeover=False), a_expert=label, coached=True, fear=0.9))
+    buffer.add_record(dataclasses.replace(record(2, takeover=False), coached=True))  # no label: nothing to imitate
+    assert buffer.takeover.tolist()[:3] == [False, True, False] and buffer.coached.tolist()[:3] == [False, True, False]
+    assert buffer.refused_count() == 0
+    batch = buffer.sample_takeovers(8, np.random.default_rng(0))
+    assert batch is not None
+    np.testing.assert_allclose(batch.a_expert.numpy(), np.tile(label, (8, 1)))
+    np.testing.assert_allclose(batch.action.numpy(), np.tile([0.1, 0.0], (8, 1)), rtol=1e-6)  # what the agent ran
+
+
 def test_no_takeovers_means_no_imitation_batch() -> None:
     buffer = ReplayBuffer(3, 2, 10)
     buffer.add_record(record(0, takeover=False))

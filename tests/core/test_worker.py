@@ -202,7 +202,8 @@ def test_the_worker_exits_when_its_parent_is_killed(versions: VersionStore, tmp_
     parent = multiprocessing.get_context("spawn").Process(target=_server_stand_in, args=(spec, str(pid_file)))
     parent.start()
     try:
-        wait_for(pid_file.exists, 60, "the worker to start")
+        # the stand-in creates the file and then writes it: a loaded machine can show it empty in between
+        wait_for(lambda: pid_file.exists() and pid_file.read_text().strip() != "", 60, "the worker to start")
         worker = int(pid_file.read_text())
         time.sleep(1.0)  # the worker is up and waiting for episodes
         assert _alive(worker)

@@ -108,6 +108,24 @@ def test_the_cycles_study_runs_on_a_procedural_field_with_another_field_unseen(t
     }
 
 
+def test_the_cycles_study_coaches_on_its_share_of_the_agents_steps_and_the_rounds_imitate_the_labels(
+    tmp_path: Path,
+) -> None:
+    config = {"seed": 1, "train_steps": 120, "eval_episodes": 1, "runs_dir": str(tmp_path), "max_episode_steps": 50}
+    trial({**config, "method": "sage", "coach_share": 0.5})
+    tuned = json.loads((tmp_path / "sage-s1" / "cycles.json").read_text())
+    assert tuned["config"]["coach_share"] == 0.5
+    first = tuned["cycles"][0]
+    # about half of the agent's own steps carry a label; the takeover rate counts the expert's driving only
+    assert 0.3 < first["coached_rate"] / (1 - first["takeover_rate"]) < 0.7
+    assert tuned["rounds"][0]["coached"] == sum(e.get("coached", 0) for e in tuned["episodes"] if e["cycle"] == 1)
+    plain = tmp_path / "plain"
+    trial({**config, "runs_dir": str(plain), "method": "sage"})
+    untouched = json.loads((plain / "sage-s1" / "cycles.json").read_text())
+    assert untouched["config"]["coach_share"] == 0.0 and untouched["rounds"][0]["coached"] == 0
+    assert all(c["coached_rate"] == 0 for c in untouched["cycles"])
+
+
 def test_the_cycles_study_refuses_a_bad_scenario_in_one_line(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
@@ -123,6 +141,7 @@ def test_the_cycles_study_refuses_a_bad_scenario_in_one_line(tmp_path: Path) -> 
         (["study.scenario=ugv-fields:test:1", "study.unseen_scenario=ugv-fields:test:1"], "must differ"),
         (["study.scenario=4", "study.unseen_scenario=bogus"], "study.unseen_scenario=bogus"),
         (["study.policy=runs/no-such-policy"], "study.policy=runs/no-such-policy"),
+        (["study.coach_share=1.5"], "study.coach_share=1.5"),
     ):
         args = ["study", "cycles", "--budget", "small", "--out", str(tmp_path / "never")]
         for pair in pairs:
