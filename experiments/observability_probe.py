@@ -55,14 +55,21 @@ class ProbeConfig:
     """Gradient steps per iteration (Adam 1e-3, batch 256, the student trained on from the last iteration's)."""
     max_steps: int = 600
     seed: int = 0
+    hidden: tuple[int, ...] = (128, 128)
+    """The student's hidden layer widths (the default actor's 2 x 128)."""
 
 
 class Student(nn.Module):
-    """The default actor's shape: 2 x 128 ReLU, a tanh mean (actions in [-1, 1]^2)."""
+    """The default actor's shape by default: 2 x 128 ReLU, a tanh mean (actions in [-1, 1]^2); ``hidden`` other
+    layer widths (a capacity check)."""
 
-    def __init__(self, inputs: int) -> None:
+    def __init__(self, inputs: int, hidden: tuple[int, ...] = (128, 128)) -> None:
         super().__init__()
-        self.net = nn.Sequential(nn.Linear(inputs, 128), nn.ReLU(), nn.Linear(128, 128), nn.ReLU(), nn.Linear(128, 2))
+        layers: list[nn.Module] = []
+        for width in hidden:
+            layers += [nn.Linear(inputs, width), nn.ReLU()]
+            inputs = width
+        self.net = nn.Sequential(*layers, nn.Linear(inputs, 2))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return torch.tanh(self.net(x))
@@ -159,7 +166,7 @@ def run(cfg: ProbeConfig, cue: bool) -> list[dict[str, Any]]:
     """DAgger for one student; a row per iteration: data size, training loss and the student alone."""
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    student = Student(58 + (RANGES if cue else 0))
+    student = Student(58 + (RANGES if cue else 0), cfg.hidden)
     data = drive(cfg, None, cue, range(TRAIN_SEED, TRAIN_SEED + cfg.expert_episodes), label=True)
     rows: list[dict[str, Any]] = []
     next_seed = TRAIN_SEED + cfg.expert_episodes
@@ -202,7 +209,7 @@ def report(cfg: ProbeConfig, results: dict[str, list[dict[str, Any]]], seconds: 
         f"Commit `{commit}`, {seconds / 60:.1f} min. Expert drives {cfg.expert_episodes} episodes, then "
         f"{cfg.iterations} DAgger iterations of {cfg.episodes_per_iteration}; {cfg.updates} updates an iteration; "
         f"each student alone on {cfg.eval_episodes} episodes (seeds {ALONE_SEED:,} on), success with its 95% Wilson "
-        "interval.",
+        f"interval. Students' hidden layers: {' x '.join(str(w) for w in cfg.hidden)} (ReLU).",
         "",
         "| student | iteration | samples | training loss | alone success [95%] | collisions | timeouts |",
         "|---|---|---|---|---|---|---|",
@@ -231,8 +238,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", default="0", help="training seeds (student init and minibatches), e.g. 0,1,2")
     parser.add_argument("--scenario", default=ProbeConfig.scenario, help="learn here (e.g. ugv-fields:train)")
     parser.add_argument("--eval-scenario", default="", help="judge alone here (default: --scenario)")
+    parser.add_argument("--hidden", default="128,128", help="the students' hidden widths (default: the actor's)")
     args = parser.parse_args(argv)
     cfg = ProbeConfig(
+        hidden=tuple(int(w) for w in args.hidden.split(",")),
         scenario=args.scenario,
         eval_scenario=args.eval_scenario,
         iterations=args.iterations,

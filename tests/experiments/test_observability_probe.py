@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from experiments.observability_probe import RANGES, ProbeConfig, features, report, run
@@ -24,3 +26,30 @@ def test_a_tiny_probe_counts_every_alone_episode_and_aggregates_its_labels() -> 
     assert rows[1]["samples"] > rows[0]["samples"] > 0  # the student's own states were labelled and added
     text = report(cfg, {"scan+change, seed 0": rows}, 1.0, "abc1234")
     assert text.count("| scan+change, seed 0 |") == 2
+
+
+def test_students_learn_on_one_family_are_judged_on_another_and_may_be_wider(monkeypatch) -> None:
+    import experiments.observability_probe as probe
+
+    made: list[str] = []
+    real = probe.descriptor
+
+    class Spy:
+        def __init__(self, name: str) -> None:
+            self.inner = real(name)
+
+        def make(self, scenario: str) -> Any:
+            made.append(scenario)
+            return self.inner.make(scenario)
+
+    monkeypatch.setattr(probe, "descriptor", Spy)
+    cfg = ProbeConfig(
+        scenario="ugv-fields:train", eval_scenario="ugv-fields:test:2+", hidden=(16, 16, 16),
+        expert_episodes=1, iterations=1, episodes_per_iteration=1, eval_episodes=1, updates=2, max_steps=30,
+    )  # fmt: skip
+    rows = run(cfg, cue=False)
+    assert all(r["success"] + r["collision"] + r["timeout"] == 1 for r in rows)
+    # the expert's and the student's labelled drives on the training family; every alone drive on the test family
+    assert made == ["ugv-fields:train", "ugv-fields:test:2+", "ugv-fields:train", "ugv-fields:test:2+"]
+    text = report(cfg, {"scan, seed 0": rows}, 1.0, "abc1234")
+    assert "judged on ugv-fields:test:2+" in text and "16 x 16 x 16" in text
