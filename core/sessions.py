@@ -340,14 +340,17 @@ class SessionStore:
         return [json.loads(r["horizon"]) if r["horizon"] else None for r in rows]
 
     def events(self, session_id: str, episode: int) -> list[dict[str, Any]]:
-        """The episode's timeline: gate firings, takeover starts and ends (who acted), violations, a collision,
-        and the end with its reason; each ``{"t", "kind", ...}`` in step order."""
+        """The episode's timeline: gate firings, takeover starts and ends (who acted), coaching starts and ends (the
+        agent drove with a coach's label: ``coach_start`` / ``coach_end``), violations, a collision, and the end with
+        its reason; each ``{"t", "kind", ...}`` in step order."""
         with self._read(session_id) as conn:
             head = conn.execute("SELECT * FROM episodes WHERE episode = ?", (episode,)).fetchone()
             if head is None:
                 raise SessionError(f"session {session_id!r} has no episode {episode}")
             rows = conn.execute(
-                "SELECT t, actor, takeover, gate_fired, violation FROM steps WHERE episode = ? ORDER BY t", (episode,)
+                "SELECT t, actor, takeover, gate_fired, violation, a_expert IS NOT NULL AS labelled FROM steps "
+                "WHERE episode = ? ORDER BY t",
+                (episode,),
             ).fetchall()
         events: list[dict[str, Any]] = []
         version = _policy_version(head["metrics"])
@@ -359,7 +362,7 @@ class SessionStore:
             previous = _policy_version(before["metrics"]) if before is not None else None
             if previous != version:
                 events.append({"t": 0, "kind": "version", "version": version})
-        prev_gate = prev_violation = False
+        prev_gate = prev_violation = prev_coached = False
         prev_takeover: str | None = None
         for row in rows:
             t, actor = int(row["t"]), str(row["actor"])
@@ -370,9 +373,13 @@ class SessionStore:
                 events.append({"t": t, "kind": "takeover_end", "actor": prev_takeover})
             if taking is not None and taking != prev_takeover:
                 events.append({"t": t, "kind": "takeover_start", "actor": taking})
+            coached = bool(row["labelled"]) and not row["takeover"]
+            if coached != prev_coached:
+                events.append({"t": t, "kind": "coach_start" if coached else "coach_end"})
             if row["violation"] and not prev_violation:
                 events.append({"t": t, "kind": "violation"})
             prev_gate, prev_violation, prev_takeover = bool(row["gate_fired"]), bool(row["violation"]), taking
+            prev_coached = coached
         if rows and head["ended"] is not None:
             last = int(rows[-1]["t"])
             metrics = json.loads(head["metrics"]) if head["metrics"] else {}

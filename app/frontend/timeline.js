@@ -6,7 +6,7 @@
 
 const TIMELINE_COLORS = {
   agent: "rgba(52,211,153,0.35)", person: "#f59e0b", fallback: "#ef4444", expert: "#a78bfa",
-  gate: "#e2e8f0", violation: "#ef4444", collision: "#ef4444", end: "#7d8b9c",
+  gate: "#e2e8f0", violation: "#ef4444", collision: "#ef4444", end: "#7d8b9c", coach: "#34d399",
 };
 
 class Timeline {
@@ -55,6 +55,10 @@ class Timeline {
         ctx.strokeStyle = TIMELINE_COLORS[e.actor] || TIMELINE_COLORS.expert;
         ctx.setLineDash(e.kind === "takeover_end" ? [2, 2] : []);
         ctx.moveTo(x, 11); ctx.lineTo(x, laneTop - 1); ctx.stroke(); ctx.setLineDash([]);
+      } else if (e.kind === "coach_start" || e.kind === "coach_end") { // the agent drove, a person's label recorded
+        ctx.strokeStyle = TIMELINE_COLORS.coach;
+        ctx.setLineDash(e.kind === "coach_end" ? [2, 2] : [1, 3]);
+        ctx.moveTo(x, laneTop - 10); ctx.lineTo(x, laneTop - 1); ctx.stroke(); ctx.setLineDash([]);
       } else if (e.kind === "violation" || e.kind === "collision") {
         ctx.moveTo(x - 4, 12); ctx.lineTo(x + 4, 20); ctx.moveTo(x + 4, 12); ctx.lineTo(x - 4, 20); ctx.stroke();
       } else if (e.kind === "end") { ctx.fillRect(x - 1, 2, 2, laneTop - 2); }

@@ -232,6 +232,49 @@ def test_the_timeline_matches_the_takeovers_and_violations_in_the_store(tmp_path
         store.events(sid, 3)
 
 
+def test_the_timeline_marks_where_a_coach_labelled_the_agents_steps(tmp_path) -> None:
+    from core.experts import CoachingExpert
+
+    class CoachesFrom:
+        """Coaches every agent step from its third (t 2) on with the expert's label; the expert drives where the gate
+        fires."""
+
+        def __init__(self) -> None:
+            self.inner, self.t = ScriptedExpert(), 0
+
+        def reset(self) -> None:
+            self.t = 0
+
+        def wants_control(self) -> bool:
+            return False
+
+        def act(self, env: Any, obs: np.ndarray) -> Any:
+            return self.inner.act(env, obs)
+
+        def coach(self, env: Any, obs: np.ndarray) -> np.ndarray | None:
+            self.t += 1
+            return CoachingExpert(self.inner, 1.0).coach(env, obs) if self.t > 2 else None
+
+    store = SessionStore(tmp_path)
+    env = PlaneEnv()
+    runner = Runner(env, Still(), FiresAt({5}), CoachesFrom())
+    writer = store.create("plane", scenario=1, policy="still", expert_mode="person", commit_interval=0.05)
+    writer.attach(runner)
+    records: list[StepRecord] = []
+    runner.step_listeners.append(records.append)
+    runner.run_episode()
+    writer.close()
+    coached = [r.t for r in records if r.coached]
+    assert coached and not records[5].coached and records[5].takeover
+    kinds = [(e["t"], e["kind"]) for e in store.events(writer.session_id, 0)]
+    # coached from t 2, paused by the takeover at t 5, coached again after it
+    assert [(t, k) for t, k in kinds if k.startswith("coach")] == [
+        (2, "coach_start"), (5, "coach_end"), (6, "coach_start"),
+    ]  # fmt: skip
+    arrays = store.steps(writer.session_id, 0)
+    assert np.isfinite(arrays["a_expert"][2]).all() and not arrays["takeover"][2]  # the label, stored, not taken over
+
+
 def test_the_timeline_marks_a_new_policy_version_at_the_episode_it_took_over(tmp_path) -> None:
     store = SessionStore(tmp_path)
     env = PlaneEnv()
