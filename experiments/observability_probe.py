@@ -7,8 +7,9 @@ future poses. This probe asks whether the plateau is the learning or the observa
 default actor's shape (58 inputs, 2 x 128 ReLU, tanh) by DAgger from the scripted expert on UGV 3 itself (the
 expert labels every state the student visits; the data aggregate over iterations), one student on the observation as
 it is, one on the observation plus the change of its 54 ranges over the last step (a velocity cue the policy lacks;
-zeros at an episode's first step). Each iteration's student drives alone (deterministic, no gate, no expert) on the
-cycles study's alone seeds (9,000,000 on) and more.
+zeros at an episode's first step), and on request one on the observation plus a perfect tracker's view of the
+movers (``scan+movers``: their present positions and velocities, :func:`mover_tracks`). Each iteration's student
+drives alone (deterministic, no gate, no expert) on the cycles study's alone seeds (9,000,000 on) and more.
 
     OMP_NUM_THREADS=1 python -m experiments.observability_probe --out docs/notes/observability_probe.md
 
@@ -83,6 +84,31 @@ def features(obs: np.ndarray, previous: np.ndarray | None, cue: bool) -> np.ndar
     return np.concatenate([obs, change]).astype(np.float32)
 
 
+TRACKED = 3
+"""Movers a tracked student sees (the nearest first; UGV fields have at most three)."""
+
+
+def mover_tracks(sim: Any) -> np.ndarray:
+    """A perfect tracker's view of the movers now (``scan+movers`` students): for the three nearest, whether there,
+    and their position (m / 10) and velocity over the last step (m/s / 2) in the robot's frame. Not the expert's
+    privilege: nothing about where a mover will go beyond its present motion."""
+    out = np.zeros(TRACKED * 5, np.float32)
+    world, layout = sim.world, sim.layout
+    if world is None or layout is None or not layout.movers:
+        return out
+    k = world.k
+    world.ensure_table(k)
+    x, y, yaw = sim._pose
+    cos, sin = np.cos(-yaw), np.sin(-yaw)
+    now = world.mover_poses[:, k, 0:2] - (x, y)
+    moved = (world.mover_poses[:, k, 0:2] - world.mover_poses[:, max(k - 1, 0), 0:2]) / world.dt
+    rotate = np.array([[cos, -sin], [sin, cos]])
+    now, moved = now @ rotate.T, moved @ rotate.T
+    for slot, i in enumerate(np.argsort(np.hypot(now[:, 0], now[:, 1]))[:TRACKED]):
+        out[slot * 5 : slot * 5 + 5] = (1.0, *(now[i] / 10.0), *(moved[i] / 2.0))
+    return out
+
+
 @dataclass
 class Outcome:
     success: int = 0
@@ -101,6 +127,7 @@ def drive(
     label: bool,
     outcome: Outcome | None = None,
     scenario: str = "",
+    tracks: bool = False,
 ) -> Outcome:
     """Episodes at ``seeds`` of ``scenario`` (default ``cfg.scenario``): the student drives (the expert where
     ``student`` is None); with ``label`` the expert's action at every visited state is kept as the target."""
@@ -113,6 +140,8 @@ def drive(
             previous = None
             for _ in range(cfg.max_steps):
                 x = features(obs, previous, cue)
+                if tracks:
+                    x = np.concatenate([x, mover_tracks(sim)])
                 expert = np.asarray(sim.expert_action(), np.float32) if (label or student is None) else None
                 if student is None:
                     assert expert is not None
@@ -162,19 +191,19 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return centre - half, centre + half
 
 
-def run(cfg: ProbeConfig, cue: bool) -> list[dict[str, Any]]:
+def run(cfg: ProbeConfig, cue: bool, tracks: bool = False) -> list[dict[str, Any]]:
     """DAgger for one student; a row per iteration: data size, training loss and the student alone."""
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    student = Student(58 + (RANGES if cue else 0), cfg.hidden)
-    data = drive(cfg, None, cue, range(TRAIN_SEED, TRAIN_SEED + cfg.expert_episodes), label=True)
+    student = Student(58 + (RANGES if cue else 0) + (TRACKED * 5 if tracks else 0), cfg.hidden)
+    data = drive(cfg, None, cue, range(TRAIN_SEED, TRAIN_SEED + cfg.expert_episodes), label=True, tracks=tracks)
     rows: list[dict[str, Any]] = []
     next_seed = TRAIN_SEED + cfg.expert_episodes
     for iteration in range(cfg.iterations + 1):
         if iteration > 0:
             seeds = range(next_seed, next_seed + cfg.episodes_per_iteration)
             next_seed += cfg.episodes_per_iteration
-            drive(cfg, student, cue, seeds, label=True, outcome=data)
+            drive(cfg, student, cue, seeds, label=True, outcome=data, tracks=tracks)
         loss = train(student, np.stack(data.x), np.stack(data.y), cfg.updates, rng)
         alone = drive(
             cfg,
@@ -183,6 +212,7 @@ def run(cfg: ProbeConfig, cue: bool) -> list[dict[str, Any]]:
             range(ALONE_SEED, ALONE_SEED + cfg.eval_episodes),
             label=False,
             scenario=cfg.eval_scenario,
+            tracks=tracks,
         )
         rows.append(
             {
@@ -194,8 +224,9 @@ def run(cfg: ProbeConfig, cue: bool) -> list[dict[str, Any]]:
                 "timeout": alone.timeout,
             }
         )
-        print(f"cue={cue} iteration {iteration}: {len(data.x)} samples, loss {loss:.4f}, alone {alone.success}/"
-              f"{cfg.eval_episodes} (collisions {alone.collision}, timeouts {alone.timeout})", flush=True)  # fmt: skip
+        print(f"cue={cue} tracks={tracks} iteration {iteration}: {len(data.x)} samples, loss {loss:.4f}, "
+              f"alone {alone.success}/{cfg.eval_episodes} (collisions {alone.collision}, "
+              f"timeouts {alone.timeout})", flush=True)  # fmt: skip
     return rows
 
 
@@ -234,7 +265,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--expert-episodes", type=int, default=ProbeConfig.expert_episodes)
     parser.add_argument("--eval-episodes", type=int, default=ProbeConfig.eval_episodes)
     parser.add_argument("--updates", type=int, default=ProbeConfig.updates)
-    parser.add_argument("--students", default="scan,scan+change", help="which students: scan, scan+change")
+    parser.add_argument(
+        "--students", default="scan,scan+change", help="which students: scan, scan+change, scan+movers (tracked movers)"
+    )
     parser.add_argument("--seeds", default="0", help="training seeds (student init and minibatches), e.g. 0,1,2")
     parser.add_argument("--scenario", default=ProbeConfig.scenario, help="learn here (e.g. ugv-fields:train)")
     parser.add_argument("--eval-scenario", default="", help="judge alone here (default: --scenario)")
@@ -253,7 +286,9 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(1)
     start = time.time()
     results = {
-        f"{name}, seed {seed}": run(dataclasses.replace(cfg, seed=int(seed)), cue=name == "scan+change")
+        f"{name}, seed {seed}": run(
+            dataclasses.replace(cfg, seed=int(seed)), cue=name == "scan+change", tracks=name == "scan+movers"
+        )
         for name in args.students.split(",")
         for seed in args.seeds.split(",")
     }

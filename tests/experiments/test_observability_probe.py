@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pytest
 
 from experiments.observability_probe import RANGES, ProbeConfig, features, report, run
 
@@ -53,3 +54,26 @@ def test_students_learn_on_one_family_are_judged_on_another_and_may_be_wider(mon
     assert made == ["ugv-fields:train", "ugv-fields:test:2+", "ugv-fields:train", "ugv-fields:test:2+"]
     text = report(cfg, {"scan, seed 0": rows}, 1.0, "abc1234")
     assert "judged on ugv-fields:test:2+" in text and "16 x 16 x 16" in text
+
+
+def test_a_tracked_student_sees_the_nearest_movers_in_the_robots_frame() -> None:
+    from experiments.observability_probe import TRACKED, mover_tracks
+    from sims import descriptor
+
+    env = descriptor("ugv").make("3")
+    try:
+        env.reset(seed=0)
+        sim: Any = env.unwrapped
+        for _ in range(20):  # the crossing mover sets off after a few steps
+            env.step(np.zeros(2, np.float32))
+        tracks = mover_tracks(sim)
+        present = int(tracks[0::5].sum())
+        assert tracks.shape == (TRACKED * 5,) and present == min(len(sim.layout.movers), TRACKED) > 0
+        world, (x, y, _) = sim.world, sim._pose
+        nearest = min(np.hypot(*(world.mover_poses[i, world.k, 0:2] - (x, y))) for i in range(len(sim.layout.movers)))
+        assert 10 * np.hypot(tracks[1], tracks[2]) == pytest.approx(nearest, rel=1e-5)  # the first slot is the nearest
+        assert np.abs(tracks[3:5]).sum() > 0  # the crossing mover moves
+    finally:
+        env.close()
+    rows = run(ProbeConfig(expert_episodes=1, iterations=0, eval_episodes=1, updates=2, max_steps=20), False, True)
+    assert rows[0]["success"] + rows[0]["collision"] + rows[0]["timeout"] == 1
