@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from core.planners import make_planner
 from sims import descriptor
 
 RANGES = 54
@@ -58,6 +59,9 @@ class ProbeConfig:
     seed: int = 0
     hidden: tuple[int, ...] = (128, 128)
     """The student's hidden layer widths (the default actor's 2 x 128)."""
+    teacher: str = "scripted"
+    """Who labels: ``scripted`` (the simulator's privileged expert) or a planner's name (``teb``: the robot's own
+    sensing), which also drives iteration 0's demonstrations."""
 
 
 class Student(nn.Module):
@@ -134,6 +138,7 @@ def drive(
     env = descriptor("ugv").make(scenario or cfg.scenario)
     out = outcome or Outcome()
     sim: Any = env.unwrapped
+    planner = None if cfg.teacher == "scripted" else make_planner(cfg.teacher, env, "ugv")
     try:
         for seed in seeds:
             obs, _ = env.reset(seed=seed)
@@ -142,7 +147,10 @@ def drive(
                 x = features(obs, previous, cue)
                 if tracks:
                     x = np.concatenate([x, mover_tracks(sim)])
-                expert = np.asarray(sim.expert_action(), np.float32) if (label or student is None) else None
+                expert = None
+                if label or student is None:
+                    teacher = sim.expert_action() if planner is None else planner.act(obs, deterministic=True)
+                    expert = np.asarray(teacher, np.float32).reshape(2)
                 if student is None:
                     assert expert is not None
                     action = expert
@@ -240,7 +248,7 @@ def report(cfg: ProbeConfig, results: dict[str, list[dict[str, Any]]], seconds: 
         f"Commit `{commit}`, {seconds / 60:.1f} min. Expert drives {cfg.expert_episodes} episodes, then "
         f"{cfg.iterations} DAgger iterations of {cfg.episodes_per_iteration}; {cfg.updates} updates an iteration; "
         f"each student alone on {cfg.eval_episodes} episodes (seeds {ALONE_SEED:,} on), success with its 95% Wilson "
-        f"interval. Students' hidden layers: {' x '.join(str(w) for w in cfg.hidden)} (ReLU).",
+        f"interval. Students' hidden layers: {' x '.join(str(w) for w in cfg.hidden)} (ReLU). Teacher: {cfg.teacher}.",
         "",
         "| student | iteration | samples | training loss | alone success [95%] | collisions | timeouts |",
         "|---|---|---|---|---|---|---|",
@@ -272,8 +280,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--scenario", default=ProbeConfig.scenario, help="learn here (e.g. ugv-fields:train)")
     parser.add_argument("--eval-scenario", default="", help="judge alone here (default: --scenario)")
     parser.add_argument("--hidden", default="128,128", help="the students' hidden widths (default: the actor's)")
+    parser.add_argument("--teacher", default="scripted", help="who labels: scripted (privileged) or a planner (teb)")
     args = parser.parse_args(argv)
     cfg = ProbeConfig(
+        teacher=args.teacher,
         hidden=tuple(int(w) for w in args.hidden.split(",")),
         scenario=args.scenario,
         eval_scenario=args.eval_scenario,

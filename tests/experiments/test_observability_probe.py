@@ -77,3 +77,10 @@ def test_a_tracked_student_sees_the_nearest_movers_in_the_robots_frame() -> None
         env.close()
     rows = run(ProbeConfig(expert_episodes=1, iterations=0, eval_episodes=1, updates=2, max_steps=20), False, True)
     assert rows[0]["success"] + rows[0]["collision"] + rows[0]["timeout"] == 1
+
+
+def test_a_planner_can_be_the_teacher_and_its_actions_are_the_labels() -> None:
+    cfg = ProbeConfig(teacher="teb", expert_episodes=1, iterations=0, eval_episodes=1, updates=2, max_steps=15)
+    rows = run(cfg, cue=False)
+    assert rows[0]["samples"] == 15 and rows[0]["success"] + rows[0]["collision"] + rows[0]["timeout"] == 1
+    assert "Teacher: teb." in report(cfg, {"scan, seed 0": rows}, 1.0, "abc1234")
