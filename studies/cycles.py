@@ -38,6 +38,7 @@ from core.agents import LoadedAgent, load_agent
 from core.experts import CoachingExpert, ScriptedExpert
 from core.finetune import FinetuneConfig, Finetuner, VersionStore, drive_alone
 from core.loop import Gate, NoGate, Runner
+from core.planners import PlannerExpert
 from core.promotion import PromotionConfig, evaluate_version
 from core.protocol import Expert, simulator
 from core.sessions import SessionStore
@@ -77,6 +78,10 @@ class CyclesConfig:
     """Deploy the deterministic policy (its mean action), as a fielded policy runs; False samples it."""
     max_episode_steps: int | None = None
     """Cut episodes at this many steps (None: the scenario's time limit)."""
+    expert: str = "scripted"
+    """Who takes over when the gate fires: ``scripted``, the simulator's privileged expert (it knows where the movers
+    will go), or a planner's name (``teb`` on the UGV: it decides from the robot's own sensing, as a person at the
+    dashboard must)."""
     coach_share: float = 0.0
     """Coaching (:class:`core.experts.CoachingExpert`): on this share of the steps the agent drives, the scripted
     expert's action is recorded as a label and imitated, not executed. 0 (default): takeovers only, the paper's."""
@@ -102,6 +107,16 @@ class CyclesConfig:
             raise ValueError("--alone-episodes must be at least 0")
         if not 0.0 <= self.coach_share <= 1.0:
             raise ValueError(f"--coach-share must be in [0, 1], got {self.coach_share}")
+        if self.expert != "scripted":
+            import sims  # noqa: F401 (registers the simulators' planners)
+            from core.planners import checked_entry
+
+            try:
+                checked_entry(self.expert, self.sim)
+            except ValueError as error:  # an unknown planner, or one for another simulator: one line
+                raise ValueError(f"--expert {self.expert}: {error}") from None
+            if self.coach_share > 0:
+                raise ValueError("--coach-share coaches with the scripted expert; it needs --expert scripted")
         if self.unseen_scenario is None:
             self.unseen_scenario = unseen_of(self.sim, self.scenario)
 
@@ -319,11 +334,11 @@ def run_cycles(
             cfg.sim,
             scenario=cfg.scenario,
             policy=str(cfg.policy),
-            expert_mode="scripted",
+            expert_mode="scripted" if cfg.expert == "scripted" else f"planner:{cfg.expert}",
             meta={"study": "cycles", "dt": dt, "seed": cfg.seed, "episodes_per_cycle": cfg.episodes_per_cycle},
             scene_source=_scene_without_rays(env),
         )
-        expert: Expert = ScriptedExpert()
+        expert: Expert = ScriptedExpert() if cfg.expert == "scripted" else PlannerExpert(cfg.expert, cfg.sim)
         if cfg.coach_share > 0:
             expert = CoachingExpert(expert, cfg.coach_share, seed=cfg.seed)
         runner = Runner(env, agent.policy, gate_for(agent), expert, seed=cfg.seed, deterministic=cfg.deterministic)

@@ -152,6 +152,7 @@ def trial(config: dict[str, Any]) -> dict[str, float]:
             max_episode_steps=config.get("max_episode_steps"),
             promotion=promotion_of(config),
             coach_share=float(config.get("coach_share", 0.0)),
+            expert=str(config.get("expert", "scripted")),
         )
         run_cycles(cfg, out, env_factory(sim))
     run = read_cycles(out)
@@ -276,6 +277,17 @@ def check_settings(settings: Mapping[str, Any]) -> None:
     share = float(settings.get("coach_share", 0.0))
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"--set study.coach_share={share}: a share of the agent's steps, from 0 to 1")
+    expert = str(settings.get("expert", "scripted"))
+    if expert != "scripted":
+        import sims  # noqa: F401 (registers the simulators' planners)
+        from core.planners import checked_entry
+
+        try:
+            checked_entry(expert, sim)
+        except ValueError as error:
+            raise ValueError(f"--set study.expert={expert}: {error}") from None
+        if share > 0:
+            raise ValueError(f"--set study.expert={expert}: coaching (study.coach_share) is the scripted expert's")
     from core.promotion import REGRESSION_REFERENCES
 
     against = str(settings.get("regression_against", "base"))
@@ -338,6 +350,9 @@ STUDY = StudyDef(
         "the agent drives, the scripted expert's action is recorded as a coaching label and imitated by the rounds, "
         "never executed (core.experts.CoachingExpert; a person steering along at the dashboard); the frozen control "
         "gets the same coach, which it never learns from. takeover counts the expert's driving only.",
+        "expert (study setting, default scripted: the simulator's privileged expert, which knows where the movers will "
+        "go): who takes over when the gate fires, for both methods; a planner's name (teb on the UGV) takes over from "
+        "the robot's own sensing, as a person must.",
     ),
     settings={
         "sim": "ugv",
@@ -350,6 +365,7 @@ STUDY = StudyDef(
         "regression_against": "base",
         "static_scenarios": "",
         "coach_share": 0.0,
+        "expert": "scripted",
     },
     check_settings=check_settings,
     prepare=prepare,

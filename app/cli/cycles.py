@@ -97,6 +97,13 @@ def register(app: typer.Typer) -> None:
             bool,
             typer.Option(help="Fine-tune as before issue 62 (the base's own method, 400 updates, session data only)."),
         ] = False,
+        expert: Annotated[
+            str,
+            typer.Option(
+                help="Who takes over: scripted (the simulator's privileged expert) or a planner's name (teb on the "
+                "UGV: from the robot's own sensing, as a person)."
+            ),
+        ] = "scripted",
         coach_share: Annotated[
             float,
             typer.Option(
@@ -166,6 +173,7 @@ def register(app: typer.Typer) -> None:
                 deterministic=not stochastic,
                 max_episode_steps=max_episode_steps,
                 coach_share=coach_share,
+                expert=expert,
                 finetune=rounds.with_settings(round_settings),
             )
             result = run_cycles(config, folder, make_env, progress=None if quiet else typer.echo)

@@ -77,6 +77,29 @@ def test_sage_cycles_refuses_bad_options_by_name(policy: Path, tmp_path: Path) -
     (tmp_path / "used" / "versions").mkdir(parents=True)
     result = cli.invoke(app, ["cycles", "--policy", str(policy), "--out", str(tmp_path / "used")])
     assert result.exit_code == 2 and "already holds" in result.output
+    for options, words in (
+        (["--expert", "nobody"], "--expert nobody: unknown planner"),
+        (["--expert", "teb", "--coach-share", "0.2"], "needs --expert scripted"),
+    ):
+        result = cli.invoke(app, ["cycles", "--policy", str(policy), "--out", str(tmp_path / "never"), *options])
+        assert result.exit_code == 2 and words in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "never").exists()
+
+
+def test_a_planner_takes_over_in_the_cycles_when_it_is_the_expert(policy: Path, tmp_path: Path) -> None:
+    """``--expert teb``: the takeovers are the planner's (from the robot's own sensing), recorded as the expert's."""
+    config = CyclesConfig(
+        sim="ugv", scenario="3", policy=str(policy), cycles=1, episodes_per_cycle=1, alone_episodes=0,
+        max_episode_steps=80, expert="teb",
+    )  # fmt: skip
+    result = run_cycles(config, tmp_path / "run", env_factory("ugv"))
+    store = SessionStore(tmp_path / "run" / "sessions")
+    steps = store.steps(result.session, 0)
+    taken = np.flatnonzero(steps["takeover"])
+    assert len(taken) > 0 and store.info(result.session).expert_mode == "planner:teb"
+    np.testing.assert_allclose(steps["action"][taken], steps["a_expert"][taken])  # what ran is the planner's label
+    assert set(steps["actor"][taken].tolist()) == {"expert"}
+    assert read_cycles(tmp_path / "run")["config"]["expert"] == "teb"
 
 
 def test_cycle_rows_weigh_takeovers_by_steps() -> None:

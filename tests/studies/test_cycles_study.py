@@ -142,6 +142,8 @@ def test_the_cycles_study_refuses_a_bad_scenario_in_one_line(tmp_path: Path) -> 
         (["study.scenario=4", "study.unseen_scenario=bogus"], "study.unseen_scenario=bogus"),
         (["study.policy=runs/no-such-policy"], "study.policy=runs/no-such-policy"),
         (["study.coach_share=1.5"], "study.coach_share=1.5"),
+        (["study.expert=nobody"], "study.expert=nobody: unknown planner"),
+        (["study.expert=teb", "study.coach_share=0.25"], "is the scripted expert's"),
     ):
         args = ["study", "cycles", "--budget", "small", "--out", str(tmp_path / "never")]
         for pair in pairs:
