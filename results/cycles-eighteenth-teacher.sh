@@ -16,6 +16,14 @@
 #   Reported beside, not gating: supervised collisions (collision_first / last, cycles above the first), takeover
 #     first / last, alone on test:1, static.
 #   Otherwise: not shown; reported. Not finished by 11:10 UTC: the seeds that finished, undecided.
+# Added at 09:59 UTC after Eteb's primary held, before these runs (rule written now, committed with this edit):
+#   E2 (replication on a second field, ugv-fields:test:4, three movers, where no setting measured so far made a version
+#     drive it alone): E2ctl (scripted) against E2teb (TEB), the same unseen fields; the primary above, again. Holds:
+#     "replicated on a second field"; fails: "not replicated", and the docs say so beside arm E.
+#   E3 (UGV 3, the crossing; control cycles-defaults-intel-17 of the seventeenth session, this host kind reproduces
+#     it): E3teb, TEB as the expert. Primary: alone_success_last >= 0.90 with at most one seed lower than its control;
+#     guards: takeover_last <= 0.10, static_success_last >= control's - 0.05. Reported: supervised collisions, unseen
+#     UGV 4. Holds: TEB is how the rounds reach the crossing's alone target; fails: reported.
 set -u
 export OMP_NUM_THREADS=1
 cd "$(dirname "$0")/.."
@@ -30,4 +38,12 @@ run() {
 case $arm in
   control) run Ectl --out results/cycles-small-fields-unseen2 --section cycles-fields-unseen2 ;;
   teb) run Eteb --out results/cycles-small-fields-unseen2-teb --section cycles-fields-unseen2-teb --set study.expert=teb ;;
+  control4) run E2ctl --out results/cycles-small-field4-unseen2 --section cycles-field4-unseen2 \
+    --set study.scenario=ugv-fields:test:4 ;;
+  teb4) run E2teb --out results/cycles-small-field4-unseen2-teb --section cycles-field4-unseen2-teb \
+    --set study.scenario=ugv-fields:test:4 --set study.expert=teb ;;
+  teb3) echo "== E3teb start $(date -u +%FT%T) at $(git rev-parse --short HEAD)"
+    .venv/bin/python -m app.cli study cycles --budget small --cpus 2 --max-concurrent 2 --methods sage \
+      --results-doc docs/results.md --out results/cycles-small-teb --section cycles-teb --set study.expert=teb
+    echo "== rc=$? end $(date -u +%FT%T)" ;;
 esac
