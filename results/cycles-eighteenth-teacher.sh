@@ -16,7 +16,7 @@
 #   Reported beside, not gating: supervised collisions (collision_first / last, cycles above the first), takeover
 #     first / last, alone on test:1, static.
 #   Otherwise: not shown; reported. Not finished by 11:10 UTC: the seeds that finished, undecided.
-# Added at 09:59 UTC after Eteb's primary held, before these runs (rule written now, committed with this edit):
+# Added at 09:58 UTC after Eteb's primary held, before these runs (rule written now, committed with this edit):
 #   E2 (replication on a second field, ugv-fields:test:4, three movers, where no setting measured so far made a version
 #     drive it alone): E2ctl (scripted) against E2teb (TEB), the same unseen fields; the primary above, again. Holds:
 #     "replicated on a second field"; fails: "not replicated", and the docs say so beside arm E.
