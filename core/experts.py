@@ -44,10 +44,10 @@ class CoachingExpert:
     the fine-tuning rounds, never executed: the headless stand-in for a person steering along at the dashboard
     part of the time. Takeovers are the wrapped expert's, unchanged.
 
-    Why: the rounds' versions plateau where the expert's labels cover only the states after the gate fired; labels
-    on a share of the states the agent reaches itself (DAgger's coverage) are what carried UGV 3 past it
-    (docs/notes/forgetting_anatomy.md, seventeenth session). Its own random stream (``seed``): the rest of the loop
-    draws what it drew without a coach."""
+    Why: takeovers label only the states after the gate fired, none of the approach the agent chose itself; coaching
+    labels some of those too (DAgger's coverage). Measured on the crossing at a quarter of the steps it did not lift
+    the versions alone and raised their takeover (docs/notes/forgetting_anatomy.md, arm C). Its own random stream
+    (``seed``): the rest of the loop draws what it drew without a coach."""
 
     def __init__(self, expert: Expert, share: float, seed: int = 0) -> None:
         if not 0.0 <= share <= 1.0:

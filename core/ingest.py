@@ -1,7 +1,6 @@
 """The session as training data: a recorded session's finished episodes read from the session store into a
 learner's replay buffer (:func:`ingest`), the takeover rows with the expert's action and the coached rows with the
-coach's label. Both faces of fine-tuning read
-it through :mod:`core.finetune`."""
+coach's label. Both faces of fine-tuning read it through :mod:`core.finetune`."""
 
 from __future__ import annotations
 
