@@ -107,18 +107,28 @@ class CyclesConfig:
             raise ValueError("--alone-episodes must be at least 0")
         if not 0.0 <= self.coach_share <= 1.0:
             raise ValueError(f"--coach-share must be in [0, 1], got {self.coach_share}")
-        if self.expert != "scripted":
-            import sims  # noqa: F401 (registers the simulators' planners)
-            from core.planners import checked_entry
-
-            try:
-                checked_entry(self.expert, self.sim)
-            except ValueError as error:  # an unknown planner, or one for another simulator: one line
-                raise ValueError(f"--expert {self.expert}: {error}") from None
-            if self.coach_share > 0:
-                raise ValueError("--coach-share coaches with the scripted expert; it needs --expert scripted")
+        problem = expert_problem(self.sim, self.expert, self.coach_share)
+        if problem is not None:
+            raise ValueError(f"--expert {self.expert}: {problem}")
         if self.unseen_scenario is None:
             self.unseen_scenario = unseen_of(self.sim, self.scenario)
+
+
+def expert_problem(sim: str, expert: str, coach_share: float) -> str | None:
+    """Why ``expert`` cannot take over in cycles on ``sim`` with ``coach_share`` (None: it can): an unknown planner,
+    one for another simulator, or coaching, which is the scripted expert's."""
+    if expert == "scripted":
+        return None
+    import sims  # noqa: F401 (registers the simulators' planners)
+    from core.planners import checked_entry
+
+    try:
+        checked_entry(expert, sim)
+    except ValueError as error:
+        return str(error)
+    if coach_share > 0:
+        return "coaching (--coach-share, study.coach_share) is the scripted expert's: it needs --expert scripted"
+    return None
 
 
 #: A scenario of the same kind as each built-in one (two movers crossing the robot's path), for transfer.

@@ -257,7 +257,7 @@ def check_settings(settings: Mapping[str, Any]) -> None:
     """The scenario and the unseen one must be names the simulator knows, and differ (a procedural field such as
     ``ugv-fields:test:7`` is a scenario like UGV 3; it has no built-in unseen one, so the study is given one with
     ``unseen_scenario``); a ValueError of one line otherwise, before any trial."""
-    from studies.cycles import unseen_of
+    from studies.cycles import expert_problem, unseen_of
     from studies.envs import scenario_kwargs
 
     sim = str(settings.get("sim", "ugv"))
@@ -278,16 +278,9 @@ def check_settings(settings: Mapping[str, Any]) -> None:
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"--set study.coach_share={share}: a share of the agent's steps, from 0 to 1")
     expert = str(settings.get("expert", "scripted"))
-    if expert != "scripted":
-        import sims  # noqa: F401 (registers the simulators' planners)
-        from core.planners import checked_entry
-
-        try:
-            checked_entry(expert, sim)
-        except ValueError as error:
-            raise ValueError(f"--set study.expert={expert}: {error}") from None
-        if share > 0:
-            raise ValueError(f"--set study.expert={expert}: coaching (study.coach_share) is the scripted expert's")
+    problem = expert_problem(sim, expert, share)
+    if problem is not None:
+        raise ValueError(f"--set study.expert={expert}: {problem}")
     from core.promotion import REGRESSION_REFERENCES
 
     against = str(settings.get("regression_against", "base"))
