@@ -12,20 +12,23 @@ where fear does not says the policy, the expert and the hold leave the target wi
 what is missing; one that does not says the target asks more than any warning from these states can give.
 
     .venv/bin/python -m experiments.oracle_gate [--sim highway|ugv] [--episodes 300] [--ttc S [S ...]] [--gap M] \
-        [--out DIR] [--readme docs/notes/calibration_history.md] [--cpus N | --address HOST:PORT]
+        [--scenario NAME ...] [--out DIR] [--readme docs/notes/calibration_history.md] [--cpus N | --address HOST:PORT]
 
 The thresholds are conventional, not swept to fit: on highway a time to contact under 3 s is the traffic-conflict
 literature's usual line for a conflict (1.5 s for a serious one) and 1.5 m to the nearest vehicle about half a
 lane's width beside the ego's own; on the UGV the defaults are the warning the scripted expert needs (1 s, the
 calibration bench's warning table on every built-in UGV scenario) and the label horizon of its world model (2 s),
 and the margin the expert keeps to movers (0.12 m). Rows: the gate table's (``experiments/calibration.py``, its
-seeds, so the deployed rows reproduce its table at the same commit). Each row is a Ray task
-(:func:`studies.sweep.run_tasks`). Not a unit test: about 20 minutes of one core at 300 episodes on highway.
+seeds, so the deployed rows reproduce its table at the same commit), or the scenarios ``--scenario`` names (a
+family's split, e.g. ``highway-shift:test`` or ``ugv-fields:test:2+``: ground no model or threshold was fitted on).
+Each row is a Ray task (:func:`studies.sweep.run_tasks`). Not a unit test: about 20 minutes of one core at 300
+episodes on highway.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import subprocess
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -77,6 +80,26 @@ def row(sim: str, scenario: str, episodes: int, ttc: float | None = None, gap: f
     return run_gated(agent, make_env, gate, episodes, None, listeners=[gate.watch])
 
 
+def chosen_scenarios(sim: str, names: list[str] | None) -> list[str]:
+    """The rows' scenarios: ``names`` (comma lists split; each checked against the simulator: an unknown one is a
+    clear error before any episode runs), or the gate table's (:func:`experiments.calibration.table_scenarios`)."""
+    if not names:
+        return table_scenarios(sim)
+    chosen = [name.strip() for entry in names for name in entry.split(",") if name.strip()]
+    descriptor = sims.descriptor(sim)
+    for name in chosen:
+        try:
+            descriptor.scenario_kwargs(name)
+        except ValueError as err:
+            raise SystemExit(f"--scenario {name!r}: {err}") from err
+    return chosen
+
+
+def slug(name: str) -> str:
+    """A scenario name as a folder and block name's part (``ugv-fields:test:2+`` -> ``ugv-fields-test-2plus``)."""
+    return re.sub(r"[^a-z0-9]+", "-", name.lower().replace("+", "plus")).strip("-")
+
+
 def gates(ttcs: list[float], gap: float) -> list[tuple[str, dict[str, float | None]]]:
     """The table's gatings, named: the deployed fear gate, each time to contact alone, the gap alone, and each time
     to contact or the gap."""
@@ -94,6 +117,11 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=300, help="episodes per scenario and gate")
     parser.add_argument("--ttc", type=float, nargs="+", help="the privileged gates' times to contact [s]")
     parser.add_argument("--gap", type=float, help="the privileged gate's gap to the nearest vehicle or mover [m]")
+    parser.add_argument(
+        "--scenario",
+        action="append",
+        help="a scenario for the rows instead of the gate table's (repeatable, comma lists; e.g. highway-shift:test)",
+    )
     parser.add_argument("--out", type=Path, help="the report's folder (default: docs/notes/oracle_gate_<sim>)")
     parser.add_argument(
         "--readme",
@@ -109,7 +137,7 @@ def main() -> None:
     if args.episodes < 1 or gap <= 0 or any(ttc <= 0 for ttc in ttcs):
         parser.error("--episodes, --ttc and --gap must be positive")
     named = gates(ttcs, gap)
-    scenarios = table_scenarios(sim)
+    scenarios = chosen_scenarios(sim, args.scenario)
     cases = [(scenario, name, rule) for scenario in scenarios for name, rule in named]
     results = run_tasks(
         row,
@@ -124,6 +152,7 @@ def main() -> None:
     command = (
         f"python -m experiments.oracle_gate{' --sim ugv' if sim != 'highway' else ''} --episodes {args.episodes} "
         f"--ttc {' '.join(f'{ttc:g}' for ttc in ttcs)} --gap {gap:g}"
+        + "".join(f" --scenario {name}" for name in (scenarios if args.scenario else []))
     )
     what = {
         "highway": "Highway's gate beside gates that read the true time to contact and gaps",
@@ -148,8 +177,9 @@ def main() -> None:
             low, high = wilson_interval(bad, args.episodes)
             cells.append(f"{bad}/{args.episodes} ({low:.0%}-{high:.0%}) | {point['takeover_rate']:.1%}")
         lines.append(f"| {sim} {scenario} | " + " | ".join(cells) + " |")
-    out = args.out or ROOT / "docs" / "notes" / f"oracle_gate_{sim}"
-    publish(lines, out, args.readme, f"oracle-gate-{sim}", "## Calibration of fear")
+    suffix = "" if not args.scenario else "-" + "-".join(slug(name) for name in scenarios)
+    out = args.out or ROOT / "docs" / "notes" / f"oracle_gate_{sim}{suffix.replace('-', '_')}"
+    publish(lines, out, args.readme, f"oracle-gate-{sim}{suffix}", "## Calibration of fear")
 
 
 if __name__ == "__main__":
