@@ -61,7 +61,8 @@ def table_point(text: str, run: str, ground: str, scenarios: Sequence[str]) -> t
     in_section = False
     for line in text.splitlines():
         if line.startswith("## "):
-            in_section = line.strip() == f"## ugv: {run}"
+            # "## SIM: RUN": any simulator's section (the table has one per simulator)
+            in_section = line.strip().partition(": ")[2] == run
         cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
         if not in_section or len(cells) != 11 or not cells[0].startswith(f"{ground} ("):
             continue
@@ -75,6 +76,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m experiments.generalisation_rule", description=__doc__.split("\n")[0]
     )
+    parser.add_argument("--sim", default="ugv", help="the simulator of both runs (default: ugv)")
     parser.add_argument("--candidate", required=True, help="the candidate run folder, as the study was given it")
     parser.add_argument("--candidate-cache", type=Path, required=True)
     parser.add_argument("--candidate-set", action="append", default=[], help="its gate.KEY=VALUE, as measured")
@@ -128,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for run, cache, gate_settings in measured_rows:
             rows = generalisation_table(
                 run,
-                "ugv",
+                args.sim,
                 {ground: scenarios},
                 episodes,
                 episodes,

@@ -20,7 +20,7 @@ log=results/generalisation/highway-beta.log
       --set gate.tau_scale="$scale" --out results/generalisation/highway-beta.md \
       --cache results/generalisation/highway-beta.json
   echo "== $(date -u +%H:%M:%S): the rule's reading against the committed rows"
-  $PY -m experiments.generalisation_rule --candidate "$run" --candidate-cache results/generalisation/highway-beta.json \
+  $PY -m experiments.generalisation_rule --sim highway --candidate "$run" --candidate-cache results/generalisation/highway-beta.json \
       --candidate-set gate.tau_scale="$scale" --baseline policies/highway-default --baseline-table docs/generalisation.md \
       --unseen highway-shift:test --seen train --episodes 300 --seen-episodes 300
   echo "== $(date -u +%H:%M:%S): done"

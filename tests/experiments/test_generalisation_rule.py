@@ -60,7 +60,9 @@ def test_the_baseline_rows_are_read_from_its_own_section_of_the_table() -> None:
     assert table_point(TABLE, run, "seen", ["1", "2"]) == (5, 300, pytest.approx(0.32))
     assert table_point(TABLE, run, "unseen", ["ugv-fields:test:2+"]) == (16, 200, pytest.approx(0.59))
     assert table_point(TABLE, run, "seen", ["1"]) is None  # other scenarios: not the same ground
-    assert table_point(TABLE, "policies/highway-default", "unseen", ["ugv-fields:test"]) is None
+    # another simulator's section is read for its own run only
+    assert table_point(TABLE, "policies/highway-default", "unseen", ["ugv-fields:test"]) == (2, 30, pytest.approx(0.54))
+    assert table_point(TABLE, "policies/highway-default", "seen", ["1", "2"]) is None
 
 
 class _Row:
