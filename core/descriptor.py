@@ -79,11 +79,12 @@ class SimDescriptor:
     """The episode metrics (``metrics()`` keys) that the paper's tables show, in order."""
     safe_action: tuple[float, ...] | int
     """The action that stops or brakes (never cruise): what the loop applies when nobody can drive."""
-    contact_floors: tuple[float, ...] = ()
+    contact_floors: tuple[float | None, ...] = ()
     """Where the observation itself shows a violation: channel i at or under ``contact_floors[i]`` (channels [0, n))
-    means the ego touches something (the UGV: a lidar sector's range at or inside the robot's footprint). A training
-    run writes them into its gate (``GateConfig.contact_floors``), for fear's imagined contact. Empty: the
-    observation alone does not show one (a collision on highway or SUMO needs the other vehicle's extent)."""
+    means the ego touches something (the UGV: a lidar sector's range at or inside the robot's footprint; highway: a
+    beam along the ego's lane at its bumper); None: channel i shows none by itself. A training run writes them into
+    its gate (``GateConfig.contact_floors``), for fear's imagined contact. Empty: the observation alone does not show
+    one."""
     live_options: Mapping[str, Any] = field(default_factory=dict)
     """Extra ``make`` keyword arguments for the live server (e.g. SUMO in its own process)."""
     parse_scenario: Callable[[str], dict[str, Any]] | None = None

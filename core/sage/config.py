@@ -184,9 +184,10 @@ class GateConfig:
     contact_needs_closing: bool = False
     """With ``imagined_contact``: a member's imagined contact in channel i counts only where the real last step shows
     channel i closing (the motion input's change below 0)."""
-    contact_floors: list[float] | None = None
-    """Per observation channel [0, n), the value at or under which the observation shows contact (its units); every
-    training run writes them from its simulator (None or empty: the observation shows none)."""
+    contact_floors: list[float | None] | None = None
+    """Per observation channel [0, n), the value at or under which the observation shows contact (its units), None for
+    a channel that shows none by itself (highway's kinematics before its beams); every training run writes them from
+    its simulator (None or empty: the observation shows none)."""
     contact_horizon: int | None = None
     """Steps (> ``horizon``) that imagined contact alone reaches; ĉ and σ̂ keep ``horizon``. None: ``horizon``. The
     gate's only."""
@@ -557,10 +558,13 @@ def validate(cfg: AgentConfig) -> None:
                 "simulator (a run made before it: refit with --episodes 0 --world-model-only), or set both"
             )
     if cfg.gate.contact_floors is not None and not all(
-        isinstance(f, int | float) and math.isfinite(f) and f >= 0 for f in cfg.gate.contact_floors
+        f is None or (isinstance(f, int | float) and math.isfinite(f) and f >= 0) for f in cfg.gate.contact_floors
     ):
-        raise ValueError(f"gate.contact_floors must be finite numbers >= 0, got {cfg.gate.contact_floors}")
-    if cfg.gate.imagined_contact and not cfg.gate.contact_floors:
+        raise ValueError(
+            f"gate.contact_floors must be finite numbers >= 0 (or none: the channel shows no contact), "
+            f"got {cfg.gate.contact_floors}"
+        )
+    if cfg.gate.imagined_contact and not any(f is not None for f in cfg.gate.contact_floors or ()):
         raise ValueError(
             "gate.imagined_contact needs gate.contact_floors, where the observation shows contact: a training run sets "
             "them from its simulator; a run made before them, or a simulator whose observation shows no contact, "
@@ -666,7 +670,7 @@ def set_field(cfg: Any, dotted: str, value: Any) -> None:
     setattr(target, name, _convert(value, hint, dotted))
 
 
-def parse_gate_settings(pairs: list[str], contact_floors: Sequence[float] = ()) -> dict[str, Any]:
+def parse_gate_settings(pairs: list[str], contact_floors: Sequence[float | None] = ()) -> dict[str, Any]:
     """``KEY=VALUE`` strings (``--set gate.KEY=VALUE``) as :class:`GateConfig` settings of the field's type, e.g.
     ``["hold_seconds=2"]`` -> ``{"hold_seconds": 2.0}``. Unknown names and unreadable values are a ValueError; the
     settings are validated where they meet a run's gate (:meth:`core.agents.LoadedAgent.gate_config`), since some
@@ -681,7 +685,7 @@ def parse_gate_settings(pairs: list[str], contact_floors: Sequence[float] = ()) 
         set_field(gate, key, value)
         settings[key] = getattr(gate, key)
     if settings.get("imagined_contact") and "contact_floors" not in settings and contact_floors:
-        settings["contact_floors"] = [float(f) for f in contact_floors]
+        settings["contact_floors"] = [None if f is None else float(f) for f in contact_floors]
     return settings
 
 
@@ -722,6 +726,9 @@ def _convert(value: Any, hint: Any, name: str) -> Any:
             return (low, high)
         if origin is list and args == (float,):
             return [float(v) for v in value.strip("[] ").split(",") if v.strip()]
+        if origin is list and args == (float | None,):
+            items = [v.strip() for v in value.strip("[] ").split(",") if v.strip()]
+            return [None if v.lower() in ("none", "null") else float(v) for v in items]
         if origin is Literal:
             if value not in args:
                 raise ValueError(value)

@@ -77,14 +77,15 @@ class Fear:
 
 
 def contact_floors(cfg: GateConfig | None) -> Tensor | None:
-    """The floors of ``cfg``'s imagined contact as a tensor (``GateConfig.imagined_contact``), None when off."""
+    """The floors of ``cfg``'s imagined contact as a tensor (``GateConfig.imagined_contact``), None when off; a channel
+    without a floor (None) is -inf there, which no value (extrapolated or not) reaches."""
     if cfg is None or not cfg.imagined_contact:
         return None
-    if not cfg.contact_floors:
+    if not any(f is not None for f in cfg.contact_floors or ()):
         raise ValueError(
             "gate.imagined_contact needs gate.contact_floors (a training run sets them from its simulator)"
         )
-    return torch.tensor(cfg.contact_floors, dtype=torch.float32)
+    return torch.tensor([-math.inf if f is None else f for f in cfg.contact_floors or ()], dtype=torch.float32)
 
 
 def with_contact(
