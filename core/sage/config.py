@@ -185,9 +185,8 @@ class GateConfig:
     """With ``imagined_contact``: a member's imagined contact in channel i counts only where the real last step shows
     channel i closing (the motion input's change below 0)."""
     contact_floors: list[float | None] | None = None
-    """Per observation channel [0, n), the value at or under which the observation shows contact (its units), None for
-    a channel that shows none by itself (highway's kinematics before its beams); every training run writes them from
-    its simulator (None or empty: the observation shows none)."""
+    """Per observation channel [0, n), the value at or under which it shows contact (its units), None where it shows
+    none by itself; every training run writes them from its simulator (None or empty: the observation shows none)."""
     contact_horizon: int | None = None
     """Steps (> ``horizon``) that imagined contact alone reaches; ĉ and σ̂ keep ``horizon``. None: ``horizon``. The
     gate's only."""
