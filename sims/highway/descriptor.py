@@ -33,9 +33,9 @@ def contact_floors(config: HighwayConfig | None = None) -> tuple[float | None, .
     kinematics and guidance say nothing of contact, and a beam at an angle also sees the next lane's traffic, which
     passes by without touching."""
     config = config or HighwayConfig()
-    first = OBS_SIZE - config.sensor.beams  # the beams are the observation's last channels
+    first = OBS_SIZE - HighwayConfig().sensor.beams  # kinematics and guidance; the beams are the last channels
     floor = config.ego.length / 2 / config.sensor.range
-    floors: list[float | None] = [None] * OBS_SIZE
+    floors: list[float | None] = [None] * (first + config.sensor.beams)
     for beam in lane_beams(config):
         floors[first + beam] = floor
     return tuple(floors)

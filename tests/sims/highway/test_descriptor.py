@@ -45,6 +45,11 @@ def test_the_floors_are_on_the_lane_beams_only_at_the_ego_s_bumper() -> None:
     # a longer reach sees the next lane on fewer beams still; a far shorter one lets the beams beside through
     assert lane_beams(HighwayConfig(sensor=SensorConfig(range=200.0))) == (0, 36)
     assert len(lane_beams(HighwayConfig(sensor=SensorConfig(range=10.0)))) > 2
+    coarse = contact_floors(HighwayConfig(sensor=SensorConfig(beams=36)))  # a sensor of other size: its own channels
+    assert len(coarse) == FIRST_BEAM + 36 and [i for i, f in enumerate(coarse) if f is not None] == [
+        FIRST_BEAM,
+        FIRST_BEAM + 18,
+    ]
 
 
 @pytest.mark.parametrize("ahead", [1.0, -1.0])
