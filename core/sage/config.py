@@ -723,11 +723,10 @@ def _convert(value: Any, hint: Any, name: str) -> Any:
         if origin is tuple:
             low, high = (float(v) for v in value.strip("()[] ").split(","))
             return (low, high)
-        if origin is list and args == (float,):
-            return [float(v) for v in value.strip("[] ").split(",") if v.strip()]
-        if origin is list and args == (float | None,):
+        if origin is list and args in ((float,), (float | None,)):
             items = [v.strip() for v in value.strip("[] ").split(",") if v.strip()]
-            return [None if v.lower() in ("none", "null") else float(v) for v in items]
+            blank = args != (float,)  # a list that may hold None (a channel without a contact floor)
+            return [None if blank and v.lower() in ("none", "null") else float(v) for v in items]
         if origin is Literal:
             if value not in args:
                 raise ValueError(value)

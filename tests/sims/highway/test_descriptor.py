@@ -1,5 +1,5 @@
 """What the product knows about highway: where its observation shows contact (the lane beams), and a gate that reads
-a car closing along them."""
+those floors on real scans."""
 
 from __future__ import annotations
 
