@@ -290,7 +290,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from studies.generalisation import gate_settings_of
 
     try:
-        settings = gate_settings_of(args.set)
+        settings = gate_settings_of(args.set, "ugv")
         collisions, totals = anatomy(
             args.run,
             args.scenario,

@@ -95,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     seen = [name for value in args.seen for name in value.split(",") if name] or BUILT_IN_UGV
     grounds = {"unseen": ([args.unseen], args.episodes), "seen": (seen, args.seen_episodes)}
     try:
-        settings = gate_settings_of(args.candidate_set)
+        settings = gate_settings_of(args.candidate_set, args.sim)
     except ValueError as exc:
         print(f"error: --candidate-set {exc}", file=sys.stderr)
         return 2

@@ -551,8 +551,10 @@ def default_grounds(
     return grounds
 
 
-def gate_settings_of(pairs: Sequence[str]) -> dict[str, Any]:
-    """``gate.KEY=VALUE`` pairs as :class:`~core.sage.config.GateConfig` settings; another section is a ValueError."""
+def gate_settings_of(pairs: Sequence[str], sim: str | None = None) -> dict[str, Any]:
+    """``gate.KEY=VALUE`` pairs as :class:`~core.sage.config.GateConfig` settings; another section is a ValueError.
+    ``sim``: the simulator whose contact floors a setting that needs them brings along (as ``sage gate`` does)."""
+    import sims
     from core.sage.config import parse_gate_settings
 
     keys = []
@@ -560,7 +562,7 @@ def gate_settings_of(pairs: Sequence[str]) -> dict[str, Any]:
         if not pair.startswith("gate."):
             raise ValueError(f"{pair!r}: this study takes gate settings only (gate.KEY=VALUE)")
         keys.append(pair.removeprefix("gate."))
-    return parse_gate_settings(keys)
+    return parse_gate_settings(keys, sims.descriptor(sim).contact_floors if sim else ())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -629,7 +631,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
-        gate_settings = gate_settings_of(args.settings)
+        gate_settings = gate_settings_of(args.settings, args.sim)
     except ValueError as exc:
         print(f"error: --set {exc}", file=sys.stderr)
         return 2

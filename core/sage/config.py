@@ -193,6 +193,13 @@ class GateConfig:
     contact_extrapolation: bool = False
     """With ``imagined_contact``: each scan sector's closing that the robot's motion leaves unexplained, seen two steps
     running, is extrapolated over the imagined steps in the contact test. The gate's only."""
+    closing_veto: float | None = None
+    """Seconds: fear over τ starts or restarts the hold only where some channel with a contact floor
+    (``contact_floors``) of the real observations closes fast enough to reach its floor within this time, at its
+    closing per step from the episode's last two observed changes (both falling: the one nearer 0,
+    :func:`core.sage.fear.closing_rate`); with fewer than three observations of the episode nothing is withheld.
+    Fear, τ and curiosity are unchanged; the veto only withholds onsets where nothing observed closes. None: every
+    onset hands over (the paper's gate). Needs ``contact_floors`` and ``step_seconds``. The gate's only."""
     mover_model: Literal["none", "cartesian"] = "none"
     """With ``imagined_contact``: "cartesian" also moves the scan's small movers at constant velocity into each member's
     imagined poses (:mod:`core.sage.movers`); needs the ego step. "none": off. The gate's only."""
@@ -569,6 +576,16 @@ def validate(cfg: AgentConfig) -> None:
             "them from its simulator; a run made before them, or a simulator whose observation shows no contact, "
             "has none (sage gate refit-bounds RUN --set gate.imagined_contact=true fills them from its simulator)"
         )
+    if cfg.gate.closing_veto is not None:
+        if not (math.isfinite(cfg.gate.closing_veto) and cfg.gate.closing_veto > 0):
+            raise ValueError(f"gate.closing_veto must be a positive number of seconds, got {cfg.gate.closing_veto}")
+        if not any(f is not None for f in cfg.gate.contact_floors or ()):
+            raise ValueError(
+                "gate.closing_veto reads the channels where the observation shows contact: it needs "
+                "gate.contact_floors (--set gate.closing_veto=T fills them from the run's simulator)"
+            )
+        if cfg.gate.step_seconds is None:
+            raise ValueError("gate.closing_veto needs gate.step_seconds, the simulator's step (a training run sets it)")
     if cfg.gate.contact_horizon is not None:
         if cfg.gate.contact_horizon < 1:
             raise ValueError(f"gate.contact_horizon must be >= 1 (or None), got {cfg.gate.contact_horizon}")
@@ -674,8 +691,8 @@ def parse_gate_settings(pairs: list[str], contact_floors: Sequence[float | None]
     ``["hold_seconds=2"]`` -> ``{"hold_seconds": 2.0}``. Unknown names and unreadable values are a ValueError; the
     settings are validated where they meet a run's gate (:meth:`core.agents.LoadedAgent.gate_config`), since some
     need the run's own (``hold_seconds`` its ``step_seconds``). ``contact_floors``: the simulator's
-    (:attr:`core.descriptor.SimDescriptor.contact_floors`), which ``imagined_contact=true`` brings along unless the
-    pairs set them, so that a run trained before the floors were recorded can switch it on."""
+    (:attr:`core.descriptor.SimDescriptor.contact_floors`), which ``imagined_contact=true`` or ``closing_veto=T``
+    brings along unless the pairs set them, so that a run trained before the floors were recorded can switch it on."""
     gate, settings = GateConfig(), {}
     for pair in pairs:
         if "=" not in pair:
@@ -683,7 +700,8 @@ def parse_gate_settings(pairs: list[str], contact_floors: Sequence[float | None]
         key, value = (part.strip() for part in pair.split("=", 1))
         set_field(gate, key, value)
         settings[key] = getattr(gate, key)
-    if settings.get("imagined_contact") and "contact_floors" not in settings and contact_floors:
+    wants_floors = settings.get("imagined_contact") or settings.get("closing_veto") is not None
+    if wants_floors and "contact_floors" not in settings and contact_floors:
         settings["contact_floors"] = [None if f is None else float(f) for f in contact_floors]
     return settings
 

@@ -65,6 +65,8 @@ class GateDetail:
     """The fear that (re)started the hold at this step: τ_t, or the lower release level while the expert held
     control (:attr:`GateConfig.release`)."""
     hold_remaining: int = 0
+    vetoed: bool = False
+    """Fear was over the level, and the gate's closing veto withheld the hand-over (:attr:`GateConfig.closing_veto`)."""
 
 
 class TakeoverHold:
@@ -137,6 +139,8 @@ class SageGate:
         self._changes: collections.deque[torch.Tensor] = collections.deque(maxlen=2)
         """The scan sectors' changes the robot's own motion left unexplained over this episode's last two observed
         steps (``gate.contact_extrapolation``; :func:`core.sage.fear.unexplained_change`), oldest first."""
+        self._contact_seen: collections.deque[np.ndarray] = collections.deque(maxlen=3)
+        """The contact channels of this episode's last three observed states, oldest first (``gate.closing_veto``)."""
         self._transitions: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = collections.deque(
             maxlen=max(self.cfg.mover_history, 2)
         )
@@ -182,6 +186,7 @@ class SageGate:
         self.threshold.reset_smoothing()
         self._history.clear()
         self._changes.clear()
+        self._contact_seen.clear()
         self._transitions.clear()
 
     def closing_rate(self) -> torch.Tensor | None:
@@ -323,11 +328,38 @@ class SageGate:
                 value, cost, sigma = float(terms.fear), float(terms.cost), float(terms.sigma)
                 self._horizon_source = ro.cost[..., 0].numpy().copy()
         level = self._level(threshold)
-        fired = self.takeover_hold.step(value > level, self.cfg.hold)
+        over = value > level
+        allowed = not over or self.closing_allows(obs)
+        fired = self.takeover_hold.step(over and allowed, self.cfg.hold)
         d = self.detail
+        d.vetoed = not allowed
         d.fear, d.cost, d.sigma, d.threshold, d.level = value, cost, sigma, threshold, level
         d.hold_remaining = self.hold_remaining
         return GateDecision(value, threshold, fired)
+
+    def closing_allows(self, obs: np.ndarray) -> bool:
+        """Whether the real observations let fear hand over now (``gate.closing_veto``; True when off): some channel
+        with a contact floor would reach it within the veto's seconds at the closing per step that the episode's last
+        two observed changes show (both falling: the one nearer 0, :func:`core.sage.fear.closing_rate`). True until the
+        episode has shown three states, and where a channel is at its floor already."""
+        veto = self.cfg.closing_veto
+        if veto is None:
+            return True
+        floors = self._veto_floors()
+        current = np.asarray(obs, dtype=np.float64).reshape(-1)[: floors.shape[0]]
+        seen = list(self._contact_seen)
+        if len(seen) < 2 or not np.array_equal(seen[-1], current):
+            return True  # the last observed transition did not end in this state: too little seen to withhold
+        if len(seen) < 3:
+            return True
+        c0, c1 = seen[1] - seen[0], seen[2] - seen[1]
+        rate = np.where((c0 < 0) & (c1 < 0), np.maximum(c0, c1), 0.0)
+        steps = veto / float(self.cfg.step_seconds or 1.0)
+        return bool(np.any(current + steps * rate <= floors))
+
+    def _veto_floors(self) -> np.ndarray:
+        """The contact floors the veto reads, -inf where a channel has none (it never reaches one)."""
+        return np.array([-math.inf if f is None else float(f) for f in self.cfg.contact_floors or ()], dtype=np.float64)
 
     def _level(self, threshold: float) -> float:
         """The fear that (re)starts the hold now: τ_t, or while the expert holds control the release level."""
@@ -403,6 +435,11 @@ class SageGate:
                 )
             )
         self._history.append(np.array(obs, dtype=np.float32).reshape(-1))
+        if self.cfg.closing_veto is not None:
+            channels = len(self.cfg.contact_floors or ())
+            if not self._contact_seen:
+                self._contact_seen.append(np.asarray(obs, dtype=np.float64).reshape(-1)[:channels].copy())
+            self._contact_seen.append(np.asarray(next_obs, dtype=np.float64).reshape(-1)[:channels].copy())
         if self.cfg.curiosity_signal == "novelty":
             curiosity = self._novelty_of(next_obs)
         self.detail.rho = self.threshold.rho(curiosity)
