@@ -194,12 +194,8 @@ class GateConfig:
     """With ``imagined_contact``: each scan sector's closing that the robot's motion leaves unexplained, seen two steps
     running, is extrapolated over the imagined steps in the contact test. The gate's only."""
     closing_veto: float | None = None
-    """Seconds: fear over τ starts or restarts the hold only where some channel with a contact floor
-    (``contact_floors``) of the real observations closes fast enough to reach its floor within this time, at its
-    closing per step from the episode's last two observed changes (both falling: the one nearer 0,
-    :func:`core.sage.fear.closing_rate`); with fewer than three observations of the episode nothing is withheld.
-    Fear, τ and curiosity are unchanged; the veto only withholds onsets where nothing observed closes. None: every
-    onset hands over (the paper's gate). Needs ``contact_floors`` and ``step_seconds``. The gate's only."""
+    """Seconds: fear over τ hands over only where some ``contact_floors`` channel is observed closing on its floor
+    within this time (the last two changes falling); fear and τ unchanged. None: off (the paper's). The gate's only."""
     mover_model: Literal["none", "cartesian"] = "none"
     """With ``imagined_contact``: "cartesian" also moves the scan's small movers at constant velocity into each member's
     imagined poses (:mod:`core.sage.movers`); needs the ego step. "none": off. The gate's only."""
