@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
+import sims
 from studies import generalisation
 from studies.generalisation import generalisation_table, render, write_section
 
@@ -127,6 +128,13 @@ def test_the_entry_point_takes_gate_settings_only(capsys: pytest.CaptureFixture[
         "use_curiosity": False,
         "tau_scale": 0.9,
     }
+    # a setting that reads the contact floors brings the simulator's, as `sage gate --set` does
+    floors = list(sims.descriptor("highway").contact_floors)
+    assert generalisation.gate_settings_of(["gate.closing_veto=3"], "highway") == {
+        "closing_veto": 3.0,
+        "contact_floors": floors,
+    }
+    assert generalisation.gate_settings_of(["gate.closing_veto=3"]) == {"closing_veto": 3.0}
     assert generalisation.main(["--sim", "ugv", "--episodes", "1", "--set", "env.expert.yield_to_movers=false"]) == 2
     assert generalisation.main(["--sim", "ugv", "--episodes", "1", "--set", "gate.no_such_setting=1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
