@@ -354,7 +354,9 @@ class SageGate:
             return True
         c0, c1 = seen[1] - seen[0], seen[2] - seen[1]
         rate = np.where((c0 < 0) & (c1 < 0), np.maximum(c0, c1), 0.0)
-        steps = veto / float(self.cfg.step_seconds or 1.0)
+        if self.cfg.step_seconds is None:
+            raise ValueError("gate.closing_veto needs gate.step_seconds, the simulator's step (a training run sets it)")
+        steps = veto / self.cfg.step_seconds
         return bool(np.any(current + steps * rate <= floors))
 
     def _veto_floors(self) -> np.ndarray:

@@ -91,5 +91,9 @@ def test_the_veto_is_validated_and_brings_the_simulators_floors() -> None:
         checked(closing_veto=3.0, contact_floors=None)
     with pytest.raises(ValueError, match="step_seconds"):
         checked(closing_veto=3.0, step_seconds=None)
+    gate = veto_gate(0.3, [0.9] * 4)
+    gate.cfg = dataclasses.replace(gate.cfg, step_seconds=None)  # a gate made without the config's checks
+    with pytest.raises(ValueError, match="step_seconds"):
+        drive(gate, [[0.5, 0, 0]] * 4)
     assert parse_gate_settings(["closing_veto=3"], (0.1, None)) == {"closing_veto": 3.0, "contact_floors": [0.1, None]}
     assert parse_gate_settings(["closing_veto=none"], (0.1, None)) == {"closing_veto": None}
