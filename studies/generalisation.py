@@ -29,6 +29,7 @@ import argparse
 import json
 import math
 import sys
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -37,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from core.agents import load_agent
+from core.device import processor_name
 from core.loop import Runner, StepRecord
 from core.metrics import auroc
 from studies.calibrate import EVAL_SEED, labels_within, pool_points, run_gated, violation_interval
@@ -391,12 +393,21 @@ def render(
     command: str,
     commit: str,
     by_movers: Sequence[GroundRow] = (),
+    host: str | None = None,
+    wall_s: float | None = None,
 ) -> str:
-    """The markdown section of one simulator's table (and, given ``by_movers``, the unseen signals by movers)."""
+    """The markdown section of one simulator's table (and, given ``by_movers``, the unseen signals by movers).
+    ``host`` and ``wall_s``: the processor that ran the command and its wall time, stated in the header."""
+    where = ""
+    if host is not None and wall_s is not None:
+        where = (
+            f" on {host} (the CPU), {wall_s / 60:.1f} min wall for this command (episodes already in its cache are "
+            "read, not driven again)"
+        )
     lines = [
         f"## {sim}: {run}",
         "",
-        f"Made by `{command}` at commit `{commit}`. Label: a violation within {horizon_s:g} s. Gate row: the",
+        f"Made by `{command}` at commit `{commit}`{where}. Label: a violation within {horizon_s:g} s. Gate row: the",
         "policy with its own gate and the scripted expert; episodes with a violation (95% Wilson interval) at its",
         "takeover rate.",
         "",
@@ -647,6 +658,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     commit = current_commit()  # the code that measures: taken before the run, which may outlast later commits
     cache = args.cache or Path("results/generalisation") / f"{args.sim}.json"
+    started = time.monotonic()
     rows = generalisation_table(
         run,
         args.sim,
@@ -673,6 +685,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         command=command.strip(),
         commit=commit,
         by_movers=by_movers,
+        host=processor_name(),
+        wall_s=time.monotonic() - started,
     )
     write_section(args.out, args.sim, section)
     print(section)

@@ -67,6 +67,9 @@ def test_the_table_measures_both_grounds_and_resumes_from_its_cache(
     scores = generalisation.novelty(unseen, seen)
     assert set(scores) == {"curiosity", "sigma", "cost", "fear"} and all(0 <= v <= 1 for v in scores.values())
     assert "| unseen | ugv-fields:test:2 | 2 (" in text and "`abc`" in text and "### The unseen ground" in text
+    assert " min wall" not in text  # neither host nor wall time given: the header says neither
+    stated = render(rows, sim="ugv", run=RUN, horizon_s=1.0, command="c", commit="abc", host="Xeon", wall_s=90.0)
+    assert "at commit `abc` on Xeon (the CPU), 1.5 min wall for this command" in stated
 
 
 def test_the_entry_point_refuses_bad_input_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
