@@ -141,6 +141,8 @@ class SageGate:
         steps (``gate.contact_extrapolation``; :func:`core.sage.fear.unexplained_change`), oldest first."""
         self._contact_seen: collections.deque[np.ndarray] = collections.deque(maxlen=3)
         """The contact channels of this episode's last three observed states, oldest first (``gate.closing_veto``)."""
+        self._veto_cache: tuple[list[float | None], np.ndarray] | None = None
+        """The configuration's floors list and the veto's array made from it (:meth:`_veto_floors`)."""
         self._transitions: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = collections.deque(
             maxlen=max(self.cfg.mover_history, 2)
         )
@@ -352,16 +354,20 @@ class SageGate:
             return True  # the last observed transition did not end in this state: too little seen to withhold
         if len(seen) < 3:
             return True
-        c0, c1 = seen[1] - seen[0], seen[2] - seen[1]
-        rate = np.where((c0 < 0) & (c1 < 0), np.maximum(c0, c1), 0.0)
+        rate = closing_rate(torch.from_numpy(seen[1] - seen[0]), torch.from_numpy(seen[2] - seen[1])).numpy()
         if self.cfg.step_seconds is None:
             raise ValueError("gate.closing_veto needs gate.step_seconds, the simulator's step (a training run sets it)")
         steps = veto / self.cfg.step_seconds
         return bool(np.any(current + steps * rate <= floors))
 
     def _veto_floors(self) -> np.ndarray:
-        """The contact floors the veto reads, -inf where a channel has none (it never reaches one)."""
-        return np.array([-math.inf if f is None else float(f) for f in self.cfg.contact_floors or ()], dtype=np.float64)
+        """The contact floors the veto reads, -inf where a channel has none (it never reaches one); made once per
+        configuration, not at every decision."""
+        floors = self.cfg.contact_floors or []
+        if self._veto_cache is None or self._veto_cache[0] is not floors:
+            values = np.array([-math.inf if f is None else float(f) for f in floors], dtype=np.float64)
+            self._veto_cache = (floors, values)
+        return self._veto_cache[1]
 
     def _level(self, threshold: float) -> float:
         """The fear that (re)starts the hold now: τ_t, or while the expert holds control the release level."""
