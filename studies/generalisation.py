@@ -468,14 +468,21 @@ def write_section(out: Path, sim: str, section: str) -> None:
     )
     text = out.read_text() if out.is_file() else head
     marker = f"## {sim}: "
-    kept, skipping = [], False
+    before: list[str] = []
+    after: list[str] = []
+    kept, skipping = before, False
     for line in text.splitlines():
         if line.startswith("## "):
             skipping = line.startswith(marker)
+            if skipping:
+                kept = after  # the simulators after this one's old section stay after the new one
         if not skipping:
             kept.append(line)
+    parts = ["\n".join(before).rstrip("\n") + "\n\n" + section.rstrip("\n") + "\n"]
+    if after:
+        parts.append("\n" + "\n".join(after).strip("\n") + "\n")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(kept).rstrip("\n") + "\n\n" + section)
+    out.write_text("".join(parts))
 
 
 EXTRA_GROUNDS: dict[str, list[tuple[str, Path]]] = {

@@ -60,9 +60,12 @@ def test_the_table_measures_both_grounds_and_resumes_from_its_cache(
         by_movers=by_movers,
     )
     write_section(out, "ugv", section)
-    write_section(out, "ugv", section)  # a second run replaces its own section
+    out.write_text(out.read_text() + "\n## sumo: after\n\nthird sim\n")
+    write_section(out, "ugv", section)  # a second run replaces its own section, where it stood
     text = out.read_text()
     assert text.count("## ugv: ") == 1 and "## highway: kept" in text
+    assert text.index("## highway: kept") < text.index("## ugv: ") < text.index("## sumo: after")
+    assert text.endswith("third sim\n") and "\n\n\n" not in text
     assert "Telling a step on unseen ground from one on seen ground" in text
     scores = generalisation.novelty(unseen, seen)
     assert set(scores) == {"curiosity", "sigma", "cost", "fear"} and all(0 <= v <= 1 for v in scores.values())
