@@ -139,6 +139,9 @@ class SumoProcessEnv(gym.Env[np.ndarray, np.ndarray]):
                 process.join(5.0)
 
     def _call(self, method: str, *args: Any, **kwargs: Any) -> Any:
+        if self._process is not None and self._conn is not None and not self._process.is_alive():
+            # it died since the last call (killed, crashed): said as such, not as a worker never started
+            raise self._died(f"before {method!r}")
         if not self._alive():
             raise SumoError("the SUMO worker process is not running: call reset() to start a new one")
         assert self._conn is not None and self._process is not None
@@ -150,14 +153,7 @@ class SumoProcessEnv(gym.Env[np.ndarray, np.ndarray]):
                 raise SumoError(f"the SUMO worker process (pid {pid}) did not answer {method!r} in {self.timeout} s")
             reply = self._conn.recv()
         except (EOFError, OSError, BrokenPipeError) as exc:
-            process = self._process
-            process.join(1.0)
-            code = process.exitcode
-            self._conn.close()
-            self._conn, self._process = None, None
-            raise SumoError(
-                f"the SUMO worker process (pid {process.pid}) died during {method!r} (exit code {code})"
-            ) from exc
+            raise self._died(f"during {method!r}") from exc
         if reply[0] == "ok":
             return reply[1]
         _status, kind, message, remote_traceback = reply
@@ -167,6 +163,16 @@ class SumoProcessEnv(gym.Env[np.ndarray, np.ndarray]):
         if remote_traceback:
             error.add_note(f"in the SUMO worker process:\n{remote_traceback}")
         raise error
+
+    def _died(self, when: str) -> SumoError:
+        """The error for a worker found dead (``when``: before or during which call), its pipe closed and the worker
+        forgotten, so that the next reset starts a new one."""
+        process, conn = self._process, self._conn
+        assert process is not None and conn is not None
+        process.join(1.0)
+        conn.close()
+        self._conn, self._process = None, None
+        return SumoError(f"the SUMO worker process (pid {process.pid}) died {when} (exit code {process.exitcode})")
 
     # -- gymnasium -----------------------------------------------------------------------------
     def reset(
