@@ -1,22 +1,48 @@
-# Twenty-third session: the offline pilot of docs/notes/generalisation.md ("three world models pooled on highway's unseen
-# ranking"): AUROC of the per-step mean fear of the cached models. Run from the repository root:
-#   PYTHONPATH=. .venv/bin/python results/generalisation/highway-pool-pilot.py
-import json, numpy as np
+"""Twenty-third session: the offline pilot of docs/notes/generalisation.md ("three world models pooled on highway's
+unseen ranking"): the fear AUROC for "a violation within 1 s" of the per-step mean fear of the cached models, on the
+same 100 drives of ``highway-shift:test``. Run from the repository root:
+
+    PYTHONPATH=. .venv/bin/python results/generalisation/highway-pool-pilot.py
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
 from core.metrics import auroc
 from studies.generalisation import labels_within
-def load(name):
-    d = json.load(open(f"results/generalisation/{name}.json"))
-    ks = sorted(k for k in d if k.startswith("signals"))
-    parts = [d[k] for k in ks]
-    ep = np.concatenate([np.asarray(p["episode"]) + 1000000 * i for i, p in enumerate(parts)])
-    vio = np.concatenate([np.asarray(p["violation"], bool) for p in parts])
+
+HORIZON_STEPS = 10
+"""1 s at highway's policy frequency (the generalisation table's label)."""
+
+
+def load(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(episode ids, violations, fear) per step of a cache's signal parts, in seed order."""
+    with Path(f"results/generalisation/{name}.json").open() as file:
+        cache = json.load(file)
+    parts = [cache[key] for key in sorted(k for k in cache if k.startswith("signals"))]
+    episode = np.concatenate([np.asarray(p["episode"]) + 1_000_000 * i for i, p in enumerate(parts)])
+    violation = np.concatenate([np.asarray(p["violation"], bool) for p in parts])
     fear = np.concatenate([np.asarray(p["fear"], float) for p in parts])
-    return ep, vio, fear
-ep0, v0, f0 = load("highway-approach-committed")
-ep1, v1, f1 = load("highway-approach-s0")
-ep2, v2, f2 = load("highway-approach-s1")
-assert (ep0 == ep1).all() and (v0 == v1).all() and (ep0 == ep2).all() and (v0 == v2).all()
-lab = labels_within(v0, ep0, 10)
-print("steps", len(lab), "positives", lab.sum())
-for name, f in [("committed", f0), ("s0", f1), ("s1", f2), ("s0+s1", (f1 + f2) / 2), ("all three", (f0 + f1 + f2) / 3)]:
-    print(f"{name:10s} {auroc(f, lab):.4f}")
+    return episode, violation, fear
+
+
+def main() -> None:
+    episode, violation, committed = load("highway-approach-committed")
+    fears = {"committed": committed}
+    for refit in ("s0", "s1"):
+        other_episode, other_violation, fears[refit] = load(f"highway-approach-{refit}")
+        assert (other_episode == episode).all() and (other_violation == violation).all(), "not the same drives"
+    label = labels_within(violation, episode, HORIZON_STEPS)
+    print("steps", len(label), "positives", int(label.sum()))
+    fears["s0+s1"] = (fears["s0"] + fears["s1"]) / 2
+    fears["all three"] = (fears["committed"] + fears["s0"] + fears["s1"]) / 3
+    for name, fear in fears.items():
+        print(f"{name:10s} {auroc(fear, label):.4f}")
+
+
+if __name__ == "__main__":
+    main()
