@@ -9,9 +9,10 @@ and the dashboard's horizon read them unchanged. Float32 products and sums as to
 equal within float32 rounding, ``tests/core/sage/test_compiled_gate.py``); the probabilities' mean, spread and
 aggregation in float64.
 
-It covers the gate of every committed configuration: a CPU float32 model with or without the motion input and the
-ego step, imagined contact, ``max`` or ``discounted_mean``. A model with a scan-aligned motion (``scan_*``) or the
-approach input, or weights on another device, keeps the torch kernel (:func:`compiled_kernel_supports`).
+It covers the gate of every committed configuration: a CPU float32 model with or without the motion input, the
+approach input (``world_model_config.approach_*``) and the ego step, imagined contact, ``max`` or ``discounted_mean``.
+A model with a scan-aligned motion (``scan_*``), or weights on another device, keeps the torch kernel
+(:func:`compiled_kernel_supports`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import torch
 from torch import Tensor
 
 from core._ego_kernel import scan as ego_scan
+from core.motion import APPROACH_RANGE_FLOOR
 
 # numba's on-disk cache (cache=True) checks the timestamp of this file alone, not of the functions it calls: the gate's
 # compiled loop keeps the ego step's scan it was compiled with. A change to core/_ego_kernel.py (its code or the layout
@@ -88,6 +90,7 @@ def gate_rollout(
     act_dim: int,
     motion: bool,
     motion_weight: float,
+    approach: np.ndarray,
     ego: bool,
     ego_geometry: tuple,
     floors: np.ndarray,
@@ -108,7 +111,9 @@ def gate_rollout(
     ``GateConfig.contact_extrapolation``); ``weights`` the discounted mean's (empty: the maximum); ``out_weight``
     (N, H, P) and ``out_bias`` (N, 1, P) the output layer's D + 1 columns zero-padded to P (:func:`padded_columns`);
     ``learned`` the first steps whose learned head and σ̂ count (those after it count imagined contact alone:
-    ``GateConfig.contact_horizon``; ``sigma_divisor`` holds these steps')."""
+    ``GateConfig.contact_horizon``; ``sigma_divisor`` holds these steps'). ``approach`` (3,) float32: the approach
+    input's first state channel, its last + 1 and the range floor it divides by (:func:`core.motion.approach_rate`),
+    written after the motion in each imagined step's row (the first step's by the caller); empty: no such input."""
     m, n = outputs.shape[0], outputs.shape[1]
     d, a = obs_dim, act_dim
     widest = x.shape[2]
@@ -149,6 +154,12 @@ def gate_rollout(
                     change = outputs[k, member, i] if not ego else x[k + 1, member, i] - x[k, member, i]
                     previous = x[k, member, d + a + i]
                     x[k + 1, member, d + a + i] = previous + np.float32(motion_weight) * (change - previous)
+                if approach.shape[0] > 0:  # core.motion.approach_rate of the new state and motion, in float32
+                    first, stop, floor = int(approach[0]), int(approach[1]), approach[2]
+                    for c in range(first, stop):
+                        nearing = max(-x[k + 1, member, d + a + c], np.float32(0.0))
+                        reach = max(x[k + 1, member, c], floor)
+                        x[k + 1, member, 2 * d + a + c - first] = min(nearing / reach, np.float32(1.0))
         if k + 1 < m:  # the policy's action on each member's imagined state
             p_in = np.empty((n, d), dtype=np.float32)  # contiguous rows: the products vectorise
             for member in range(n):
@@ -360,12 +371,12 @@ def padded_columns(weights: np.ndarray) -> np.ndarray:
 
 
 def compiled_kernel_supports(model: FoldedModel, actor_layers: list[tuple[Tensor, Tensor]]) -> bool:
-    """Whether :class:`CompiledGateKernel` computes this model's and actor's gate: CPU float32 contiguous weights,
-    no scan-aligned motion and no approach input."""
+    """Whether :class:`CompiledGateKernel` computes this model's and actor's gate: CPU float32 contiguous weights
+    and no scan-aligned motion."""
     tensors = [model.out_weight, model.out_bias, model.inv_obs_std, *(t for layer in model.hidden for t in layer)]
     tensors += [t for layer in actor_layers for t in layer]
     plain = all(t.device.type == "cpu" and t.dtype == torch.float32 and t.is_contiguous() for t in tensors)
-    return plain and model.scan is None and model.approach is None
+    return plain and model.scan is None
 
 
 class CompiledGateKernel(GateKernel):
@@ -421,6 +432,9 @@ class CompiledGateKernel(GateKernel):
         self._divisor = self.sigma_divisor[:, 0].double().numpy().copy()
         self._weights = np.zeros(0) if self.weights is None else self.weights.double().numpy().copy()
         self._inv_obs_std = model.inv_obs_std.reshape(-1).numpy()
+        self._approach_input = np.zeros(0, np.float32)
+        if self.approach is not None:
+            self._approach_input = np.array([*self.approach, APPROACH_RANGE_FLOOR], np.float32)
 
     def __call__(
         self,
@@ -436,6 +450,7 @@ class CompiledGateKernel(GateKernel):
         x[0, :, d : d + a] = action.numpy()
         if self.motion:
             x[0, :, d + a : 2 * d + a] = 0.0 if motion is None else motion.numpy()
+            self._approach(0)  # the first step's approach rates, by the torch kernel's own function
         closing = closing_channels(self.cfg, motion, self.contact)
         closing_mask = self._all_closing if closing is None else closing.reshape(-1).numpy()
         rate = self._no_closing_rate
@@ -456,6 +471,7 @@ class CompiledGateKernel(GateKernel):
             a,
             self.motion,
             self.motion_weight,
+            self._approach_input,
             self.ego is not None,
             self._geometry,
             self._floors,

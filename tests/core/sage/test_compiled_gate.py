@@ -54,6 +54,8 @@ LAYOUTS = {
     "plain": {"motion_input": False},
     "motion": {"motion_input": True, "motion_lag": 2},
     "ego step": {"motion_input": True, **EGO},
+    # each range channel's approach rate as an input too (world_model_config.approach_*; highway's candidates)
+    "approach": {"motion_input": True, "motion_lag": 2, "approach_start": 0, "approach_stop": 8},
 }
 GATES = {
     "max": GateConfig(beta=0.3),
@@ -140,7 +142,7 @@ def test_compiled_kernel_follows_actor_updates_in_place() -> None:
     assert after != before
 
 
-@pytest.mark.parametrize("layout", ["motion", "ego step"])
+@pytest.mark.parametrize("layout", ["motion", "ego step", "approach"])
 def test_a_compiled_gate_takes_the_reference_gates_decisions(layout: str) -> None:
     """Over a recorded sequence (episode starts included): the same takeovers, fears and thresholds."""
     model, actor, states = fitted(LAYOUTS[layout])
@@ -164,8 +166,47 @@ def test_a_compiled_gate_takes_the_reference_gates_decisions(layout: str) -> Non
     np.testing.assert_allclose([r[1:] for r in records[1]], [r[1:] for r in records[0]], rtol=RTOL, atol=ATOL)
 
 
+def test_approach_rates_over_the_ego_step_agree_where_rounding_allows() -> None:
+    """The approach input over the ego step: fear, member costs and the first imagined step to float32 rounding. Later
+    steps carry each approach rate's rounding, the motion's and range's divided by a range of at least
+    APPROACH_RANGE_FLOOR (up to 50 times theirs), back through the network and the ego step's geometry: held to 1e-3."""
+    model, actor, states = fitted({"motion_input": True, "approach_start": 2, "approach_stop": 7, **EGO})
+    cfg, folded, layers = (
+        GateConfig(imagined_contact=True, contact_floors=[0.2] * 8),
+        model.folded(),
+        actor.deterministic_layers(),
+    )
+    assert compiled_kernel_supports(folded, layers) and folded.approach == (2, 7)
+    reference = GateKernel(folded, layers, actor.action_scale, actor.action_bias, cfg)
+    compiled = CompiledGateKernel(folded, layers, actor.action_scale, actor.action_bias, cfg)
+    rng = np.random.default_rng(1)
+    rates = []
+    for i in range(20):
+        obs = torch.as_tensor(states[i : i + 1])
+        action = torch.as_tensor(rng.uniform(-2, 2, (1, ACT)).astype(np.float32))
+        motion = None if i == 0 else torch.as_tensor(states[i : i + 1] - states[i + 1 : i + 2])
+        with torch.inference_mode():
+            np.testing.assert_allclose(
+                compiled(obs, action, motion), reference(obs, action, motion), rtol=RTOL, atol=ATOL
+            )
+            np.testing.assert_allclose(compiled.x[:2].numpy(), reference.x[:2].numpy(), rtol=RTOL, atol=ATOL)
+            # the last imagined state's motion feeds nothing (the compiled kernel leaves it): states only there
+            last = reference.m
+            np.testing.assert_allclose(compiled.x[:last].numpy(), reference.x[:last].numpy(), rtol=1e-3, atol=1e-3)
+            np.testing.assert_allclose(
+                compiled.states[last].numpy(), reference.states[last].numpy(), rtol=1e-3, atol=1e-3
+            )
+            np.testing.assert_allclose(
+                compiled.last_member_costs(), reference.last_member_costs(), rtol=RTOL, atol=ATOL
+            )
+        rates.append(compiled.approaches[1:].numpy().copy())
+    assert np.concatenate(rates).max() > 0.05, "no imagined step approached anything: the approach rates went untested"
+
+
 def test_unsupported_models_keep_the_torch_kernel() -> None:
-    model, actor, _ = fitted({"motion_input": True, "approach_start": 0, "approach_stop": 8})
+    model, actor, _ = fitted(
+        {"motion_input": True, "scan_sectors": 8, "scan_turn_channel": 8, "scan_turn_sectors": 1.5}
+    )
     gate = SageGate(model, actor, GateConfig())
     assert not compiled_kernel_supports(model.folded(), actor.deterministic_layers())
     assert type(gate.kernel()) is GateKernel
