@@ -51,7 +51,9 @@ def _run_folder(run: str | Path) -> Path:
 def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype: str = "float32") -> MergeResult:
     """Write ``out`` (a run folder: ``checkpoint.pt``, ``config.json``, ``calibration.npz``, ``merge.json``) with
     the first run's policy and all the runs' world-model members in one ensemble, calibrated on up to
-    ``gate.calibration_states`` distinct states of the runs' calibration samples (drawn with ``seed``).
+    ``gate.calibration_states`` distinct states of the runs' calibration samples (drawn with ``seed``; a run without
+    one, such as a committed policy's folder, adds its members and no states, and at least one run must have one).
+    Models with and without the approach input merge into one that reads it (:func:`merge_ensembles`).
     A ValueError names the run that does not fit."""
     if len(runs) < 2:
         raise ValueError(f"merge needs at least two runs, got {len(runs)}")
@@ -86,15 +88,18 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
         if payload["agent_config"]["gate"] != first_payload["agent_config"]["gate"]:
             raise ValueError(f"{file}'s gate config differs from {files[0]}'s")
     merged = merge_ensembles([agent.world_model for agent in agents])  # type: ignore[misc]
-    samples = []
+    # a committed policy's folder keeps no sample: the union is the states of the runs that kept one
+    samples, calibrated_on = [], []
     for file in files:
         path = file.parent / CALIBRATION_FILE
-        if not path.is_file():
-            raise ValueError(
-                f"{file.parent} has no {CALIBRATION_FILE} (a run folder written before the calibration sample was "
-                "kept; run its command again)"
-            )
-        samples.append(CalibrationSample.load(path))
+        if path.is_file():
+            samples.append(CalibrationSample.load(path))
+            calibrated_on.append(str(file.parent))
+    if not samples:
+        raise ValueError(
+            f"none of the runs has a {CALIBRATION_FILE} to calibrate the merged ensemble on (run folders written "
+            "before the calibration sample was kept: run a refit's command again)"
+        )
     sample = CalibrationSample.concat(samples)
     gate_cfg = first.gate_config()
     wanted = gate_cfg.calibration_states
@@ -110,6 +115,9 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
         )
     agent_config = json.loads(json.dumps(first_payload["agent_config"]))
     agent_config["world_model_config"]["members"] = merged.members
+    # a model without the approach input was widened to read it (merge_ensembles): the union reads it
+    agent_config["world_model_config"]["approach_start"] = merged.cfg.approach_start
+    agent_config["world_model_config"]["approach_stop"] = merged.cfg.approach_stop
     names = [str(_run_folder(run)) for run in runs]
     save_with_world_model(first_payload, out, merged, agent_config, {"merged_from": names}, dtype)
     used.save(out / CALIBRATION_FILE)
@@ -121,7 +129,13 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
         familiar_states=int(used.familiar.sum()),
         tau_bounds=bounds,
     )
-    record = {**dataclasses.asdict(result), "out": str(out), "seed": seed, "samples": [len(s) for s in samples]}
+    record = {
+        **dataclasses.asdict(result),
+        "out": str(out),
+        "seed": seed,
+        "samples": [len(s) for s in samples],
+        "calibrated_on": calibrated_on,
+    }
     (out / MERGE_FILE).write_text(json.dumps(record, indent=2) + "\n")
     return result
 

@@ -428,7 +428,8 @@ def register(app: typer.Typer) -> None:
         ] = "float32",
     ) -> None:
         """Merge the world models of RUNS into one ensemble of all their members (the first run's policy), and set
-        its κ and τ bounds on the states the runs calibrated on (their calibration.npz)."""
+        its κ and τ bounds on the states the runs calibrated on (their calibration.npz; a committed policy's folder
+        has none and adds only its members). Refits with and without the approach input merge into one reading it."""
         from core.merge import merge_runs
 
         single_threaded()

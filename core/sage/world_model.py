@@ -543,11 +543,34 @@ class EnsembleWorldModel(nn.Module):
         return folded
 
 
+def with_approach_input(model: EnsembleWorldModel, approach: tuple[int, int]) -> EnsembleWorldModel:
+    """A copy of ``model`` (fitted, with the motion input and without the approach input) that also reads the approach
+    rates of the range channels ``approach`` = [start, stop) (``world_model_config.approach_*``) with zero weights: the
+    same function, now in an ensemble's shape that models with the input share (:func:`merge_ensembles`). The new
+    inputs' normalisers are 0 and 1; their weights stay 0 until a fit moves them."""
+    if model.approach is not None:
+        raise ValueError(f"the world model already reads the approach rates of channels {model.approach}")
+    if not model.motion:
+        raise ValueError("the approach input needs the motion input (world_model_config.motion_input)")
+    cfg = dataclasses.replace(model.cfg, approach_start=approach[0], approach_stop=approach[1])
+    wide = EnsembleWorldModel(model.obs_dim, model.act_dim, cfg)
+    width = approach_width(wide.approach)
+    state = {name: value.detach().clone() for name, value in model.state_dict().items()}
+    weight = state["hidden_layers.0.weight"]  # (N, in, H): the approach inputs come last
+    state["hidden_layers.0.weight"] = torch.cat([weight, weight.new_zeros(weight.shape[0], width, weight.shape[2])], 1)
+    state["in_mean"] = torch.cat([state["in_mean"], state["in_mean"].new_zeros(width)])
+    state["in_std"] = torch.cat([state["in_std"], state["in_std"].new_ones(width)])
+    wide.load_state_dict(state)
+    return wide
+
+
 def merge_ensembles(models: Sequence[EnsembleWorldModel]) -> EnsembleWorldModel:
     """One ensemble holding every member of ``models`` (bagging over refits: fits on different draws of the
     data, whose errors in the timing of a warning partly cancel in the members' mean).
 
-    The models must share their shape and configuration but for ``members``. Each is first moved, exactly, to
+    The models must share their shape and configuration but for ``members``, and for the approach input: where some
+    read it (all over the same channels) and others do not, those are widened to read it with zero weights
+    (:func:`with_approach_input`), computing what they computed. Each is first moved, exactly, to
     the first one's normalisers (:meth:`EnsembleWorldModel.set_normalisers`), so that every member computes what
     it computed in its own model; the shared soft log-variance bounds become the widest of them. κ and the τ bounds
     are left unset (NaN): they belong to the new ensemble, so recalibrate it (:func:`core.sage.calibration.calibrate`).
@@ -555,6 +578,15 @@ def merge_ensembles(models: Sequence[EnsembleWorldModel]) -> EnsembleWorldModel:
     """
     if len(models) < 2:
         raise ValueError(f"merging needs at least two world models, got {len(models)}")
+    approaches = {model.approach for model in models if model.approach is not None}
+    if len(approaches) > 1:
+        raise ValueError(f"the world models read the approach rates of different channels: {sorted(approaches)}")
+    if approaches:
+        approach = approaches.pop()
+        models = [
+            with_approach_input(m, approach) if m.approach is None and m.motion and bool(m.fitted) else m
+            for m in models
+        ]
     first = models[0]
     shape = (first.obs_dim, first.act_dim)
     base_cfg = dataclasses.replace(first.cfg, members=0)

@@ -16,10 +16,11 @@ from typer.testing import CliRunner
 
 from core.agents import load_agent, load_checkpoint
 from core.merge import MERGE_FILE, merge_runs
+from core.motion import approach_rate
 from core.sage.calibration import CALIBRATION_FILE, CalibrationSample, calibrate
 from core.sage.config import WorldModelConfig
 from core.sage.fear import rollout
-from core.sage.world_model import EnsembleWorldModel, merge_ensembles
+from core.sage.world_model import EnsembleWorldModel, merge_ensembles, with_approach_input
 from core.train import RunConfig, train
 from tests.core.sage.test_world_model import ACT, OBS, known_system
 from tests.core.test_train import point_env, small
@@ -62,6 +63,54 @@ def test_a_merged_ensemble_keeps_every_members_function() -> None:
     assert float(merged.curiosity_ref) == pytest.approx(float((first.curiosity_ref + second.curiosity_ref) / 2))
     # the inputs are untouched
     torch.testing.assert_close(first.predict(obs, act)[0], both[:3], atol=1e-4, rtol=1e-4)
+
+
+def moving(seed: int, scale: float, approach: tuple[int, int] | None) -> EnsembleWorldModel:
+    """A model with the motion input (and the approach rates of ``approach``, None: without), fitted on the known
+    system with its last change of state as the motion; its first channels read as ranges in (0, 1]."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    s, a, nxt, cost = known_system(400, rng, low=0.05, high=1.0)
+    layout = {} if approach is None else {"approach_start": approach[0], "approach_stop": approach[1]}
+    cfg = WorldModelConfig(members=2, hidden=16, max_updates_per_fit=200, motion_input=True, **layout)
+    model = EnsembleWorldModel(OBS, ACT, cfg)
+    motion = np.concatenate([np.zeros((1, OBS), np.float32), np.diff(s, axis=0)]).astype(np.float32)
+    model.fit(s * scale, a, nxt * scale, cost, rng, motion=motion * scale)
+    return model
+
+
+def test_a_model_widened_to_the_approach_input_computes_what_it_computed() -> None:
+    narrow = moving(0, 1.0, None)
+    wide = with_approach_input(narrow, (0, 3))
+    assert wide.approach == (0, 3) and wide.cfg.approach_stop == 3 and narrow.approach is None
+    rng = np.random.default_rng(4)
+    s, a, _, _ = known_system(64, rng, low=0.05, high=1.0)
+    obs, act = torch.as_tensor(s), torch.as_tensor(a)
+    motion = torch.as_tensor(rng.uniform(-0.2, 0.2, s.shape).astype(np.float32))  # some channels closing
+    assert bool((approach_rate(obs, motion, 0, 3) > 0).any())
+    with torch.no_grad():
+        for got, expected in zip(wide.predict(obs, act, motion), narrow.predict(obs, act, motion), strict=True):
+            torch.testing.assert_close(got, expected, atol=1e-6, rtol=1e-6)
+    with pytest.raises(ValueError, match="already reads"):
+        with_approach_input(wide, (0, 3))
+    with pytest.raises(ValueError, match="motion input"):
+        with_approach_input(EnsembleWorldModel(OBS, ACT, WorldModelConfig(motion_input=False)), (0, 3))
+
+
+def test_models_with_and_without_the_approach_input_merge_into_one_that_reads_it() -> None:
+    narrow, wide = moving(0, 1.0, None), moving(1, 2.0, (0, 3))
+    merged = merge_ensembles([narrow, wide])
+    assert merged.approach == (0, 3) and merged.members == 4
+    rng = np.random.default_rng(5)
+    s, a, _, _ = known_system(64, rng, low=0.05, high=1.0)
+    obs, act = torch.as_tensor(s), torch.as_tensor(a)
+    motion = torch.as_tensor(rng.uniform(-0.2, 0.2, s.shape).astype(np.float32))
+    with torch.no_grad():
+        both = merged.predict(obs, act, motion)[0]
+        torch.testing.assert_close(both[:2], narrow.predict(obs, act, motion)[0], atol=1e-4, rtol=1e-4)
+        torch.testing.assert_close(both[2:], wide.predict(obs, act, motion)[0], atol=1e-4, rtol=1e-4)
+    with pytest.raises(ValueError, match="different channels"):
+        merge_ensembles([wide, moving(2, 1.0, (1, 3))])
 
 
 def test_merging_refuses_models_that_do_not_fit_together() -> None:
@@ -187,13 +236,20 @@ def test_merge_refuses_runs_it_cannot_merge(refits, tmp_path: Path) -> None:
         merge_runs([runs[0], moved], tmp_path / "x")
     bare = _copy_run(runs[1], tmp_path / "bare")
     (bare / CALIBRATION_FILE).unlink()
-    with pytest.raises(ValueError, match=r"calibration\.npz"):
-        merge_runs([runs[0], bare], tmp_path / "y")
+    bare_too = _copy_run(runs[0], tmp_path / "bare-too")
+    (bare_too / CALIBRATION_FILE).unlink()
+    with pytest.raises(ValueError, match=r"none of the runs has a calibration\.npz"):
+        merge_runs([bare_too, bare], tmp_path / "y")
     broken = _copy_run(runs[1], tmp_path / "broken")
     (broken / CALIBRATION_FILE).write_bytes(b"not an npz")
     with pytest.raises(ValueError, match="not a readable calibration sample"):
         merge_runs([runs[0], broken], tmp_path / "z")
     assert not any((tmp_path / name).exists() for name in ("x", "y", "z"))  # nothing half-written
+    # a folder without a sample (a committed policy's) adds its members, the others' states calibrate the union
+    merged = merge_runs([bare, runs[0]], tmp_path / "one-sample")
+    own = CalibrationSample.load(runs[0] / CALIBRATION_FILE)
+    assert merged.calibration_states == len(own) and merged.members == 2 * load_agent(runs[0]).world_model.members
+    assert json.loads((merged.out / MERGE_FILE).read_text())["calibrated_on"] == [str(runs[0])]
     del policy
 
 
