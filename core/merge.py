@@ -85,8 +85,9 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
                 f"{file}'s policy ({acting}) differs from {files[0]}'s: merge only world-model refits of one policy "
                 "(sage train --world-model-only --init POLICY)"
             )
-        if payload["agent_config"]["gate"] != first_payload["agent_config"]["gate"]:
-            raise ValueError(f"{file}'s gate config differs from {files[0]}'s")
+        differing = _gate_differences(payload["agent_config"]["gate"], first_payload["agent_config"]["gate"])
+        if differing:
+            raise ValueError(f"{file}'s gate config differs from {files[0]}'s in {', '.join(differing)}")
     merged = merge_ensembles([agent.world_model for agent in agents])  # type: ignore[misc]
     # a committed policy's folder keeps no sample: the union is the states of the runs that kept one
     samples, calibrated_on = [], []
@@ -138,6 +139,15 @@ def merge_runs(runs: Sequence[str | Path], out: str | Path, seed: int = 0, dtype
     }
     (out / MERGE_FILE).write_text(json.dumps(record, indent=2) + "\n")
     return result
+
+
+def _gate_differences(gate: dict[str, Any], other: dict[str, Any]) -> list[str]:
+    """The gate settings in which two saved gate configs differ, leaving out the contact floors where neither gate
+    reads them (no imagined contact: a run made after its simulator declared floors saves them, an older one not)."""
+    names = set(gate) | set(other)
+    if not gate.get("imagined_contact") and not other.get("imagined_contact"):
+        names.discard("contact_floors")
+    return sorted(name for name in names if gate.get(name) != other.get(name))
 
 
 def _same_tensors(a: Any, b: Any) -> bool:

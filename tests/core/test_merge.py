@@ -244,7 +244,20 @@ def test_merge_refuses_runs_it_cannot_merge(refits, tmp_path: Path) -> None:
     (broken / CALIBRATION_FILE).write_bytes(b"not an npz")
     with pytest.raises(ValueError, match="not a readable calibration sample"):
         merge_runs([runs[0], broken], tmp_path / "z")
-    assert not any((tmp_path / name).exists() for name in ("x", "y", "z"))  # nothing half-written
+    assert not any((tmp_path / name).exists() for name in ("x", "y", "z", "w"))  # nothing half-written
+
+    # a gate setting that acts is refused by name; contact floors no gate reads (no imagined contact) are not
+    def other_beta(payload: dict[str, Any]) -> None:
+        payload["agent_config"]["gate"]["beta"] = 0.25
+
+    def floors(payload: dict[str, Any]) -> None:
+        gate = payload["agent_config"]["gate"]
+        assert not gate["imagined_contact"]
+        gate["contact_floors"] = [0.05] * load_agent(runs[1]).meta.obs_dim
+
+    with pytest.raises(ValueError, match=r"gate config differs .* in beta"):
+        merge_runs([runs[0], _copy_run(runs[1], tmp_path / "beta", other_beta)], tmp_path / "w")
+    assert merge_runs([runs[0], _copy_run(runs[1], tmp_path / "floors", floors)], tmp_path / "v").members > 0
     # a folder without a sample (a committed policy's) adds its members, the others' states calibrate the union
     merged = merge_runs([bare, runs[0]], tmp_path / "one-sample")
     own = CalibrationSample.load(runs[0] / CALIBRATION_FILE)
