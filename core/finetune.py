@@ -63,7 +63,7 @@ from core.round_updates import guarded_update as guarded_update
 from core.round_updates import keep_share_of_change as keep_share_of_change
 from core.round_updates import weights_finite as weights_finite
 from core.sage.config import AgentConfig, apply_overrides, from_dict
-from core.sage.learner import BaseLearner
+from core.sage.learner import CRITIC_DISTIL_UPDATES, BaseLearner
 from core.sessions import SessionStore
 from core.versions import CHECKPOINT_FILE as CHECKPOINT_FILE
 from core.versions import METRICS_FILE as METRICS_FILE
@@ -504,6 +504,13 @@ class Finetuner:
         if cfg.refit_world_model and learner.world_model is not None and len(learner.buffer) >= cfg.wm_min_steps:
             report({"phase": "fitting world model"})
             wm_stats = self._refit_world_model()
+        distil = getattr(learner, "distil_critic", None)
+        if distil is not None and learner.critic_teacher is not None:
+            # critics with layer norms on a base saved without them: fitted to the base's before any update reads them
+            report({"phase": "fitting the layer-normed critics to the base's"})
+            distilled = distil(CRITIC_DISTIL_UPDATES)
+            if distilled is not None:
+                wm_stats["critic_distil_loss"] = distilled
         planned = cfg.round_updates(ingested.steps)
         warmup = min(cfg.critic_warmup, planned)
         lam_start = learner.lam

@@ -308,6 +308,9 @@ class AgentConfig:
     """Number of hidden layers of actor and critics."""
     critics: int = 2
     """Z, the size of the critic ensemble (one batched forward); the target uses the minimum over targets."""
+    critic_layer_norm: bool = False
+    """Layer norm before every hidden ReLU of the critics (RLPD, HIL-SERL), in SAC, its SAGE variants and TD3. A warm
+    start from critics saved without it fits the new ones to them first (``distil_critic``)."""
     actor_lr: float = 3e-4
     """Adam learning rate of the actor."""
     critic_lr: float = 3e-4

@@ -45,7 +45,7 @@ from core.sage.config import AgentConfig, GateConfig
 from core.sage.fear import PolicyFn
 from core.sage.gate import SageGate
 from core.sage.model_trainer import WorldModelTrainer, familiar_mean_fear
-from core.sage.networks import Actor
+from core.sage.networks import Actor, EnsembleCritic
 from core.sage.world_model import EnsembleWorldModel, FitReport, FoldedModel
 
 
@@ -148,6 +148,11 @@ class DeclaredState:
     """Plain floats (e.g. SAC's λ)."""
 
 
+CRITIC_DISTIL_UPDATES = 1000
+"""Updates :meth:`ActorLearner.distil_critic` takes when a warm start's critics lack this run's layer norms (a
+critic update's cost each: about 2 s on one CPU thread at the default sizes)."""
+
+
 class BaseLearner:
     """Shared machinery; subclasses implement :meth:`update` (one gradient step) and may extend the rest."""
 
@@ -209,6 +214,10 @@ class BaseLearner:
         )
         self.warm = False
         """True once the policy holds knowledge (loaded or pretrained): no random warm-up actions."""
+        self.critic_teacher: EnsembleCritic | None = None
+        """The warm start's critics as saved, when they lack the layer norms this run's critics have
+        (``AgentConfig.critic_layer_norm``): :meth:`ActorLearner.distil_critic` fits the new critics to them, then
+        drops them."""
         self.env_steps = 0
         self.updates = 0
         self._update_credit = 0.0
@@ -639,6 +648,14 @@ class BaseLearner:
             if name in state:
                 if not strict and isinstance(module, EnsembleWorldModel) and not module.reads(state[name]):
                     continue  # a warm start from a model of another input layout or ego step: refit it
+                if not strict and isinstance(module, EnsembleCritic) and module.lacks_norms(state[name]):
+                    # critics saved without the layer norms this run asks for: their linear weights start the new
+                    # critics, which are then fitted to the saved ones (distil_critic) before they are trusted
+                    module.load_state_dict(state[name], strict=False)
+                    if name == "critic":
+                        self.critic_teacher = self._critic_without_norms(module, state[name])
+                    loaded.append(name)
+                    continue
                 module.load_state_dict(state[name])
                 loaded.append(name)
             elif strict:
@@ -658,6 +675,13 @@ class BaseLearner:
                 saved = {k: float(torch.as_tensor(v)) for k, v in state["gate"].items()}
                 self._inherited_gate = (saved, self.model_trainer.world_model.version)
         return loaded
+
+    def _critic_without_norms(self, critic: EnsembleCritic, saved: Mapping[str, Tensor]) -> EnsembleCritic:
+        """``critic``'s shape without layer norms, holding ``saved`` (frozen): the teacher of :meth:`distil_critic`."""
+        first = critic.hidden[0]
+        teacher = EnsembleCritic(first.in_features, 0, first.out_features, len(critic.hidden), critic.members)
+        teacher.load_state_dict(saved)
+        return teacher.to(self.device).requires_grad_(False)
 
     def _load_optimizers(self, saved: dict[str, Any], strict: bool) -> list[str]:
         """Restore the declared optimisers the checkpoint holds (older checkpoints hold none: fresh optimisers).
@@ -693,6 +717,11 @@ class BaseLearner:
 class ActorLearner(BaseLearner):
     """A learner with a continuous, tanh-squashed actor (SAC, TD3, HG-DAgger share it)."""
 
+    critic: EnsembleCritic
+    critic_target: EnsembleCritic
+    critic_optimizer: torch.optim.Optimizer
+    """The critics and their optimiser, in the learners that have them (SAC, TD3; not HG-DAgger)."""
+
     def build_networks(self) -> None:
         self.actor = Actor(
             self.obs_dim, self.act_dim, self.cfg.hidden, self.cfg.layers, self.action_low, self.action_high
@@ -719,6 +748,35 @@ class ActorLearner(BaseLearner):
 
     def gate_policy(self) -> Actor | PolicyFn:
         return self.acting_actor  # the gate's preallocated fast path, always the current weights
+
+    def distil_critic(self, updates: int) -> float | None:
+        """Fit the critics to :attr:`critic_teacher` (the warm start's critics, saved without the layer norms these
+        have) on the buffer's states, at the recorded actions and at the actor's, so that the critics keep what the
+        checkpoint's learned before the first update trusts them; the targets then copy them and the teacher is
+        dropped. Returns the last batch's mean squared error (None: no teacher, or fewer rows than a batch yet)."""
+        teacher: EnsembleCritic | None = self.critic_teacher
+        critic = self.critic
+        if teacher is None or len(self.buffer) < self.cfg.batch_size:
+            return None
+        optimizer = self.critic_optimizer
+        loss = torch.tensor(math.nan)
+        for _ in range(updates):
+            batch = self.buffer.sample(self.cfg.batch_size, self.rng)
+            with torch.no_grad():
+                obs = torch.cat([batch.obs, batch.obs])
+                action = torch.cat([batch.action, self.actor.sample(batch.obs)[0]])
+                target = teacher(obs, action)
+            loss = (critic(obs, action) - target).pow(2).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if self.cfg.max_grad_norm is not None:
+                torch.nn.utils.clip_grad_norm_(critic.parameters(), self.cfg.max_grad_norm)
+            optimizer.step()
+        self.critic_target.load_state_dict(critic.state_dict())
+        self.critic_teacher = None
+        if self._captured is not None:
+            self._captured.drop()  # the optimiser's memory was written outside the graph: capture again
+        return float(loss.detach())
 
     def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
         """Plain regression of the deterministic action onto the expert's (intervention samples)."""

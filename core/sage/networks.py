@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import torch
 from torch import Tensor, nn
+from torch.nn import functional as F
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
@@ -37,22 +38,55 @@ class VectorizedLinear(nn.Module):
         return torch.baddbmm(self.bias, x, self.weight)
 
 
-class EnsembleCritic(nn.Module):
-    """Z action-value networks Q_z(s, a) evaluated together; ``forward`` returns ``(Z, batch)``."""
+class VectorizedLayerNorm(nn.Module):
+    """``members`` independent layer norms over the last dimension of a ``(members, batch, features)`` input, each
+    with its own gain and shift (initialised to 1 and 0, as ``nn.LayerNorm``)."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int, layers: int, members: int) -> None:
+    def __init__(self, features: int, members: int, eps: float = 1e-5) -> None:
+        super().__init__()
+        self.features, self.eps = features, eps
+        self.weight = nn.Parameter(torch.ones(members, 1, features))
+        self.bias = nn.Parameter(torch.zeros(members, 1, features))
+
+    def forward(self, x: Tensor) -> Tensor:
+        return torch.addcmul(self.bias, F.layer_norm(x, (self.features,), eps=self.eps), self.weight)
+
+
+class EnsembleCritic(nn.Module):
+    """Z action-value networks Q_z(s, a) evaluated together; ``forward`` returns ``(Z, batch)``. With
+    ``layer_norm`` each hidden layer is normalised before its ReLU (RLPD's critic: bounded features keep the values
+    of actions far from the data from running away)."""
+
+    def __init__(
+        self, obs_dim: int, act_dim: int, hidden: int, layers: int, members: int, layer_norm: bool = False
+    ) -> None:
         super().__init__()
         self.members = members
         dims = [obs_dim + act_dim] + [hidden] * layers
         self.hidden = nn.ModuleList(VectorizedLinear(i, o, members) for i, o in itertools.pairwise(dims))
+        self.norms = nn.ModuleList(VectorizedLayerNorm(hidden, members) for _ in range(layers)) if layer_norm else None
         self.out = VectorizedLinear(hidden, 1, members)
+
+    @property
+    def layer_norm(self) -> bool:
+        return self.norms is not None
 
     def forward(self, obs: Tensor, action: Tensor) -> Tensor:
         x = torch.cat([obs, action], dim=-1)
         x = x.unsqueeze(0).expand(self.members, *x.shape) if x.dim() == 2 else x
-        for layer in self.hidden:
-            x = torch.relu(layer(x))
+        for k, layer in enumerate(self.hidden):
+            x = layer(x)
+            if self.norms is not None:
+                x = self.norms[k](x)
+            x = torch.relu(x)
         return self.out(x).squeeze(-1)
+
+    def lacks_norms(self, state: Mapping[str, Tensor]) -> bool:
+        """Whether ``state`` is this critic's without its layer norms (a checkpoint of a critic built without them):
+        every other weight present, no norm's."""
+        if self.norms is None or any(key.startswith("norms.") for key in state):
+            return False
+        return {key for key in self.state_dict() if not key.startswith("norms.")} == set(state)
 
 
 class Actor(nn.Module):

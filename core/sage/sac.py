@@ -48,7 +48,7 @@ from core.replay import Batch, ReplayBuffer
 from core.sage.captured import CapturedUpdate, fill_batch, static_batch
 from core.sage.config import AgentConfig
 from core.sage.fear import fear, one_step_fear
-from core.sage.learner import ActorLearner, DeclaredState
+from core.sage.learner import CRITIC_DISTIL_UPDATES, ActorLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, adam, soft_update
 
 
@@ -117,7 +117,9 @@ class SAC(ActorLearner):
         device: str | torch.device = "cpu",
     ) -> None:
         super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed, device=device)
-        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, cfg.critics).to(self.device)
+        self.critic = EnsembleCritic(
+            obs_dim, act_dim, cfg.hidden, cfg.layers, cfg.critics, layer_norm=cfg.critic_layer_norm
+        ).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_optimizer = adam(self.actor.parameters(), cfg.actor_lr, self.captures)
         self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr, self.captures)
@@ -311,6 +313,9 @@ class SAC(ActorLearner):
         stats = super().pretrain(returns)
         if not self.warm or len(self.buffer) < self.cfg.batch_size:
             return stats
+        distilled = self.distil_critic(CRITIC_DISTIL_UPDATES)
+        if distilled is not None:
+            stats["pretrain_critic_distil_loss"] = distilled
         td_steps = self.cfg.pretrain_critic_steps
         if returns is not None and len(returns) > 0:
             regression = td_steps // 2

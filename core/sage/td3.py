@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from core.sage.config import AgentConfig
-from core.sage.learner import ActorLearner, DeclaredState
+from core.sage.learner import CRITIC_DISTIL_UPDATES, ActorLearner, DeclaredState
 from core.sage.networks import EnsembleCritic, adam, soft_update
 
 
@@ -34,7 +34,9 @@ class TD3(ActorLearner):
     ) -> None:
         super().__init__(cfg, obs_dim, act_dim, action_low, action_high, seed, device=device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
-        self.critic = EnsembleCritic(obs_dim, act_dim, cfg.hidden, cfg.layers, max(2, cfg.critics)).to(self.device)
+        self.critic = EnsembleCritic(
+            obs_dim, act_dim, cfg.hidden, cfg.layers, max(2, cfg.critics), layer_norm=cfg.critic_layer_norm
+        ).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_optimizer = adam(self.actor.parameters(), cfg.actor_lr)
         self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr)
@@ -87,6 +89,9 @@ class TD3(ActorLearner):
     def pretrain(self, returns: np.ndarray | None = None) -> dict[str, float]:
         stats = super().pretrain(returns)
         self.actor_target.load_state_dict(self.actor.state_dict())
+        distilled = self.distil_critic(CRITIC_DISTIL_UPDATES)
+        if distilled is not None:
+            stats["pretrain_critic_distil_loss"] = distilled
         return stats
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> list[str]:

@@ -805,3 +805,41 @@ def test_a_practice_source_that_fails_leaves_the_round_to_its_data(setup) -> Non
 
     result = Finetuner(versions, store, session, fast(practice_episodes=2), practice=broken).round()
     assert result.version is not None and "practice_steps" not in result.version.metrics["losses"]
+
+
+def test_layer_normed_critics_on_a_base_without_them_are_fitted_to_the_bases_before_the_round(setup) -> None:
+    """RLPD's critic (``critic_layer_norm``) on a base trained without it: the linear weights load, the norms are
+    new, and the round's first act on the critics fits them to the base's saved critics (not a random function), then
+    the versions hold the norms and load as they were saved."""
+    versions, store, session = setup
+    base = load_checkpoint(versions.get(0).path)["state"]["critic"]
+    assert not any(key.startswith("norms.") for key in base)
+    finetuner = Finetuner(versions, store, session, fast(overrides=("critic_layer_norm=true",)))
+    learner = finetuner.learner
+    assert learner.critic.layer_norm and learner.critic_teacher is not None
+    teacher = learner.critic_teacher
+    # the saved linear weights start the new critics; their optimiser starts fresh (its groups do not fit)
+    assert torch.equal(learner.critic.hidden[0].weight.detach(), base["hidden.0.weight"].float())
+    assert not learner.critic_optimizer.state_dict()["state"]
+    rows = store.steps(session)
+    obs = torch.from_numpy(rows["obs"][:200])
+    action = torch.from_numpy(rows["action"][:200])
+    with torch.no_grad():
+        target = teacher(obs, action)
+        before = float((learner.critic(obs, action) - target).pow(2).mean())
+    events: list[dict[str, Any]] = []
+    result = finetuner.round(progress=events.append)
+    assert result.version is not None
+    assert any(e["phase"] == "fitting the layer-normed critics to the base's" for e in events)
+    assert learner.critic_teacher is None  # fitted once, then dropped
+    distilled = result.losses["critic_distil_loss"]
+    scale = float(target.pow(2).mean())
+    assert distilled < 0.05 * scale and distilled < 0.1 * before, (distilled, before, scale)
+    saved = load_checkpoint(result.version.path)
+    assert saved["agent_config"]["critic_layer_norm"] is True
+    assert any(key.startswith("norms.") for key in saved["state"]["critic"])
+    again = Finetuner(versions, store, session, fast(overrides=("critic_layer_norm=true",)), base=1).learner
+    assert again.critic_teacher is None  # a version with the norms loads as saved: nothing to fit
+    # a critic with norms never loads a checkpoint without them by accident: strict loading refuses it
+    with pytest.raises(RuntimeError):
+        again.critic.load_state_dict(base)

@@ -514,3 +514,23 @@ def test_a_prior_distillation_anchor_holds_the_actor_to_the_base_actions_on_its_
         free.actor_step(free.buffer.sample(64, free.rng))
     assert distance(anchored) < 0.5 * before
     assert distance(anchored) < 0.5 * distance(free)
+
+
+@pytest.mark.parametrize("method", ["sac", "td3"])
+def test_layer_normed_critics_are_scale_free_in_their_hidden_layers_and_still_learn(method: str) -> None:
+    """``critic_layer_norm``: the hidden features are normalised, so scaling a hidden layer's weights and bias by a
+    positive factor leaves Q unchanged (it does not without the norms), and the critic still fits its targets."""
+    torch.manual_seed(0)
+    obs, action = torch.randn(64, OBS), torch.rand(64, ACT) * 2 - 1
+    normed, plain = filled(method, critic_layer_norm=True), filled(method)
+    for learner, invariant in ((normed, True), (plain, False)):
+        critic = copy.deepcopy(learner.critic)
+        with torch.no_grad():
+            q = critic(obs, action)
+            critic.hidden[0].weight.mul_(7.0)
+            critic.hidden[0].bias.mul_(7.0)
+            scaled = critic(obs, action)
+        assert torch.allclose(q, scaled, atol=1e-4) is invariant
+    assert normed.critic.layer_norm and not plain.critic.layer_norm
+    losses = [normed.update()["critic_loss"] for _ in range(200)]
+    assert all(math.isfinite(v) for v in losses) and np.mean(losses[-20:]) < np.mean(losses[:20])
