@@ -59,6 +59,12 @@ class SumoConfig:
     """Subtracted from the reward on a red-light violation (the paper's binary c_red)."""
     traffic_scale: float = 1.0
     """Multiplies every background flow (SUMO's ``--scale``)."""
+    random_specials: int = 0
+    """Special-vehicle flows of random type added to each episode, drawn from its SUMO seed on the route's own flows'
+    edges (:mod:`sims.sumo.variation`; the ``sumo-shift`` family's varied training splits). 0: none."""
+    random_density: bool = False
+    """Draw each episode's background scale from :data:`sims.sumo.variation.TRAFFIC_SCALES` by its SUMO seed, in
+    place of ``traffic_scale``."""
     randomize_signals: bool = True
     """Start each traffic light in a seeded random phase, so that the ego meets every signal state."""
     teleport_time: float = 120.0
@@ -80,6 +86,10 @@ class SumoConfig:
             raise ValueError(f"need a_min < 0 < a_max, got a_min={self.a_min}, a_max={self.a_max}")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {self.max_steps}")
+        count = self.random_specials
+        if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+            raise ValueError(f"random_specials must be a whole number >= 0, got {self.random_specials!r}")
+        self.random_density = bool(self.random_density)
         self.special_vehicles = bool(self.special_vehicles)
         if self.route_files is not None:
             self.route_files = tuple(str(f) for f in self.route_files)

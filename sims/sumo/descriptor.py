@@ -7,7 +7,7 @@ from xml.etree import ElementTree
 
 from core.descriptor import InputMapping, ScenarioSpec, SimDescriptor
 from sims.sumo.config import SumoConfig
-from sims.sumo.families import FAMILY, family_kwargs
+from sims.sumo.families import FAMILY, SPLITS, family_kwargs
 
 METRIC_COLUMNS = ("success", "collision", "red_light", "timeout", "route_progress", "speed_mean")
 
@@ -44,7 +44,8 @@ def _family_scenario(name: str) -> dict[str, Any]:
     """A name outside the named scenarios: ``sumo-shift:train`` / ``:test`` (:mod:`sims.sumo.families`)."""
     kwargs = family_kwargs(name)
     if kwargs is None:
-        raise ValueError(f"choose one of {', '.join(spec.name for spec in SCENARIOS)}, {FAMILY}:train or {FAMILY}:test")
+        splits = " or ".join(f"{FAMILY}:{split}" for split in SPLITS)
+        raise ValueError(f"choose one of {', '.join(spec.name for spec in SCENARIOS)}, {splits}")
     return kwargs
 
 

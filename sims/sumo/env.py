@@ -54,7 +54,7 @@ import numpy as np
 
 from core.dotted import replaced
 from core.scene import Scene
-from sims.sumo import engine
+from sims.sumo import engine, variation
 from sims.sumo import scene as drawing
 from sims.sumo.config import (
     AGENT_SPEED_MODE,
@@ -286,12 +286,16 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
     def sumo_args(self, seed: int) -> list[str]:
         """SUMO's command line (without the binary) for an episode of this config with this SUMO seed."""
         cfg = self.config
+        routes = cfg.route_paths()
+        if cfg.random_specials > 0:
+            routes.append(variation.specials_file(cfg.route, cfg.random_specials, seed))
+        scale = variation.traffic_scale(seed) if cfg.random_density else cfg.traffic_scale
         return [
             "--net-file", str(cfg.network_path()),
-            "--route-files", ",".join(str(p) for p in cfg.route_paths()),
+            "--route-files", ",".join(str(p) for p in routes),
             "--step-length", repr(cfg.step_length),
             "--seed", str(seed),
-            "--scale", repr(cfg.traffic_scale),
+            "--scale", repr(scale),
             "--collision.action", "remove",
             "--collision.check-junctions", "true",
             "--collision.mingap-factor", "0",
