@@ -32,6 +32,11 @@
 # Reported beside it, not deciding: fear and curiosity AUROC on both grounds, firing, the merged tau bounds, and the
 # five refits' unseen fear AUROC one by one (the spread over refits; their gate rows are not measured).
 # A stage not finished by 02:15 UTC (2026-12-01) is reported as not measured, with no verdict.
+#
+# Corrected 00:26 UTC, before any candidate result existed (the first launch stopped in choose-scale's first rows):
+# refits warm-started from policies/sumo-default hold its 25 members each, so their merge held 125, not the 25 the
+# plan states (the committed refits started from a 5-member model). The refits now set world_model_config.members=5;
+# a 25-member checkpoint cannot warm a 5-member model, so each is a fresh fit on its 150 episodes (the policy warm).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 PY=.venv/bin/python
@@ -46,7 +51,8 @@ stage=${1:-all}
       for s in $pair; do
         .venv/bin/sage train --sim sumo --scenario c1,c2,sumo-shift:varied1,sumo-shift:varied2 \
             --init policies/sumo-default --world-model-only --episodes 150 --seed "$s" --demo-episodes 10 \
-            --demo-noise 0.3 --checkpoint-every 0 --checkpoint-dtype float16 --quiet --out runs/sumo-varied-s"$s" &
+            --demo-noise 0.3 --set world_model_config.members=5 --checkpoint-every 0 --checkpoint-dtype float16 \
+            --quiet --out runs/sumo-varied-s"$s" &
       done
       wait
     done
