@@ -308,6 +308,9 @@ class AgentConfig:
     """Number of hidden layers of actor and critics."""
     critics: int = 2
     """Z, the size of the critic ensemble (one batched forward); the target uses the minimum over targets."""
+    critic_target_subset: int | None = None
+    """REDQ's and RLPD's ensemble: the TD target takes the minimum over this many critics drawn at random every update,
+    the actor's value (and ω's) the critics' mean. None: the minimum over all critics for both."""
     critic_layer_norm: bool = False
     """Layer norm before every hidden ReLU of the critics (RLPD, HIL-SERL), in SAC, its SAGE variants and TD3. A warm
     start from critics saved without it fits the new ones to them first (``distil_critic``)."""
@@ -631,6 +634,15 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"gamma must be in (0, 1), got {cfg.gamma}")
     if cfg.critics < 1 or cfg.world_model_config.members < 1:
         raise ValueError("critics and world_model_config.members must be >= 1")
+    subset = cfg.critic_target_subset
+    if subset is not None:
+        if isinstance(subset, bool) or not isinstance(subset, int) or not 1 <= subset <= cfg.critics:
+            raise ValueError(f"critic_target_subset must be None or 1..critics ({cfg.critics}), got {subset!r}")
+        if cfg.cuda_graph:
+            raise ValueError(
+                "critic_target_subset draws its critics every update, which a captured CUDA graph would fix: "
+                "set cuda_graph=false"
+            )
     if not 0.0 <= cfg.virtual_ratio < 1.0:
         raise ValueError(f"virtual_ratio must be in [0, 1), got {cfg.virtual_ratio}")
     if cfg.reward_bounds is not None and cfg.reward_bounds[0] > cfg.reward_bounds[1]:

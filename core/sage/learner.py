@@ -134,6 +134,19 @@ def _all_finite(tensors: list[Tensor]) -> bool:
     return True
 
 
+def _check_state_shapes(optimizer: torch.optim.Optimizer, saved: Mapping[str, Any]) -> None:
+    """A ValueError when a saved optimiser's per-parameter tensors (Adam's moments) do not have their parameters'
+    shapes here: ``load_state_dict`` checks only how many parameters there are, and a fused step over moments of
+    another shape (a critic ensemble of another size) reads out of bounds."""
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    indices = [i for group in saved.get("param_groups", []) for i in group["params"]]
+    states = saved.get("state", {})
+    for param, index in zip(params, indices, strict=False):
+        for key, value in states.get(index, {}).items():
+            if isinstance(value, Tensor) and value.dim() > 0 and tuple(value.shape) != tuple(param.shape):
+                raise ValueError(f"saved {key} of shape {tuple(value.shape)} for a parameter of {tuple(param.shape)}")
+
+
 @dataclass(frozen=True)
 class DeclaredState:
     """What :meth:`BaseLearner.update` trains, by attribute name (Stable-Baselines3 style): checkpoints save and
@@ -163,6 +176,8 @@ class BaseLearner:
     device_capable = True
     """Whether the method's update can run on a CUDA device (:mod:`core.device`); one that cannot trains on the CPU
     under ``auto`` and refuses an explicit ``cuda``."""
+    reads_critic_subset = False
+    """Whether the update reads ``AgentConfig.critic_target_subset``; one that does not refuses it."""
     reads_refused = False
     """Whether the update reads the gate's refused proposals (``AgentConfig.refused_weight``); one that does not
     refuses a weight over 0 rather than ignore it."""
@@ -171,6 +186,11 @@ class BaseLearner:
     def check_config(cls, cfg: AgentConfig) -> None:
         """Refuse settings this learner would not read (a ValueError naming them), before any network is built: the
         dashboard checks a round's learner settings this way before the server starts."""
+        if cfg.critic_target_subset is not None and not cls.reads_critic_subset:
+            raise ValueError(
+                f"critic_target_subset is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: "
+                "set critic_target_subset=none"
+            )
         if cfg.refused_weight > 0 and not cls.reads_refused:
             raise ValueError(
                 f"refused_weight is read by the SAC learners only (sage, sac, fni-rl); {cfg.method} has no critic "
@@ -215,9 +235,9 @@ class BaseLearner:
         self.warm = False
         """True once the policy holds knowledge (loaded or pretrained): no random warm-up actions."""
         self.critic_teacher: EnsembleCritic | None = None
-        """The warm start's critics as saved, when they lack the layer norms this run's critics have
-        (``AgentConfig.critic_layer_norm``): :meth:`ActorLearner.distil_critic` fits the new critics to them, then
-        drops them."""
+        """The warm start's critics as saved, when their shape is not this run's (without its layer norms,
+        ``AgentConfig.critic_layer_norm``, or fewer members, ``critics``): :meth:`ActorLearner.distil_critic` fits
+        the new critics to them, then drops them."""
         self.env_steps = 0
         self.updates = 0
         self._update_credit = 0.0
@@ -648,12 +668,12 @@ class BaseLearner:
             if name in state:
                 if not strict and isinstance(module, EnsembleWorldModel) and not module.reads(state[name]):
                     continue  # a warm start from a model of another input layout or ego step: refit it
-                if not strict and isinstance(module, EnsembleCritic) and module.lacks_norms(state[name]):
-                    # critics saved without the layer norms this run asks for: their linear weights start the new
-                    # critics, which are then fitted to the saved ones (distil_critic) before they are trusted
-                    module.load_state_dict(state[name], strict=False)
+                if not strict and isinstance(module, EnsembleCritic) and not module.fits(state[name]):
+                    # critics saved in another shape than this run asks for (without its layer norms, fewer members):
+                    # what fits starts the new critics, which are then fitted to the saved ones (distil_critic)
+                    module.warm_from(state[name])
                     if name == "critic":
-                        self.critic_teacher = self._critic_without_norms(module, state[name])
+                        self.critic_teacher = EnsembleCritic.like(state[name]).to(self.device).requires_grad_(False)
                     loaded.append(name)
                     continue
                 module.load_state_dict(state[name])
@@ -676,13 +696,6 @@ class BaseLearner:
                 self._inherited_gate = (saved, self.model_trainer.world_model.version)
         return loaded
 
-    def _critic_without_norms(self, critic: EnsembleCritic, saved: Mapping[str, Tensor]) -> EnsembleCritic:
-        """``critic``'s shape without layer norms, holding ``saved`` (frozen): the teacher of :meth:`distil_critic`."""
-        first = critic.hidden[0]
-        teacher = EnsembleCritic(first.in_features, 0, first.out_features, len(critic.hidden), critic.members)
-        teacher.load_state_dict(saved)
-        return teacher.to(self.device).requires_grad_(False)
-
     def _load_optimizers(self, saved: dict[str, Any], strict: bool) -> list[str]:
         """Restore the declared optimisers the checkpoint holds (older checkpoints hold none: fresh optimisers).
         The learning rates stay this run's configuration's; only the optimiser's memory is restored."""
@@ -695,6 +708,7 @@ class BaseLearner:
             # checkpoint's run used: only the optimiser's memory is restored
             kept = [{k: group[k] for k in OPTIMIZER_SETTINGS if k in group} for group in optimizer.param_groups]
             try:
+                _check_state_shapes(optimizer, saved[name])
                 optimizer.load_state_dict(saved[name])
             except (ValueError, KeyError) as exc:
                 if strict:
@@ -750,22 +764,24 @@ class ActorLearner(BaseLearner):
         return self.acting_actor  # the gate's preallocated fast path, always the current weights
 
     def distil_critic(self, updates: int) -> float | None:
-        """Fit the critics to :attr:`critic_teacher` (the warm start's critics, saved without the layer norms these
-        have) on the buffer's states, at the recorded actions and at the actor's, so that the critics keep what the
-        checkpoint's learned before the first update trusts them; the targets then copy them and the teacher is
-        dropped. Returns the last batch's mean squared error (None: no teacher, or fewer rows than a batch yet)."""
+        """Fit the critics to :attr:`critic_teacher` (the warm start's critics, saved in another shape: without the
+        layer norms these have, or fewer members, member z learning saved member z mod their number) on the buffer's
+        states, at the recorded actions and at the actor's, so that the critics keep what the checkpoint's learned
+        before the first update trusts them; the targets then copy them and the teacher is dropped. Returns the last
+        batch's mean squared error (None: no teacher, or fewer rows than a batch yet)."""
         teacher: EnsembleCritic | None = self.critic_teacher
         critic = self.critic
         if teacher is None or len(self.buffer) < self.cfg.batch_size:
             return None
         optimizer = self.critic_optimizer
+        members = torch.arange(critic.members, device=self.device) % teacher.members
         loss = torch.tensor(math.nan)
         for _ in range(updates):
             batch = self.buffer.sample(self.cfg.batch_size, self.rng)
             with torch.no_grad():
                 obs = torch.cat([batch.obs, batch.obs])
                 action = torch.cat([batch.action, self.actor.sample(batch.obs)[0]])
-                target = teacher(obs, action)
+                target = teacher(obs, action)[members]  # member z learns the saved member z mod their number
             loss = (critic(obs, action) - target).pow(2).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()

@@ -81,12 +81,28 @@ class EnsembleCritic(nn.Module):
             x = torch.relu(x)
         return self.out(x).squeeze(-1)
 
-    def lacks_norms(self, state: Mapping[str, Tensor]) -> bool:
-        """Whether ``state`` is this critic's without its layer norms (a checkpoint of a critic built without them):
-        every other weight present, no norm's."""
-        if self.norms is None or any(key.startswith("norms.") for key in state):
-            return False
-        return {key for key in self.state_dict() if not key.startswith("norms.")} == set(state)
+    def fits(self, state: Mapping[str, Tensor]) -> bool:
+        """Whether ``state`` is a critic of this one's shape (names and sizes: members, layers, norms)."""
+        own = self.state_dict()
+        return set(state) == set(own) and all(tuple(state[k].shape) == tuple(v.shape) for k, v in own.items())
+
+    def warm_from(self, state: Mapping[str, Tensor]) -> None:
+        """Start from a saved critic of another shape: its linear weights where they fit (the same members, with or
+        without norms), this critic's own initialisation elsewhere."""
+        own = self.state_dict()
+        fitting = {k: v for k, v in state.items() if k in own and tuple(v.shape) == tuple(own[k].shape)}
+        self.load_state_dict(fitting, strict=False)
+
+    @staticmethod
+    def like(state: Mapping[str, Tensor]) -> EnsembleCritic:
+        """A critic of a saved state's shape (members, widths, layers, norms) holding it."""
+        first = state["hidden.0.weight"]
+        members, in_features, hidden = (int(n) for n in first.shape)
+        layers = sum(1 for k in state if k.startswith("hidden.") and k.endswith(".weight"))
+        norms = any(k.startswith("norms.") for k in state)
+        critic = EnsembleCritic(in_features, 0, hidden, layers, members, layer_norm=norms)
+        critic.load_state_dict(dict(state))
+        return critic
 
 
 class Actor(nn.Module):

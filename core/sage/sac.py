@@ -88,10 +88,16 @@ def advantage_weights(
     return torch.exp(((q_expert - q_agent) / scale).clamp(-clip, clip))
 
 
-def expert_and_agent_q(critic: EnsembleCritic, imitation: Batch) -> tuple[Tensor, Tensor]:
-    """min_z Q_z(s, a_E) and min_z Q_z(s, a_RL) of the intervention samples, from one critic pass over both (the
-    same values as two passes up to the float32 rounding of products over more rows; issue 63)."""
-    q = critic(torch.cat([imitation.obs, imitation.obs]), torch.cat([imitation.a_expert, imitation.a_rl])).min(0).values
+def ensemble_value(q: Tensor, mean: bool) -> Tensor:
+    """The critics' ``(Z, batch)`` values as one: their minimum, or their mean (``critic_target_subset``'s actor)."""
+    return q.mean(0) if mean else q.min(0).values
+
+
+def expert_and_agent_q(critic: EnsembleCritic, imitation: Batch, mean: bool = False) -> tuple[Tensor, Tensor]:
+    """min_z Q_z(s, a_E) and min_z Q_z(s, a_RL) (the mean over z with ``mean``) of the intervention samples, from one
+    critic pass over both (the same values as two passes up to the float32 rounding of products over more rows)."""
+    q = critic(torch.cat([imitation.obs, imitation.obs]), torch.cat([imitation.a_expert, imitation.a_rl]))
+    q = ensemble_value(q, mean)
     return q[: len(imitation.obs)], q[len(imitation.obs) :]
 
 
@@ -104,6 +110,7 @@ class SAC(ActorLearner):
     """Soft actor-critic with SAGE's switches (see :func:`core.sage.config.for_method`)."""
 
     reads_refused = True
+    reads_critic_subset = True
 
     def __init__(
         self,
@@ -179,7 +186,11 @@ class SAC(ActorLearner):
         cfg = self.cfg
         with torch.no_grad():
             next_action, next_log_prob = self.actor.sample(batch.next_obs)
-            next_q = self.critic_target(batch.next_obs, next_action).min(0).values - self.alpha * next_log_prob
+            next_qs = self.critic_target(batch.next_obs, next_action)
+            if cfg.critic_target_subset is not None:
+                drawn = torch.randperm(len(next_qs), device=next_qs.device)[: cfg.critic_target_subset]
+                next_qs = next_qs[drawn]
+            next_q = next_qs.min(0).values - self.alpha * next_log_prob
             if self.fear_active():
                 next_q = next_q - self.lam * self.learner_fear(batch.next_obs, next_action)
             y = batch.reward + cfg.gamma * (1.0 - batch.terminated) * next_q
@@ -239,7 +250,7 @@ class SAC(ActorLearner):
         # the deterministic actions of the imitation and anchor rows from the same trunk pass as the sample
         others = [rows.obs for rows in (imitation, anchor) if rows is not None]
         action, log_prob, modes = self.actor.sample_with_modes(states, *others)
-        q = self.critic(states, action).min(0).values
+        q = ensemble_value(self.critic(states, action), cfg.critic_target_subset is not None)
         loss = (self.alpha * log_prob - q).mean()
         stats: dict[str, float] = {}
         q_scale = q.detach().abs().mean().clamp_min(1.0)
@@ -250,7 +261,7 @@ class SAC(ActorLearner):
             stats["fear_budget"] = self.fear_budget()
         if imitation is not None:
             with torch.no_grad():  # Q(s, a_E) and Q(s, a_RL) in one pass
-                q_expert, q_agent = expert_and_agent_q(self.critic, imitation)
+                q_expert, q_agent = expert_and_agent_q(self.critic, imitation, cfg.critic_target_subset is not None)
                 omega = advantage_weights(q_expert, q_agent, q_scale, cfg.advantage_temperature, cfg.advantage_clip)
             error = (modes[0] - imitation.a_expert).pow(2).sum(-1)
             bc = (omega * error).mean()

@@ -843,3 +843,27 @@ def test_layer_normed_critics_on_a_base_without_them_are_fitted_to_the_bases_bef
     # a critic with norms never loads a checkpoint without them by accident: strict loading refuses it
     with pytest.raises(RuntimeError):
         again.critic.load_state_dict(base)
+
+
+def test_a_larger_critic_ensemble_on_a_two_critic_base_learns_the_bases_critics_member_by_member(setup) -> None:
+    """RLPD's ensemble (``critics=10``, ``critic_target_subset=2``) on a base of two critics: the new members cannot
+    take the saved weights, so each is fitted to saved member z mod 2 before the round's updates."""
+    versions, store, session = setup
+    overrides = ("critics=10", "critic_target_subset=2")
+    finetuner = Finetuner(versions, store, session, fast(overrides=overrides))
+    learner = finetuner.learner
+    teacher = learner.critic_teacher
+    assert learner.critic.members == 10 and teacher is not None and teacher.members == 2
+    # Adam's saved moments are of two members' shapes: the critics' optimiser starts fresh, the actor's is carried
+    assert not learner.critic_optimizer.state_dict()["state"] and learner.actor_optimizer.state_dict()["state"]
+    rows = store.steps(session)
+    obs, action = torch.from_numpy(rows["obs"][:200]), torch.from_numpy(rows["action"][:200])
+    with torch.no_grad():
+        target = teacher(obs, action)[torch.arange(10) % 2]
+        before = float((learner.critic(obs, action) - target).pow(2).mean())
+    result = finetuner.round()
+    assert result.version is not None and learner.critic_teacher is None
+    distilled = result.losses["critic_distil_loss"]
+    assert distilled < 0.1 * before, (distilled, before)
+    saved = load_checkpoint(result.version.path)
+    assert saved["agent_config"]["critics"] == 10 and saved["state"]["critic"]["out.weight"].shape[0] == 10

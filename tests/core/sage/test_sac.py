@@ -534,3 +534,43 @@ def test_layer_normed_critics_are_scale_free_in_their_hidden_layers_and_still_le
     assert normed.critic.layer_norm and not plain.critic.layer_norm
     losses = [normed.update()["critic_loss"] for _ in range(200)]
     assert all(math.isfinite(v) for v in losses) and np.mean(losses[-20:]) < np.mean(losses[:20])
+
+
+def test_a_critic_ensemble_with_a_drawn_target_subset_takes_the_minimum_of_the_drawn_critics_only() -> None:
+    """``critic_target_subset`` (REDQ, RLPD): the TD target's minimum runs over critics drawn anew every update, so with
+    critic z valued z it is the smaller of the two drawn, not 0; the actor reads the critics' mean."""
+    from core.sage.sac import ensemble_value
+
+    learner = filled("sac", critics=10, critic_target_subset=2)
+    for critic in (learner.critic, learner.critic_target):
+        with torch.no_grad():
+            critic.out.weight.zero_()
+            critic.out.bias.copy_(torch.arange(10.0).view(10, 1, 1))
+    batch = learner.buffer.sample(64, learner.rng)
+    learner.cfg.critic_target_subset = None
+    torch.manual_seed(5)
+    everyone = learner.critic_target_values(batch)
+    drawn: set[float] = set()
+    for seed in range(5, 45):
+        learner.cfg.critic_target_subset = 2
+        torch.manual_seed(seed)
+        subset = learner.critic_target_values(batch)
+        learner.cfg.critic_target_subset = None
+        torch.manual_seed(seed)
+        base = learner.critic_target_values(batch)
+        live = (1.0 - batch.terminated) * (1.0 - batch.violation) > 0.5
+        gap = ((subset - base)[live] / learner.cfg.gamma).round(decimals=3).unique()
+        assert len(gap) == 1 and 0.0 <= float(gap[0]) <= 8.0 + 1e-4
+        drawn.add(round(float(gap[0]), 3))
+    assert len(drawn) > 3 and torch.isfinite(everyone).all()
+    q = torch.arange(10.0).view(10, 1).expand(10, 3)
+    assert ensemble_value(q, mean=True).tolist() == [4.5] * 3 and ensemble_value(q, mean=False).tolist() == [0.0] * 3
+
+
+def test_a_critic_target_subset_is_refused_where_it_cannot_be_read() -> None:
+    with pytest.raises(ValueError, match="critic_target_subset"):
+        for_method("sac", critics=2, critic_target_subset=3)
+    with pytest.raises(ValueError, match="critic_target_subset"):
+        for_method("sac", critics=10, critic_target_subset=2, cuda_graph=True)
+    with pytest.raises(ValueError, match="critic_target_subset"):
+        make_learner("td3", for_method("td3", critics=10, critic_target_subset=2), OBS, ACT)
