@@ -313,6 +313,8 @@ class SAC(ActorLearner):
         return CapturedSACUpdate(self)
 
     def update(self) -> dict[str, float]:
+        if self.critic_teacher is not None:
+            self.distil_critic(CRITIC_DISTIL_UPDATES)  # a warm start's critics of another shape, before any TD step
         if self.cfg.cuda_graph:
             return self.captured_update()
         batch = self.buffer.sample(self.cfg.batch_size, self.rng)

@@ -54,6 +54,8 @@ class TD3(ActorLearner):
         return action.numpy()
 
     def update(self) -> dict[str, float]:
+        if self.critic_teacher is not None:
+            self.distil_critic(CRITIC_DISTIL_UPDATES)  # a warm start's critics of another shape, before any TD step
         cfg = self.cfg
         batch = self.buffer.sample(cfg.batch_size, self.rng)
         with torch.no_grad():

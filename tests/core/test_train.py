@@ -513,3 +513,28 @@ def test_device_cuda_without_cuda_and_a_cuda_graph_off_cuda_fail_before_any_epis
         Trainer(run, small("sac"), point_env, None, progress=False)
     with pytest.raises(DeviceError, match="needs --device cuda"):
         Trainer(dataclasses.replace(run, device="auto"), small("sac", cuda_graph=True), point_env, None, progress=False)
+
+
+def test_a_warm_start_into_critics_of_another_shape_fits_them_to_the_saved_ones_before_learning(sage_run) -> None:
+    """``sage train --init`` with layer-normed critics on a base saved without them (no demonstrations, so no
+    pretraining): the first update fits the new critics to the saved ones before its TD step."""
+    out, _ = sage_run
+    cfg = small("sac")
+    cfg.critic_layer_norm = True
+    run = RunConfig(sim="point", scenarios=["dynamic"], episodes=0, init=str(out))
+    learner = Trainer(run, cfg, point_env, None, progress=False).learner
+    teacher = learner.critic_teacher
+    assert teacher is not None and not teacher.layer_norm and learner.critic.layer_norm
+    rng = np.random.default_rng(0)
+    for _ in range(cfg.batch_size + 10):
+        learner.buffer.add(rng.normal(size=learner.obs_dim).astype(np.float32),
+                           rng.uniform(-1, 1, learner.act_dim).astype(np.float32), 0.0,
+                           rng.normal(size=learner.obs_dim).astype(np.float32), False)  # fmt: skip
+    batch = learner.buffer.sample(64, learner.rng)
+    with torch.no_grad():
+        before = float((learner.critic(batch.obs, batch.action) - teacher(batch.obs, batch.action)).pow(2).mean())
+    learner.update()
+    assert learner.critic_teacher is None
+    with torch.no_grad():
+        after = float((learner.critic(batch.obs, batch.action) - teacher(batch.obs, batch.action)).pow(2).mean())
+    assert after < 0.2 * before, (after, before)
