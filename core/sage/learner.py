@@ -42,6 +42,7 @@ from core.replay import ReplayBuffer, VirtualBuffer
 from core.sage.calibration import CalibrationSample
 from core.sage.captured import CapturedUpdate, require_cuda
 from core.sage.config import AgentConfig, GateConfig
+from core.sage.critic_transfer import check_state_shapes, fit_to_saved
 from core.sage.fear import PolicyFn
 from core.sage.gate import SageGate
 from core.sage.model_trainer import WorldModelTrainer, familiar_mean_fear
@@ -132,19 +133,6 @@ def _all_finite(tensors: list[Tensor]) -> bool:
         elif not bool(torch.isfinite(tensor).all()):
             return False
     return True
-
-
-def _check_state_shapes(optimizer: torch.optim.Optimizer, saved: Mapping[str, Any]) -> None:
-    """A ValueError when a saved optimiser's per-parameter tensors (Adam's moments) do not have their parameters'
-    shapes here: ``load_state_dict`` checks only how many parameters there are, and a fused step over moments of
-    another shape (a critic ensemble of another size) reads out of bounds."""
-    params = [p for group in optimizer.param_groups for p in group["params"]]
-    indices = [i for group in saved.get("param_groups", []) for i in group["params"]]
-    states = saved.get("state", {})
-    for param, index in zip(params, indices, strict=False):
-        for key, value in states.get(index, {}).items():
-            if isinstance(value, Tensor) and value.dim() > 0 and tuple(value.shape) != tuple(param.shape):
-                raise ValueError(f"saved {key} of shape {tuple(value.shape)} for a parameter of {tuple(param.shape)}")
 
 
 @dataclass(frozen=True)
@@ -708,7 +696,7 @@ class BaseLearner:
             # checkpoint's run used: only the optimiser's memory is restored
             kept = [{k: group[k] for k in OPTIMIZER_SETTINGS if k in group} for group in optimizer.param_groups]
             try:
-                _check_state_shapes(optimizer, saved[name])
+                check_state_shapes(optimizer, saved[name])
                 optimizer.load_state_dict(saved[name])
             except (ValueError, KeyError) as exc:
                 if strict:
@@ -769,30 +757,22 @@ class ActorLearner(BaseLearner):
         states, at the recorded actions and at the actor's, so that the critics keep what the checkpoint's learned
         before the first update trusts them; the targets then copy them and the teacher is dropped. Returns the last
         batch's mean squared error (None: no teacher, or fewer rows than a batch yet)."""
-        teacher: EnsembleCritic | None = self.critic_teacher
-        critic = self.critic
+        teacher, critic = self.critic_teacher, self.critic
         if teacher is None or len(self.buffer) < self.cfg.batch_size:
             return None
-        optimizer = self.critic_optimizer
-        members = torch.arange(critic.members, device=self.device) % teacher.members
-        loss = torch.tensor(math.nan)
-        for _ in range(updates):
+
+        def rows() -> tuple[Tensor, Tensor]:
             batch = self.buffer.sample(self.cfg.batch_size, self.rng)
             with torch.no_grad():
-                obs = torch.cat([batch.obs, batch.obs])
-                action = torch.cat([batch.action, self.actor.sample(batch.obs)[0]])
-                target = teacher(obs, action)[members]  # member z learns the saved member z mod their number
-            loss = (critic(obs, action) - target).pow(2).mean()
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            if self.cfg.max_grad_norm is not None:
-                torch.nn.utils.clip_grad_norm_(critic.parameters(), self.cfg.max_grad_norm)
-            optimizer.step()
+                policy = self.actor.sample(batch.obs)[0]
+            return torch.cat([batch.obs, batch.obs]), torch.cat([batch.action, policy])
+
+        loss = fit_to_saved(critic, teacher, self.critic_optimizer, rows, updates, self.cfg.max_grad_norm)
         self.critic_target.load_state_dict(critic.state_dict())
         self.critic_teacher = None
         if self._captured is not None:
             self._captured.drop()  # the optimiser's memory was written outside the graph: capture again
-        return float(loss.detach())
+        return loss
 
     def behaviour_clone(self, steps: int, lr: float = 1e-3) -> float:
         """Plain regression of the deterministic action onto the expert's (intervention samples)."""
