@@ -506,7 +506,8 @@ class Finetuner:
             wm_stats = self._refit_world_model()
         distil = getattr(learner, "distil_critic", None)
         if distil is not None and learner.critic_teacher is not None:
-            # critics with layer norms on a base saved without them: fitted to the base's before any update reads them
+            # critics of another shape than the base's (layer norms, more members): fitted to the base's before any
+            # update, the critic warm-up's included, reads them
             report({"phase": "fitting the layer-normed critics to the base's"})
             distilled = distil(CRITIC_DISTIL_UPDATES)
             if distilled is not None:

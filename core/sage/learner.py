@@ -150,8 +150,8 @@ class DeclaredState:
 
 
 CRITIC_DISTIL_UPDATES = 1000
-"""Updates :meth:`ActorLearner.distil_critic` takes when a warm start's critics lack this run's layer norms (a
-critic update's cost each: about 2 s on one CPU thread at the default sizes)."""
+"""Updates :meth:`ActorLearner.distil_critic` takes when a warm start's critics are of another shape than this run's
+(without its layer norms, or fewer members): a few seconds in all on one CPU thread at the default sizes."""
 
 
 class BaseLearner:
