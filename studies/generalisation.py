@@ -51,6 +51,9 @@ FAMILIES: dict[str, str] = {
 }
 """Each simulator's procedural family (its ``:train`` / ``:test`` names)."""
 DEFAULT_OUT = Path("docs/generalisation.md")
+FRESH_SEED = 11_000_000
+"""The first episode seed of a fresh draw of every ground (``--first-seed``): a block no table, rule or choice has read,
+so that a figure on it tests the choices made while reading the table's block (:data:`EVAL_SEED`) many times."""
 CHUNK = 10
 """Episodes measured (and cached) together."""
 
@@ -324,10 +327,12 @@ def ugv_rows_by_movers(
     max_steps: int | None = None,
     horizon_s: float = 1.0,
     gate_settings: Mapping[str, Any] | None = None,
+    seeds: range | None = None,
 ) -> list[GroundRow]:
     """The cached signal chunks of a ``ugv-fields`` ground, regrouped by how many movers each episode's field had
     (0, 1, 2 or more): the gate's signals on fields with several movers, the issue's hardest case. Each episode's
-    field is found again from its seed (the chunk's first seed plus the episode's index), as the env drew it."""
+    field is found again from its seed (the chunk's first seed plus the episode's index), as the env drew it.
+    ``seeds``: only the chunks whose first seed lies in it (one table's block of a cache that holds several)."""
     import sims
 
     store = Cache(cache)
@@ -339,6 +344,8 @@ def ugv_rows_by_movers(
             if not key.startswith(prefix):
                 continue
             first_seed = int(key[len(prefix) :].split("|")[0])
+            if seeds is not None and first_seed not in seeds:
+                continue
             part = SignalPart(**value)
             episodes = np.asarray(part.episode)
             for episode in sorted(set(part.episode)):
@@ -591,6 +598,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--gate-episodes", type=int, help="episodes a ground for the gate row (default: --episodes)")
     parser.add_argument("--horizon", type=float, default=1.0, help="seconds: the label's 'violation within'")
     parser.add_argument("--max-steps", type=int)
+    parser.add_argument(
+        "--first-seed",
+        type=int,
+        default=EVAL_SEED,
+        help=f"the first episode seed of every ground (default {EVAL_SEED:,}, the table's; another block draws other "
+        f"episodes, e.g. {FRESH_SEED:,} for a fresh draw of the test split that no choice has read)",
+    )
     parser.add_argument("--family-train", action="store_true", help="a row for the family's train split too")
     parser.add_argument("--unseen", help="the unseen ground's scenario (default: the family's test split)")
     parser.add_argument(
@@ -642,6 +656,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.episodes < 1 or gate_episodes < 0:
         print("--episodes must be at least 1 and --gate-episodes at least 0", file=sys.stderr)
         return 2
+    if args.first_seed < 0:
+        print("--first-seed must be at least 0", file=sys.stderr)
+        return 2
     try:
         seen = [name.strip() for value in args.seen for name in value.split(",") if name.strip()]
         grounds = default_grounds(run, args.sim, args.family_train, args.unseen, seen)
@@ -674,6 +691,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         gate_episodes,
         horizon_s=args.horizon,
         max_steps=args.max_steps,
+        first_seed=args.first_seed,
         cache=cache,
         cached_only=args.cached_only,
         gate_settings=gate_settings,
@@ -682,7 +700,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     by_movers: list[GroundRow] = []
     if args.by_movers and args.sim == "ugv":
         by_movers = ugv_rows_by_movers(
-            cache, run, max_steps=args.max_steps, horizon_s=args.horizon, gate_settings=gate_settings
+            cache,
+            run,
+            max_steps=args.max_steps,
+            horizon_s=args.horizon,
+            gate_settings=gate_settings,
+            seeds=range(args.first_seed, args.first_seed + args.episodes),
         )
     section = render(
         rows,

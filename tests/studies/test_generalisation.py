@@ -105,6 +105,45 @@ def test_the_entry_point_takes_seen_scenarios_as_comma_lists(tmp_path: Path, mon
     assert asked == {"seen (scenarios given)": ["1", "2", "sims/ugv/scenarios/movers.yaml"]}
 
 
+def test_a_fresh_block_of_seeds_draws_other_fields_and_its_rows_read_only_that_block(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    grounds = {"unseen": ["ugv-fields:test"]}
+    cache = tmp_path / "cache.json"
+    table = generalisation.EVAL_SEED
+    fresh = generalisation.FRESH_SEED
+    for first in (table, fresh):
+        generalisation_table(
+            RUN, "ugv", grounds, episodes=1, gate_episodes=0, max_steps=5, cache=cache, first_seed=first
+        )
+    keys = list(json.loads(cache.read_text()))
+    assert len(keys) == 2 and any(f"|{table}|" in k for k in keys) and any(f"|{fresh}|" in k for k in keys)
+    env = sims.descriptor("ugv").make("ugv-fields:test")
+    try:
+        drawn = []
+        for first in (table, fresh):
+            env.reset(seed=first)
+            drawn.append(env.unwrapped.layout)
+    finally:
+        env.close()
+    assert drawn[0] != drawn[1]  # the blocks drive other fields of the split
+    both = generalisation.ugv_rows_by_movers(cache, RUN, max_steps=5)
+    one = generalisation.ugv_rows_by_movers(cache, RUN, max_steps=5, seeds=range(fresh, fresh + 1))
+    assert sum(r.episodes for r in both) == 2 and sum(r.episodes for r in one) == 1
+
+    asked: dict[str, object] = {}
+
+    def measure(*args: object, **kwargs: object) -> list[object]:
+        asked.update(kwargs)
+        return []
+
+    monkeypatch.setattr(generalisation, "generalisation_table", measure)
+    out = str(tmp_path / "g.md")
+    assert generalisation.main(["--episodes", "1", "--grounds", "unseen", "--first-seed", "123", "--out", out]) == 0
+    assert asked["first_seed"] == 123
+    assert generalisation.main(["--episodes", "1", "--first-seed", "-1", "--out", out]) == 2
+
+
 def test_gate_settings_over_the_runs_own_are_measured_under_their_own_cache_keys(tmp_path: Path) -> None:
     grounds = {"unseen": ["ugv-fields:test:2"]}
     cache = tmp_path / "cache.json"
