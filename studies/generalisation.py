@@ -492,13 +492,24 @@ def write_section(out: Path, sim: str, section: str) -> None:
     out.write_text("".join(parts))
 
 
+FRESH_TITLE = "A fresh draw of the test seeds (from 11,000,000), which no choice has read"
+"""The title of each simulator's extra ground measured on :data:`FRESH_SEED`'s block (the README's summary reads it)."""
 EXTRA_GROUNDS: dict[str, list[tuple[str, Path]]] = {
     "ugv": [
         (
             "Test fields with two or more movers (the issue's hardest case)",
             Path("results/generalisation/scratch-crowded.md"),
-        )
+        ),
+        (FRESH_TITLE, Path("results/generalisation/fresh-ugv.md")),
+        (
+            "Test fields with two or more movers, a fresh draw (from 11,000,000)",
+            Path("results/generalisation/fresh-ugv-2plus.md"),
+        ),
     ],
+    **{
+        sim: [(FRESH_TITLE, Path(f"results/generalisation/fresh-{sim}.md"))]
+        for sim in ("pedestrian", "sumo", "highway")
+    },
 }
 """Per simulator, grounds measured by a command of their own into a committed file (its ``--out``, e.g.
 ``results/generalisation/run-ugv-crowded.sh``) that :data:`DEFAULT_OUT` carries as subsections of the simulator's

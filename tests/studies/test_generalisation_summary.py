@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from studies.generalisation import GroundRow, render, write_section
-from studies.generalisation_summary import anchor, parse, update_readme
+from studies.generalisation_summary import anchor, parse, summary_table, update_readme
 
 
 def row(ground: str, fear: float, tau: float, violation_rate: float | None, takeover: float = 0.25) -> GroundRow:
@@ -68,3 +70,26 @@ def test_the_committed_readme_holds_the_summary_of_the_committed_document() -> N
     text = (root / "README.md").read_text()
     block = text.split(f"<!-- {KEY} -->\n", 1)[1].split(f"\n<!-- /{KEY} -->", 1)[0]
     assert block == summary_table((root / DOC).read_text(), relative_link(root / DOC, root / "README.md"))
+
+
+def test_the_summary_reads_a_fresh_draw_of_the_test_seeds_where_the_document_holds_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from studies import generalisation
+
+    doc, fresh_file = tmp_path / "generalisation.md", tmp_path / "fresh-ugv.md"
+    unseen = row("unseen (ugv-fields:test)", 0.916, 0.279, 9 / 300, 0.48)
+    write_section(doc, "ugv", section("ugv", [unseen, row("seen (training scenarios)", 0.963, 0.349, 1 / 300)], "a1"))
+    write_section(doc, "sumo", section("sumo", [row("unseen (sumo-shift:test)", 0.97, 0.2, 19 / 300, 0.18)], "b2"))
+    assert all(s.fresh is None for s in parse(doc.read_text()))  # none measured: no fresh figure, "–" in the README
+    assert "| – |" in summary_table(doc.read_text(), "docs/generalisation.md").splitlines()[2]
+    fresh_row = row("unseen (ugv-fields:test)", 0.889, 0.28, 21 / 300, 0.5)
+    write_section(fresh_file, "ugv", section("ugv", [fresh_row], "c3"))
+    monkeypatch.setattr(generalisation, "EXTRA_GROUNDS", {"ugv": [(generalisation.FRESH_TITLE, fresh_file)]})
+    generalisation.attach_extras(doc, "ugv")
+    ugv, sumo = parse(doc.read_text())
+    assert ugv.fresh is not None and (ugv.fresh.gate, ugv.fresh.takeover) == ("21 of 300 [5%, 10%]", "50%")
+    assert ugv.unseen.gate == "9 of 300 [2%, 6%]" and ugv.commit == "a1"  # the section's own row is unchanged
+    assert sumo.fresh is None
+    line = next(x for x in summary_table(doc.read_text(), "d.md").splitlines() if x.startswith("| [ugv]"))
+    assert "| 21 of 300 [5%, 10%] at 50%, 0.889 |" in line
