@@ -64,3 +64,19 @@ base=runs/sumo-default-step8
   fi
   echo "== $(date -u +%H:%M:%S): done $stage"
 } 2>&1 | tee -a "$log"
+# Added 03:27 UTC, after stage table's row above (P: 35 of 300 at 15%, fear AUROC 0.969; step 9's 0.970), before
+# this run: P at step 9's operating point (gate.tau_scale=0.7), the same unseen seeds. Reported, not deciding, and no
+# default changes: P's ranking equals step 9's, and P's own choice on train ground was scale 1 where step 9's pool
+# missed the target on c2 at 1 and took 0.7. If P at 0.7 lands within reach of step 9's row (the difference interval
+# contains 0), what the variation carried is the operating point it led the train-ground rule to choose, not the
+# ranking; if P at 0.7 stays above step 9's row (interval wholly above 0), the variation also changed which unseen
+# episodes fear catches at a given threshold.
+if [[ $stage == at07 ]]; then
+  {
+    echo "== $(date -u +%H:%M:%S) at $(git rev-parse --short HEAD): P at tau_scale 0.7, unseen ground, 300 + 300"
+    $PY -m studies.generalisation --sim sumo --run runs/sumo-plain-warm/merged --episodes 300 --gate-episodes 300 \
+        --grounds unseen --set gate.tau_scale=0.7 --out $out/sumo-plain-warm-07.md --cache $out/sumo-plain-warm.json
+    grep -h "^| unseen" $out/sumo-plain-warm-07.md $out/sumo-varied-warm.md
+    echo "== $(date -u +%H:%M:%S): done at07"
+  } 2>&1 | tee -a "$log"
+fi
