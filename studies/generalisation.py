@@ -42,6 +42,7 @@ from core.device import processor_name
 from core.loop import Runner, StepRecord
 from core.metrics import auroc
 from studies.calibrate import EVAL_SEED, labels_within, pool_points, run_gated, violation_interval
+from studies.generalisation_summary import FRESH_TITLE
 
 FAMILIES: dict[str, str] = {
     "sumo": "sumo-shift",
@@ -492,8 +493,6 @@ def write_section(out: Path, sim: str, section: str) -> None:
     out.write_text("".join(parts))
 
 
-FRESH_TITLE = "A fresh draw of the test seeds (from 11,000,000), which no choice has read"
-"""The title of each simulator's extra ground measured on :data:`FRESH_SEED`'s block (the README's summary reads it)."""
 EXTRA_GROUNDS: dict[str, list[tuple[str, Path]]] = {
     "ugv": [
         (

@@ -9,8 +9,8 @@ wrote it), so that the README repeats what the document measured and nothing typ
 - curiosity's AUROC for telling an unseen step from a seen one, and the mean τ on each ground (the threshold falls
   where curiosity rises);
 - the episodes a ground and the commit its section was measured at;
-- the unseen ground again on a fresh draw of its test seeds (:data:`studies.generalisation.FRESH_TITLE`, an extra
-  ground of the section), where the document holds one: a block of seeds no adoption rule or choice has read.
+- the unseen ground again on a fresh draw of its test seeds (the section's extra ground titled :data:`FRESH_TITLE`),
+  where the document holds one: a block of seeds no adoption rule or choice has read.
 
 ``python -m studies.generalisation`` refreshes the block whenever it writes the project's document;
 ``python -m studies.generalisation_summary`` refreshes it alone.
@@ -32,6 +32,9 @@ DOC = Path("docs/generalisation.md")
 KEY = "generalisation"
 """The README's block: between ``<!-- generalisation -->`` and ``<!-- /generalisation -->``."""
 HEADING = "## Results"
+FRESH_TITLE = "A fresh draw of the test seeds (from 11,000,000), which no choice has read"
+"""The title of each simulator's extra ground measured on ``studies.generalisation.FRESH_SEED``'s block (defined here,
+where the summary reads it; the generator attaches the subsection under it)."""
 COMMAND = "python -m studies.generalisation_summary"
 
 _SECTION = re.compile(r"^## (?P<sim>[^:\n]+): (?P<run>.+)$", re.MULTILINE)
@@ -116,8 +119,6 @@ def parse(doc_text: str) -> list[SimSummary]:
 
 def _fresh_row(body: str) -> Ground | None:
     """The unseen row of the section's fresh-draw subsection (:data:`FRESH_TITLE`), None where it has none."""
-    from studies.generalisation import FRESH_TITLE
-
     head = f"\n### {FRESH_TITLE}"
     if head not in body:
         return None

@@ -64,7 +64,7 @@ base=runs/sumo-default-step8
   fi
   echo "== $(date -u +%H:%M:%S): done $stage"
 } 2>&1 | tee -a "$log"
-# Added 03:27 UTC, after stage table's row above (P: 35 of 300 at 15%, fear AUROC 0.969; step 9's 0.970), before
+# Added 03:25 UTC, after stage table's row above (P: 35 of 300 at 15%, fear AUROC 0.969; step 9's 0.970), before
 # this run: P at step 9's operating point (gate.tau_scale=0.7), the same unseen seeds. Reported, not deciding, and no
 # default changes: P's ranking equals step 9's, and P's own choice on train ground was scale 1 where step 9's pool
 # missed the target on c2 at 1 and took 0.7. If P at 0.7 lands within reach of step 9's row (the difference interval
