@@ -25,7 +25,7 @@ RAYS = 24
 class ToyRobotEnv(gym.Env[np.ndarray, np.ndarray]):
     observation_space = gym.spaces.Box(-np.inf, np.inf, (5 + RAYS,), np.float32)
     action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
-    metadata: ClassVar[dict[str, Any]] = {"render_fps": 10}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "render_fps": 10}  # drawn by the server, not render()
 
     def __init__(self, scenario: int | str | None = 1, horizon: int = 200) -> None:
         self.scenario = int(scenario or 1)
