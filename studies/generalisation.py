@@ -42,7 +42,7 @@ from core.device import processor_name
 from core.loop import Runner, StepRecord
 from core.metrics import auroc
 from studies.calibrate import EVAL_SEED, labels_within, pool_points, run_gated, violation_interval
-from studies.generalisation_summary import FRESH_TITLE
+from studies.generalisation_summary import FRESH_TITLE, update_readme
 
 FAMILIES: dict[str, str] = {
     "sumo": "sumo-shift",
@@ -736,8 +736,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (ValueError, FileNotFoundError) as exc:
             print(f"error: the extra grounds: {exc}", file=sys.stderr)
             return 2
-        from studies.generalisation_summary import update_readme
-
         update_readme(doc=args.out)  # the README's summary row of this simulator, from the section just written
     return 0
 
