@@ -6,22 +6,16 @@ against the table's (docs/generalisation.md), by the rule in the script's header
 
 from __future__ import annotations
 
-import re
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from core.metrics import difference_interval
+from studies.generalisation_summary import _cells, _ground
 
 HERE = Path(__file__).resolve().parent
 DOC = HERE.parents[1] / "docs" / "generalisation.md"
-ROW = re.compile(
-    r"^\| (?P<ground>unseen[^|]*) \| [^|]+ \| (?P<episodes>\d+) \((?P<steps>\d+)\) \| \d+ "
-    r"\| (?P<auroc>[0-9.]+) \([^)]*\) "
-    r"\| [^|]+ \| [^|]+ \| [^|]+ \| [^|]+ \| (?P<violations>\d+) of (?P<gate>\d+) \([^)]*\) \[[^]]*\] \| "
-    r"(?P<takeover>\d+)% \|$"
-)
 # (label, simulator section, its subsection in the doc or None, fresh file)
 GROUNDS = [
     ("ugv", "ugv", None, "fresh-ugv.md"),
@@ -48,9 +42,18 @@ def unseen_row(text: str, sim: str, subsection: str | None) -> dict[str, float] 
     else:  # the section's own table: up to its first subsection
         body = body[: next((i for i, line in enumerate(body) if line.startswith("### ")), len(body))]
     for line in body:
-        match = ROW.match(line)
-        if match:
-            return {k: float(v) for k, v in match.groupdict().items() if k != "ground"}
+        if not line.startswith("| unseen"):
+            continue
+        ground = _ground(_cells(line))  # the summary's reading of studies.generalisation's columns
+        if ground.gate == "–":
+            continue
+        violations, _, episodes = ground.gate.split(" ")[:3]
+        return {
+            "auroc": float(ground.fear_auroc),
+            "violations": float(violations),
+            "gate": float(episodes),
+            "takeover": float(ground.takeover.rstrip("%")),
+        }
     return None
 
 
