@@ -430,7 +430,7 @@ class Finetuner:
             rows = rows[self.buffer.takeover[rows]]
             self.heldout_obs = np.concatenate([self.heldout_obs, self.buffer.obs[rows]])
             self.heldout_expert = np.concatenate([self.heldout_expert, self.buffer.a_expert[rows]])
-            self.buffer.takeover[rows] = False  # not imitated: measured
+            self.buffer.unlabel(rows)  # not imitated: measured
         return total
 
     def heldout_error(self) -> float | None:

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from core.protocol import StepRecord
-from core.replay import Batch, ReplayBuffer
+from core.replay import Batch, ReplayBuffer, SortedRows
 from core.versions import FinetuneError
 
 PriorSource = Callable[[Path, int, int], list[StepRecord]]
@@ -64,29 +64,36 @@ class SharedReplayBuffer(ReplayBuffer):
         self, obs_dim: int, act_dim: int, capacity: int, prior_share: float, device: torch.device | str = "cpu"
     ) -> None:
         super().__init__(obs_dim, act_dim, capacity, device)
-        self.prior = np.zeros(capacity, bool)
+        self._prior = np.zeros(capacity, bool)
+        self.prior = self._prior.view()
+        self.prior.flags.writeable = False
+        """Read-only: rows are prior rows by being added while :attr:`adding_prior` is True."""
         self.prior_share = prior_share
         self.adding_prior = False
         """Rows added while this is True are prior rows."""
+        self._prior_rows, self._own_rows = SortedRows(), SortedRows()
 
     def add(self, *args: Any, **kwargs: Any) -> None:
-        row = self.pos
+        row, stored = self.pos, self.pos < self.size
+        was = bool(self._prior[row])
         super().add(*args, **kwargs)
-        self.prior[row] = self.adding_prior
+        now = self.adding_prior
+        self._prior[row] = now
+        self._prior_rows.change(row, stored and was, now)
+        self._own_rows.change(row, stored and not was, not now)
 
     def prior_count(self) -> int:
-        return int(self.prior[: self.size].sum())
+        return self._prior_rows.count
 
     def sample_prior(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
         """Prior rows only (the batch of the distillation anchor, ``FinetuneConfig.prior_distill``); None if none."""
-        prior = np.flatnonzero(self.prior[: self.size])
+        prior = self._prior_rows.view()
         if len(prior) == 0:
             return None
         return self._batch(prior[rng.integers(0, len(prior), size=batch_size)])
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
-        prior = np.flatnonzero(self.prior[: self.size])
-        own = np.flatnonzero(~self.prior[: self.size])
+        prior, own = self._prior_rows.view(), self._own_rows.view()
         n_prior = round(self.prior_share * batch_size)
         if len(prior) == 0 or len(own) == 0 or n_prior == 0:
             return super().sample(batch_size, rng)

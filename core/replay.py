@@ -3,7 +3,10 @@ the policy's and the expert's actions) and the virtual buffer D_virtual (world-m
 
 Both are fixed-capacity numpy rings; samples come back as torch tensors. The real buffer also keeps the
 indices of intervention samples (Ξ = 1) so that the imitation term can draw from them directly, however
-rare they are.
+rare they are, and the reward's bounds that c* reads: both kept as rows are written, so that an update costs no
+scan of the buffer (at 200,000 rows a scan per update cost more than the update's sampling). The columns those
+depend on are read-only views; rows are changed through the buffer's methods (:meth:`ReplayBuffer.label`,
+:meth:`ReplayBuffer.unlabel`, :meth:`ReplayBuffer.shape_reward`, :meth:`ReplayBuffer.set_row`).
 """
 
 from __future__ import annotations
@@ -21,6 +24,54 @@ from core.protocol import StepRecord
 def refused_by_gate(fear: float, threshold: float) -> bool:
     """Whether a step's fear was over its τ (both finite): the gate judged the agent's proposal dangerous there."""
     return bool(np.isfinite(fear) and np.isfinite(threshold) and fear > threshold)
+
+
+class SortedRows:
+    """The rows of a ring where a flag is set, in increasing order, kept as the flag changes: the same array as
+    ``np.flatnonzero(flag[:size])`` without reading the flag. Setting a row past the last is an append (amortised
+    O(1): a ring that has not wrapped); elsewhere an insertion that moves the rows after it (O(count))."""
+
+    def __init__(self) -> None:
+        self._rows = np.empty(64, np.int64)
+        self.count = 0
+
+    def view(self) -> np.ndarray:
+        """The rows, increasing (a view: valid until the next change)."""
+        return self._rows[: self.count]
+
+    def add(self, row: int) -> None:
+        """Adds ``row`` (not already present)."""
+        n = self.count
+        if n == len(self._rows):
+            grown = np.empty(2 * n, np.int64)
+            grown[:n] = self._rows
+            self._rows = grown
+        if n == 0 or row > self._rows[n - 1]:
+            self._rows[n] = row
+        else:
+            at = int(np.searchsorted(self._rows[:n], row))
+            self._rows[at + 1 : n + 1] = self._rows[at:n].copy()
+            self._rows[at] = row
+        self.count = n + 1
+
+    def remove(self, row: int) -> None:
+        """Removes ``row`` (present)."""
+        n = self.count
+        at = int(np.searchsorted(self._rows[:n], row))
+        self._rows[at : n - 1] = self._rows[at + 1 : n].copy()
+        self.count = n - 1
+
+    def change(self, row: int, was: bool, now: bool) -> None:
+        if now and not was:
+            self.add(row)
+        elif was and not now:
+            self.remove(row)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    view = array.view()
+    view.flags.writeable = False
+    return view
 
 
 @dataclass
@@ -56,21 +107,33 @@ class ReplayBuffer:
         self.action = np.zeros((capacity, act_dim), np.float32)
         self.a_rl = np.zeros((capacity, act_dim), np.float32)
         self.a_expert = np.zeros((capacity, act_dim), np.float32)
-        self.reward = np.zeros(capacity, np.float32)
+        self._reward = np.zeros(capacity, np.float32)
+        self.reward = _read_only(self._reward)
+        """Read-only (c*'s bounds are kept as rows are written): :meth:`set_rewards` changes a stored row's."""
         self.cost = np.zeros(capacity, np.float32)
-        self.terminated = np.zeros(capacity, np.float32)
+        self._terminated = np.zeros(capacity, np.float32)
+        self.terminated = _read_only(self._terminated)
+        """Read-only, as :attr:`reward`."""
         self.violation = np.zeros(capacity, np.float32)
         self.conflict = np.zeros(capacity, np.float32)
         """The simulator's traffic conflict flag (``info["conflict"]``: a near miss, e.g. highway's time to contact
         under 3 s; 0 where the simulator reports none): a label the world model may learn besides violations."""
-        self.takeover = np.zeros(capacity, bool)
+        self._takeover = np.zeros(capacity, bool)
+        self.takeover = _read_only(self._takeover)
         """Rows with an expert label to imitate: the expert drove (Ξ = 1), or it coached the agent's step
-        (:attr:`coached`)."""
+        (:attr:`coached`). Read-only: :meth:`label` and :meth:`unlabel` change it."""
         self.coached = np.zeros(capacity, bool)
         """The agent drove the row and a coach labelled it (``StepRecord.coached``): imitated, executed by the agent."""
-        self.refused = np.zeros(capacity, bool)
+        self._refused = np.zeros(capacity, bool)
+        self.refused = _read_only(self._refused)
         """The expert drove and the gate had judged the agent's own proposal a_RL dangerous there (fear over τ): a
-        counterfactual failure of a_RL at that state, never executed (``AgentConfig.refused_weight``)."""
+        counterfactual failure of a_RL at that state, never executed (``AgentConfig.refused_weight``). Read-only."""
+        self._takeover_rows, self._refused_rows = SortedRows(), SortedRows()
+        self._magnitude: np.float32 | None = None
+        """max |reward| over the stored rows (None: empty), valid while :attr:`_magnitude_known`."""
+        self._bounds: tuple[np.float32, np.float32] | None = None
+        """(min, max) reward over the stored live rows (None: none), valid while :attr:`_bounds_known`."""
+        self._magnitude_known = self._bounds_known = True
         self.device = torch.device(device)
         """Where sampled batches go (the learner's update device; the rows themselves stay in numpy)."""
         self.size = 0
@@ -102,22 +165,70 @@ class ReplayBuffer:
         if obs.shape[0] != self.obs_dim:
             raise ValueError(f"observation has {obs.shape[0]} values, the buffer expects {self.obs_dim}")
         i = self.pos
+        if i < self.size:
+            self._forget_reward(i)
+        was_takeover, was_refused = bool(self._takeover[i]), bool(self._refused[i])
         self.obs[i] = obs
         self.next_obs[i] = np.asarray(next_obs, np.float32).reshape(-1)
         self.action[i] = np.asarray(action, np.float32).reshape(-1)
         self.a_rl[i] = self.action[i] if a_rl is None else np.asarray(a_rl, np.float32).reshape(-1)
         self.a_expert[i] = 0.0 if a_expert is None else np.asarray(a_expert, np.float32).reshape(-1)
-        self.reward[i] = reward
+        self._reward[i] = reward
         self.cost[i] = cost
-        self.terminated[i] = float(terminated)
+        self._terminated[i] = float(terminated)
         self.violation[i] = float(violation)
         self.conflict[i] = float(conflict)
         self.coached[i] = bool(coached) and not takeover and a_expert is not None
-        self.takeover[i] = (bool(takeover) and a_expert is not None) or self.coached[i]
-        self.refused[i] = bool(refused) and self.takeover[i] and not self.coached[i]
+        self._takeover[i] = (bool(takeover) and a_expert is not None) or self.coached[i]
+        self._refused[i] = bool(refused) and self._takeover[i] and not self.coached[i]
+        self._takeover_rows.change(i, was_takeover, bool(self._takeover[i]))
+        self._refused_rows.change(i, was_refused, bool(self._refused[i]))
         self.pos = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
         self.total += 1
+        self._note_reward(i)
+
+    # -- changing stored rows (the kept indices and bounds follow) ---------------------------------
+    def label(self, row: int, a_expert: np.ndarray) -> None:
+        """Makes a stored row an imitation row labelled ``a_expert`` (look-back labels)."""
+        self.a_expert[row] = np.asarray(a_expert, np.float32).reshape(-1)
+        self._takeover_rows.change(row, bool(self._takeover[row]), True)
+        self._takeover[row] = True
+
+    def unlabel(self, rows: np.ndarray) -> None:
+        """Stored rows are no longer imitated (held out to measure imitation); their other flags stay."""
+        for row in np.unique(np.asarray(rows, np.int64)):
+            self._takeover_rows.change(int(row), bool(self._takeover[row]), False)
+            self._takeover[row] = False
+
+    def set_rewards(self, rows: int | np.ndarray, reward: float | np.ndarray, terminated: bool | None = None) -> None:
+        """Rewrites stored rows' rewards (reward shaping after the fact), and their terminal flag if given."""
+        self._reward[rows] = reward
+        if terminated is not None:
+            self._terminated[rows] = float(terminated)
+        self._magnitude_known = self._bounds_known = False
+
+    def _forget_reward(self, row: int) -> None:
+        """Before ``row`` is overwritten: the kept bounds stay valid unless it held one of them."""
+        old = self._reward[row]
+        if self._magnitude_known and not (self._magnitude is not None and abs(old) < self._magnitude):
+            self._magnitude_known = False
+        if self._bounds_known and self._terminated[row] < 0.5:
+            bounds = self._bounds
+            if bounds is None or not (bounds[0] < old < bounds[1]):
+                self._bounds_known = False
+
+    def _note_reward(self, row: int) -> None:
+        """After ``row`` is written: the kept bounds take it in (np.minimum/maximum carry a NaN as a scan does)."""
+        value = self._reward[row]
+        if self._magnitude_known:
+            size = abs(value)
+            self._magnitude = size if self._magnitude is None else np.maximum(self._magnitude, size)
+        if self._bounds_known and self._terminated[row] < 0.5:
+            bounds = self._bounds
+            self._bounds = (
+                (value, value) if bounds is None else (np.minimum(bounds[0], value), np.maximum(bounds[1], value))
+            )
 
     def add_record(self, record: StepRecord) -> None:
         """Store one step of the loop (violations are terminal for learning even if the sim goes on). The step is
@@ -164,21 +275,29 @@ class ReplayBuffer:
         return self._batch(rng.integers(0, self.size, size=batch_size))
 
     def takeover_count(self) -> int:
-        return int(self.takeover[: self.size].sum())
+        return self._takeover_rows.count
+
+    def takeover_rows(self) -> np.ndarray:
+        """The stored rows with an expert label (:attr:`takeover`), increasing (a view, valid until the next write)."""
+        return self._takeover_rows.view()
 
     def sample_takeovers(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
         """Intervention samples (Ξ = 1) only; None when there are none yet."""
-        idx = np.flatnonzero(self.takeover[: self.size])
+        idx = self._takeover_rows.view()
         if len(idx) == 0:
             return None
         return self._batch(idx[rng.integers(0, len(idx), size=batch_size)])
 
     def refused_count(self) -> int:
-        return int(self.refused[: self.size].sum())
+        return self._refused_rows.count
+
+    def refused_rows(self) -> np.ndarray:
+        """The stored rows of :attr:`refused`, increasing (a view, valid until the next write)."""
+        return self._refused_rows.view()
 
     def sample_refused(self, batch_size: int, rng: np.random.Generator) -> Batch | None:
         """Rows whose a_RL the gate refused (:attr:`refused`) only; None when there are none."""
-        idx = np.flatnonzero(self.refused[: self.size])
+        idx = self._refused_rows.view()
         if len(idx) == 0:
             return None
         return self._batch(idx[rng.integers(0, len(idx), size=batch_size)])
@@ -283,17 +402,20 @@ class ReplayBuffer:
 
     def reward_magnitude(self) -> float:
         """The largest |reward| recorded, terminal transitions included (0 when empty)."""
-        n = self.size
-        return float(np.abs(self.reward[:n]).max()) if n else 0.0
+        if not self._magnitude_known:
+            n = self.size
+            self._magnitude = np.abs(self._reward[:n]).max() if n else None
+            self._magnitude_known = True
+        return 0.0 if self._magnitude is None else float(self._magnitude)
 
     def reward_bounds(self) -> tuple[float, float] | None:
         """(min, max) reward over non-terminal transitions (terminal bonuses happen once per episode)."""
-        n = self.size
-        live = self.terminated[:n] < 0.5
-        if not live.any():
-            return None
-        r = self.reward[:n][live]
-        return float(r.min()), float(r.max())
+        if not self._bounds_known:
+            n = self.size
+            r = self._reward[:n][self._terminated[:n] < 0.5]
+            self._bounds = (r.min(), r.max()) if len(r) else None
+            self._bounds_known = True
+        return None if self._bounds is None else (float(self._bounds[0]), float(self._bounds[1]))
 
 
 class VirtualBuffer:

@@ -372,7 +372,7 @@ class BaseLearner:
         if penalty > 0 and record.takeover and previous_row is not None:
             agent_before = not bool(buffer.takeover[previous_row]) or bool(buffer.coached[previous_row])
             if agent_before and previous_key == (record.episode, record.t - 1):
-                buffer.reward[previous_row] -= penalty
+                buffer.set_rewards(previous_row, buffer.reward[previous_row] - penalty)
                 self.shaped += 1
         self._last_row = buffer.pos
         encoded = self.encoded(record)
@@ -395,7 +395,7 @@ class BaseLearner:
             for back, (row, key, agent) in enumerate(reversed(recent), start=1):
                 if not agent or key != (record.episode, record.t - back) or buffer.takeover[row]:
                     break
-                buffer.a_expert[row], buffer.takeover[row] = label, True
+                buffer.label(row, label)
                 self.looked_back += 1
         recent.append((buffer.pos, (record.episode, record.t), not record.takeover))
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
 
 from core.loop import StepRecord
+from core.prior import SharedReplayBuffer
 from core.replay import ReplayBuffer, VirtualBuffer
 
 
@@ -224,3 +226,89 @@ def test_lookback_labels_the_agents_steps_before_an_onset_with_the_experts_onset
     np.testing.assert_array_equal(looked.a_expert[:4], plain.a_expert[:4])
     with pytest.raises(ValueError, match="lookback_labels"):
         for_method("sage", lookback_labels=-1)
+
+
+def scanned(buffer: ReplayBuffer) -> dict[str, object]:
+    """What the buffer's kept indices and bounds must equal: the scans they replace."""
+    n = buffer.size
+    live = buffer.terminated[:n] < 0.5
+    return {
+        "takeovers": np.flatnonzero(buffer.takeover[:n]).tolist(),
+        "refused": np.flatnonzero(buffer.refused[:n]).tolist(),
+        "magnitude": float(np.abs(buffer.reward[:n]).max()) if n else 0.0,
+        "bounds": (float(buffer.reward[:n][live].min()), float(buffer.reward[:n][live].max())) if live.any() else None,
+    }
+
+
+def kept(buffer: ReplayBuffer) -> dict[str, object]:
+    return {
+        "takeovers": buffer.takeover_rows().tolist(),
+        "refused": buffer.refused_rows().tolist(),
+        "magnitude": buffer.reward_magnitude(),
+        "bounds": buffer.reward_bounds(),
+    }
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_kept_indices_and_reward_bounds_equal_a_scan_through_writes_labels_and_wrapping(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    buffer = ReplayBuffer(2, 1, int(rng.integers(3, 40)))
+    for step in range(400):
+        op = rng.random()
+        if op < 0.75 or buffer.size == 0:
+            takeover = bool(rng.random() < 0.3)
+            buffer.add(
+                np.zeros(2), np.zeros(1), float(rng.choice([rng.normal(), 5.0, -5.0, 0.0])), np.zeros(2),
+                bool(rng.random() < 0.1), takeover=takeover, a_expert=np.ones(1) if takeover else None,
+                refused=bool(rng.random() < 0.5), coached=bool(rng.random() < 0.1),
+            )  # fmt: skip
+        elif op < 0.85:
+            buffer.label(int(rng.integers(buffer.size)), np.full(1, 0.5))
+        elif op < 0.93:
+            buffer.unlabel(rng.integers(buffer.size, size=int(rng.integers(1, 4))))
+        else:
+            row = int(rng.integers(buffer.size))
+            buffer.set_rewards(row, float(rng.normal(scale=10)), terminated=bool(rng.random() < 0.2))
+        # read now and then, so that kept values are carried through later writes, not recomputed each time
+        if rng.random() < 0.3:
+            assert kept(buffer) == scanned(buffer), step
+    assert kept(buffer) == scanned(buffer)
+
+
+def test_a_nan_reward_shows_in_the_bounds_as_a_scan_shows_it_until_it_is_overwritten() -> None:
+    buffer = ReplayBuffer(2, 1, 3)
+    for reward in (1.0, math.nan, 2.0):
+        buffer.add(np.zeros(2), np.zeros(1), reward, np.zeros(2), False)
+        buffer.reward_bounds()
+    assert math.isnan(buffer.reward_magnitude()) and math.isnan(buffer.reward_bounds()[0])
+    buffer.add(np.zeros(2), np.zeros(1), 3.0, np.zeros(2), False)  # overwrites row 0 (1.0): NaN stays
+    assert math.isnan(buffer.reward_bounds()[1])
+    buffer.add(np.zeros(2), np.zeros(1), 4.0, np.zeros(2), False)  # overwrites the NaN
+    assert buffer.reward_bounds() == (2.0, 4.0) and buffer.reward_magnitude() == 4.0
+
+
+def test_columns_the_kept_indices_depend_on_cannot_be_written_around_them() -> None:
+    buffer = ReplayBuffer(2, 1, 4)
+    buffer.add(np.zeros(2), np.zeros(1), 1.0, np.zeros(2), False)
+    for column in (buffer.takeover, buffer.refused, buffer.reward, buffer.terminated):
+        with pytest.raises(ValueError, match="read-only"):
+            column[0] = 1
+
+
+def test_a_shared_buffers_prior_and_own_rows_equal_a_scan_and_draw_the_same_batches() -> None:
+    rng = np.random.default_rng(3)
+    buffer = SharedReplayBuffer(2, 1, 25, prior_share=0.5)
+    for step in range(120):
+        buffer.adding_prior = bool(rng.random() < 0.4)
+        buffer.add(np.full(2, step), np.zeros(1), 0.0, np.zeros(2), False)
+        prior = np.flatnonzero(buffer.prior[: buffer.size])
+        assert buffer.prior_count() == len(prior)
+        drawn = buffer.sample(16, np.random.default_rng(step)).obs[:, 0].numpy()
+        # the draw the scans gave: prior rows first, then the session's own
+        own = np.flatnonzero(~buffer.prior[: buffer.size])
+        draw = np.random.default_rng(step)
+        if len(prior) and len(own):
+            rows = np.concatenate([prior[draw.integers(0, len(prior), 8)], own[draw.integers(0, len(own), 8)]])
+        else:
+            rows = draw.integers(0, buffer.size, 16)
+        assert drawn.tolist() == buffer.obs[rows, 0].tolist(), step

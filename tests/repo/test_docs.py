@@ -24,6 +24,7 @@ SPEED_BENCHES = {
     "gpu_check.py",  # the CPU-vs-GPU update ratios, for a session with a GPU
     "bench_highway.py",
     "bench_pedestrian.py",
+    "bench_replay.py",  # the buffer's reads per update, kept indices against scans
     "bench_sac.py",
     "bench_server.py",
     "bench_sumo.py",

@@ -91,11 +91,10 @@ def test_c_star_is_a_real_penalty_whenever_rewards_are_bounded() -> None:
     """eq:penalty gives 0 for a flat reward range with λ = 0 (highway at the start); our c* does not."""
     assert penalty_c_star(0.0, 0.0, 0.99, 5, 0.0) < 1e-3
     learner = filled("sage", n=60)
-    learner.buffer.reward[: learner.buffer.size] = 0.0
-    learner.buffer.reward[3] = -10.0  # a terminal off-road penalty, outside the live bounds
-    learner.buffer.terminated[3] = 1.0
+    learner.buffer.set_rewards(np.arange(learner.buffer.size), 0.0)
+    learner.buffer.set_rewards(3, -10.0, terminated=True)  # a terminal off-road penalty, outside the live bounds
     assert learner.c_star() >= 10.0
-    learner.buffer.reward[3] = 0.0
+    learner.buffer.set_rewards(3, 0.0)
     assert learner.c_star() >= learner.cfg.c_star_floor > 0.0
 
 
