@@ -90,6 +90,8 @@ class Batch:
     a_rl: Tensor
     a_expert: Tensor
     """The expert's action (zeros where Ξ = 0)."""
+    rows: np.ndarray | None = None
+    """The buffer rows drawn (None: not from a buffer)."""
 
     def __len__(self) -> int:
         return self.obs.shape[0]
@@ -140,6 +142,8 @@ class ReplayBuffer:
         self.pos = 0
         self.total = 0
         """Transitions ever added (the ring keeps the last ``capacity``)."""
+        self.writes = 0
+        """Changes to the stored rows so far (added or rewritten): what a value computed from the rows is valid for."""
 
     def __len__(self) -> int:
         return self.size
@@ -186,6 +190,7 @@ class ReplayBuffer:
         self.pos = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
         self.total += 1
+        self.writes += 1
         self._note_reward(i)
 
     # -- changing stored rows (the kept indices and bounds follow) ---------------------------------
@@ -194,12 +199,14 @@ class ReplayBuffer:
         self.a_expert[row] = np.asarray(a_expert, np.float32).reshape(-1)
         self._takeover_rows.change(row, bool(self._takeover[row]), True)
         self._takeover[row] = True
+        self.writes += 1
 
     def unlabel(self, rows: np.ndarray) -> None:
         """Stored rows are no longer imitated (held out to measure imitation); their other flags stay."""
         for row in np.unique(np.asarray(rows, np.int64)):
             self._takeover_rows.change(int(row), bool(self._takeover[row]), False)
             self._takeover[row] = False
+        self.writes += 1
 
     def set_rewards(self, rows: int | np.ndarray, reward: float | np.ndarray, terminated: bool | None = None) -> None:
         """Rewrites stored rows' rewards (reward shaping after the fact), and their terminal flag if given."""
@@ -207,6 +214,7 @@ class ReplayBuffer:
         if terminated is not None:
             self._terminated[rows] = float(terminated)
         self._magnitude_known = self._bounds_known = False
+        self.writes += 1
 
     def _forget_reward(self, row: int) -> None:
         """Before ``row`` is overwritten: the kept bounds stay valid unless it held one of them."""
@@ -267,6 +275,7 @@ class ReplayBuffer:
             takeover=t(self.takeover[idx].astype(np.float32)),
             a_rl=t(self.a_rl[idx]),
             a_expert=t(self.a_expert[idx]),
+            rows=idx,
         )
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
@@ -398,6 +407,25 @@ class ReplayBuffer:
         order, position, start = self._chains()
         has = position - start >= back
         out[order[position[has]]] = order[position[has] - back]
+        return out
+
+    def discounted_ahead(self, values: np.ndarray, gamma: float) -> np.ndarray:
+        """Per stored row (the order of :meth:`arrays`), with ``values`` one number per stored row in that order: the
+        discounted sum of the values from the row to the end of its episode as far as the buffer holds it (a chain
+        cut before its end counts nothing after it). With the rewards, the recorded return to go."""
+        n = self.size
+        values = np.asarray(values, np.float64)
+        if len(values) != n:
+            raise ValueError(f"discounted_ahead: {len(values)} values for {n} stored rows")
+        out = np.zeros(n, np.float64)
+        if n == 0:
+            return out
+        order, continues = self._chronology()
+        ahead = 0.0
+        for p in range(n - 1, -1, -1):
+            row = order[p]
+            ahead = values[row] + (gamma * ahead if continues[p] else 0.0)
+            out[row] = ahead
         return out
 
     def reward_magnitude(self) -> float:

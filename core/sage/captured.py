@@ -49,13 +49,18 @@ def require_cuda(device: torch.device) -> None:
         )
 
 
+def _batch_tensors(batch: Batch) -> list[str]:
+    """The batch's tensors (a graph replays on them; the drawn rows are the sampler's bookkeeping)."""
+    return [f.name for f in dataclasses.fields(batch) if isinstance(getattr(batch, f.name), torch.Tensor)]
+
+
 def static_batch(batch: Batch) -> Batch:
-    return Batch(**{f.name: getattr(batch, f.name).clone() for f in dataclasses.fields(batch)})
+    return Batch(**{name: getattr(batch, name).clone() for name in _batch_tensors(batch)})
 
 
 def fill_batch(static: Batch, batch: Batch) -> None:
-    for f in dataclasses.fields(batch):
-        getattr(static, f.name).copy_(getattr(batch, f.name), non_blocking=True)
+    for name in _batch_tensors(batch):
+        getattr(static, name).copy_(getattr(batch, name), non_blocking=True)
 
 
 class CapturedUpdate:

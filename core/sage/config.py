@@ -291,6 +291,14 @@ class AgentConfig:
     refused_weight: float = 0.0
     """Weight of a critic term holding Q(s, a_RL) to -c* where the gate refused a_RL and the expert drove (a failure
     the robot never had to make; SAC learners). 0: none (the paper's SAGE)."""
+    conservative_weight: float = 0.0
+    """α of CQL(H)'s critic term (Cal-QL's with ``conservative_calibrated``): values of actions off the data pushed
+    under the recorded action's (``SAC.conservative_loss``). 0: none (the paper's SAGE). SAC learners."""
+    conservative_actions: int = 10
+    """Actions of each kind (uniform, the policy's) per state in the conservative term."""
+    conservative_calibrated: bool = True
+    """Cal-QL: in the conservative term the policy's values are held no lower than the recorded return to go from
+    the state (a violation counted as -c*). False: CQL(H) as published."""
     lookback_labels: int = 0
     """At each takeover onset, this many of the agent's steps before it (same episode) also become imitation rows,
     labelled with the expert's onset action: the gate fired after them. 0: none (the paper's SAGE)."""
@@ -527,6 +535,12 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"lookback_labels must be a whole number >= 0, got {cfg.lookback_labels!r}")
     if cfg.refused_weight > 0 and cfg.cuda_graph:
         raise ValueError("refused_weight > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
+    if not (math.isfinite(cfg.conservative_weight) and cfg.conservative_weight >= 0.0):
+        raise ValueError(f"conservative_weight must be a finite number >= 0, got {cfg.conservative_weight}")
+    if not (isinstance(cfg.conservative_actions, int) and cfg.conservative_actions >= 1):
+        raise ValueError(f"conservative_actions must be a whole number >= 1, got {cfg.conservative_actions!r}")
+    if cfg.conservative_weight > 0 and cfg.cuda_graph:
+        raise ValueError("conservative_weight > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
     if cfg.world_model_config.motion_lag < 1:
         raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
     wm = cfg.world_model_config

@@ -166,6 +166,8 @@ class BaseLearner:
     under ``auto`` and refuses an explicit ``cuda``."""
     reads_critic_subset = False
     """Whether the update reads ``AgentConfig.critic_target_subset``; one that does not refuses it."""
+    reads_conservative = False
+    """Whether the critics' update reads ``AgentConfig.conservative_weight`` (Cal-QL); one that does not refuses it."""
     reads_refused = False
     """Whether the update reads the gate's refused proposals (``AgentConfig.refused_weight``); one that does not
     refuses a weight over 0 rather than ignore it."""
@@ -178,6 +180,11 @@ class BaseLearner:
             raise ValueError(
                 f"critic_target_subset is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: "
                 "set critic_target_subset=none"
+            )
+        if cfg.conservative_weight > 0 and not cls.reads_conservative:
+            raise ValueError(
+                f"conservative_weight is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: "
+                "set conservative_weight=0"
             )
         if cfg.refused_weight > 0 and not cls.reads_refused:
             raise ValueError(

@@ -111,6 +111,7 @@ class SAC(ActorLearner):
 
     reads_refused = True
     reads_critic_subset = True
+    reads_conservative = True
 
     def __init__(
         self,
@@ -136,6 +137,9 @@ class SAC(ActorLearner):
         self.prior_distill = 0.0
         """Weight of the distillation anchor on the buffer's prior rows (set by fine-tuning:
         ``FinetuneConfig.prior_distill``); 0: no anchor batch is drawn."""
+        self._returns_key: tuple[int, int] | None = None
+        self._returns: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros(0))
+        """The buffer's discounted sums ahead (rewards off violations, violations) for :meth:`recorded_returns`."""
         self.anchor_rows: ReplayBuffer | None = None
         """Rows the anchor draws from instead of the buffer's prior rows when set and not empty, each ``a_rl`` the
         base's deterministic action at its state (``FinetuneConfig.anchor_relabel``); None: the prior rows."""
@@ -210,6 +214,48 @@ class SAC(ActorLearner):
         q = self.critic(refused.obs, refused.a_rl)
         return (q + self.c_star()).pow(2).mean(1).sum()
 
+    def recorded_returns(self, batch: Batch) -> Tensor | None:
+        """The discounted return to go recorded from each row of ``batch`` (drawn from :attr:`buffer`), a violation's
+        reward counted as -c* where the critics' target counts it so; None for a batch that names no rows. The
+        buffer's two sums (rewards off violations, violations) are kept until its rows change: c* moves with λ."""
+        if batch.rows is None:
+            return None
+        buffer, gamma = self.buffer, self.cfg.gamma
+        key = (id(buffer), buffer.writes)
+        if self._returns_key != key:
+            n = buffer.size
+            violation = (buffer.violation[:n] > 0.5) if self.cfg.violation_penalty else np.zeros(n, bool)
+            rewards = np.where(violation, 0.0, buffer.reward[:n])
+            self._returns = (buffer.discounted_ahead(rewards, gamma), buffer.discounted_ahead(violation, gamma))
+            self._returns_key = key
+        plain, violations = self._returns
+        ahead = plain[batch.rows]
+        if self.cfg.violation_penalty:
+            ahead = ahead - self.c_star() * violations[batch.rows]
+        return torch.as_tensor(ahead, dtype=torch.float32, device=self.device)
+
+    def conservative_loss(self, batch: Batch, q_data: Tensor) -> Tensor:
+        """CQL(H)'s term (Cal-QL's where ``conservative_calibrated``), summed over the critics: the log-sum-exp of
+        each critic's values at ``conservative_actions`` uniform actions and as many of the policy's per state, each
+        less its log-density, minus its value ``q_data`` (critics x batch) at the recorded action. Cal-QL holds the
+        policy actions' values no lower than the recorded return to go, so that it does not push a value under what
+        the data achieved from the state (Nakamoto et al. 2023, eq. 5.1)."""
+        cfg = self.cfg
+        n, rows = cfg.conservative_actions, len(batch)
+        states = batch.obs.repeat_interleave(n, 0)
+        with torch.no_grad():
+            policy_actions, policy_log_prob = self.actor.sample(states)
+            low, high = self.action_low.to(self.device), self.action_high.to(self.device)
+            uniform = low + (high - low) * torch.rand_like(policy_actions)
+            uniform_log_density = -torch.log(high - low).sum()
+        both = self.critic(torch.cat([states, states]), torch.cat([uniform, policy_actions]))
+        q_uniform, q_policy = both.view(len(both), 2, rows, n).unbind(1)
+        floor = self.recorded_returns(batch) if cfg.conservative_calibrated else None
+        if floor is not None:
+            q_policy = torch.maximum(q_policy, floor.view(1, rows, 1))
+        weighted = torch.cat([q_uniform - uniform_log_density, q_policy - policy_log_prob.view(1, rows, n)], -1)
+        return (torch.logsumexp(weighted, -1) - q_data).mean(1).sum()
+
     def critic_step(self, batch: Batch) -> dict[str, float]:
         y = self.critic_target_values(batch)
         q = self.critic(batch.obs, batch.action)
@@ -217,6 +263,9 @@ class SAC(ActorLearner):
         refused = self.refused_loss()
         if refused is not None:
             loss = loss + self.cfg.refused_weight * refused
+        conservative = self.conservative_loss(batch, q) if self.cfg.conservative_weight > 0 else None
+        if conservative is not None:
+            loss = loss + self.cfg.conservative_weight * conservative
         self.critic_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if self.cfg.max_grad_norm is not None:
@@ -226,6 +275,8 @@ class SAC(ActorLearner):
         stats = {"critic_loss": loss.item(), "q_mean": q.mean().item()}
         if refused is not None:
             stats["refused_loss"] = refused.item()
+        if conservative is not None:
+            stats["conservative_loss"] = conservative.item()
         return stats
 
     def actor_states(self, batch: Batch) -> tuple[Tensor, int]:

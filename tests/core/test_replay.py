@@ -312,3 +312,17 @@ def test_a_shared_buffers_prior_and_own_rows_equal_a_scan_and_draw_the_same_batc
         else:
             rows = draw.integers(0, buffer.size, 16)
         assert drawn.tolist() == buffer.obs[rows, 0].tolist(), step
+
+
+def test_discounted_sums_ahead_follow_each_episode_through_the_ring_and_stop_where_it_ends() -> None:
+    buffer = ReplayBuffer(1, 1, 4)
+    for step in range(6):  # one episode of six steps in a ring of four: rows hold steps 4, 5, 2, 3
+        buffer.add(np.full(1, step), np.zeros(1), float(step), np.full(1, step + 1), False)
+    assert buffer.discounted_ahead(buffer.reward[:4], 0.5).tolist() == [4 + 0.5 * 5, 5.0, 2 + 0.5 * 6.25, 3 + 0.5 * 6.5]
+    buffer = ReplayBuffer(1, 1, 8)
+    for step, (obs, terminal) in enumerate([(0, False), (1, True), (5, False), (6, False)]):
+        buffer.add(np.full(1, obs), np.zeros(1), float(step + 1), np.full(1, obs + 1), terminal)
+    # the first episode ends at its terminal row; the second is cut where the buffer ends
+    assert buffer.discounted_ahead(buffer.reward[:4], 0.5).tolist() == [1 + 0.5 * 2, 2.0, 3 + 0.5 * 4, 4.0]
+    with pytest.raises(ValueError, match="3 values for 4 stored rows"):
+        buffer.discounted_ahead(np.zeros(3), 0.5)

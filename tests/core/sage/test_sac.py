@@ -573,3 +573,85 @@ def test_a_critic_target_subset_is_refused_where_it_cannot_be_read() -> None:
         for_method("sac", critics=10, critic_target_subset=2, cuda_graph=True)
     with pytest.raises(ValueError, match="critic_target_subset"):
         make_learner("td3", for_method("td3", critics=10, critic_target_subset=2), OBS, ACT)
+
+
+# -- the conservative critic term (CQL(H), Cal-QL) ---------------------------------------------------
+def narrow(method: str, seed: int = 0, n: int = 300, reward: float | None = None, **overrides: object) -> SAC:
+    """A learner whose buffer holds one episode of a narrow behaviour (the recorded action a fixed function of the
+    state, as a base policy's or an expert's drive), rewards random or ``reward`` each step."""
+    cfg = for_method(method, hidden=32, batch_size=64, **overrides)
+    learner = make_learner(cfg.method, cfg, OBS, ACT, seed=seed)
+    rng = np.random.default_rng(seed)
+    s = rng.normal(size=(n + 1, OBS)).astype(np.float32)
+    for i in range(n):
+        recorded = np.clip(0.5 * s[i, :ACT], -0.3, 0.3).astype(np.float32)
+        r = float(rng.normal()) if reward is None else reward
+        learner.buffer.add(s[i], recorded, r, s[i + 1], False, violation=bool(i == 150))
+    learner.warm = True
+    assert isinstance(learner, SAC)
+    return learner
+
+
+def test_the_conservative_term_values_actions_off_the_data_below_the_recorded_ones() -> None:
+    def gap(learner: SAC) -> float:
+        """Mean Q at uniform actions minus mean Q at the recorded actions, over the buffer's states."""
+        n = learner.buffer.size
+        states, recorded = torch.as_tensor(learner.buffer.obs[:n]), torch.as_tensor(learner.buffer.action[:n])
+        generator = torch.Generator().manual_seed(1)
+        uniform = torch.rand(recorded.shape, generator=generator) * 2 - 1
+        with torch.no_grad():
+            return (learner.critic(states, uniform).mean() - learner.critic(states, recorded).mean()).item()
+
+    gaps = {}
+    for weight in (0.0, 5.0):
+        torch.manual_seed(0)
+        learner = narrow("sac", conservative_weight=weight)
+        for _ in range(600):
+            stats = learner.critic_step(learner.buffer.sample(64, learner.rng))
+        assert ("conservative_loss" in stats) == (weight > 0)
+        gaps[weight] = gap(learner)
+    assert gaps[5.0] < gaps[0.0] - 0.3, gaps
+
+
+def test_the_recorded_return_counts_a_violation_as_minus_c_star_and_follows_the_rows_drawn() -> None:
+    learner = narrow("sac", n=40, reward=1.0, conservative_weight=1.0, violation_penalty=True)
+    gamma, c_star = learner.cfg.gamma, learner.c_star()
+    rows = np.array([0, 150 % 40, 39, 10])
+    batch = learner.buffer.sample(4, learner.rng)
+    batch.rows = rows
+    # one chain of 40 rows, all rewards 1, no violation among them (the violation is at step 150 of a longer one)
+    expected = [(1 - gamma ** (40 - r)) / (1 - gamma) for r in rows]
+    assert learner.recorded_returns(batch).numpy() == pytest.approx(expected, rel=1e-5)
+    long = narrow("sac", n=160, reward=1.0, conservative_weight=1.0, violation_penalty=True)
+    batch = long.buffer.sample(2, long.rng)
+    batch.rows = np.array([149, 150])
+    after = (1 - gamma**9) / (1 - gamma)  # rows 151..159
+    expected = [1 + gamma * (-long.c_star() + gamma * after), -long.c_star() + gamma * after]
+    assert long.recorded_returns(batch).numpy() == pytest.approx(expected, rel=1e-5)
+    assert c_star > 0
+
+
+def test_cal_ql_does_not_push_the_policys_values_under_the_recorded_return_as_cql_does() -> None:
+    """On a drive whose returns are above the fresh critics' values, CQL(H) pushes the policy's values down while the
+    TD targets pull them up; Cal-QL's floor leaves only the pull there."""
+    values = {}
+    for calibrated in (True, False):
+        torch.manual_seed(0)
+        learner = narrow("sac", n=200, reward=1.0, conservative_weight=5.0, conservative_calibrated=calibrated)
+        for _ in range(300):
+            learner.critic_step(learner.buffer.sample(64, learner.rng))
+        states = torch.as_tensor(learner.buffer.obs[: learner.buffer.size])
+        with torch.no_grad():
+            values[calibrated] = learner.critic(states, learner.actor.sample(states)[0]).mean().item()
+    assert values[True] > values[False] + 1.0, values
+
+
+def test_a_conservative_weight_is_refused_where_it_cannot_be_read() -> None:
+    with pytest.raises(ValueError, match="conservative_weight"):
+        for_method("sac", conservative_weight=-1.0)
+    with pytest.raises(ValueError, match="conservative_weight"):
+        for_method("sac", conservative_weight=1.0, cuda_graph=True)
+    with pytest.raises(ValueError, match="conservative_actions"):
+        for_method("sac", conservative_weight=1.0, conservative_actions=0)
+    with pytest.raises(ValueError, match="conservative_weight"):
+        make_learner("td3", for_method("td3", conservative_weight=1.0), OBS, ACT)
