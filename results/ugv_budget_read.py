@@ -43,12 +43,14 @@ def verdict(low: float, high: float) -> str:
 
 def main() -> None:
     small, large = Path(sys.argv[1]), Path(sys.argv[2])
-    budgets = {"6,000": success(small), "30,000": success(large)}
-    print(f"# The UGV study at 6,000 and 30,000 steps ({small.name}, {large.name})\n")
+    # optional column names (default: the two budgets), e.g. two hosts at one budget
+    first, second = sys.argv[3:5] if len(sys.argv) >= 5 else ("6,000", "30,000")
+    budgets = {first: success(small), second: success(large)}
+    print(f"# The UGV study: {first} against {second} ({small.name}, {large.name})\n")
     command = "python results/ugv_budget_read.py " + " ".join(sys.argv[1:])
     print(f"Made by `{command}` (the rule in results/ugv-30k.sh).\n")
     print("## 1. SAGE's success minus each learner's, paired by seed (points of %, 95% t-interval)\n")
-    print("| scenario | learner | at 6,000 | reading | at 30,000 | reading |")
+    print(f"| scenario | learner | at {first} | reading | at {second} | reading |")
     print("|---|---|---|---|---|---|")
     for scenario in SCENARIOS:
         for learner in LEARNERS:
@@ -64,7 +66,7 @@ def main() -> None:
                 cells += [shown, verdict(diff.low, diff.high)]
             print(f"| {scenario} | {learner} | " + " | ".join(cells) + " |")
     print("\n## 2. Success on the static scenarios 1-2 (mean ± 95% over seeds; the warm start drives both)\n")
-    print("| scenario | method | at 6,000 | at 30,000 |")
+    print(f"| scenario | method | at {first} | at {second} |")
     print("|---|---|---|---|")
     for scenario in ("1", "2"):
         for method in ("sage", *LEARNERS):
@@ -74,7 +76,7 @@ def main() -> None:
                 cells.append(mean_ci(list(seeds.values())).format(1) if seeds else "not measured")
             print(f"| {scenario} | {method} | " + " | ".join(cells) + " |")
     print("\n## 3. SAGE against the paper's 100% (mean ± 95% over seeds)\n")
-    print("| scenario | at 6,000 | at 30,000 |")
+    print(f"| scenario | at {first} | at {second} |")
     print("|---|---|---|")
     for scenario in SCENARIOS:
         cells = []
