@@ -49,6 +49,17 @@ def main() -> None:
     print(f"# The UGV study: {first} against {second} ({small.name}, {large.name})\n")
     command = "python results/ugv_budget_read.py " + " ".join(sys.argv[1:])
     print(f"Made by `{command}` (the rule in results/ugv-30k.sh).\n")
+    print("## 0. Success alone, mean over seeds (%), scenarios 1 / 2 / 3 / 4\n")
+    print(f"| method | at {first} | at {second} |")
+    print("|---|---|---|")
+    for method in ("sage", *LEARNERS, "teb", "scripted"):
+        cells = []
+        for rows in budgets.values():
+            means = [rows.get((scenario, method), {}) for scenario in SCENARIOS]
+            shown = [f"{sum(m.values()) / len(m):.0f}" if m else "–" for m in means]
+            cells.append(" / ".join(shown))
+        print(f"| {method} | " + " | ".join(cells) + " |")
+    print()
     print("## 1. SAGE's success minus each learner's, paired by seed (points of %, 95% t-interval)\n")
     print(f"| scenario | learner | at {first} | reading | at {second} | reading |")
     print("|---|---|---|---|---|---|")
