@@ -6,7 +6,7 @@ indices of intervention samples (Ξ = 1) so that the imitation term can draw fro
 rare they are, and the reward's bounds that c* reads: both kept as rows are written, so that an update costs no
 scan of the buffer (at 200,000 rows a scan per update cost more than the update's sampling). The columns those
 depend on are read-only views; rows are changed through the buffer's methods (:meth:`ReplayBuffer.label`,
-:meth:`ReplayBuffer.unlabel`, :meth:`ReplayBuffer.shape_reward`, :meth:`ReplayBuffer.set_row`).
+:meth:`ReplayBuffer.unlabel`, :meth:`ReplayBuffer.set_rewards`).
 """
 
 from __future__ import annotations
