@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from core.protocol import StepRecord
-from core.replay import Batch, ReplayBuffer, SortedRows
+from core.replay import Batch, ReplayBuffer, SortedRows, read_only
 from core.versions import FinetuneError
 
 PriorSource = Callable[[Path, int, int], list[StepRecord]]
@@ -65,8 +65,7 @@ class SharedReplayBuffer(ReplayBuffer):
     ) -> None:
         super().__init__(obs_dim, act_dim, capacity, device)
         self._prior = np.zeros(capacity, bool)
-        self.prior = self._prior.view()
-        self.prior.flags.writeable = False
+        self.prior = read_only(self._prior)
         """Read-only: rows are prior rows by being added while :attr:`adding_prior` is True."""
         self.prior_share = prior_share
         self.adding_prior = False

@@ -68,7 +68,8 @@ class SortedRows:
             self.remove(row)
 
 
-def _read_only(array: np.ndarray) -> np.ndarray:
+def read_only(array: np.ndarray) -> np.ndarray:
+    """A view of ``array`` that refuses writes (the buffer's own methods write the array itself)."""
     view = array.view()
     view.flags.writeable = False
     return view
@@ -110,24 +111,24 @@ class ReplayBuffer:
         self.a_rl = np.zeros((capacity, act_dim), np.float32)
         self.a_expert = np.zeros((capacity, act_dim), np.float32)
         self._reward = np.zeros(capacity, np.float32)
-        self.reward = _read_only(self._reward)
+        self.reward = read_only(self._reward)
         """Read-only (c*'s bounds are kept as rows are written): :meth:`set_rewards` changes a stored row's."""
         self.cost = np.zeros(capacity, np.float32)
         self._terminated = np.zeros(capacity, np.float32)
-        self.terminated = _read_only(self._terminated)
+        self.terminated = read_only(self._terminated)
         """Read-only, as :attr:`reward`."""
         self.violation = np.zeros(capacity, np.float32)
         self.conflict = np.zeros(capacity, np.float32)
         """The simulator's traffic conflict flag (``info["conflict"]``: a near miss, e.g. highway's time to contact
         under 3 s; 0 where the simulator reports none): a label the world model may learn besides violations."""
         self._takeover = np.zeros(capacity, bool)
-        self.takeover = _read_only(self._takeover)
+        self.takeover = read_only(self._takeover)
         """Rows with an expert label to imitate: the expert drove (Ξ = 1), or it coached the agent's step
         (:attr:`coached`). Read-only: :meth:`label` and :meth:`unlabel` change it."""
         self.coached = np.zeros(capacity, bool)
         """The agent drove the row and a coach labelled it (``StepRecord.coached``): imitated, executed by the agent."""
         self._refused = np.zeros(capacity, bool)
-        self.refused = _read_only(self._refused)
+        self.refused = read_only(self._refused)
         """The expert drove and the gate had judged the agent's own proposal a_RL dangerous there (fear over τ): a
         counterfactual failure of a_RL at that state, never executed (``AgentConfig.refused_weight``). Read-only."""
         self._takeover_rows, self._refused_rows = SortedRows(), SortedRows()
