@@ -18,7 +18,8 @@ A round
      (:class:`SharedReplayBuffer`). The takeover rows of some episodes are held out of imitation to measure it;
   2. refits the world model on that buffer (so that fear and curiosity learn the new ground; the gate of the
      next version is built on it), the τ bounds held or refitted by ``tau_bounds``;
-  3. runs ``updates_per_step`` gradient updates per new step (at most ``updates``) of the learner: with
+  3. with ``learner.ibrl``, clones the expert's rows into IBRL's imitation policy (``SAC.fit_imitation_policy``);
+     then runs ``updates_per_step`` gradient updates per new step (at most ``updates``) of the learner: with
      ``adapt_as_sage`` (the default) fear-regularised SAGE with value-weighted imitation of the takeovers whatever
      the base was trained as (:func:`adaptation_config`), its optimiser states continued; each update guarded (an
      update whose losses or weights come out NaN or infinite is undone, :func:`guarded_update`), the first
@@ -512,6 +513,11 @@ class Finetuner:
             distilled = distil(CRITIC_DISTIL_UPDATES)
             if distilled is not None:
                 wm_stats["critic_distil_loss"] = distilled
+        fit_imitation = getattr(learner, "fit_imitation_policy", None)
+        if fit_imitation is not None and learner.cfg.ibrl:
+            # IBRL's π_IL on every takeover so far, before the updates whose TD targets and actions read it
+            report({"phase": "cloning the expert for IBRL's imitation policy"})
+            wm_stats.update(fit_imitation(learner.cfg.ibrl_updates, self.heldout_obs, self.heldout_expert))
         planned = cfg.round_updates(ingested.steps)
         warmup = min(cfg.critic_warmup, planned)
         lam_start = learner.lam

@@ -299,6 +299,11 @@ class AgentConfig:
     conservative_calibrated: bool = True
     """Cal-QL: in the conservative term the policy's values are held no lower than the recorded return to go from
     the state (a violation counted as -c*). False: CQL(H) as published."""
+    ibrl: bool = False
+    """IBRL: π_IL, cloned on the expert's rows, proposes beside the actor; the higher-valued proposal acts and
+    bootstraps the TD target (``SAC.policy_action``). False: none (the paper's SAGE). SAC learners."""
+    ibrl_updates: int = 1000
+    """Behaviour-cloning updates of π_IL at each fine-tuning round (``ibrl``)."""
     lookback_labels: int = 0
     """At each takeover onset, this many of the agent's steps before it (same episode) also become imitation rows,
     labelled with the expert's onset action: the gate fired after them. 0: none (the paper's SAGE)."""
@@ -541,6 +546,10 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError(f"conservative_actions must be a whole number >= 1, got {cfg.conservative_actions!r}")
     if cfg.conservative_weight > 0 and cfg.cuda_graph:
         raise ValueError("conservative_weight > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
+    if not (isinstance(cfg.ibrl_updates, int) and cfg.ibrl_updates >= 0):
+        raise ValueError(f"ibrl_updates must be a whole number >= 0, got {cfg.ibrl_updates!r}")
+    if cfg.ibrl and cfg.cuda_graph:
+        raise ValueError("ibrl's proposals are not captured in the CUDA graph's update: set cuda_graph=false")
     if cfg.world_model_config.motion_lag < 1:
         raise ValueError(f"world_model_config.motion_lag must be >= 1, got {cfg.world_model_config.motion_lag}")
     wm = cfg.world_model_config

@@ -168,6 +168,9 @@ class BaseLearner:
     """Whether the update reads ``AgentConfig.critic_target_subset``; one that does not refuses it."""
     reads_conservative = False
     """Whether the critics' update reads ``AgentConfig.conservative_weight`` (Cal-QL); one that does not refuses it."""
+    reads_ibrl = False
+    """Whether the learner has IBRL's imitation actor and proposals (``AgentConfig.ibrl``); one that has not refuses
+    it."""
     reads_refused = False
     """Whether the update reads the gate's refused proposals (``AgentConfig.refused_weight``); one that does not
     refuses a weight over 0 rather than ignore it."""
@@ -185,6 +188,10 @@ class BaseLearner:
             raise ValueError(
                 f"conservative_weight is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: "
                 "set conservative_weight=0"
+            )
+        if cfg.ibrl and not cls.reads_ibrl:
+            raise ValueError(
+                f"ibrl is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: set ibrl=false"
             )
         if cfg.refused_weight > 0 and not cls.reads_refused:
             raise ValueError(

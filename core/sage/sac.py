@@ -31,6 +31,13 @@ Dual (eq:lambda_update): λ ← clip(λ + lr_λ (mean F(s, π(s)) - F_0), 0, λ_
 actor batch: λ grows while mean fear exceeds the budget and shrinks (never below 0) otherwise. F_0 is measured
 at every world-model fit, the mean fear of its familiar states (``fear_budget_from_data``), or a constant.
 Temperature: SAC v2 automatic α towards entropy -dim(A).
+
+IBRL (``ibrl``, Hu et al. 2023; off in the paper's SAGE): a second actor π_IL, cloned on the expert's rows only.
+The acting policy proposes a_RL and π_IL's a_IL and takes the one with the higher min_z Q_z(s, ·)
+(:meth:`SAC.policy_action`, also in a published version: the checkpoint holds π_IL), and the target's next value is
+the larger of the two proposals', max(min_z Q̄_z(s', a') - α log π(a'|s'), min_z Q̄_z(s', a_IL')) (each less λF
+where fear is on).
+The gate's imagined rollouts after the judged action follow the RL actor.
 """
 
 from __future__ import annotations
@@ -112,6 +119,7 @@ class SAC(ActorLearner):
     reads_refused = True
     reads_critic_subset = True
     reads_conservative = True
+    reads_ibrl = True
 
     def __init__(
         self,
@@ -133,6 +141,12 @@ class SAC(ActorLearner):
         self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr, self.captures)
         self.log_alpha = torch.tensor(math.log(cfg.init_alpha), device=self.device, requires_grad=True)
         self.alpha_optimizer = adam([self.log_alpha], cfg.alpha_lr, self.captures)
+        if cfg.ibrl:
+            self.il_actor = copy.deepcopy(self.actor)
+            """IBRL's π_IL: the expert's rows only, by behaviour cloning (:meth:`fit_imitation_policy`)."""
+            self.il_optimizer = torch.optim.Adam(self.il_actor.parameters(), lr=cfg.actor_lr)
+        self.proposals = [0, 0]
+        """With ``ibrl``: how often the RL actor's and π_IL's action acted (:meth:`policy_action`)."""
         self.target_entropy = -float(act_dim) if cfg.target_entropy is None else cfg.target_entropy
         self.prior_distill = 0.0
         """Weight of the distillation anchor on the buffer's prior rows (set by fine-tuning:
@@ -143,6 +157,64 @@ class SAC(ActorLearner):
         self.anchor_rows: ReplayBuffer | None = None
         """Rows the anchor draws from instead of the buffer's prior rows when set and not empty, each ``a_rl`` the
         base's deterministic action at its state (``FinetuneConfig.anchor_relabel``); None: the prior rows."""
+
+    # -- IBRL ----------------------------------------------------------------------------------------
+    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        """The actor's action; with ``ibrl``, IBRL's actor proposal: π_IL's deterministic action instead where the
+        critics' minimum (their mean with ``critic_target_subset``) values it higher than the actor's."""
+        action = super().policy_action(obs, deterministic)
+        if not self.cfg.ibrl:
+            return action
+        with torch.inference_mode():
+            o = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device).view(1, -1)
+            proposed = torch.as_tensor(np.asarray(action, dtype=np.float32), device=self.device).view(1, -1)
+            il_action = self.il_actor.deterministic(o)
+            q = self.critic(torch.cat([o, o]), torch.cat([proposed, il_action]))
+            q = ensemble_value(q, self.cfg.critic_target_subset is not None)
+            imitation = bool(q[1] > q[0])
+        self.proposals[int(imitation)] += 1
+        return il_action[0].cpu().numpy() if imitation else action
+
+    def fit_imitation_policy(
+        self, updates: int, heldout_obs: np.ndarray | None = None, heldout_expert: np.ndarray | None = None
+    ) -> dict[str, float]:
+        """Behaviour cloning of IBRL's π_IL on the buffer's expert rows (takeovers, demonstrations), ``updates`` steps
+        on from its present weights; with held-out expert rows, their error is measured every 100 updates and the
+        weights of the lowest kept. Returns the last loss, the held-out error kept and the update it was kept at
+        (empty without ``ibrl`` or without expert rows)."""
+        if not self.cfg.ibrl or updates <= 0 or self.buffer.takeover_count() == 0:
+            return {}
+        held = heldout_obs is not None and heldout_expert is not None and len(heldout_obs) > 0
+
+        def heldout_error() -> float:
+            assert heldout_obs is not None and heldout_expert is not None
+            with torch.no_grad():
+                action = self.il_actor.deterministic(torch.as_tensor(heldout_obs, device=self.device))
+                return float((action - torch.as_tensor(heldout_expert, device=self.device)).pow(2).sum(-1).mean())
+
+        best = heldout_error() if held else math.inf
+        best_at, best_state = 0, copy.deepcopy(self.il_actor.state_dict()) if held else None
+        loss = torch.tensor(math.nan)
+        done = 0
+        for k in range(updates):
+            batch = self.buffer.sample_takeovers(self.cfg.bc_batch_size, self.rng)
+            if batch is None:
+                break
+            loss = (self.il_actor.deterministic(batch.obs) - batch.a_expert).pow(2).sum(-1).mean()
+            self.il_optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.il_optimizer.step()
+            done = k + 1
+            if held and (done % 100 == 0 or done == updates):
+                error = heldout_error()
+                if error < best:
+                    best, best_at, best_state = error, done, copy.deepcopy(self.il_actor.state_dict())
+        stats = {"il_bc_loss": float(loss.detach()), "il_updates": float(done)}
+        if held and best_state is not None:
+            if best_at != done:
+                self.il_actor.load_state_dict(best_state)
+            stats.update(il_heldout_error=best, il_kept_update=float(best_at))
+        return stats
 
     # -- pieces ------------------------------------------------------------------------------------
     @property
@@ -197,6 +269,15 @@ class SAC(ActorLearner):
             next_q = next_qs.min(0).values - self.alpha * next_log_prob
             if self.fear_active():
                 next_q = next_q - self.lam * self.learner_fear(batch.next_obs, next_action)
+            if cfg.ibrl:  # the bootstrap proposal: π_IL's next action where the critics value it higher
+                il_action = self.il_actor.deterministic(batch.next_obs)
+                il_qs = self.critic_target(batch.next_obs, il_action)
+                if cfg.critic_target_subset is not None:
+                    il_qs = il_qs[drawn]
+                il_q = il_qs.min(0).values
+                if self.fear_active():
+                    il_q = il_q - self.lam * self.learner_fear(batch.next_obs, il_action)
+                next_q = torch.maximum(next_q, il_q)
             y = batch.reward + cfg.gamma * (1.0 - batch.terminated) * next_q
             if cfg.violation_penalty:
                 y = torch.where(batch.violation > 0.5, torch.full_like(y, -self.c_star()), y)
@@ -375,6 +456,8 @@ class SAC(ActorLearner):
 
     def pretrain(self, returns: np.ndarray | None = None) -> dict[str, float]:
         stats = super().pretrain(returns)
+        if self.cfg.ibrl and "pretrain_bc_loss" in stats:
+            self.il_actor.load_state_dict(self.actor.state_dict())  # IBRL's π_IL: the demonstrations' clone
         if not self.warm or len(self.buffer) < self.cfg.batch_size:
             return stats
         distilled = self.distil_critic(CRITIC_DISTIL_UPDATES)
@@ -427,12 +510,15 @@ class SAC(ActorLearner):
                 loaded.append(name)
         if "critic" in loaded and "critic_target" not in state:
             self.critic_target.load_state_dict(self.critic.state_dict())
+        if self.cfg.ibrl and "actor" in loaded and "il_actor" not in loaded:
+            self.il_actor.load_state_dict(self.actor.state_dict())  # a base without π_IL: it starts as the actor
         return loaded
 
     def declared_state(self) -> DeclaredState:
+        ibrl = self.cfg.ibrl
         return DeclaredState(
-            modules=("actor", "critic", "critic_target"),
-            optimizers=("actor_optimizer", "critic_optimizer", "alpha_optimizer"),
+            modules=("actor", "critic", "critic_target") + (("il_actor",) if ibrl else ()),
+            optimizers=("actor_optimizer", "critic_optimizer", "alpha_optimizer") + (("il_optimizer",) if ibrl else ()),
             tensors=("log_alpha",),
             scalars=("lam",),
         )

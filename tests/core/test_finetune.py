@@ -867,3 +867,31 @@ def test_a_larger_critic_ensemble_on_a_two_critic_base_learns_the_bases_critics_
     assert distilled < 0.1 * before, (distilled, before)
     saved = load_checkpoint(result.version.path)
     assert saved["agent_config"]["critics"] == 10 and saved["state"]["critic"]["out.weight"].shape[0] == 10
+
+
+def test_an_ibrl_round_clones_the_takeovers_into_its_imitation_actor_and_publishes_the_composite(setup) -> None:
+    """IBRL (``learner.ibrl``) on a base without it: π_IL starts as the base's actor, the round clones the takeovers
+    into it before its updates (held-out takeovers choose the weights kept), and the published version carries π_IL
+    and acts with the actor proposal when loaded."""
+    versions, store, session = setup
+    finetuner = Finetuner(
+        versions, store, session, fast(holdout_share=0.5, overrides=("ibrl=true", "ibrl_updates=200"))
+    )
+    learner = finetuner.learner
+    base_actor = load_checkpoint(versions.get(0).path)["state"]["actor"]
+    assert all(torch.equal(v, base_actor[k].float()) for k, v in learner.il_actor.state_dict().items())
+    events: list[dict[str, Any]] = []
+    result = finetuner.round(progress=events.append)
+    assert result.version is not None
+    assert any(e["phase"] == "cloning the expert for IBRL's imitation policy" for e in events)
+    assert result.losses["il_updates"] == 200 and len(finetuner.heldout_obs) > 0
+    heldout = torch.from_numpy(finetuner.heldout_obs)
+    expert = torch.from_numpy(finetuner.heldout_expert)
+    with torch.no_grad():
+        il_error = float((learner.il_actor.deterministic(heldout) - expert).pow(2).sum(-1).mean())
+    assert result.losses["il_heldout_error"] == pytest.approx(il_error, rel=1e-4)
+    saved = load_checkpoint(result.version.path)
+    assert saved["agent_config"]["ibrl"] is True and "il_actor" in saved["state"]
+    agent = load_agent(result.version.path)
+    obs = heldout[0].numpy()
+    assert agent.policy.act(obs, True) == pytest.approx(learner.policy_action(obs, True), abs=1e-5)

@@ -655,3 +655,101 @@ def test_a_conservative_weight_is_refused_where_it_cannot_be_read() -> None:
         for_method("sac", conservative_weight=1.0, conservative_actions=0)
     with pytest.raises(ValueError, match="conservative_weight"):
         make_learner("td3", for_method("td3", conservative_weight=1.0), OBS, ACT)
+
+
+# -- IBRL: an imitation actor beside the RL actor, its proposals ---------------------------------------
+def test_ibrl_acts_with_whichever_proposal_the_critics_value_higher() -> None:
+    learner = filled("sage", ibrl=True)
+    assert isinstance(learner, SAC)
+    with torch.no_grad():  # π_IL differs from the actor, so the two proposals differ
+        for p in learner.il_actor.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    rng = np.random.default_rng(3)
+    picks = []
+    for _ in range(60):
+        obs = rng.normal(size=OBS).astype(np.float32)
+        acted = learner.policy_action(obs, deterministic=True)
+        o = torch.as_tensor(obs).view(1, -1)
+        with torch.no_grad():
+            rl, il = learner.actor.deterministic(o), learner.il_actor.deterministic(o)
+            q_rl, q_il = (learner.critic(o, a).min(0).values.item() for a in (rl, il))
+        expected = il if q_il > q_rl else rl
+        assert acted == pytest.approx(expected[0].numpy(), abs=1e-5)
+        picks.append(q_il > q_rl)
+    assert 0 < sum(picks) < len(picks)  # both proposals acted somewhere
+    assert learner.proposals == [len(picks) - sum(picks), sum(picks)]
+
+
+def test_ibrl_bootstraps_from_the_higher_of_the_two_next_proposals() -> None:
+    learner = filled("sage", ibrl=True)
+    assert isinstance(learner, SAC)
+    with torch.no_grad():
+        for p in learner.il_actor.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    batch = learner.buffer.sample(64, learner.rng)
+    torch.manual_seed(2)
+    with_proposal = learner.critic_target_values(batch)
+    learner.cfg.ibrl = False
+    torch.manual_seed(2)
+    plain = learner.critic_target_values(batch)
+    live = (1.0 - batch.terminated) * (1.0 - batch.violation) > 0.5
+    assert torch.all(with_proposal[live] >= plain[live] - 1e-5)
+    assert torch.any(with_proposal[live] > plain[live] + 1e-3)  # π_IL's next action valued higher somewhere
+    assert torch.allclose(with_proposal[~live], plain[~live])
+
+
+def test_ibrl_clones_the_expert_into_its_imitation_actor_only_and_keeps_the_lowest_heldout_error() -> None:
+    learner = filled("sage", ibrl=True)
+    assert isinstance(learner, SAC)
+    actor_before = copy.deepcopy(learner.actor.state_dict())
+    rng = np.random.default_rng(9)
+    heldout_obs = rng.normal(size=(50, OBS)).astype(np.float32)
+    heldout_expert = np.clip(-heldout_obs[:, :ACT], -1, 1).astype(np.float32)
+
+    def error() -> float:
+        with torch.no_grad():
+            a = learner.il_actor.deterministic(torch.as_tensor(heldout_obs))
+        return float((a - torch.as_tensor(heldout_expert)).pow(2).sum(-1).mean())
+
+    before = error()
+    stats = learner.fit_imitation_policy(600, heldout_obs, heldout_expert)
+    assert stats["il_heldout_error"] == pytest.approx(error(), rel=1e-5)
+    assert error() < 0.5 * before
+    assert all(torch.equal(v, actor_before[k]) for k, v in learner.actor.state_dict().items())
+    assert learner.fit_imitation_policy(0) == {}
+    assert filled("sage").fit_imitation_policy(100) == {}  # no π_IL without ibrl
+
+
+def test_an_ibrl_version_carries_its_imitation_actor_and_acts_as_the_learner(tmp_path: object) -> None:
+    from pathlib import Path
+
+    from core.agents import AgentMeta, load_agent, save_checkpoint
+
+    learner = filled("sage", ibrl=True)
+    assert isinstance(learner, SAC)
+    with torch.no_grad():
+        for p in learner.il_actor.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    meta = AgentMeta("sage", "ugv", ["x"], OBS, ACT, [-1.0] * ACT, [1.0] * ACT, has_world_model=True)
+    path = save_checkpoint(Path(str(tmp_path)) / "v.pt", learner, meta)
+    agent = load_agent(path)
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        obs = rng.normal(size=OBS).astype(np.float32)
+        assert agent.policy.act(obs, True) == pytest.approx(learner.policy_action(obs, True), abs=1e-5)
+    assert sum(agent.learner.proposals) == 20  # type: ignore[attr-defined]
+    # a base saved without π_IL: the imitation actor starts as its actor
+    plain = filled("sage")
+    fresh = make_learner("sage", for_method("sage", hidden=32, ibrl=True), OBS, ACT, seed=1)
+    assert isinstance(fresh, SAC)
+    fresh.load_state_dict(plain.state_dict(), strict=False)
+    assert all(torch.equal(v, plain.actor.state_dict()[k]) for k, v in fresh.il_actor.state_dict().items())
+
+
+def test_ibrl_is_refused_where_it_cannot_be_read() -> None:
+    with pytest.raises(ValueError, match="ibrl"):
+        for_method("sac", ibrl=True, cuda_graph=True)
+    with pytest.raises(ValueError, match="ibrl_updates"):
+        for_method("sac", ibrl_updates=-1)
+    with pytest.raises(ValueError, match="ibrl"):
+        make_learner("td3", for_method("td3", ibrl=True), OBS, ACT)
