@@ -303,7 +303,10 @@ class AgentConfig:
     """IBRL: π_IL, cloned on the expert's rows, proposes beside the actor; the higher-valued proposal acts and
     bootstraps the TD target (``SAC.policy_action``). False: none (the paper's SAGE). SAC learners."""
     ibrl_updates: int = 1000
-    """Behaviour-cloning updates of π_IL at each fine-tuning round (``ibrl``)."""
+    """Behaviour-cloning updates of π_IL at each fine-tuning round and each online cloning (``ibrl``)."""
+    ibrl_refit_every: int = 0
+    """Environment steps between online clonings of π_IL on every expert row so far (``ibrl``; takeovers grow the
+    expert's data). 0: cloned in pretraining and at fine-tuning rounds only (IBRL's fixed π_IL)."""
     lookback_labels: int = 0
     """At each takeover onset, this many of the agent's steps before it (same episode) also become imitation rows,
     labelled with the expert's onset action: the gate fired after them. 0: none (the paper's SAGE)."""
@@ -548,6 +551,8 @@ def validate(cfg: AgentConfig) -> None:
         raise ValueError("conservative_weight > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
     if not (isinstance(cfg.ibrl_updates, int) and cfg.ibrl_updates >= 0):
         raise ValueError(f"ibrl_updates must be a whole number >= 0, got {cfg.ibrl_updates!r}")
+    if not (isinstance(cfg.ibrl_refit_every, int) and cfg.ibrl_refit_every >= 0):
+        raise ValueError(f"ibrl_refit_every must be a whole number >= 0, got {cfg.ibrl_refit_every!r}")
     if cfg.ibrl and cfg.cuda_graph:
         raise ValueError("ibrl's proposals are not captured in the CUDA graph's update: set cuda_graph=false")
     if cfg.world_model_config.motion_lag < 1:

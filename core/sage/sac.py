@@ -51,6 +51,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from core.protocol import StepRecord
 from core.replay import Batch, ReplayBuffer
 from core.sage.captured import CapturedUpdate, fill_batch, static_batch
 from core.sage.config import AgentConfig
@@ -215,6 +216,12 @@ class SAC(ActorLearner):
                 self.il_actor.load_state_dict(best_state)
             stats.update(il_heldout_error=best, il_kept_update=float(best_at))
         return stats
+
+    def observe(self, record: StepRecord) -> None:
+        super().observe(record)
+        every = self.cfg.ibrl_refit_every
+        if self.cfg.ibrl and every > 0 and self.env_steps % every == 0:
+            self.info.update(self.fit_imitation_policy(self.cfg.ibrl_updates))  # the takeovers so far, online
 
     # -- pieces ------------------------------------------------------------------------------------
     @property

@@ -753,3 +753,30 @@ def test_ibrl_is_refused_where_it_cannot_be_read() -> None:
         for_method("sac", ibrl_updates=-1)
     with pytest.raises(ValueError, match="ibrl"):
         make_learner("td3", for_method("td3", ibrl=True), OBS, ACT)
+
+
+def test_ibrl_clones_its_imitation_actor_again_online_every_refit_interval() -> None:
+    """``ibrl_refit_every``: in online training π_IL is cloned on the expert rows so far every that many environment
+    steps (the takeovers grow the expert's data); the RL actor's updates never move it."""
+    from core.protocol import StepRecord
+
+    learner = filled("sage", ibrl=True, ibrl_refit_every=50, ibrl_updates=20, updates_per_step=0.0)
+    assert isinstance(learner, SAC)
+    rng = np.random.default_rng(1)
+    obs = rng.normal(size=(121, OBS)).astype(np.float32)
+    snapshots = []
+    for t in range(120):
+        a = rng.uniform(-1, 1, ACT).astype(np.float32)
+        record = StepRecord(
+            episode=0, t=t, obs=obs[t], a_rl=a, a_expert=None, action=a, takeover=False, gate_fired=False,
+            actor="agent", fear=0.0, threshold=1.0, curiosity=0.0, reward=0.0, cost=0.0, violation=False,
+            terminated=False, truncated=False, next_obs=obs[t + 1], wall_time=0.0,
+        )  # fmt: skip
+        learner.observe(record)
+        snapshots.append(copy.deepcopy(learner.il_actor.state_dict()))
+    changed = [
+        t for t in range(1, 120) if any(not torch.equal(v, snapshots[t - 1][k]) for k, v in snapshots[t].items())
+    ]
+    steps_at = [t + 1 for t in changed]
+    assert steps_at == [50, 100], steps_at
+    assert learner.info["il_updates"] == 20
