@@ -305,8 +305,7 @@ class AgentConfig:
     ibrl_updates: int = 1000
     """Behaviour-cloning updates of π_IL at each fine-tuning round and each online cloning (``ibrl``)."""
     ibrl_refit_every: int = 0
-    """Environment steps between online clonings of π_IL on every expert row so far (``ibrl``; takeovers grow the
-    expert's data). 0: cloned in pretraining and at fine-tuning rounds only (IBRL's fixed π_IL)."""
+    """Steps between online clonings of π_IL on the expert's rows so far (``ibrl``); 0: pretraining and rounds only."""
     lookback_labels: int = 0
     """At each takeover onset, this many of the agent's steps before it (same episode) also become imitation rows,
     labelled with the expert's onset action: the gate fired after them. 0: none (the paper's SAGE)."""
@@ -535,24 +534,16 @@ def validate(cfg: AgentConfig) -> None:
         )
     if not 0.0 <= cfg.gate.release <= 1.0:
         raise ValueError(f"gate.release must be in [0, 1], got {cfg.gate.release}")
-    if not (math.isfinite(cfg.bc_weight) and cfg.bc_weight >= 0.0):  # a negative weight would push off the expert
-        raise ValueError(f"bc_weight must be a finite number >= 0, got {cfg.bc_weight}")
-    if not (math.isfinite(cfg.refused_weight) and cfg.refused_weight >= 0.0):
-        raise ValueError(f"refused_weight must be a finite number >= 0, got {cfg.refused_weight}")
-    if not (isinstance(cfg.lookback_labels, int) and cfg.lookback_labels >= 0):
-        raise ValueError(f"lookback_labels must be a whole number >= 0, got {cfg.lookback_labels!r}")
-    if cfg.refused_weight > 0 and cfg.cuda_graph:
-        raise ValueError("refused_weight > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
-    if not (math.isfinite(cfg.conservative_weight) and cfg.conservative_weight >= 0.0):
-        raise ValueError(f"conservative_weight must be a finite number >= 0, got {cfg.conservative_weight}")
-    if not (isinstance(cfg.conservative_actions, int) and cfg.conservative_actions >= 1):
-        raise ValueError(f"conservative_actions must be a whole number >= 1, got {cfg.conservative_actions!r}")
-    if cfg.conservative_weight > 0 and cfg.cuda_graph:
-        raise ValueError("conservative_weight > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
-    if not (isinstance(cfg.ibrl_updates, int) and cfg.ibrl_updates >= 0):
-        raise ValueError(f"ibrl_updates must be a whole number >= 0, got {cfg.ibrl_updates!r}")
-    if not (isinstance(cfg.ibrl_refit_every, int) and cfg.ibrl_refit_every >= 0):
-        raise ValueError(f"ibrl_refit_every must be a whole number >= 0, got {cfg.ibrl_refit_every!r}")
+    for name in ("bc_weight", "refused_weight", "conservative_weight"):  # a negative weight would push the other way
+        if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0.0):
+            raise ValueError(f"{name} must be a finite number >= 0, got {getattr(cfg, name)}")
+    counts = (("lookback_labels", 0), ("conservative_actions", 1), ("ibrl_updates", 0), ("ibrl_refit_every", 0))
+    for name, least in counts:
+        if not (isinstance(getattr(cfg, name), int) and getattr(cfg, name) >= least):
+            raise ValueError(f"{name} must be a whole number >= {least}, got {getattr(cfg, name)!r}")
+    for name in ("refused_weight", "conservative_weight"):
+        if getattr(cfg, name) > 0 and cfg.cuda_graph:
+            raise ValueError(f"{name} > 0 is not captured in the CUDA graph's update: set cuda_graph=false")
     if cfg.ibrl and cfg.cuda_graph:
         raise ValueError("ibrl's proposals are not captured in the CUDA graph's update: set cuda_graph=false")
     if cfg.world_model_config.motion_lag < 1:

@@ -179,20 +179,16 @@ class BaseLearner:
     def check_config(cls, cfg: AgentConfig) -> None:
         """Refuse settings this learner would not read (a ValueError naming them), before any network is built: the
         dashboard checks a round's learner settings this way before the server starts."""
-        if cfg.critic_target_subset is not None and not cls.reads_critic_subset:
-            raise ValueError(
-                f"critic_target_subset is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: "
-                "set critic_target_subset=none"
-            )
-        if cfg.conservative_weight > 0 and not cls.reads_conservative:
-            raise ValueError(
-                f"conservative_weight is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: "
-                "set conservative_weight=0"
-            )
-        if cfg.ibrl and not cls.reads_ibrl:
-            raise ValueError(
-                f"ibrl is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: set ibrl=false"
-            )
+        sac_only = (
+            ("critic_target_subset", cfg.critic_target_subset is not None, cls.reads_critic_subset, "none"),
+            ("conservative_weight", cfg.conservative_weight > 0, cls.reads_conservative, "0"),
+            ("ibrl", cfg.ibrl, cls.reads_ibrl, "false"),
+        )
+        for name, used, read, off in sac_only:
+            if used and not read:
+                raise ValueError(
+                    f"{name} is read by the SAC learners only (sage, sac, fni-rl), not {cfg.method}: set {name}={off}"
+                )
         if cfg.refused_weight > 0 and not cls.reads_refused:
             raise ValueError(
                 f"refused_weight is read by the SAC learners only (sage, sac, fni-rl); {cfg.method} has no critic "

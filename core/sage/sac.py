@@ -36,8 +36,7 @@ IBRL (``ibrl``, Hu et al. 2023; off in the paper's SAGE): a second actor π_IL, 
 The acting policy proposes a_RL and π_IL's a_IL and takes the one with the higher min_z Q_z(s, ·)
 (:meth:`SAC.policy_action`, also in a published version: the checkpoint holds π_IL), and the target's next value is
 the larger of the two proposals', max(min_z Q̄_z(s', a') - α log π(a'|s'), min_z Q̄_z(s', a_IL')) (each less λF
-where fear is on).
-The gate's imagined rollouts after the judged action follow the RL actor.
+where fear is on). The gate's imagined rollouts after the judged action follow the RL actor.
 """
 
 from __future__ import annotations
