@@ -7,7 +7,9 @@
 #   alone on test:1 (alone_success_last) >= 0.90 with at most one seed lower than the control's -> "the rounds learn the
 #   unseen field they are coached on"; unseen_success_last >= control's + 0.10 with at most one seed lower -> "and carry
 #   further to other unseen two-mover fields"; takeover_last and static_success_last reported beside. Each holds /
-#   fails. Not finished by 13:35 UTC: the finished seeds, undecided.
+#   fails. Not finished by the deadline: the finished seeds, undecided.
+# Not run in the twenty-eighth session (it ended first). Launched in the twenty-ninth (2026-12-01, 18:28 UTC), the
+# reading unchanged, after CW1 on UGV 4 failed its own (alone 0.76 against 0.88); the deadline now 19:03 UTC.
 set -u
 export OMP_NUM_THREADS=1
 cd "$(dirname "$0")/.."
