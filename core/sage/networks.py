@@ -109,6 +109,10 @@ class Actor(nn.Module):
     """Tanh-squashed Gaussian policy (SAC). TD3 and HG-DAgger use its deterministic path ``tanh(mean)``,
     so one checkpoint can warm-start every method."""
 
+    # registered buffers (nn.Module.__getattr__ would type them as Tensor | Module)
+    action_scale: Tensor
+    action_bias: Tensor
+
     def __init__(
         self, obs_dim: int, act_dim: int, hidden: int, layers: int, action_low: Tensor, action_high: Tensor
     ) -> None:
@@ -172,7 +176,9 @@ def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
     """target ← target + τ (source - target), every parameter in one foreach call (a loop of lerp_ per tensor costs a
     dispatch each; the values are the same)."""
     with torch.no_grad():
-        targets, sources = list(target.parameters()), list(source.parameters())
+        # list[Tensor]: the foreach ops take tensors, and list is invariant in its item type (Parameter is one)
+        targets: list[Tensor] = list(target.parameters())
+        sources: list[Tensor] = list(source.parameters())
         if len(targets) != len(sources):
             raise ValueError(f"soft_update: {len(targets)} target parameters, {len(sources)} source parameters")
         torch._foreach_lerp_(targets, sources, tau)

@@ -41,8 +41,9 @@ from __future__ import annotations
 import copy
 import dataclasses
 import itertools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -53,6 +54,9 @@ from core.motion import EgoScanStep, ScanAlignment, approach_rate
 from core.sage.config import WorldModelConfig
 from core.sage.networks import VectorizedLinear
 from core.sage.novelty import NoveltyReference, fit_reference, novelty_features, novelty_width
+
+if TYPE_CHECKING:
+    from torch.nn.modules.module import _IncompatibleKeys  # what nn.Module.load_state_dict returns
 
 STD_FLOOR = 1e-3
 IN_STD_FLOOR = 1e-2
@@ -131,6 +135,24 @@ class FitReport:
 
 class EnsembleWorldModel(nn.Module):
     """N diagonal-Gaussian MLPs predicting (s_{t+1} - s_t, c_t) from (s_t, a_t), all members in one forward."""
+
+    # registered buffers, described where __init__ registers them (nn.Module.__getattr__ would type them as
+    # Tensor | Module)
+    in_mean: Tensor
+    in_std: Tensor
+    out_mean: Tensor
+    out_std: Tensor
+    sigma_scale: Tensor
+    curiosity_ref: Tensor
+    disagreement_ref: Tensor
+    novelty_states: Tensor
+    novelty_center: Tensor
+    novelty_scale: Tensor
+    novelty_ref: Tensor
+    fitted: Tensor
+    pos_weight: Tensor
+    tau_bounds: Tensor
+    ego_geometry: Tensor
 
     def __init__(self, obs_dim: int, act_dim: int, cfg: WorldModelConfig) -> None:
         super().__init__()
@@ -415,11 +437,12 @@ class EnsembleWorldModel(nn.Module):
         d = self.obs_dim
         if bool(self.fitted):
             first = self.hidden_layers[0]
+            assert isinstance(first, VectorizedLinear)  # every hidden layer is one (__init__)
             # x_old = (x - m_old) / s_old = x_new * (s_new / s_old) + (m_new - m_old) / s_old
             scale = in_std / self.in_std
             shift = (in_mean - self.in_mean) / self.in_std
-            first.bias += torch.matmul(shift.view(1, 1, -1), first.weight)
-            first.weight *= scale.view(1, -1, 1)
+            first.bias.add_(torch.matmul(shift.view(1, 1, -1), first.weight))
+            first.weight.mul_(scale.view(1, -1, 1))
             # y_new = (y_old * s_old + m_old - m_new) / s_new, for the means; log-vars shift by 2 log(s_old / s_new)
             ratio = self.out_std / out_std
             offset = (self.out_mean - out_mean) / out_std
@@ -428,8 +451,8 @@ class EnsembleWorldModel(nn.Module):
             out.bias[..., : d + 1] = out.bias[..., : d + 1] * ratio.view(1, 1, -1) + offset.view(1, 1, -1)
             log_ratio = 2.0 * torch.log(ratio)
             out.bias[..., d + 1 :] += log_ratio.view(1, 1, -1)
-            self.max_logvar += log_ratio.view(1, 1, -1)
-            self.min_logvar += log_ratio.view(1, 1, -1)
+            self.max_logvar.add_(log_ratio.view(1, 1, -1))
+            self.min_logvar.add_(log_ratio.view(1, 1, -1))
         self.in_mean.copy_(in_mean)
         self.in_std.copy_(in_std)
         self.out_mean.copy_(out_mean)
@@ -473,7 +496,9 @@ class EnsembleWorldModel(nn.Module):
             if k in state_dict and k != "novelty_states"  # as many rows as its calibration kept
         ) and all(k in own for k in state_dict)
 
-    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):  # type: ignore[no-untyped-def]
+    def load_state_dict(
+        self, state_dict: Mapping[str, Any], strict: bool = True, assign: bool = False
+    ) -> _IncompatibleKeys:
         if "ego_geometry" not in state_dict:  # saved before the ego step was an option: learned over none
             state_dict = {**state_dict, "ego_geometry": torch.zeros(0)}
         if "disagreement_ref" not in state_dict:  # saved before it was measured: unknown until a calibration
@@ -512,6 +537,7 @@ class EnsembleWorldModel(nn.Module):
         with torch.inference_mode(False), torch.no_grad():
             hidden: list[tuple[Tensor, Tensor]] = []
             for i, layer in enumerate(self.hidden_layers):
+                assert isinstance(layer, VectorizedLinear)  # every hidden layer is one (__init__)
                 w, b = layer.weight.detach().clone(), layer.bias.detach().clone()
                 if i == 0:
                     # ((x - m) / s) W + b  =  x (W / s) + (b - (m / s) W)
