@@ -62,8 +62,8 @@ def calibrate(
         world_model.touch()
         familiar = None if safe is None else safe.bool().reshape(-1)
         if cfg is not None and len(obs) >= 20 and (familiar is None or int(familiar.sum()) >= 20):
-            terms = fear_of(world_model.folded(), ro, cfg)
-            values = terms.fear if familiar is None else terms.fear[familiar]
+            fear = fear_of(world_model.folded(), ro, cfg)
+            values = fear.fear if familiar is None else fear.fear[familiar]
             lo = float(torch.quantile(values, cfg.tau_min_quantile))
             hi = float(torch.quantile(values, cfg.tau_max_quantile))
             world_model.tau_bounds.copy_(torch.tensor([lo, max(hi, lo + 1e-3)]))
@@ -125,7 +125,8 @@ class CalibrationSample:
         if self.mover_velocity is not None:
             arrays["mover_velocity"] = self.mover_velocity
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, **arrays)
+        # allow_pickle given (its default): else mypy matches **arrays against it too
+        np.savez_compressed(tmp, allow_pickle=True, **arrays)
         tmp.replace(path)
         return path
 
@@ -176,7 +177,7 @@ class CalibrationSample:
             action=np.concatenate([s.action for s in samples]),
             next_obs=np.concatenate([s.next_obs for s in samples]),
             familiar=np.concatenate([s.familiar for s in samples]),
-            motion=np.concatenate([s.motion for s in samples]) if with_motion == {True} else None,  # type: ignore[misc]
+            motion=np.concatenate([s.motion for s in samples]) if with_motion == {True} else None,
             closing_rate=_joined_rates(samples),
             mover_velocity=_joined_movers(samples),
         )

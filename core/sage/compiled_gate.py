@@ -156,10 +156,10 @@ def gate_rollout(
                     x[k + 1, member, d + a + i] = previous + np.float32(motion_weight) * (change - previous)
                 if approach.shape[0] > 0:  # core.motion.approach_rate of the new state and motion, in float32
                     first, stop, floor = int(approach[0]), int(approach[1]), approach[2]
-                    for c in range(first, stop):
-                        nearing = max(-x[k + 1, member, d + a + c], np.float32(0.0))
-                        reach = max(x[k + 1, member, c], floor)
-                        x[k + 1, member, 2 * d + a + c - first] = min(nearing / reach, np.float32(1.0))
+                    for channel in range(first, stop):  # not c: that is the float ĉ below
+                        nearing = max(-x[k + 1, member, d + a + channel], np.float32(0.0))
+                        reach = max(x[k + 1, member, channel], floor)
+                        x[k + 1, member, 2 * d + a + channel - first] = min(nearing / reach, np.float32(1.0))
         if k + 1 < m:  # the policy's action on each member's imagined state
             p_in = np.empty((n, d), dtype=np.float32)  # contiguous rows: the products vectorise
             for member in range(n):
@@ -486,7 +486,9 @@ class CompiledGateKernel(GateKernel):
             return terms
         return self._with_movers(obs, mover_velocity, terms)
 
-    def _with_movers(self, obs: Tensor, mover_velocity: Tensor, terms: tuple[float, float, float]) -> tuple[float, ...]:
+    def _with_movers(
+        self, obs: Tensor, mover_velocity: Tensor, terms: tuple[float, float, float]
+    ) -> tuple[float, float, float]:
         """The gate's mover model over the compiled rollout: the movers' imagined contact (in the members' imagined
         poses from the actions the rollout wrote into ``x``) raises the probabilities it wrote, and ĉ and F^m are
         aggregated again as :func:`gate_rollout` aggregates them (σ̂ unchanged)."""

@@ -48,21 +48,22 @@ class _MishFunction(torch.autograd.Function):
     (``tests/core/test_diffusion.py``)."""
 
     @staticmethod
-    def forward(ctx: torch.autograd.function.FunctionCtx, x: Tensor) -> Tensor:  # type: ignore[override]
+    def forward(ctx: torch.autograd.function.FunctionCtx, x: Tensor) -> Tensor:
         with torch.no_grad():
             n = x.clamp(max=20.0).exp_()  # past 20, tanh(softplus(x)) is 1 in float32 and n² would grow towards inf
             m = (n + 2.0).mul_(n)
             q = m + 2.0
             t = m.div_(q)
             y = x * t
-            if ctx.needs_input_grad[0]:
+            # the ctx torch passes has needs_input_grad; the FunctionCtx stub does not declare it
+            if ctx.needs_input_grad[0]:  # type: ignore[attr-defined]
                 slope = (n + 1.0).mul_(n).div_(q).div_(q).mul_(x).mul_(4.0).add_(t)
                 ctx.save_for_backward(slope)
         return y
 
     @staticmethod
     @torch.autograd.function.once_differentiable
-    def backward(ctx: torch.autograd.function.FunctionCtx, grad: Tensor) -> Tensor:  # type: ignore[override]
+    def backward(ctx: torch.autograd.function.FunctionCtx, grad: Tensor) -> Tensor:
         (slope,) = ctx.saved_tensors  # type: ignore[attr-defined]
         return grad * slope
 
@@ -77,11 +78,13 @@ class Mish(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         if x.numel() < self.FUSED_FROM:
             return nn.functional.mish(x)
-        return _MishFunction.apply(x)  # type: ignore[no-any-return]
+        return _MishFunction.apply(x)
 
 
 class Denoiser(nn.Module):
     """ε_θ(a_k, k, s): an MLP on the noisy action, a sinusoidal embedding of k and the observation."""
+
+    frequencies: Tensor  # a registered buffer (nn.Module.__getattr__ would type it as Tensor | Module)
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int, layers: int, embedding: int) -> None:
         super().__init__()

@@ -361,8 +361,9 @@ def fear(
     terms = contact_terms(cfg, motion)
     learned = horizon or cfg.horizon
     steps = learned if horizon else contact_reach(cfg, learned)
-    reach = {"learned_steps": learned} if steps > learned else {}  # the gate's contact reaching past its horizon
-    ro = rollout(model, policy, obs, action, steps, motion, *terms, states_needed=False, **reach)
+    # the gate's contact reaching past its horizon: the steps past the learned ones count imagined contact alone
+    learned_steps = learned if steps > learned else None
+    ro = rollout(model, policy, obs, action, steps, motion, *terms, states_needed=False, learned_steps=learned_steps)
     return fear_of(model, ro, cfg)
 
 
@@ -449,7 +450,7 @@ class _OneStepFear(torch.autograd.Function):
     passing it where the input is at or above the bound), the model's weights and the states constants."""
 
     @staticmethod
-    def forward(  # type: ignore[override]
+    def forward(
         ctx: torch.autograd.function.FunctionCtx,
         action: Tensor,
         obs: Tensor,
@@ -465,9 +466,7 @@ class _OneStepFear(torch.autograd.Function):
         return value
 
     @staticmethod
-    def backward(  # type: ignore[override]
-        ctx: torch.autograd.function.FunctionCtx, grad: Tensor
-    ) -> tuple[Tensor, None, None, None, None, None]:
+    def backward(ctx: torch.autograd.function.FunctionCtx, grad: Tensor) -> tuple[Tensor, None, None, None, None, None]:
         saved, model, beta = ctx.saved, ctx.model, ctx.beta  # type: ignore[attr-defined]
         probability, deviation = saved["probability"], saved["deviation"]
         members = probability.shape[0]
