@@ -34,7 +34,7 @@ from core.familiar import BaseFirstPolicy
 from core.protocol import Policy
 from core.sage.config import AgentConfig, GateConfig, from_dict, set_field, to_dict, validate
 from core.sage.gate import SageGate
-from core.sage.learner import BaseLearner
+from core.sage.learner import ActorLearner, BaseLearner
 from core.sage.networks import Actor
 from core.sage.world_model import EnsembleWorldModel
 
@@ -271,7 +271,10 @@ class LoadedAgent:
     @property
     def actor(self) -> Actor:
         """The continuous actor of an actor-based run (a value-based run has none: AttributeError)."""
-        return self.learner.actor  # type: ignore[attr-defined,no-any-return]
+        learner = self.learner
+        if not isinstance(learner, ActorLearner):  # D3QN's Q-network, the diffusion policy's denoiser
+            raise AttributeError(f"a {type(learner).__name__} run has no continuous actor")
+        return learner.actor
 
     def gate_config(self, **overrides: Any) -> GateConfig:
         """The run's gate settings with ``overrides`` (GateConfig field names; unknown names are an error). An

@@ -583,7 +583,7 @@ def evaluate(
                 gate = gate_factory() if gate_factory is not None else None
                 runner = Runner(
                     env,
-                    policy if hasattr(policy, "act") else policy(env),  # type: ignore[operator]
+                    policy if hasattr(policy, "act") else policy(env),
                     gate,
                     ScriptedExpert() if expert else None,
                     seed=seed + EVAL_SEED_OFFSET + j * SCENARIO_SEED_STRIDE,

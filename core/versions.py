@@ -193,7 +193,9 @@ def rejected(version: Version) -> bool:
     if version.number == 0:
         return False
     verdict = read_verdict(version.path)
-    return bool(verdict) and (not verdict.get("promoted") or bool(verdict.get("rolled_back")))
+    if not verdict:  # never judged (no file, an unreadable or an empty one)
+        return False
+    return not verdict.get("promoted") or bool(verdict.get("rolled_back"))
 
 
 def line_head(versions: VersionStore) -> Version | None:

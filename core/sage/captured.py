@@ -87,6 +87,10 @@ class CapturedUpdate:
         closing = closing_channels(gate, None, floors)
         self.closing = None if closing is None else closing.to(self.device)
 
+    def __call__(self) -> dict[str, float]:
+        """One update: each method's capture (SAC's, D3QN's) fills its inputs and :meth:`run`s its own body."""
+        raise NotImplementedError
+
     # -- the world model the graph reads --------------------------------------------------------------
     def static_folded(self) -> FoldedModel:
         """The world model's folded weights in buffers of this capture's own, refreshed in place on a new version

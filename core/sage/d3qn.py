@@ -153,7 +153,7 @@ class D3QN(BaseLearner):
         return np.array([self.first_action + int(index)], dtype=np.int64)
 
     def random_action(self) -> np.ndarray:
-        return self._index(self.rng.integers(self.n_actions))
+        return self._index(int(self.rng.integers(self.n_actions)))
 
     def epsilon(self) -> float:
         d = self.cfg.discrete

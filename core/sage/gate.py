@@ -127,7 +127,8 @@ class SageGate:
         self._reference_version = world_model.version
         self._kernel: tuple[int, GateKernel] | None = None
         self._fitted_version, self._fitted = -1, False
-        self._last: tuple[object, object, int] = (None, None, -1)
+        self._last: tuple[np.ndarray | None, np.ndarray | None, int] = (None, None, -1)
+        """The last decision's (obs, action, world model version), whose first rollout step observe may reuse."""
         self._precision: tuple[int, np.ndarray] | None = None
         self.takeover_hold = TakeoverHold()
         self.detail = GateDetail(threshold=self.threshold.threshold)
@@ -405,12 +406,14 @@ class SageGate:
             reuse = (
                 version == self.world_model.version
                 and last_obs is obs
+                and last_action is not None  # (None before the first decision, whose version is -1)
                 and (last_action is action or np.array_equal(last_action, action))
             )
             signal = self.cfg.curiosity_signal
             extrapolate = self.cfg.contact_extrapolation and bool(self.cfg.contact_floors)
             from_decision = signal == "disagreement" and kernel is not None and reuse
             if from_decision:  # the common case: the decision's own Δs
+                assert kernel is not None  # from_decision says so
                 curiosity = kernel.first_step_spread(self._delta_precision())
                 if not extrapolate:  # and no tensor needed (a few microseconds a step)
                     return self._observed(obs, action, next_obs, curiosity)
@@ -427,7 +430,7 @@ class SageGate:
                 curiosity = float(curiosity_folded(self.world_model, o, a, s1, self._motion(obs))[0])
             if extrapolate:
                 # the movers' own change per sector: the next scan against this one moved by the robot's action
-                channels = len(self.cfg.contact_floors)
+                channels = len(self.cfg.contact_floors or ())  # some: extrapolate says so
                 self._changes.append(unexplained_change(self.world_model.base(o, a), s1, channels).clone())
         return self._observed(obs, action, next_obs, curiosity)
 
