@@ -29,7 +29,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -46,13 +46,15 @@ from app.versions import FinetuneSettings, VersionFollower, labelled_loader
 from core.loop import EpisodeSummary, NoGate, Runner, StepRecord, takeover_cause
 from core.promotion import reached_goal
 from core.protocol import simulator
+from core.scene import Scene
 from core.sessions import SessionStore, SessionWriter
 
 __all__ = ["CommandError", "FinetuneSettings", "LiveConfig", "LiveLoop", "PolicyLoader", "World", "dumps", "json_safe"]
 
 log = logging.getLogger(__name__)
 
-EnvFactory = Callable[[str, "int | None"], gym.Env[Any, Any]]
+EnvFactory = Callable[[str, "str | None"], gym.Env[Any, Any]]
+"""Builds simulator ``sim`` on a scenario name (None: its default), as :func:`app.server.make_env`."""
 PolicyLoader = Callable[[str, gym.Env[Any, Any]], LoadedPolicy]
 Publish = Callable[[str], None]
 
@@ -108,7 +110,7 @@ def json_safe(value: Any) -> Any:
     return value
 
 
-def dumps(message: dict[str, Any]) -> str:
+def dumps(message: object) -> str:
     return json.dumps(message, separators=(",", ":"), allow_nan=False, default=str)
 
 
@@ -180,7 +182,7 @@ class LiveLoop:
         """Stream (and record) the gate's imagined horizon with each step (bench_server measures its cost)."""
         self.history: deque[str] = deque(maxlen=HISTORY)
         self.trail: deque[tuple[float, float]] = deque(maxlen=600)
-        self.scene: dict[str, Any] | None = None
+        self.scene: Scene | None = None
         self.last_error: str | None = None
         self.step_times: deque[float] = deque(maxlen=200)
         """Wall-clock instants of recent steps (for the achieved rate)."""
@@ -294,7 +296,8 @@ class LiveLoop:
                 policy=config.policy,
                 expert_mode=config.expert_mode,
                 meta={"policy_label": loaded.label, "seed": config.seed, "dt": control_period(config.sim, env)},
-                scene_source=lambda: self.scene,
+                # a Scene is a plain dict at run time; the writer's parameter is typed dict[str, Any]
+                scene_source=lambda: cast("dict[str, Any] | None", self.scene),
             )
         world = World(
             config, env, runner, expert, loaded, writer, control_period(config.sim, env), base_label=loaded.label
@@ -516,7 +519,7 @@ class LiveLoop:
     @commands.handles(c.Configure)
     def _configure(self, command: c.Configure) -> dict[str, Any]:
         world = self.world
-        changes = {
+        changes: dict[str, Any] = {
             k: v
             for k, v in (
                 ("sim", command.sim),
@@ -553,8 +556,9 @@ class LiveLoop:
         assert settings is not None and store is not None and writer is not None
 
         def changed() -> None:
-            if self.world is world and world.versions is not None:
-                self.publish(dumps(json_safe({"type": "finetune", **self._finetune_state(world)})))
+            # the state is None exactly when the world has no versions (fine-tuning off)
+            if self.world is world and (state := self._finetune_state(world)) is not None:
+                self.publish(dumps(json_safe({"type": "finetune", **state})))
 
         make_env = functools.partial(self.env_factory, world.config.sim, world.config.scenario)
         load = labelled_loader(self.policy_loader, world.env, world.loaded.label)

@@ -28,7 +28,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, Protocol
 
 import gymnasium as gym
 from fastapi import FastAPI, HTTPException, Query, WebSocket
@@ -41,7 +41,7 @@ from app.hub import Client, Hub
 from app.live import CommandError, FinetuneSettings, LiveConfig, LiveLoop, PolicyLoader, dumps, json_safe
 from app.operator import ControlDesk, OperatorConsole
 from app.origin import OriginGuard, allowed_hosts
-from app.policies import SCRIPTED, default_policy, discover, load_policy
+from app.policies import SCRIPTED, LoadedPolicy, default_policy, discover, load_policy
 from app.replay import ReplayError, ReplaySession, open_replay
 from app.viser_proxy import ViserProxy
 from core.finetune import FinetuneConfig
@@ -86,6 +86,15 @@ def sim_catalogue() -> dict[str, dict[str, Any]]:
     return out
 
 
+class GateSettingLoader(Protocol):
+    """A :data:`app.live.PolicyLoader` that also takes the gate's settings (as :func:`app.policies.load_policy`):
+    :meth:`ServerSettings.loader` passes them when ``gate_settings`` holds any."""
+
+    def __call__(
+        self, choice: str, env: gym.Env[Any, Any], gate_overrides: dict[str, Any] | None = None
+    ) -> LoadedPolicy: ...
+
+
 @dataclass
 class ServerSettings:
     host: str = "127.0.0.1"
@@ -103,7 +112,7 @@ class ServerSettings:
     policy_roots: list[Path] = field(default_factory=lambda: [Path("policies"), Path("runs")])
     start_paused: bool = False
     env_factory: Callable[[str, str | None], gym.Env[Any, Any]] = make_env
-    policy_loader: PolicyLoader = load_policy
+    policy_loader: GateSettingLoader = load_policy
     catalogue: Callable[[], dict[str, dict[str, Any]]] = sim_catalogue
     viser_host: str = "127.0.0.1"
     viser_port: int = 0
@@ -247,7 +256,8 @@ def handles(*kinds: type) -> Callable[[Handler], Handler]:
     return register
 
 
-OPEN_TO_ANY_PAGE: tuple[type, ...] = (m.Ping, m.Claim, m.ReplayOpen, m.ReplaySeek, m.ReplayClose)
+# Final and not tuple[type, ...]: isinstance then narrows a message that is none of these to those with a token
+OPEN_TO_ANY_PAGE: Final = (m.Ping, m.Claim, m.ReplayOpen, m.ReplaySeek, m.ReplayClose)
 """Messages any page may send; every other message needs the operator's control token."""
 
 
@@ -306,7 +316,7 @@ async def _presence(dash: Dashboard, client: Client, msg: m.Presence) -> None:
     dash.console.set_presence(msg.focused, msg.visible)
 
 
-CONTROL_OPS: dict[str, type[c.Command]] = {
+CONTROL_OPS: dict[str, type[c.Pause | c.Resume | c.StepOnce | c.NewEpisode]] = {
     "pause": c.Pause,
     "resume": c.Resume,
     "step": c.StepOnce,
@@ -410,7 +420,7 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
     app.add_middleware(OriginGuard, hosts=allowed_hosts(settings.host, settings.allow_hosts))
 
     def dash_of(app: FastAPI) -> Dashboard:
-        return app.state.dash  # type: ignore[no-any-return]
+        return app.state.dash
 
     @app.get("/", include_in_schema=False)
     async def index() -> FileResponse:
