@@ -15,7 +15,7 @@ and the figures (:mod:`studies.cycles_figures`): ``trajectories.png`` (paths ove
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -145,7 +145,12 @@ def register(app: typer.Typer) -> None:
         try:
             make_env = env_factory(sim)
             # each cycle is the unit of data the user chose (see CyclesConfig.finetune)
-            fixed = {"overrides": learner_settings, "seed": seed, "min_steps": 1, "min_takeover_samples": 0}
+            fixed: dict[str, Any] = {
+                "overrides": learner_settings,
+                "seed": seed,
+                "min_steps": 1,
+                "min_takeover_samples": 0,
+            }
             if updates is not None:
                 fixed["updates"] = updates
             rounds = FinetuneConfig.legacy(**fixed) if legacy_rounds else FinetuneConfig(**fixed)

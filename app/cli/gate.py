@@ -28,6 +28,7 @@ scenarios' drives (:mod:`studies.recalibrate`); a new run folder, the world mode
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -317,7 +318,7 @@ def register(app: typer.Typer) -> None:
             (*ERRORS, SweepError),
             lambda: choose_tau_scale(
                 run,
-                {name: (lambda name=name: setup.descriptor.make(name)) for name in names},
+                {name: functools.partial(setup.descriptor.make, name) for name in names},
                 episodes,
                 scale or DEFAULT_SCALES,
                 GateTarget(violation_share, takeover),

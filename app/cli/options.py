@@ -14,13 +14,16 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, Literal, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NoReturn
 
-import click
 import typer
 from typer.core import TyperCommand
 
 from core.dotted import Section, route_settings
+
+if TYPE_CHECKING:
+    # typer (0.29) runs on its own copy of click: its commands take these classes, not the click package's
+    from typer._click import Context, HelpFormatter
 
 GATE_SECTIONS: dict[str, Section] = {"gate": Section("gate")}
 """The ``--set`` sections of a command that drives a run's gate (``sage eval --gate``, ``sage gate ...``)."""
@@ -258,7 +261,7 @@ def fill_choices(text: str) -> str:
 class NamedChoicesCommand(TyperCommand):
     """A command whose help names every choice: the :data:`CHOICES` placeholders are filled when it is shown."""
 
-    def format_help(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+    def format_help(self, ctx: Context, formatter: HelpFormatter) -> None:
         if self.help:
             self.help = fill_choices(self.help)
         for param in self.params:

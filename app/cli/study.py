@@ -19,6 +19,7 @@ read by the one parser of every command (:mod:`app.cli.options`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -159,7 +160,7 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"summary written into {SUMMARY_README}")
 
 
-def study_settings(name: str, known: dict[str, Any], pairs: list[str]) -> dict[str, Any]:
+def study_settings(name: str, known: Mapping[str, Any], pairs: list[str]) -> dict[str, Any]:
     """``KEY=VALUE`` pairs (``--set study.KEY=VALUE``) as settings of study ``name``, each of its default's type."""
     overrides: dict[str, Any] = {}
     for pair in pairs:
@@ -170,7 +171,7 @@ def study_settings(name: str, known: dict[str, Any], pairs: list[str]) -> dict[s
     return overrides
 
 
-def finetune_settings(name: str, known: dict[str, Any], pairs: list[str]) -> list[str]:
+def finetune_settings(name: str, known: Mapping[str, Any], pairs: list[str]) -> list[str]:
     """``KEY=VALUE`` pairs (``--set finetune.KEY=VALUE``) for the fine-tuning rounds of a study that runs them (its
     ``finetune`` setting), checked against :class:`core.finetune.FinetuneConfig`; other studies refuse them."""
     from core.finetune import FinetuneConfig
