@@ -35,8 +35,9 @@ import torch
 
 import sims
 from core.learners import make_learner, preset
+from core.protocol import simulator
 from core.sage.diffusion import DiffusionPolicy
-from core.sage.learner import ActorPolicy
+from core.sage.learner import ActorPolicy, BaseLearner
 from core.sage.networks import Actor
 from sims.ugv.teb import TebPlanner
 
@@ -50,7 +51,7 @@ def states(n: int) -> list[np.ndarray]:
         obs, _ = env.reset(seed=7)
         for _ in range(n // 4):
             out.append(obs)
-            obs, _, terminated, truncated, _ = env.step(env.unwrapped.expert_action())
+            obs, _, terminated, truncated, _ = env.step(simulator(env).expert_action())
             if terminated or truncated:
                 obs, _ = env.reset()
     return out
@@ -265,9 +266,13 @@ def main() -> None:
     policies: dict[str, Callable[[np.ndarray], object]] = {"SAGE actor (reference)": lambda o: actor.act(o, True)}
     for steps in (1, 2, 5, 10):
         bc = make_learner(
-            "diffusion-bc", preset("diffusion-bc", **{"diffusion.sampling_steps": steps}), 58, 2, low, high
+            "diffusion-bc", preset("diffusion-bc", None, **{"diffusion.sampling_steps": steps}), 58, 2, low, high
         )
-        policies[f"Diffusion-BC, {steps} sampling steps"] = lambda o, bc=bc: bc.act(o, True)
+
+        def act_bc(o: np.ndarray, bc: BaseLearner = bc) -> object:  # bound now: each its own learner
+            return bc.act(o, True)
+
+        policies[f"Diffusion-BC, {steps} sampling steps"] = act_bc
     ql = make_learner("diffusion-ql", preset("diffusion-ql"), 58, 2, low, high)
     policies["Diffusion-QL, 5 steps, best of 10"] = lambda o: ql.act(o, True)
     results: dict[str, list[float]] = {name: [] for name in policies}

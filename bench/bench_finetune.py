@@ -43,7 +43,7 @@ from core.sessions import SessionStore  # noqa: E402
 
 
 def build(policy: str, sessions: Path, finetune: FinetuneSettings | None, speed: float) -> LiveLoop:
-    config = LiveConfig(sim="ugv", scenario=3, policy=policy, expert_mode="scripted", speed=speed)
+    config = LiveConfig(sim="ugv", scenario="3", policy=policy, expert_mode="scripted", speed=speed)
     loop = LiveLoop(
         config,
         env_factory=make_env,
@@ -124,7 +124,9 @@ def main() -> None:
             results[name] = measure(loop, args.seconds, speed=1.0)
             results[name + ", free"] = measure(loop, args.seconds / 2, speed=50.0)
             if finetune is not None:
-                status = loop.world.versions.service.status()
+                versions = loop.world.versions
+                assert versions is not None  # a trained policy on a recorded session: fine-tuning runs
+                status = versions.service.status()
                 assert status["phase"] == "training" and status["alive"], status
                 done = status["progress"].get("update")
                 print(f"  (worker still training: its round stood at update {done})")

@@ -116,7 +116,7 @@ def setup(members: int = 5, ego: bool = False) -> tuple[EnsembleWorldModel, Acto
     obs = rng.random((2000, OBS_DIM)).astype(np.float32)
     act = rng.uniform(-1, 1, (2000, ACT_DIM)).astype(np.float32)
     nxt = (obs + 0.01 * rng.standard_normal(obs.shape)).astype(np.float32)
-    layout: dict[str, float] = {}
+    layout: dict[str, Any] = {}
     if ego:
         from sims.ugv.env import ego_motion_layout
 

@@ -30,9 +30,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import gymnasium as gym
 import numpy as np
+from highway_env.envs.common.abstract import AbstractEnv
 
 import sims
+from core.protocol import simulator
 from sims.highway.compat import make_stock
+from sims.highway.env import HighwayEnv
 from sims.highway.road import RoadLayout, make_road
 from sims.highway.scenarios import ScenarioSpec, custom_spec, load_log, spawn_traffic
 
@@ -62,7 +65,9 @@ def timed(fn: Callable[[], int]) -> tuple[float, float, int]:
 
 def stock_rate(steps: int, fast: bool) -> tuple[float, float, int]:
     env = make_stock("highway-v0", fast=fast) if fast else gym.make("highway-v0")
-    vehicles = int(env.unwrapped.config["vehicles_count"])
+    stock = env.unwrapped
+    assert isinstance(stock, AbstractEnv)  # a highway-env environment: its config holds the traffic
+    vehicles = int(stock.config["vehicles_count"])
     idle = 1  # DiscreteMetaAction IDLE
 
     def run() -> int:
@@ -80,7 +85,7 @@ def stock_rate(steps: int, fast: bool) -> tuple[float, float, int]:
 
 def sage_rate(spec: ScenarioSpec, steps: int, expert: bool, repeats: int = 3) -> tuple[float, float]:
     env = sims.make("highway", custom_spec=spec)
-    inner = env.unwrapped
+    inner = simulator(env)
     keep_lane = np.array([0.0, 0.0], np.float32)
     best_cpu = best_wall = 0.0
     for repeat in range(repeats):
@@ -149,7 +154,9 @@ def main() -> None:
     env = sims.make("highway", custom_spec=spec, mode="adversarial")
     env.reset(seed=0)
     cpu_adv, wall_adv, _ = timed(lambda: len(env.reset(seed=1)[1]["adversary_events"]))
-    env.unwrapped.set_ego_predictor("expert")
+    adversarial = env.unwrapped
+    assert isinstance(adversarial, HighwayEnv)
+    adversarial.set_ego_predictor("expert")
     cpu_adv_expert, _, _ = timed(lambda: len(env.reset(seed=1)[1]["adversary_events"]))
 
     rows = [

@@ -80,7 +80,7 @@ def ours(
     world_model: dict[str, Any] | None = None,
     batch: int = BATCH,
     device: str = "cpu",
-    **overrides: object,
+    **overrides: Any,
 ) -> BaseLearner:
     cfg = for_method(method, hidden=HIDDEN, batch_size=batch, critics=2, **overrides)
     cfg.world_model_config.max_updates_per_fit = 200
@@ -121,9 +121,11 @@ def sb3(rng: np.random.Generator) -> Any:
         seed=0,
     )
     model.set_logger(configure(None, []))
+    buffer = model.replay_buffer
+    assert buffer is not None  # SAC's _setup_model built it
     obs = rng.random((20_001, OBS_DIM)).astype(np.float32)
     for i in range(20_000):
-        model.replay_buffer.add(
+        buffer.add(
             obs[i : i + 1],
             obs[i + 1 : i + 2],
             rng.uniform(-1, 1, (1, ACT_DIM)),
@@ -140,7 +142,7 @@ want more cores than it has, the wall clock also counts the time the update wait
 
 
 def rate(
-    fn: Callable[[], None],
+    fn: Callable[[], object],
     n: int,
     sync: Callable[[], None] | None = None,
     clock: Callable[[], float] = time.perf_counter,
@@ -238,7 +240,7 @@ def main() -> None:
     sac, sage, reference = ours("sac", rng), ours("sage", rng), sb3(rng)
     sac_unclipped = ours("sac", rng, max_grad_norm=None)  # SB3's SAC clips no gradients
     assert sage.world_model_ready() and sage.virtual is not None and len(sage.virtual) > 0
-    contenders: dict[str, Callable[[], None]] = {
+    contenders: dict[str, Callable[[], object]] = {
         "our SAC": sac.update,
         "SAGE-SAC": sage.update,
         "our SAC, no clip": sac_unclipped.update,
@@ -251,7 +253,7 @@ def main() -> None:
         ego = ours("sage", rng, world_model=ego_motion_layout())
         assert ego.world_model_ready() and ego.world_model is not None and ego.world_model.ego is not None
         contenders["SAGE-SAC, ego step"] = ego.update
-        contact = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
+        contact: dict[str, Any] = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
         touching = ours("sage", rng, world_model=ego_motion_layout(), **contact)
         assert touching.cfg.gate.imagined_contact and touching.world_model_ready()
         contenders["SAGE-SAC, ego step + contact"] = touching.update
@@ -285,14 +287,14 @@ def main() -> None:
         device_rows(args.rounds, args.updates)
 
 
-def measure(contenders: dict[str, Callable[[], None]], rounds: int, updates: int, clock: str) -> dict[str, float]:
+def measure(contenders: dict[str, Callable[[], object]], rounds: int, updates: int, clock: str) -> dict[str, float]:
     """Median updates per second of each contender over ``rounds`` interleaved rounds (after a warm-up)."""
     rates = measure_rounds(contenders, rounds, updates, clock)
     return {name: statistics.median(values) for name, values in rates.items()}
 
 
 def measure_rounds(
-    contenders: dict[str, Callable[[], None]], rounds: int, updates: int, clock: str
+    contenders: dict[str, Callable[[], object]], rounds: int, updates: int, clock: str
 ) -> dict[str, list[float]]:
     """Updates per second of each contender in each of ``rounds`` interleaved rounds (after a warm-up)."""
     for fn in contenders.values():  # warm-up
@@ -305,7 +307,7 @@ def measure_rounds(
 
 
 def alternated_rounds(
-    contenders: dict[str, Callable[[], None]], rounds: int, updates: int, clock: str
+    contenders: dict[str, Callable[[], object]], rounds: int, updates: int, clock: str
 ) -> dict[str, list[float]]:
     """Milliseconds per update of each contender in each of ``rounds`` rounds (after a warm-up), the contenders taking
     turns update by update, each update timed alone: a change of the machine's load then falls on all of them alike
@@ -339,7 +341,7 @@ def before_rows(args: argparse.Namespace) -> None:
     old_fear = module_at(args.before, "core/sage/fear.py", "fear_before")
     old_networks = module_at(args.before, "core/sage/networks.py", "networks_before")
     old_sac = module_at(args.before, "core/sage/sac.py", "sac_before")
-    old_sac.fear = old_fear.fear
+    vars(old_sac)["fear"] = old_fear.fear  # the name sac_before's code looks up in its globals
 
     def with_old_code(learner: BaseLearner) -> Callable[[], None]:
         actor = learner.actor  # type: ignore[attr-defined]
@@ -354,10 +356,10 @@ def before_rows(args: argparse.Namespace) -> None:
 
         return run
 
-    contact = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
+    contact: dict[str, Any] = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
     rng = np.random.default_rng(0)
     batches = args.batch or [BATCH]
-    contenders: dict[str, Callable[[], None]] = {}
+    contenders: dict[str, Callable[[], object]] = {}
     for batch in batches:
         touching = ours("sage", rng, world_model={**ego_motion_layout(), "members": 5}, batch=batch, **contact)
         contenders[f"sac {batch}"] = ours("sac", rng, batch=batch).update
@@ -396,16 +398,16 @@ def sizes_table(args: argparse.Namespace) -> None:
 
     batches, members = args.batch or [BATCH], args.ensemble or [5]
     # each SAGE-SAC column: its world model's layout and the learner's overrides
-    layouts: dict[str, tuple[dict[str, Any], dict[str, object]]] = {"SAGE-SAC": ({}, {})}
+    layouts: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {"SAGE-SAC": ({}, {})}
     if args.ego:
         from sims.ugv.descriptor import contact_floors
         from sims.ugv.env import ego_motion_layout
 
         layouts["SAGE-SAC over the ego step"] = (ego_motion_layout(), {})
-        contact = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
+        contact: dict[str, Any] = {"gate.imagined_contact": True, "gate.contact_floors": list(contact_floors())}
         layouts["SAGE-SAC over the ego step + contact"] = (ego_motion_layout(), contact)
     rng = np.random.default_rng(0)
-    contenders: dict[str, Callable[[], None]] = {}
+    contenders: dict[str, Callable[[], object]] = {}
     for batch in batches:
         contenders[f"sac {batch}"] = ours("sac", rng, batch=batch).update
         for n in members:

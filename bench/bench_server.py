@@ -69,7 +69,7 @@ async def viewer(url: str, counts: list[int], ready: asyncio.Event, stop: asynci
         ready.set()
         while not stop.is_set():
             try:
-                msg = await asyncio.wait_for(ws.recv(), 0.5)
+                msg = await asyncio.wait_for(ws.recv(decode=True), 0.5)  # the server sends text frames
             except TimeoutError:
                 continue
             if msg.startswith('{"episode"') or '"type":"step"' in msg[:400]:
@@ -232,7 +232,7 @@ def main() -> None:
                 f"{r['step_ms_p50']:.2f} ms, p95 {r['step_ms_p95']:.2f} ms"
             )
         # the imagined horizon (streamed and recorded with every step) against none, side by side, at 20x
-        rates = {}
+        rates: dict[bool, list[dict[str, Any]]] = {}
         for on in (False, True, False, True):
             live.imagined_horizon = on
             rates.setdefault(on, []).append(asyncio.run(measure_rates(port, app, args.seconds / 2)))

@@ -20,6 +20,7 @@ import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -39,7 +40,7 @@ GPU_START, GPU_END = (
 )
 
 
-def discrete(rng: np.random.Generator, batch: int, device: str, **overrides: object) -> BaseLearner:
+def discrete(rng: np.random.Generator, batch: int, device: str, **overrides: Any) -> BaseLearner:
     """SAGE-D3QN with the bench's sizes (58 observations, 5 actions), a filled buffer and a fitted world model."""
     cfg = for_method("sage", hidden=128, batch_size=batch, **overrides)
     cfg.method = "sage-d3qn"
@@ -62,7 +63,7 @@ def discrete(rng: np.random.Generator, batch: int, device: str, **overrides: obj
 
 def build(method: str, batch: int, device: str, graph: bool = False) -> BaseLearner:
     rng = np.random.default_rng(0)
-    extra = {"cuda_graph": True} if graph else {}
+    extra: dict[str, Any] = {"cuda_graph": True} if graph else {}
     if method == "sage-d3qn":
         return discrete(rng, batch, device, **extra)
     return ours(method, rng, batch=batch, device=device, **extra)
