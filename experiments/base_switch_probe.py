@@ -80,10 +80,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--scenarios", default="1,2,3,4")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    seed = int(CyclesConfig.__dataclass_fields__["alone_seed"].default)
+    seed = CyclesConfig.alone_seed  # the class attribute holds the field's default
     scenarios = args.scenarios.split(",")
     rows = []
-    totals: dict[tuple[str, str], list[int]] = {}
+    totals: dict[tuple[str, str], list[float]] = {}  # success, collisions, episodes (drive's counts)
     for run in sorted(args.runs.glob("sage-s*")):
         base, last = run / "v0000", run / "v0008"
         for scenario in scenarios:

@@ -261,13 +261,13 @@ def render(collisions: Sequence[Collision], totals: dict[str, float], command: s
     for c in collisions:
         drivers = ", ".join(f"{k} {v}" for k, v in sorted(c.window_drivers.items()))
         at = " / ".join(_num(c.ratio_at[k]) for k in (10, 5, 1, 0))
-        alone = "–" if c.expert_alone_collides is None else ("yes" if c.expert_alone_collides else "no")
+        alone_mark = "–" if c.expert_alone_collides is None else ("yes" if c.expert_alone_collides else "no")
         lead = "never" if c.first_fire_lead is None else str(c.first_fire_lead)
         since = "–" if c.since_hand_back is None else str(c.since_hand_back)
         lines.append(
             f"| {c.seed} | {c.contact_t} | {c.kind} | {c.driver} | {drivers} | {lead} | {c.expert_streak} | {since} "
             f"| {_num(c.ratio_peak)} | {at} | {_num(c.ttc_at_first_fire)} | {_num(c.ttc_before)} "
-            f"| {_num(c.gap_at_contact)} | {alone} |"
+            f"| {_num(c.gap_at_contact)} | {alone_mark} |"
         )
     return "\n".join(lines) + "\n"
 

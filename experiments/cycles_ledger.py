@@ -236,7 +236,7 @@ def render(
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for run in rows:
-            marks = run.meets()
+            run_marks = run.meets()
             link = Path(os.path.relpath(run.folder.resolve() / "table.md", out_dir.resolve())).as_posix()
             cycles = "–" if math.isnan(run.collision_cycles) else f"{run.collision_cycles:g}"
             lines.append(
@@ -244,7 +244,7 @@ def render(
                 f"{run.seeds} | {_fraction(run.alone_last)} | {_fraction(run.unseen_last)} | "
                 f"{run.takeover_first:.3f} → {run.takeover_last:.3f} | {_fraction(run.static_first)} → "
                 f"{_fraction(run.static_last)} | {cycles} | "
-                + " | ".join(_mark(marks[k], k) for k, _ in TARGETS)
+                + " | ".join(_mark(run_marks[k], k) for k, _ in TARGETS)
                 + " |"
             )
     return "\n".join(lines) + "\n"

@@ -25,6 +25,7 @@ import json
 import statistics
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +43,7 @@ def _norms(grad: torch.Tensor) -> torch.Tensor:
     return grad.reshape(len(grad), -1).norm(dim=1)
 
 
-def _parameter_norm(loss: torch.Tensor, params: list[torch.Tensor]) -> float:
+def _parameter_norm(loss: torch.Tensor, params: Sequence[torch.Tensor]) -> float:
     grads = torch.autograd.grad(loss, params, retain_graph=True, allow_unused=True)
     return float(torch.sqrt(sum((g.pow(2).sum() for g in grads if g is not None), torch.tensor(0.0))))
 
@@ -98,7 +99,7 @@ class Probe:
 
     def __init__(self, every: int, seed: int = 12345) -> None:
         self.every, self.rng = every, np.random.default_rng(seed)
-        self.rows: list[dict[str, float]] = []
+        self.rows: list[dict[str, float | str]] = []  # the measurements, each with its round and the run's fear_scale
         self.round, self.count = 0, 0
 
     def measure(self, sac: SAC) -> None:
@@ -111,24 +112,25 @@ class Probe:
         imitation = sac.buffer.sample_takeovers(cfg.bc_batch_size, self.rng) if cfg.imitation else None
         with torch.random.fork_rng(devices=[]):
             row = actor_gradients(sac, states, imitation)
-        self.rows.append({"round": self.round, "update": self.count, "fear_scale": cfg.fear_scale, **row})  # type: ignore[dict-item]
+        self.rows.append({"round": self.round, "update": self.count, "fear_scale": cfg.fear_scale, **row})
 
     def install(self) -> None:
-        from core.finetune import Finetuner
+        from core.finetune import Finetuner, RoundResult
 
         original_update, original_round = SAC.update, Finetuner.round
         probe = self
 
-        def update(sac: SAC) -> dict[str, float]:
+        # the replacements' first parameter is named self, as the methods' is (a caller may name it)
+        def update(self: SAC) -> dict[str, float]:
             if probe.count % probe.every == 0:
-                probe.measure(sac)
+                probe.measure(self)
             probe.count += 1
-            return original_update(sac)
+            return original_update(self)
 
-        def round_(finetuner: Finetuner, *args: Any, **kwargs: Any) -> Any:
+        def round_(self: Finetuner, *args: Any, **kwargs: Any) -> RoundResult:
             probe.round += 1
             probe.count = 0
-            return original_round(finetuner, *args, **kwargs)
+            return original_round(self, *args, **kwargs)
 
         SAC.update = update  # type: ignore[method-assign]
         Finetuner.round = round_  # type: ignore[method-assign]
@@ -179,7 +181,8 @@ def compare(folders: list[Path]) -> str:
         "| supervised collisions (of 5) | λ by round | F by round | fear share at a by round |\n"
         "|---|---|---|---|---|---|---|---|---|"
     )
-    lines, totals = [head], {}
+    lines = [head]
+    totals: dict[str, dict[str, int]] = {}
     for folder in folders:
         run = json.loads((folder / "cycles.json").read_text())
         probe = json.loads((folder / "fear_scale.json").read_text())["summary"]
@@ -235,7 +238,10 @@ def main(argv: list[str] | None = None) -> None:
     finally:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
         summary = probe.summary()
-        payload = {"command": " ".join(["python -m experiments.fear_scale", *sys.argv[1:]]), "commit": commit}
+        payload: dict[str, Any] = {
+            "command": " ".join(["python -m experiments.fear_scale", *sys.argv[1:]]),
+            "commit": commit,
+        }
         payload.update(summary=summary, rows=probe.rows)
         if out.is_dir():
             (out / "fear_scale.json").write_text(json.dumps(payload, indent=1) + "\n")

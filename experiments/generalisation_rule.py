@@ -23,6 +23,7 @@ import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from core.metrics import difference_interval
 from studies.generalisation import gate_settings_of, generalisation_table
@@ -124,7 +125,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 )
                 return 2
             points.append(point)
-        measured_rows = [(args.candidate, args.candidate_cache, settings)]
+        measured_rows: list[tuple[str, Path | None, dict[str, Any] | None]] = [
+            (args.candidate, args.candidate_cache, settings)
+        ]
         if table is None:
             measured_rows.insert(0, (args.baseline, args.baseline_cache, None))
         for run, cache, gate_settings in measured_rows:

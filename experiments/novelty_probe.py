@@ -75,6 +75,7 @@ def collect(run: str, scenario: str, episodes: int, first_seed: int) -> dict[str
     agent = load_agent(run)
     gate = agent.make_gate()
     wm = agent.world_model
+    assert wm is not None, f"{run} has no world model: nothing to probe"
     env = sims.descriptor("ugv").make(scenario)
     out: dict[str, list[float]] = {name: [] for name in (*SIGNALS, "movers")}
     state: dict[str, Any] = {"previous": None, "arriving": math.nan}

@@ -100,14 +100,19 @@ def slug(name: str) -> str:
     return re.sub(r"[^a-z0-9]+", "-", name.lower().replace("+", "plus")).strip("-")
 
 
+def _gating(ttc: float | None, gap: float | None) -> dict[str, float | None]:
+    """One gating's thresholds (None: that signal is not used)."""
+    return {"ttc": ttc, "gap": gap}
+
+
 def gates(ttcs: list[float], gap: float) -> list[tuple[str, dict[str, float | None]]]:
     """The table's gatings, named: the deployed fear gate, each time to contact alone, the gap alone, and each time
     to contact or the gap."""
     return [
-        ("fear (deployed)", {"ttc": None, "gap": None}),
-        *[(f"time to contact < {ttc:g} s", {"ttc": ttc, "gap": None}) for ttc in ttcs],
-        (f"nearest gap < {gap:g} m", {"ttc": None, "gap": gap}),
-        *[(f"either{f' ({ttc:g} s)' if len(ttcs) > 1 else ''}", {"ttc": ttc, "gap": gap}) for ttc in ttcs],
+        ("fear (deployed)", _gating(None, None)),
+        *[(f"time to contact < {ttc:g} s", _gating(ttc, None)) for ttc in ttcs],
+        (f"nearest gap < {gap:g} m", _gating(None, gap)),
+        *[(f"either{f' ({ttc:g} s)' if len(ttcs) > 1 else ''}", _gating(ttc, gap)) for ttc in ttcs],
     ]
 
 

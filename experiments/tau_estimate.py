@@ -22,6 +22,7 @@ import argparse
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -43,9 +44,7 @@ SIZES = (2048, 8192, 16384, 32768)
 """States per calibration: 2048 the learner's draw before ``calibration_states``, 16384 its default."""
 
 
-def collect(
-    policy: Path, sim: str, scenarios: list[str], env: dict[str, object], episodes: int, seed: int
-) -> LoadedAgent:
+def collect(policy: Path, sim: str, scenarios: list[str], env: dict[str, Any], episodes: int, seed: int) -> LoadedAgent:
     """The policy's own states on ``scenarios`` (round robin), stored in its learner's replay buffer."""
     agent = load_agent(policy)
     if agent.world_model is None:
@@ -107,7 +106,9 @@ def main() -> None:
                 motion=None if motion is None else motion[idx],
             )  # fmt: skip
             seconds.append(time.perf_counter() - t)
-            bounds.append([float(b) for b in wm.tau_bounds])
+            tau_bounds = wm.tau_bounds  # a registered buffer: nn.Module's attributes read as Tensor | Module
+            assert isinstance(tau_bounds, torch.Tensor)
+            bounds.append([float(b) for b in tau_bounds])
         values = np.array(bounds)
         rows.append((size, values.mean(0), values.std(0, ddof=1), float(np.median(seconds))))
         print(f"{size} states: tau_max {values[:, 1].mean():.3f} sd {values[:, 1].std(ddof=1):.4f}", flush=True)
