@@ -29,7 +29,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -296,8 +296,7 @@ class LiveLoop:
                 policy=config.policy,
                 expert_mode=config.expert_mode,
                 meta={"policy_label": loaded.label, "seed": config.seed, "dt": control_period(config.sim, env)},
-                # a Scene is a plain dict at run time; the writer's parameter is typed dict[str, Any]
-                scene_source=lambda: cast("dict[str, Any] | None", self.scene),
+                scene_source=lambda: self.scene,
             )
         world = World(
             config, env, runner, expert, loaded, writer, control_period(config.sim, env), base_label=loaded.label

@@ -28,7 +28,7 @@ import sqlite3
 import threading
 import time
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -190,7 +190,7 @@ class SessionStore:
         expert_mode: str | None = None,
         meta: dict[str, Any] | None = None,
         session_id: str | None = None,
-        scene_source: Callable[[], dict[str, Any] | None] | None = None,
+        scene_source: Callable[[], Mapping[str, Any] | None] | None = None,
         commit_interval: float = 0.25,
     ) -> SessionWriter:
         """Start a new session and return its writer (a Runner listener)."""
@@ -501,7 +501,7 @@ class SessionWriter:
         path: Path,
         session_id: str,
         *,
-        scene_source: Callable[[], dict[str, Any] | None] | None = None,
+        scene_source: Callable[[], Mapping[str, Any] | None] | None = None,
         commit_interval: float = 0.25,
     ) -> None:
         self.path = path
