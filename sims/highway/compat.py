@@ -43,8 +43,8 @@ def fix_continuous_rewards(env: gym.Env[Any, Any]) -> gym.Env[Any, Any]:
     def rewards(action: Any) -> dict[str, float]:
         return discrete_rewards(None if isinstance(action, np.ndarray | list | tuple) else action)
 
-    inner._rewards = rewards  # type: ignore[method-assign]
-    inner._sage_reward_fix = True  # type: ignore[attr-defined]
+    inner._rewards = rewards
+    inner._sage_reward_fix = True
     return env
 
 

@@ -82,7 +82,7 @@ def _driver(predictor: EgoPredictor, cfg: HighwayConfig) -> Callable[[World], np
     if callable(act):
         return lambda world: act(observe(world), deterministic=True)
     if callable(predictor):
-        return lambda world: predictor(observe(world))  # type: ignore[operator]
+        return lambda world: predictor(observe(world))
     raise TypeError(
         "ego_predictor must be 'expert', a Policy (with act) or a callable obs -> action, "
         f"got {type(predictor).__name__}"

@@ -24,6 +24,8 @@ Each step:
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from sims.highway.config import HighwayConfig
@@ -192,7 +194,8 @@ class HighwayExpert:
             soft &= ~(stays & follower[None, :, None])
 
         def first(hit: np.ndarray) -> np.ndarray:
-            any_k = hit.any(axis=1)  # (C, K)
+            # numpy's stub types any(axis=...) as a scalar or an array; of a (C, N, K) array it is an array
+            any_k = cast(np.ndarray, hit.any(axis=1))  # (C, K)
             return np.where(any_k.any(axis=1), t[np.argmax(any_k, axis=1)], np.inf)
 
         return first(hard), first(soft)

@@ -25,7 +25,7 @@ from typing import Any, Literal
 import numpy as np
 
 from sims.highway.env import HighwayEnv
-from sims.highway.road import RoadLayout
+from sims.highway.road import Layout, RoadLayout
 from sims.highway.scenarios import ScenarioSpec
 
 FAMILY = "highway-shift"
@@ -95,7 +95,7 @@ def candidate_spec(split: str, seed: int, candidate: int) -> ScenarioSpec:
     """Candidate ``candidate`` of the spec with ``seed``, drawn within ``split``'s ranges."""
     ranges = RANGES[split]
     rng = np.random.default_rng([FAMILY_SALT, seed, candidate])
-    kind = "merge" if rng.random() < 0.3 else "highway"
+    kind: Layout = "merge" if rng.random() < 0.3 else "highway"
     lanes = int(rng.integers(2, 4) if kind == "merge" else rng.integers(2, 5))
     ego_x = 200.0
     merge_start = ego_x + float(rng.uniform(60.0, 220.0))
@@ -154,4 +154,4 @@ def parse_family_name(name: str) -> SpecSelection | None:
         if not parts[2].isdigit() or int(parts[2]) >= SPLIT_SIZE:
             raise FamilyNameError(f"{name!r}: the index must be a whole number from 0 to {SPLIT_SIZE - 1}; {usage}")
         index = int(parts[2])
-    return SpecSelection(parts[1], index)  # type: ignore[arg-type]
+    return SpecSelection(parts[1], index)

@@ -14,7 +14,7 @@ The main road stays straight in both, so the route coordinate is simply x; lanes
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal, overload
 
 import numpy as np
 from highway_env.road.lane import AbstractLane, LineType, SineLane, StraightLane
@@ -45,7 +45,11 @@ class RoadLayout:
     ramp_start: float = -150.0
     """x where the ramp's straight part starts (merge only)."""
 
-    def lane_y(self, lane: int | np.ndarray) -> float | np.ndarray:
+    @overload
+    def lane_y(self, lane: int | np.integer[Any]) -> float: ...
+    @overload
+    def lane_y(self, lane: np.ndarray) -> np.ndarray: ...
+    def lane_y(self, lane: int | np.integer[Any] | np.ndarray) -> float | np.ndarray:
         """Centre line y of main-road lane ``lane``."""
         return -LANE_WIDTH * lane
 
@@ -174,7 +178,7 @@ class FastRoad(Road):
     """
 
     def __init__(self, *args: object, **kwargs: object) -> None:
-        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+        super().__init__(*args, **kwargs)
         self._positions: np.ndarray | None = None
         self._lane_cache: dict[LaneIndex, tuple[np.ndarray, np.ndarray]] = {}
         self._index: dict[int, int] = {}

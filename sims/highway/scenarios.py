@@ -28,7 +28,7 @@ import highway_env
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
 
-from sims.highway.road import RoadLayout, make_road
+from sims.highway.road import Layout, RoadLayout, make_road
 
 LOG_VERSION = 1
 """Bump when anything that changes generated logs changes (the disk cache is keyed by it and by
@@ -105,7 +105,7 @@ def scenario_spec(scenario_id: int) -> ScenarioSpec:
     if not 0 <= int(scenario_id) < N_SCENARIOS:
         raise ValueError(f"scenario id {scenario_id} is outside the pool 0..{N_SCENARIOS - 1}")
     rng = np.random.default_rng([LOG_VERSION, int(scenario_id)])
-    kind = "merge" if rng.random() < 0.3 else "highway"
+    kind: Layout = "merge" if rng.random() < 0.3 else "highway"
     lanes = int(rng.integers(2, 4) if kind == "merge" else rng.integers(2, 5))
     speed_limit = float(rng.uniform(16.0, 30.0))
     ego_x = 200.0
@@ -299,7 +299,8 @@ def _save(log: TrafficLog, path: Path) -> None:
         {"spec": log.spec.to_json(), "dt": log.dt, "route_length": log.route_length, "time_limit": log.time_limit}
     )
     with open(tmp, "wb") as fh:
-        np.savez_compressed(fh, meta=np.array(meta), **log.arrays())
+        # numpy's stub lets the ** keys reach allow_pickle: bool (the keys are array names, never that)
+        np.savez_compressed(fh, meta=np.array(meta), **log.arrays())  # type: ignore[arg-type]
     os.replace(tmp, path)  # atomic: a concurrent reader sees the old file or the whole new one
 
 

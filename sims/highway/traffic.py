@@ -84,12 +84,12 @@ class Paths:
             a: np.ndarray | float = min(max(pos - f0, 0.0), 1.0)
             beyond: np.ndarray | float = max(pos - last, 0.0) * self.dt
         else:
-            pos = np.asarray(t, dtype=np.float64) / self.dt
-            f0 = np.clip(np.floor(pos).astype(int), 0, last)
+            positions = np.asarray(t, dtype=np.float64) / self.dt
+            f0 = np.clip(np.floor(positions).astype(int), 0, last)
             cols = np.arange(self.count)
             p0, p1 = self.state[f0, cols], self.state[np.minimum(f0 + 1, last), cols]
-            a = np.clip(pos - f0, 0.0, 1.0)[:, None]
-            beyond = np.maximum(pos - last, 0.0) * self.dt
+            a = np.clip(positions - f0, 0.0, 1.0)[:, None]
+            beyond = np.maximum(positions - last, 0.0) * self.dt
         d = p1 - p0
         d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi
         p = p0 + a * d
