@@ -74,6 +74,8 @@ from sims.sumo.reward import step_reward
 from sims.sumo.sensing import OBS_SIZE, heading_from_sumo, observe
 
 libsumo = engine.libsumo
+_FAILURES: tuple[type[Exception], ...] = (SumoError, *engine.SUMO_ERRORS)
+"""Ours and libsumo's: what ends an episode (a starred tuple in ``except`` itself is beyond mypy)."""
 
 __all__ = ["CONFIG_FIELDS", "EGO", "OBS_SIZE", "SumoConfig", "SumoEnv", "libsumo"]
 
@@ -178,7 +180,7 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
         try:
             self._prepare_episode()
             self._obs = self._observe()
-        except (SumoError, *engine.SUMO_ERRORS) as exc:
+        except _FAILURES as exc:
             self._episode.done = True
             engine.close(self)
             if isinstance(exc, SumoError):
@@ -204,7 +206,7 @@ class SumoEnv(gym.Env[np.ndarray, np.ndarray]):
         self._expert_action = None
         try:
             return self._step(act, expert)
-        except (SumoError, *engine.SUMO_ERRORS) as exc:
+        except _FAILURES as exc:
             # the episode is over and its simulation unusable; the next reset starts a fresh one
             self._episode.done = True
             engine.close(self)

@@ -219,7 +219,11 @@ class SumoProcessEnv(gym.Env[np.ndarray, np.ndarray]):
     def set_scenario(self, route: int | None = None, special_vehicles: bool | None = None) -> None:
         """Switch route and/or special vehicles from the next ``reset`` on (a new worker starts with them too)."""
         changes = {k: v for k, v in (("route", route), ("special_vehicles", special_vehicles)) if v is not None}
-        updated = replace(self.config, **changes)
+        updated = replace(
+            self.config,
+            route=self.config.route if route is None else route,
+            special_vehicles=self.config.special_vehicles if special_vehicles is None else special_vehicles,
+        )
         SumoEnv._check_inputs(updated)
         if self._alive():
             self._call("set_scenario", **changes)
