@@ -224,6 +224,8 @@ def resolve_scenario_path(scenario: int | str | Path) -> Path:
                 + ", ".join(f"{k} ({v})" for k, v in BUILTIN_SCENARIOS.items())
             )
         return SCENARIO_DIR / BUILTIN_SCENARIOS[scenario]
+    if isinstance(scenario, bool):  # an int to Python, but no scenario number
+        raise TypeError(f"scenario must be a built-in scenario number or a YAML path, got {scenario!r}")
     return Path(scenario)
 
 

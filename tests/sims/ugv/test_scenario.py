@@ -94,6 +94,8 @@ def test_file_level_errors(tmp_path: Path) -> None:
         load_scenario(listed)
     with pytest.raises(ScenarioError, match="unknown scenario number 7"):
         load_scenario(7)
+    with pytest.raises(TypeError, match="built-in scenario number or a YAML path, got True"):
+        load_scenario(True)  # an int to Python, but no scenario number (nor a path)
     with pytest.raises(ScenarioError, match=r"start\.x: expected a number"):
         sims.make("ugv", scenario=str(_write(tmp_path, room(start={"x": "far", "y": 1}))))
 
