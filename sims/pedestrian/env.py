@@ -75,7 +75,7 @@ class PedestrianEnv(gym.Env[np.ndarray, np.int64]):
         self._inverse = np.zeros(self.lidar.n_rays, np.float32)
 
     # -- episode -----------------------------------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):  # type: ignore[override]
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         c, rng = self.config, self.np_random
         self.episode += 1

@@ -160,11 +160,13 @@ class UGVEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError("the observation has 54 lidar sectors (the paper's); lidar.sectors must stay 54")
         # a source (a split of generated fields) draws a whole scenario at each reset
         self.source: ScenarioSource | None = None
-        if not isinstance(scenario, int | str | Path | Scenario):
-            self.source = scenario
         self.field_index: int | None = None
         """The source's index of the current episode's scenario (None for a scenario file)."""
-        self.scenario = self.source.placeholder() if self.source is not None else load_scenario(scenario)
+        if isinstance(scenario, int | str | Path | Scenario):
+            self.scenario = load_scenario(scenario)
+        else:
+            self.source = scenario
+            self.scenario = scenario.placeholder()
         self.render_mode = render_mode
         sectors = self.config.lidar.sectors
         low = np.concatenate([np.zeros(sectors), [0.0, -1.0, 0.0, -1.0]]).astype(np.float32)

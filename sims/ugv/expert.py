@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 
@@ -573,7 +573,8 @@ class UGVExpert:
         margin_gap = np.hypot(px[:, None] - future[None, :, :, 0], py[:, None] - future[None, :, :, 1])
         margin_gap = (margin_gap - radii[None, :, :, 0] - robot.circumradius - ex.mover_margin).min(axis=1)  # (P, T)
         touch_gap = mover_distances(cx, cy, poses, env.layout.movers)  # (P, M, T, 3)
-        touch = (touch_gap < touching).any(axis=(1, 3))  # (P, T)
+        # numpy's stub types any(axis=...) as a scalar or an array; of a (P, M, T, 3) array it is an array
+        touch = cast(np.ndarray, (touch_gap < touching).any(axis=(1, 3)))  # (P, T)
         breach = margin_gap < 0
         first_touch = np.where(touch.any(axis=1), touch.argmax(axis=1), n)
         first_breach = np.where(breach.any(axis=1), breach.argmax(axis=1), n)

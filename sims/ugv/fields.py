@@ -99,12 +99,12 @@ def parse_field_name(name: str) -> FieldSelection | None:
         raise FieldNameError(f"{name!r} is not a field name; {usage}")
     index = None
     if len(parts) == 3 and parts[2] in ("1+", "2+", "3+"):
-        return FieldSelection(parts[1], min_movers=int(parts[2][0]))  # type: ignore[arg-type]
+        return FieldSelection(parts[1], min_movers=int(parts[2][0]))
     if len(parts) == 3:
         if not parts[2].isdigit() or int(parts[2]) >= SPLIT_SIZE:
             raise FieldNameError(f"{name!r}: the index must be a whole number from 0 to {SPLIT_SIZE - 1}; {usage}")
         index = int(parts[2])
-    return FieldSelection(parts[1], index)  # type: ignore[arg-type]
+    return FieldSelection(parts[1], index)
 
 
 def field_seed(split: str, index: int) -> int:
@@ -424,6 +424,7 @@ def solve_rate(split: str, episodes: int, first_seed: int) -> dict[str, float]:
         for i in range(episodes):
             env.reset(seed=first_seed + i)
             inner = env.unwrapped
+            assert isinstance(inner, UGVEnv) and inner.field_index is not None  # a field source sets it at reset
             draw = field_draw(split, inner.field_index)
             rejected += draw.candidate
             movers.append(draw.movers)

@@ -32,7 +32,8 @@ class EpisodeTrace:
     def record(self, scene: Scene) -> None:
         ego = scene["ego"]
         self.ego.append((ego["x"], ego["y"]))
-        self.movers.append([(m["x"], m["y"]) for m in scene["movers"] if "x" in m])
+        # boxes and circles: the shapes with a centre (core.scene)
+        self.movers.append([(m["x"], m["y"]) for m in scene["movers"] if m["kind"] in ("box", "circle")])
 
 
 def _corners(shape: Any) -> np.ndarray:
@@ -47,19 +48,19 @@ def _corners(shape: Any) -> np.ndarray:
 def draw_shape(ax: Any, shape: Shape, alpha: float, zorder: int) -> None:
     from matplotlib.patches import Circle, Polygon
 
-    kind = shape["kind"]
-    if kind == "box":
+    # test shape["kind"] itself (not a copy of it): that is what narrows the shape to its TypedDict
+    if shape["kind"] == "box":
         ax.add_patch(Polygon(_corners(shape), closed=True, color=shape["color"], alpha=alpha, lw=0, zorder=zorder))
-    elif kind == "circle":
+    elif shape["kind"] == "circle":
         ax.add_patch(
             Circle((shape["x"], shape["y"]), shape["radius"], color=shape["color"], alpha=alpha, lw=0, zorder=zorder)
         )
-    elif kind == "polyline":
+    elif shape["kind"] == "polyline":
         pts = np.asarray(shape["points"], dtype=float)
         if shape.get("closed"):
             pts = np.vstack([pts, pts[:1]])
         ax.plot(pts[:, 0], pts[:, 1], color=shape["color"], lw=2.5, alpha=alpha, zorder=zorder, solid_capstyle="round")
-    elif kind == "polygon":
+    elif shape["kind"] == "polygon":
         ax.add_patch(
             Polygon(np.asarray(shape["points"]), closed=True, color=shape["color"], alpha=alpha, lw=0, zorder=zorder)
         )

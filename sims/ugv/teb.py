@@ -284,6 +284,10 @@ class _BandLayout:
     """(rows, free variables + 1): the last column collects the fixed variables' entries."""
 
 
+_Terms = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""What residuals and Jacobian share (:meth:`TebOptimizer._terms`): segment terms, slot terms, cos, sin and dts."""
+
+
 @functools.lru_cache(maxsize=64)
 def _band_layout(n: int, m: int) -> _BandLayout:
     segments = n - 1
@@ -364,7 +368,7 @@ class TebOptimizer:
 
     def _terms(
         self, z: np.ndarray, start: np.ndarray, end_xy: np.ndarray, n: int, v0: float, w0: float, obstacles: np.ndarray
-    ) -> tuple[np.ndarray, ...]:
+    ) -> _Terms:
         """What residuals and Jacobian share at ``z``; the transcendental functions here, in numpy, the rest
         compiled (:mod:`sims.ugv._teb_kernel`)."""
         k = n - 2
@@ -397,10 +401,10 @@ class TebOptimizer:
         """d residuals / d z, written out (checked against finite differences in the tests)."""
         return self._jacobian(self._terms(z, start, end_xy, n, v0, w0, obstacles), n, obstacles.shape[1])
 
-    def _residuals(self, terms: tuple[np.ndarray, ...]) -> np.ndarray:
+    def _residuals(self, terms: _Terms) -> np.ndarray:
         return _teb_kernel.band_residuals(*terms, self._weights)
 
-    def _jacobian(self, terms: tuple[np.ndarray, ...], n: int, m: int) -> np.ndarray:
+    def _jacobian(self, terms: _Terms, n: int, m: int) -> np.ndarray:
         layout = _band_layout(n, m)
         return _teb_kernel.band_jacobian(*terms, self._weights, layout.flat, layout.shape)[:, :-1]
 
@@ -410,7 +414,7 @@ class TebOptimizer:
         start, end_xy = band.poses[0].copy(), band.poses[-1, :2].copy()
         last: dict[str, Any] = {"z": b""}
 
-        def terms(z: np.ndarray) -> tuple[np.ndarray, ...]:
+        def terms(z: np.ndarray) -> _Terms:
             key = z.tobytes()  # the very bits: a point the solver asks for again
             if key != last["z"]:
                 last.clear()
