@@ -17,15 +17,19 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import numpy as np
 
 from core.loop import Policy, Runner
 from core.report import aggregate
 
-MODES = ("normal", "adversarial")
-SPLITS = ("train", "test")
+if TYPE_CHECKING:  # the highway sim is imported where it runs, not with this module
+    from sims.highway.env import Mode
+    from sims.highway.families import Split
+
+MODES: tuple[Mode, ...] = ("normal", "adversarial")
+SPLITS: tuple[Split, ...] = ("train", "test")
 PAPER_COLUMNS: tuple[tuple[str, str], ...] = (
     ("success", "S.R.(%)"),
     ("collision", "C.R.(%)"),
@@ -62,27 +66,30 @@ class ClosedLoopAdversary:
         self.modes.append(mode)
 
 
-def _parse_list(value: str | Sequence[str], allowed: Sequence[str], what: str) -> list[str]:
+_Choice = TypeVar("_Choice", bound=str)
+
+
+def _parse_list(value: str | Sequence[str], allowed: Sequence[_Choice], what: str) -> list[_Choice]:
     items = [s.strip() for s in value.split(",")] if isinstance(value, str) else [str(s).strip() for s in value]
     items = [s for s in items if s]
     bad = [s for s in items if s not in allowed]
     if bad or not items:
         raise ValueError(f"{what} {', '.join(bad) or '(none)'}: choose from {', '.join(allowed)}")
-    return items
+    return cast(list[_Choice], items)  # every item is one of ``allowed`` (checked above)
 
 
-def parse_sets(value: str | Sequence[str]) -> list[str]:
+def parse_sets(value: str | Sequence[str]) -> list[Split]:
     return _parse_list(value, SPLITS, "set")
 
 
-def parse_modes(value: str | Sequence[str]) -> list[str]:
+def parse_modes(value: str | Sequence[str]) -> list[Mode]:
     return _parse_list(value, MODES, "mode")
 
 
 def evaluate_policy(
     policy: Policy,
-    sets: Iterable[str] = ("test",),
-    modes: Iterable[str] = MODES,
+    sets: Iterable[Split] = ("test",),
+    modes: Iterable[Mode] = MODES,
     episodes: int | None = None,
     seeds: Sequence[int] = (0,),
     on_episode: Callable[[dict[str, Any]], None] | None = None,
@@ -107,7 +114,7 @@ def evaluate_policy(
                     episodes=episodes,
                     seed=seed,
                     predictor="policy",
-                    on_episode=on_episode,  # type: ignore[arg-type]
+                    on_episode=on_episode,
                 ):
                     rows.append(dict(row, seed=seed))
             results[(split, mode)] = rows

@@ -51,7 +51,7 @@ def evaluate(
     if policy == "expert":
         pol: Policy = ExpertPolicy(env)
     elif hasattr(policy, "act"):
-        pol = policy  # type: ignore[assignment]
+        pol = policy
     elif callable(policy):
         pol = policy(env)
     else:
