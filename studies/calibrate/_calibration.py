@@ -178,7 +178,7 @@ def calibrate_run(
     warned, leads = 0, []
     violation_idx = np.flatnonzero(violation)
     for i in violation_idx:
-        window = [j for j in range(max(0, i - h + 1), i + 1) if episode[j] == episode[i]]
+        window = [j for j in range(max(0, int(i) - h + 1), i + 1) if episode[j] == episode[i]]
         firing = [j for j in window if fired[j]]
         if firing:
             warned += 1

@@ -8,7 +8,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import gymnasium as gym
 
@@ -287,9 +287,9 @@ class CurveExtension:
             out.append(ExtendedPoint("fear (SAGE)", float(point["knob"]), at, point))
             for kind in self.against:
                 others = sorted(curve.get(kind, []), key=lambda q: q["takeover_rate"])
-                near = min(others, key=lambda q: abs(q["takeover_rate"] - at), default=None)
-                if near is not None and abs(near["takeover_rate"] - at) <= self.tolerance:
-                    out.append(ExtendedPoint(kind, float(near["knob"]), at, near))
+                closest = min(others, key=lambda q: abs(q["takeover_rate"] - at), default=None)
+                if closest is not None and abs(closest["takeover_rate"] - at) <= self.tolerance:
+                    out.append(ExtendedPoint(kind, float(closest["knob"]), at, closest))
                     continue
                 below = [q for q in others if q["takeover_rate"] <= at]
                 above = [q for q in others if q["takeover_rate"] > at]
@@ -303,6 +303,15 @@ class CurveExtension:
     def first_seed(curve: Mapping[str, Sequence[dict[str, float]]]) -> int:
         """The first evaluation seed the curve's points did not use."""
         return EVAL_SEED + max(int(q.get("episodes", 0)) for points in curve.values() for q in points)
+
+
+class _Side(TypedDict):
+    """One side of an :func:`extension_rows` row: the curve's point, the new episodes' and the two pooled."""
+
+    prior: dict[str, float] | None
+    new: dict[str, float]
+    pooled: dict[str, float]
+    knob: float
 
 
 def extension_rows(points: Sequence[ExtendedPoint], new: Sequence[dict[str, float]]) -> list[dict[str, Any]]:
@@ -320,7 +329,7 @@ def extension_rows(points: Sequence[ExtendedPoint], new: Sequence[dict[str, floa
             continue
         if fear is None or fear[0].near != point.near:
             raise ValueError(f"{point.kind} at {point.near:.0%} has no fear point before it")
-        sides = []
+        sides: list[_Side] = []
         for p, f in (fear, (point, fresh)):
             pooled = pool_points([p.prior, f]) if p.prior is not None else f
             sides.append({"prior": p.prior, "new": f, "pooled": pooled, "knob": p.knob})

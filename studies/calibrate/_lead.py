@@ -116,14 +116,16 @@ def expert_lead(
             first.append((episode, step))
             fired = [i for i in range(max(0, step - window), step + 1) if records[i].gate_fired]
             warnings.append((step - fired[0]) * dt if fired else 0.0)
-        gate = _ExpertFrom()
+        takeover = _ExpertFrom()
         left = []
         for lead in leads_s:
             count = 0
             for episode, step in first:
-                gate.start = max(0, step - round(lead / dt))
+                takeover.start = max(0, step - round(lead / dt))
                 # a runner's first episode has its seed: the same episode as the watched one up to the takeover
-                replay = Runner(env, agent.policy, gate, ScriptedExpert(), seed=EVAL_SEED + episode, deterministic=True)
+                replay = Runner(
+                    env, agent.policy, takeover, ScriptedExpert(), seed=EVAL_SEED + episode, deterministic=True
+                )
                 count += any(r.violation for r in _episode(replay, max_steps))
             left.append(count)
     finally:

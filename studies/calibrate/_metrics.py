@@ -61,7 +61,7 @@ def early_warning(
         threshold = float(np.quantile(fear[far], 1.0 - share)) if far.any() else math.nan
         warned = 0
         for i in hits:
-            window = np.arange(max(0, i - 2 * lead), i - lead + 1)
+            window = np.arange(max(0, int(i) - 2 * lead), i - lead + 1)
             window = window[episode[window] == episode[i]]
             warned += bool((np.nan_to_num(fear[window], nan=-np.inf) > threshold).any())
         rows.append(

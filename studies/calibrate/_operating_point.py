@@ -7,7 +7,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict
 
 import gymnasium as gym
 
@@ -112,6 +112,18 @@ class ScaleChoice:
         return "\n".join(lines)
 
 
+class _ScaledGateCall(TypedDict):
+    """The keyword arguments of one :func:`scaled_gate_row` call."""
+
+    run: str | Path
+    scenario: str
+    make_env: Callable[[], gym.Env[Any, Any]]
+    episodes: int
+    gate_kwargs: dict[str, Any]
+    target: GateTarget
+    max_steps: int | None
+
+
 def scaled_gate_row(
     run: str | Path,
     scenario: str,
@@ -177,7 +189,7 @@ def choose_tau_scale(
     agent = load_agent(run)
     settings = {k: v for k, v in (gate_settings or {}).items() if k != "tau_scale"}
     own_scale = agent.gate_config(**settings).tau_scale  # a setting the gate refuses stops here, before any episode
-    calls = [
+    calls: list[_ScaledGateCall] = [
         {
             "run": str(run),
             "scenario": scenario,
