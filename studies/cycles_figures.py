@@ -258,8 +258,8 @@ def improvement(runs: dict[str, list[dict[str, Any]]]) -> Figure:
                 padded[row, : len(curve)] = curve
             cycles = np.arange(1, length + 1)
             if len(curves) > 1:
-                for curve in padded:
-                    ax.plot(cycles, curve, color=colour, ls=style, lw=0.6, alpha=0.25)
+                for line in padded:
+                    ax.plot(cycles, line, color=colour, ls=style, lw=0.6, alpha=0.25)
             ax.plot(cycles, np.nanmean(padded, axis=0), color=colour, ls=style, lw=1.8, marker="o", ms=3, label=label)
     alone_ax.set_ylabel("success alone (% of episodes)")
     alone_ax.set_ylim(-5, 105)

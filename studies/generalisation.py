@@ -26,6 +26,7 @@ again, measuring nothing). Writing the project's document also refreshes the REA
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import sys
@@ -218,7 +219,7 @@ def _share(total: int, parts: int) -> list[int]:
 def generalisation_table(
     run: str | Path,
     sim: str,
-    grounds: dict[str, Sequence[str]],
+    grounds: Mapping[str, Sequence[str]],
     episodes: int,
     gate_episodes: int,
     *,
@@ -251,6 +252,16 @@ def generalisation_table(
             agent.append(load_agent(run))
         return agent[0]
 
+    # what one chunk measures, bound below to its scenario, size and seed by functools.partial (which takes them at
+    # once, while the loop's variables move on)
+    def signal_part(scenario: str, n: int, seed: int) -> dict[str, Any]:
+        return asdict(collect_signals(loaded(), lambda: make(scenario), scenario, n, max_steps, seed, gate_settings))
+
+    def gate_part(scenario: str, n: int, seed: int) -> dict[str, float]:
+        loaded_agent = loaded()
+        gate = loaded_agent.make_gate(**dict(gate_settings or {}))
+        return run_gated(loaded_agent, lambda: make(scenario), gate, n, max_steps, first_seed=seed)
+
     rows = []
     for ground, scenarios in grounds.items():
         if not scenarios:
@@ -269,9 +280,7 @@ def generalisation_table(
                 if size > 0:
                     part = store.get(
                         f"signals|{key}|{size}",
-                        lambda s=scenario, n=size, seed=first_seed + offset: asdict(
-                            collect_signals(loaded(), lambda s=s: make(s), s, n, max_steps, seed, gate_settings)
-                        ),
+                        functools.partial(signal_part, scenario, size, first_seed + offset),
                         cached_only,
                     )
                     if part is not None:
@@ -280,14 +289,7 @@ def generalisation_table(
                 if size > 0:
                     gate = store.get(
                         f"gate|{key}|{size}",
-                        lambda s=scenario, n=size, seed=first_seed + offset: run_gated(
-                            loaded(),
-                            lambda s=s: make(s),
-                            loaded().make_gate(**dict(gate_settings or {})),
-                            n,
-                            max_steps,
-                            first_seed=seed,
-                        ),
+                        functools.partial(gate_part, scenario, size, first_seed + offset),
                         cached_only,
                     )
                     if gate is not None:
@@ -335,6 +337,7 @@ def ugv_rows_by_movers(
     field is found again from its seed (the chunk's first seed plus the episode's index), as the env drew it.
     ``seeds``: only the chunks whose first seed lies in it (one table's block of a cache that holds several)."""
     import sims
+    from sims.ugv.env import UGVEnv
 
     store = Cache(cache)
     prefix = f"signals|{cache_run_key(run)}{_settings_tag(gate_settings)}|ugv|{scenario}|{max_steps}|"
@@ -351,7 +354,9 @@ def ugv_rows_by_movers(
             episodes = np.asarray(part.episode)
             for episode in sorted(set(part.episode)):
                 env.reset(seed=first_seed + episode)
-                movers = len(env.unwrapped.layout.movers)
+                inner = env.unwrapped
+                assert isinstance(inner, UGVEnv) and inner.layout is not None  # reset built the layout
+                movers = len(inner.layout.movers)
                 name = "0 movers" if movers == 0 else "1 mover" if movers == 1 else "2-3 movers"
                 keep = np.flatnonzero(episodes == episode)
                 violated = any(part.violation[i] for i in keep)

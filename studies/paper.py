@@ -122,7 +122,11 @@ UGV: dict[tuple[str, str], dict[str, PaperCell]] = {
 }
 """Paper Table ``tab:all_scenarios_results``: ``(scenario, method) -> metric -> value``."""
 
-PAPER_TABLES: dict[str, dict[tuple[str, ...], dict[str, PaperCell]]] = {"highway": dict(HIGHWAY), "ugv": dict(UGV)}
+# copied key by key: a dict's key type is invariant, so dict(HIGHWAY) would stay keyed by 3-tuples only
+PAPER_TABLES: dict[str, dict[tuple[str, ...], dict[str, PaperCell]]] = {
+    "highway": {key: row for key, row in HIGHWAY.items()},
+    "ugv": {key: row for key, row in UGV.items()},
+}
 """Each study's paper numbers by row key; a study without a numeric table in the paper has no entry."""
 
 METHOD_ALIASES = {

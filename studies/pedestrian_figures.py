@@ -74,6 +74,7 @@ def snapshot_paths(run: Path, scenario: str) -> list[tuple[str, np.ndarray, np.n
     """(label, ego xy, pedestrian xy, collided) replayed from the first, middle and last checkpoint of ``run``."""
     import sims
     from core.agents import list_checkpoints, load_agent
+    from sims.pedestrian.env import PedestrianEnv
 
     checkpoints = list_checkpoints(run)
     if not checkpoints:
@@ -86,6 +87,7 @@ def snapshot_paths(run: Path, scenario: str) -> list[tuple[str, np.ndarray, np.n
         try:
             obs, _ = env.reset(seed=SNAPSHOT_SEED)
             inner = env.unwrapped
+            assert isinstance(inner, PedestrianEnv)
             ego, ped, collided = [], [], False
             for _ in range(1000):
                 ego.append((inner.ego.x, inner.ego.y))

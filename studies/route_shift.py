@@ -102,7 +102,7 @@ class RouteShift:
         return max(1, self.c1_steps - self.steps)
 
     def describe(self, method: str, expert: str | None, expert_c2: str | None) -> dict[str, Any]:
-        described = {
+        described: dict[str, Any] = {
             "protocol": PROTOCOL,
             "c1": None if self.by_steps else self.c1,
             "c2": None if self.by_steps else self.c2,

@@ -281,7 +281,7 @@ def token_auth_for_cluster() -> bool:
         return False
     os.environ["RAY_AUTH_MODE"] = "token"
     try:  # Ray reads its settings once, when imported: read them again, as Ray itself does when it sets the mode
-        from ray._raylet import Config
+        from ray._raylet import Config  # type: ignore[attr-defined]  # Ray's _raylet.pyi leaves out Config
 
         Config.initialize("")
     except (ImportError, AttributeError):  # pragma: no cover - another Ray version: the mode set before import
@@ -476,7 +476,8 @@ def _run_pending(
     rows: dict[tuple[str, int], dict[str, Any]] = {}
     failed: list[str] = []
     unfinished = 0
-    for result in results:
+    for i in range(len(results)):  # a ResultGrid has __len__ and __getitem__, no __iter__
+        result = results[i]
         config = _trial_config(result.config or {})
         if (config.get("method"), config.get("seed")) not in pairs:
             continue
