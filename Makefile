@@ -12,6 +12,7 @@ serve: setup
 test:
 	bash scripts/setup.sh --browser
 	$(PY) -m ruff check .
+	$(PY) -m mypy  # the packages [tool.mypy] names in pyproject.toml
 	$(PY) -m pytest -q -n auto --maxprocesses 4  # pytest-xdist: the suite on up to four cores
 
 test-all:  # includes the slow learning runs
@@ -19,7 +20,7 @@ test-all:  # includes the slow learning runs
 	$(PY) -m pytest -q -n auto --maxprocesses 4 -m ""
 
 lint:
-	$(PY) -m ruff check . && $(PY) -m ruff format --check .
+	$(PY) -m ruff check . && $(PY) -m ruff format --check . && $(PY) -m mypy
 
 bench: setup  # speed benchmarks; the investigations are experiments/ (python -m experiments.NAME, one by one)
 	for f in bench/bench_*.py; do $(PY) $$f || exit 1; done
