@@ -83,7 +83,7 @@ def _mean(metrics: dict, name: str) -> float:
     return math.nan if value is None else float(value)
 
 
-def _setting_line(table: str, prefix: str) -> str:
+def setting_line(table: str, prefix: str) -> str:
     match = re.search(rf"{re.escape(prefix)}(.*?)\.(?:\s|$)", table)
     return match.group(1).strip() if match else ""
 
@@ -119,8 +119,8 @@ def read_run(folder: Path) -> Run | None:
     changed = "; ".join(
         part
         for part in (
-            _setting_line(table, "Settings changed from the study's defaults: "),
-            _setting_line(table, "Learner settings changed for every method: "),
+            setting_line(table, "Settings changed from the study's defaults: "),
+            setting_line(table, "Learner settings changed for every method: "),
         )
         if part
     )
