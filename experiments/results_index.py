@@ -140,7 +140,7 @@ def _row(folder: Folder, results_doc_link: str) -> str:
     scripts = ", ".join(f"[{s}]({s})" for s in folder.scripts) or "–"
     return (
         f"| [{folder.name}]({folder.name}/) | {sections} | `{folder.commit}` | {folder.budget} | {wall} | "
-        f"{folder.device} | {folder.changed or 'the defaults'} | {scripts} |"
+        f"{folder.device or 'not stated'} | {folder.changed or 'the defaults'} | {scripts} |"
     )
 
 
